@@ -1,0 +1,17 @@
+//! sdi-core: the imaging science of snapshot difference imaging.
+//!
+//! Data flows one way: a [`scene`] is imaged by the [`simulator`] (a model of
+//! the [`sensor`] driven by a [`modulation`]) into a [`frame::Frame`]; a
+//! [`mode`] pipeline turns frames into signed images. No I/O happens here:
+//! callers hand in buffers and writers.
+
+pub mod frame;
+pub mod image;
+pub mod mode;
+pub mod modulation;
+pub mod scene;
+pub mod sensor;
+pub mod simulator;
+
+pub use frame::Frame;
+pub use image::Image;

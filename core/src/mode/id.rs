@@ -1,0 +1,144 @@
+//! The list of modes, their names, and the physical setup each one expects.
+
+use serde::{Deserialize, Serialize};
+
+/// Every mode SDI can run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ModeId {
+    /// The sensor's difference image as is (dark-frame subtracted).
+    Raw,
+    /// Polarization difference: direct reflection only (section 5.1).
+    DirectOnly,
+    /// Red LS1, blue LS2: bipolar colour (section 5.2).
+    BipolarColour,
+    /// Sources left and right of the lens: vertical depth edges (section 5.3).
+    DepthEdge,
+    /// Sources above and below the lens: horizontal depth edges (section 5.3).
+    DepthEdgeVertical,
+    /// Birefringent crystal, crossed polarized sources (section 5.4).
+    SpatialGradient,
+    /// Single-transition modulation, no active light (section 5.4).
+    TemporalGradient,
+    /// LS1 and LS2 in alternate frames, subtracted after the ADC (section 5.5 baseline).
+    TwoShot,
+}
+
+/// A name that is not a mode; carries the valid names for the error message.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("unknown mode '{given}'; valid modes: {}", ModeId::names().join(", "))]
+pub struct UnknownMode {
+    pub given: String,
+}
+
+/// What the operator must set up for a mode: the daemon cannot move optics.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct PhysicalSetup {
+    pub ls1: &'static str,
+    pub ls2: &'static str,
+    pub optics: &'static str,
+}
+
+impl ModeId {
+    pub const ALL: [ModeId; 8] = [
+        ModeId::Raw,
+        ModeId::DirectOnly,
+        ModeId::BipolarColour,
+        ModeId::DepthEdge,
+        ModeId::DepthEdgeVertical,
+        ModeId::SpatialGradient,
+        ModeId::TemporalGradient,
+        ModeId::TwoShot,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ModeId::Raw => "raw",
+            ModeId::DirectOnly => "direct-only",
+            ModeId::BipolarColour => "bipolar-colour",
+            ModeId::DepthEdge => "depth-edge",
+            ModeId::DepthEdgeVertical => "depth-edge-vertical",
+            ModeId::SpatialGradient => "spatial-gradient",
+            ModeId::TemporalGradient => "temporal-gradient",
+            ModeId::TwoShot => "two-shot",
+        }
+    }
+
+    pub fn names() -> Vec<&'static str> {
+        Self::ALL.iter().map(|m| m.name()).collect()
+    }
+
+    pub fn from_name(name: &str) -> Result<Self, UnknownMode> {
+        Self::ALL
+            .into_iter()
+            .find(|m| m.name() == name)
+            .ok_or_else(|| UnknownMode {
+                given: name.to_owned(),
+            })
+    }
+
+    pub fn setup(self) -> PhysicalSetup {
+        let (ls1, ls2, optics) = match self {
+            ModeId::Raw => ("any source, in phase", "any source, out of phase", "none"),
+            ModeId::DirectOnly => (
+                "white LEDs, linear polarizer parallel to the analyzer",
+                "white LEDs, linear polarizer crossed with the analyzer",
+                "linear analyzer in front of the lens",
+            ),
+            ModeId::BipolarColour => ("red LEDs", "blue LEDs", "IR-cut filter removed"),
+            ModeId::DepthEdge => (
+                "identical LEDs left of the lens",
+                "identical LEDs right of the lens",
+                "none; source spacing sets the edge width",
+            ),
+            ModeId::DepthEdgeVertical => (
+                "identical LEDs above the lens",
+                "identical LEDs below the lens",
+                "none; source spacing sets the edge width",
+            ),
+            ModeId::SpatialGradient => (
+                "LEDs with a linear polarizer at 0 degrees",
+                "LEDs with a linear polarizer at 90 degrees",
+                "birefringent crystal (1 mm YVO4, tilted 20 degrees) on the sensor",
+            ),
+            ModeId::TemporalGradient => (
+                "off",
+                "off",
+                "none; single-transition modulation, scene lit by ambient light",
+            ),
+            ModeId::TwoShot => (
+                "on in even frames only",
+                "on in odd frames only",
+                "as the mode being compared against",
+            ),
+        };
+        PhysicalSetup { ls1, ls2, optics }
+    }
+}
+
+impl std::fmt::Display for ModeId {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for ModeId {
+    type Err = UnknownMode;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::from_name(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_round_trip() {
+        for m in ModeId::ALL {
+            assert_eq!(ModeId::from_name(m.name()), Ok(m));
+        }
+        let err = ModeId::from_name("nope").unwrap_err().to_string();
+        assert!(err.contains("depth-edge") && err.contains("nope"));
+    }
+}

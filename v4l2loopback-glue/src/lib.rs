@@ -1,0 +1,1 @@
+//! Publishing frames on a v4l2loopback device.
