@@ -1,1 +1,3 @@
-//! Shared helpers for the integration tests.
+//! Shared helpers for SDI's integration tests.
+
+pub mod vm;
