@@ -3,11 +3,15 @@
 //! (fan and pellets), and side by side the reference path that samples every
 //! pixel with `rand_distr`'s Poisson and Normal.
 //!
-//! Run: `cargo bench -p sdi-core --bench simulator`. Criterion reports time
-//! per frame; frames/s = 1 / that (throughput is also printed as elements/s,
-//! one element = one frame).
+//! Run: `cargo bench -p sdi-core --bench simulator`. Times are the bench
+//! thread's CPU time (CLOCK_THREAD_CPUTIME_ID), i.e. one core's work per
+//! frame, unaffected by other processes competing for the machine; criterion
+//! prints them as time per frame and as throughput in elements/s (one element
+//! = one frame, so elem/s = frames/s).
 
 use std::time::Duration;
+
+use nix::time::{clock_gettime, ClockId};
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use sdi_core::modulation::{Illumination, ModulationPattern, SourceDrive};
@@ -15,6 +19,22 @@ use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::Frame;
+
+/// CPU time consumed by this thread so far.
+fn thread_cpu() -> Duration {
+    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
+        .map(Duration::from)
+        .expect("thread CPU clock")
+}
+
+/// Runs `f` `iters` times and returns the CPU time it took.
+fn cpu_time(iters: u64, mut f: impl FnMut()) -> Duration {
+    let start = thread_cpu();
+    for _ in 0..iters {
+        f();
+    }
+    thread_cpu() - start
+}
 
 fn simulator(scene: &str, width: usize, height: usize) -> Simulator {
     let mut sensor = SensorPreset::TiOpt8241.params();
@@ -50,11 +70,11 @@ fn bench_capture(c: &mut Criterion) {
             let mut frame = Frame::new(w, h);
             let id = format!("{scene}/{w}x{h}");
             group.bench_function(BenchmarkId::new("fast", &id), |b| {
-                b.iter(|| sim.capture(&light, &mut frame))
+                b.iter_custom(|n| cpu_time(n, || sim.capture(&light, &mut frame)))
             });
             let mut sim = simulator(scene, w, h);
             group.bench_function(BenchmarkId::new("rand_distr-reference", &id), |b| {
-                b.iter(|| sim.capture_reference(&light, &mut frame))
+                b.iter_custom(|n| cpu_time(n, || sim.capture_reference(&light, &mut frame)))
             });
         }
     }
