@@ -409,3 +409,36 @@ fn runs_are_deterministic_given_the_seed() {
     assert_eq!(run(9), run(9));
     assert_ne!(run(9), run(10));
 }
+
+/// The bright-pixel path matches the Skellam's skewness too (first
+/// Cornish-Fisher term): I- = 0, I+ = 150 electrons just above the
+/// threshold, no read noise. Sample skewness has standard error sqrt(6/n).
+#[test]
+fn bright_path_reproduces_poisson_skewness() {
+    let mut sensor = small_ti();
+    sensor.read_noise_electrons = 0.0;
+    sensor.conversion_gain_dn_per_electron = 0.5;
+    sensor.demodulation_contrast = 0.5;
+    let g = sensor.gain_dn_per_electron();
+    let lambda = 150.0;
+    let rate = lambda / (0.5 * sensor.exposure_us);
+    let mut s = sim(sensor.clone(), flat(rate, 0.0), 0.0, 12);
+    let light = Illumination::snapshot(sensor.modulation_hz);
+    let mut frame = Frame::new(sensor.width, sensor.height);
+    let mut xs = Vec::new();
+    for _ in 0..200 {
+        s.capture(&light, &mut frame);
+        xs.extend(frame.dn.data.iter().map(|&v| v as f64));
+    }
+    let n = xs.len() as f64;
+    let mean = xs.iter().sum::<f64>() / n;
+    let m2 = xs.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n;
+    let m3 = xs.iter().map(|x| (x - mean).powi(3)).sum::<f64>() / n;
+    let skew = m3 / m2.powf(1.5);
+    let var = g * g * lambda + QUANTIZATION_DN2;
+    let expected = g.powi(3) * lambda / var.powf(1.5);
+    assert!(
+        (skew - expected).abs() < 5.0 * (6.0 / n).sqrt(),
+        "skewness {skew} vs {expected}"
+    );
+}
