@@ -160,8 +160,8 @@ fn diverging(t: f32) -> [u8; 3] {
 /// The [`AUTO_PERCENTILE`] quantile of |x| over finite values; falls back to
 /// the largest finite |x| when that is 0, and to 1 for an image with no
 /// finite non-zero value. Never 0, NaN or Inf. Allocation-free: two passes of
-/// a histogram over the f32 bit pattern (monotonic for x >= 0), relative
-/// error below 2^-14.
+/// a histogram over the f32 bit pattern (monotonic for x >= 0); the result
+/// is a sample within 2^-14 (relative) above the exact quantile.
 pub fn robust_max_abs(data: &[f32]) -> f32 {
     const COARSE_SHIFT: u32 = 20;
     const FINE_SHIFT: u32 = 9;
@@ -184,18 +184,21 @@ pub fn robust_max_abs(data: &[f32]) -> f32 {
     let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
     let (bin, below) = find_bin(&coarse, rank);
     let mut fine = [0u32; BINS];
+    let mut fine_max = [0.0f32; BINS];
     for &v in data {
         if v.is_finite() {
-            let bits = v.abs().to_bits();
+            let a = v.abs();
+            let bits = a.to_bits();
             if (bits >> COARSE_SHIFT) as usize == bin {
-                fine[((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize] += 1;
+                let i = ((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize;
+                fine[i] += 1;
+                fine_max[i] = fine_max[i].max(a);
             }
         }
     }
-    let (sub, _) = find_bin(&fine, rank - below);
-    let q = f32::from_bits(((bin as u32) << COARSE_SHIFT) | (((sub as u32 + 1) << FINE_SHIFT) - 1));
-    let q = q.min(max_abs);
-    if q > 0.0 && q.is_finite() {
+    // The largest value sharing the quantile's fine bin: a real sample.
+    let q = fine_max[find_bin(&fine, rank - below).0];
+    if q >= f32::MIN_POSITIVE {
         q
     } else {
         max_abs
