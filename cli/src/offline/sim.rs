@@ -118,6 +118,15 @@ fn io_error(what: &str, path: &Path, e: impl std::fmt::Display) -> CliError {
     CliError::Runtime(format!("{what} '{}': {e}", path.display()))
 }
 
+/// Creates the file's directory if needed and refuses a destination that is a
+/// directory, so the final renames cannot fail half-way.
+fn prepare_destination(path: &Path) -> Result<(), CliError> {
+    if path.is_dir() {
+        return Err(io_error("cannot write", path, "is a directory"));
+    }
+    ensure_parent_dir(path)
+}
+
 fn ensure_parent_dir(path: &Path) -> Result<(), CliError> {
     match path.parent() {
         Some(dir) if !dir.as_os_str().is_empty() => {
@@ -154,11 +163,11 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
     let mut sim = Simulator::new(config).map_err(|e| CliError::Usage(e.to_string()))?;
     let (w, h) = (sim.params().width, sim.params().height);
 
-    ensure_parent_dir(&args.out)?;
+    prepare_destination(&args.out)?;
     let npy_file = AtomicFile::new(&args.out).map_err(|e| io_error("bad output", &args.out, e))?;
     let png_file = match &args.png {
         Some(p) => {
-            ensure_parent_dir(p)?;
+            prepare_destination(p)?;
             Some(AtomicFile::new(p).map_err(|e| io_error("bad output", p, e))?)
         }
         None => None,
