@@ -82,6 +82,9 @@ pub struct DisplayMap {
     pub range: DisplayRange,
 }
 
+const LUT_SIZE: usize = 1023;
+const LUT_HALF: f32 = ((LUT_SIZE - 1) / 2) as f32;
+
 /// Diverging anchors at t = -1, -0.5, 0, 0.5, 1 (a red-blue scale).
 const DIVERGING: [[f32; 3]; 5] = [
     [33.0, 102.0, 172.0],
@@ -109,17 +112,19 @@ impl DisplayMap {
     /// Writes 3 bytes (R, G, B) per pixel into `out` (length 3 * width * height;
     /// pixels beyond a shorter `out` are skipped). Uses the selected colormap.
     pub fn render_rgb8(&self, img: &Image<f32>, out: &mut [u8]) {
+        // A lookup table over [-1, 1] (steps of 1/511, finer than 8-bit output).
+        let mut lut = [[0u8; 3]; LUT_SIZE];
+        for (i, c) in lut.iter_mut().enumerate() {
+            let t = i as f32 / LUT_HALF - 1.0;
+            *c = match self.colormap {
+                Colormap::Diverging => diverging(t),
+                Colormap::Grey => [grey(t); 3],
+            };
+        }
         let scale = 1.0 / self.max_abs_dn(img);
         for (px, &v) in out.chunks_exact_mut(3).zip(&img.data) {
             let t = normalized(v, scale);
-            let rgb = match self.colormap {
-                Colormap::Diverging => diverging(t),
-                Colormap::Grey => {
-                    let g = grey(t);
-                    [g, g, g]
-                }
-            };
-            px.copy_from_slice(&rgb);
+            px.copy_from_slice(&lut[((t + 1.0) * LUT_HALF).round() as usize]);
         }
     }
 
