@@ -19,16 +19,18 @@ fn cpu_s(who: UsageWho) -> f64 {
 }
 
 /// (fps, CPU ms per frame)
-fn ours(dev: &str, cfg: OutputConfig, frames: u32) -> (f64, f64) {
+fn ours(dev: &str, cfg: OutputConfig, frames: u32, packed: bool) -> (f64, f64) {
     let mut w = LoopbackWriter::open(dev, cfg).expect("open writer");
     assert_eq!(w.io_method(), cfg.io);
     let (wd, ht) = (cfg.width as usize, cfg.height as usize);
     let rgb: Vec<u8> = (0..wd * ht * 3).map(|i| (i % 251) as u8).collect();
     let dn: Vec<f32> = (0..wd * ht).map(|i| (i % 4000) as f32 - 2000.0).collect();
+    let raw = vec![0x55u8; cfg.frame_bytes()];
     let (c0, t0) = (cpu_s(UsageWho::RUSAGE_THREAD), Instant::now());
     for k in 0..frames {
         let ts = u64::from(k) * 33_333;
         match cfg.format {
+            _ if packed => w.write(v4l2loopback_glue::Input::Packed(&raw), ts),
             PixelFormat::Y16 => w.write_signed_y16(&dn, ts),
             _ => w.write_rgb8(&rgb, ts),
         }
@@ -146,7 +148,7 @@ pub fn run(dev_ours: &str, dev_ffmpeg: &str, frames: u32) {
         };
         let raw = tmp.join(format!("bench-{}.raw", fmt.ffmpeg_name()));
         std::fs::write(&raw, vec![0x55u8; cfg.frame_bytes()]).expect("write raw frame");
-        let mm = ours(&ours_dev, cfg, frames);
+        let mm = ours(&ours_dev, cfg, frames, false);
         let wr = ours(
             &ours_dev,
             OutputConfig {
@@ -154,7 +156,9 @@ pub fn run(dev_ours: &str, dev_ffmpeg: &str, frames: u32) {
                 ..cfg
             },
             frames,
+            false,
         );
+        let mr = ours(&ours_dev, cfg, frames, true);
         let ff = ffmpeg(&ff_dev, cfg, &raw, frames);
         let input = if fmt == PixelFormat::Y16 {
             "signed f32 DN"
@@ -171,6 +175,10 @@ pub fn run(dev_ours: &str, dev_ffmpeg: &str, frames: u32) {
             wr.0, wr.1
         );
         println!(
+            "  glue mmap, pre-packed raw input: {:8.1} fps, {:6.3} ms CPU/frame",
+            mr.0, mr.1
+        );
+        println!(
             "  ffmpeg v4l2 : {:8.1} fps incl. start-up ({:.1} marginal), {:6.3} ms CPU/frame (raw input, no conversion)",
             ff.0, ff.1, ff.2
         );
@@ -180,6 +188,11 @@ pub fn run(dev_ours: &str, dev_ffmpeg: &str, frames: u32) {
             mm.0 / ff.1,
             mm.1 / ff.2,
             mm.0 / wr.0
+        );
+        println!(
+            "  ratio raw glue-mmap/ffmpeg marginal: fps x{:.2}, CPU/frame x{:.2}",
+            mr.0 / ff.1,
+            mr.1 / ff.2
         );
     }
 }
