@@ -44,8 +44,9 @@ fn main() {
                 w.set_sustain_framerate(false);
             }
             eprintln!(
-                "writing {cfg} via {:?}, features {:?}",
+                "writing {cfg} via {:?}, module {:?}, features {:?}",
                 w.io_method(),
+                w.module_version(),
                 w.features()
             );
             let n = (cfg.width * cfg.height) as usize;
