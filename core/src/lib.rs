@@ -5,12 +5,14 @@
 //! [`mode`] pipeline turns frames into signed images. No I/O happens here:
 //! callers hand in buffers and writers.
 
+pub mod calibration;
 pub mod frame;
 pub mod image;
 pub mod mode;
 pub mod modulation;
 pub mod scene;
 pub mod sensor;
+pub mod separation;
 pub mod simulator;
 
 pub use frame::Frame;
