@@ -152,40 +152,24 @@ pub fn bilateral_exact(frame: &Frame, params: BilateralParams) -> Result<Moments
     Ok(out)
 }
 
-/// Entries of the range-weight table per sigma_range, and its reach in sigmas.
-const LUT_PER_SIGMA: f32 = 32.0;
-const LUT_SIGMAS: f32 = 6.0;
-
-/// exp(-d^2 / 2 s^2) tabulated on |d| in steps of s / 32 up to 6 s (then 0).
-struct RangeLut {
-    table: Vec<f32>,
-    scale: f32,
+/// exp(-t) for t >= 0 without branches or tables, so row loops vectorize:
+/// 2^-y = 2^-n 2^-f with n = trunc(y), the fraction by a degree-6 Taylor
+/// polynomial (relative error < 2e-5); t is capped at 80 (weight ~1e-35).
+#[inline(always)]
+fn exp_neg(t: f32) -> f32 {
+    let y = t.clamp(0.0, 80.0) * std::f32::consts::LOG2_E;
+    let n = y as i32;
+    let u = (y - n as f32) * std::f32::consts::LN_2;
+    // e^-u for u in [0, ln 2).
+    let p = 1.0
+        - u * (1.0
+            - u * (0.5
+                - u * (1.0 / 6.0 - u * (1.0 / 24.0 - u * (1.0 / 120.0 - u * (1.0 / 720.0))))));
+    p * f32::from_bits(((127 - n) as u32) << 23)
 }
 
-impl RangeLut {
-    fn new(sigma_range_dn: f64) -> Self {
-        let n = (LUT_PER_SIGMA * LUT_SIGMAS) as usize;
-        let mut table: Vec<f32> = (0..n)
-            .map(|k| {
-                let u = k as f32 / LUT_PER_SIGMA;
-                (-0.5 * u * u).exp()
-            })
-            .collect();
-        table.push(0.0);
-        let scale = (LUT_PER_SIGMA as f64 / sigma_range_dn).min(1e30) as f32;
-        Self { table, scale }
-    }
-
-    #[inline]
-    fn weight(&self, d: f32) -> f32 {
-        let last = self.table.len() - 1;
-        // `as usize` saturates, and NaN maps to 0 (only finite d reach here).
-        let k = ((d.abs() * self.scale) + 0.5) as usize;
-        self.table[k.min(last)]
-    }
-}
-
-/// Fast M3 (separable approximation, see module docs): O(r) per pixel, f32.
+/// Fast M3 (separable approximation, see module docs): O(r) per pixel, f32,
+/// row-at-a-time loops the compiler vectorizes.
 pub fn bilateral_separable(
     frame: &Frame,
     params: BilateralParams,
@@ -196,7 +180,8 @@ pub fn bilateral_separable(
     let n = w * h;
     let r = params.radius();
     let wd: Vec<f32> = params.domain_weights().iter().map(|&v| v as f32).collect();
-    let lut = RangeLut::new(params.sigma_range_dn);
+    // Finite even when sigma_range underflows, so d = 0 always gives weight 1.
+    let k = (0.5 / (params.sigma_range_dn * params.sigma_range_dn)).min(1e30) as f32;
     // Unusable pixels: value 0 and validity 0, so they never contribute.
     let mut value = vec![0.0f32; n];
     let mut valid = vec![0.0f32; n];
@@ -217,49 +202,84 @@ pub fn bilateral_separable(
         let row = y * w;
         let v = &value[row..row + w];
         let ok = &valid[row..row + w];
-        for x in 0..w {
-            let c = v[x];
-            let (lo, hi) = (x.saturating_sub(r), (x + r + 1).min(w));
-            let (mut s0, mut s1, mut s2, mut q0) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
-            for xx in lo..hi {
-                let d = v[xx] - c;
-                let wt = wd[xx.abs_diff(x)] * lut.weight(d) * ok[xx];
-                s0 += wt;
-                s1 += wt * d;
-                s2 += wt * d * d;
-                q0 += wt * wt;
+        let (s0, s1, s2, q0) = (
+            &mut a0[row..row + w],
+            &mut a1[row..row + w],
+            &mut a2[row..row + w],
+            &mut b0[row..row + w],
+        );
+        for dx in -(r as isize)..=(r as isize) {
+            let wdx = wd[dx.unsigned_abs()];
+            // x and x + dx both inside the row.
+            let lo = (-dx).max(0) as usize;
+            let hi = (w as isize - dx.max(0)).max(0) as usize;
+            if lo >= hi {
+                continue;
             }
-            a0[row + x] = s0;
-            a1[row + x] = s1;
-            a2[row + x] = s2;
-            b0[row + x] = q0;
+            let off = (lo as isize + dx) as usize;
+            let len = hi - lo;
+            let (vc, vn, okn) = (&v[lo..hi], &v[off..off + len], &ok[off..off + len]);
+            let (t0, t1, t2, t3) = (
+                &mut s0[lo..hi],
+                &mut s1[lo..hi],
+                &mut s2[lo..hi],
+                &mut q0[lo..hi],
+            );
+            for x in 0..len {
+                let d = vn[x] - vc[x];
+                let wt = wdx * exp_neg(d * d * k) * okn[x];
+                t0[x] += wt;
+                t1[x] += wt * d;
+                t2[x] += wt * d * d;
+                t3[x] += wt * wt;
+            }
         }
     }
     // Vertical pass: shift each neighbour's moments to this pixel's value.
     let mut out = Moments::new(w, h);
+    let (mut s0, mut s1, mut s2, mut q0) = (
+        vec![0.0f32; w],
+        vec![0.0f32; w],
+        vec![0.0f32; w],
+        vec![0.0f32; w],
+    );
     for y in 0..h {
+        s0.fill(0.0);
+        s1.fill(0.0);
+        s2.fill(0.0);
+        q0.fill(0.0);
         let (lo, hi) = (y.saturating_sub(r), (y + r + 1).min(h));
+        let row = y * w;
+        let vc = &value[row..row + w];
+        for yy in lo..hi {
+            let wdy = wd[yy.abs_diff(y)];
+            let j = yy * w;
+            let (vn, okn) = (&value[j..j + w], &valid[j..j + w]);
+            let (m0, m1, m2, mb) = (&a0[j..j + w], &a1[j..j + w], &a2[j..j + w], &b0[j..j + w]);
+            for x in 0..w {
+                let d = vn[x] - vc[x];
+                let wt = wdy * exp_neg(d * d * k) * okn[x];
+                s0[x] += wt * m0[x];
+                s1[x] += wt * (m1[x] + d * m0[x]);
+                s2[x] += wt * (m2[x] + 2.0 * d * m1[x] + d * d * m0[x]);
+                q0[x] += wt * wt * mb[x];
+            }
+        }
         for x in 0..w {
-            let i = y * w + x;
-            flag_input(frame, &mut out, i);
+            let i = row + x;
+            out.flags.data[i] |= input_flags(frame, i);
             if valid[i] == 0.0 {
                 out.set_insufficient(i);
                 continue;
             }
-            let c = value[i];
-            let (mut s0, mut s1, mut s2, mut q0) = (0.0f32, 0.0f32, 0.0f32, 0.0f32);
-            for yy in lo..hi {
-                let j = yy * w + x;
-                let d = value[j] - c;
-                let wt = wd[yy.abs_diff(y)] * lut.weight(d) * valid[j];
-                let (m0, m1) = (a0[j], a1[j]);
-                s0 += wt * m0;
-                s1 += wt * (m1 + d * m0);
-                s2 += wt * (a2[j] + 2.0 * d * m1 + d * d * m0);
-                q0 += wt * wt * b0[j];
-            }
             finish(
-                &mut out, i, c as f64, s0 as f64, s1 as f64, s2 as f64, q0 as f64,
+                &mut out,
+                i,
+                vc[x] as f64,
+                s0[x] as f64,
+                s1[x] as f64,
+                s2[x] as f64,
+                q0[x] as f64,
             );
         }
     }
