@@ -1,11 +1,22 @@
 //! sdictl: command-line control of the SDI daemon, and offline tools.
+//!
+//! Each subcommand lives in its own module; adding one is a variant here and a
+//! line in `main`'s dispatch.
 
+mod atomic_file;
+mod exit;
 mod offline;
+
+use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 
 #[derive(Debug, Parser)]
-#[command(name = "sdictl", about = "Control snapshot difference imaging")]
+#[command(
+    name = "sdictl",
+    version,
+    about = "Snapshot difference imaging control and offline tools"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -13,6 +24,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Simulate a scene through a mode pipeline and write the frames (.npy) and one display frame (.png).
+    Sim(offline::sim::SimArgs),
     /// Offline reports on simulator data.
     #[command(subcommand)]
     Report(Report),
@@ -24,13 +37,11 @@ enum Report {
     Separation(offline::report::SeparationReportArgs),
 }
 
-fn main() {
+fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Report(Report::Separation(args)) => offline::report::run(&args).map(|_| ()),
+        Command::Sim(args) => offline::sim::run(args),
+        Command::Report(Report::Separation(args)) => offline::report::run_cli(&args),
     };
-    if let Err(e) = result {
-        eprintln!("sdictl: {e}");
-        std::process::exit(1);
-    }
+    exit::report(result)
 }

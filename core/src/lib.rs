@@ -6,10 +6,13 @@
 //! callers hand in buffers and writers.
 
 pub mod calibration;
+pub mod dark_frame;
+pub mod display;
 pub mod frame;
 pub mod image;
 pub mod mode;
 pub mod modulation;
+pub mod npy;
 pub mod scene;
 pub mod sensor;
 pub mod separation;

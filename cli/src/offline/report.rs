@@ -69,6 +69,15 @@ struct Truth {
     minus: Vec<f64>,
 }
 
+/// The subcommand: unknown scenes are usage errors, the rest runtime errors.
+pub fn run_cli(args: &SeparationReportArgs) -> Result<(), crate::exit::CliError> {
+    use crate::exit::CliError;
+    run(args).map(|_| ()).map_err(|e| match e {
+        ReportError::UnknownScene(..) => CliError::Usage(e.to_string()),
+        _ => CliError::Runtime(e.to_string()),
+    })
+}
+
 /// Runs the report and writes `separation.svg` and `separation.tsv` to `args.out`.
 pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
     let name = match &args.scene {
