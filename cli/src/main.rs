@@ -26,12 +26,22 @@ struct Cli {
 enum Command {
     /// Simulate a scene through a mode pipeline and write the frames (.npy) and one display frame (.png).
     Sim(offline::sim::SimArgs),
+    /// Offline reports on simulator data.
+    #[command(subcommand)]
+    Report(Report),
+}
+
+#[derive(Debug, Subcommand)]
+enum Report {
+    /// Error against run time of every separation estimator (I+, I- recovery).
+    Separation(offline::report::SeparationReportArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Sim(args) => offline::sim::run(args),
+        Command::Report(Report::Separation(args)) => offline::report::run_cli(&args),
     };
     exit::report(result)
 }

@@ -5,6 +5,7 @@
 //! [`mode`] pipeline turns frames into signed images. No I/O happens here:
 //! callers hand in buffers and writers.
 
+pub mod calibration;
 pub mod dark_frame;
 pub mod display;
 pub mod frame;
@@ -14,6 +15,7 @@ pub mod modulation;
 pub mod npy;
 pub mod scene;
 pub mod sensor;
+pub mod separation;
 pub mod simulator;
 
 pub use frame::Frame;

@@ -1,3 +1,4 @@
 //! Offline tools: run the imaging core without the daemon.
 
+pub mod report;
 pub mod sim;

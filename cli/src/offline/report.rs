@@ -1,0 +1,380 @@
+//! `sdictl report separation`: every separation estimator over its parameter
+//! range on simulator data with known ground truth; prints a table (method,
+//! parameters, relative RMSE and bias of I+ and I-, time per frame) and writes
+//! the same as an SVG plot of error against run time.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use plotters::prelude::*;
+use sdi_core::calibration::DarkCalibration;
+use sdi_core::modulation::Illumination;
+use sdi_core::scene::SceneSpec;
+use sdi_core::sensor::{SensorPreset, SkellamMixing};
+use sdi_core::separation::{
+    auto_segment, bilateral_exact, bilateral_separable, segment_moments, unmix, BilateralParams,
+    Moments, SegmentParams, Separated, SeparationError, UnmixOptions, Welford,
+};
+use sdi_core::simulator::{SimConfig, Simulator};
+use sdi_core::{Frame, Image};
+
+/// Arguments of `sdictl report separation`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SeparationReportArgs {
+    /// Simulator scene (default: colour-chart when available, else flat-field).
+    #[arg(long)]
+    pub scene: Option<String>,
+    /// Directory for the plot (separation.svg) and the table (separation.tsv).
+    #[arg(long, default_value = ".")]
+    pub out: PathBuf,
+    /// Largest N for M1.
+    #[arg(long, default_value_t = 1000)]
+    pub max_frames: usize,
+    /// Simulator seed.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+/// What can go wrong while reporting.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    #[error("unknown scene {0:?}; available: {1}")]
+    UnknownScene(String, String),
+    #[error("simulator: {0}")]
+    Simulator(#[from] sdi_core::sensor::ParamError),
+    #[error("separation: {0}")]
+    Separation(#[from] SeparationError),
+    #[error("calibration: {0}")]
+    Calibration(#[from] sdi_core::calibration::CalibrationError),
+    #[error("writing {0}: {1}")]
+    Io(PathBuf, std::io::Error),
+    #[error("plot: {0}")]
+    Plot(String),
+}
+
+/// One table row.
+#[derive(Debug, Clone)]
+pub struct Row {
+    pub method: &'static str,
+    pub params: String,
+    pub rmse_plus: f64,
+    pub bias_plus: f64,
+    pub rmse_minus: f64,
+    pub bias_minus: f64,
+    pub ms_per_frame: f64,
+}
+
+struct Truth {
+    plus: Vec<f64>,
+    minus: Vec<f64>,
+}
+
+/// The subcommand: unknown scenes are usage errors, the rest runtime errors.
+pub fn run_cli(args: &SeparationReportArgs) -> Result<(), crate::exit::CliError> {
+    use crate::exit::CliError;
+    run(args).map(|_| ()).map_err(|e| match e {
+        ReportError::UnknownScene(..) => CliError::Usage(e.to_string()),
+        _ => CliError::Runtime(e.to_string()),
+    })
+}
+
+/// Runs the report and writes `separation.svg` and `separation.tsv` to `args.out`.
+pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
+    let name = match &args.scene {
+        Some(s) => s.clone(),
+        None if SceneSpec::NAMES.contains(&"colour-chart") => "colour-chart".into(),
+        None => "flat-field".into(),
+    };
+    let scene = SceneSpec::from_name(&name)
+        .ok_or_else(|| ReportError::UnknownScene(name.clone(), SceneSpec::NAMES.join(", ")))?;
+    let sensor = SensorPreset::TiOpt8241.params();
+    let h = sensor.skellam();
+    let mut config = SimConfig::new(sensor.clone(), scene);
+    config.seed = args.seed;
+    let mut sim = Simulator::new(config)?;
+    let (w, ht) = (sensor.width, sensor.height);
+    let mut frame = Frame::new(w, ht);
+
+    // 100 dark frames, averaged and subtracted before separating (section 6).
+    let dark = Illumination::dark(sensor.modulation_hz);
+    let mut darks = Vec::with_capacity(100);
+    for _ in 0..100 {
+        sim.capture(&dark, &mut frame);
+        darks.push(frame.clone());
+    }
+    let dark_cal = DarkCalibration::from_frames(&darks)?;
+    drop(darks);
+
+    let light = Illumination::snapshot(sensor.modulation_hz);
+    let n_max = args.max_frames.max(2);
+    let mut frames = Vec::with_capacity(n_max);
+    for _ in 0..n_max {
+        sim.capture(&light, &mut frame);
+        dark_cal.subtract(&mut frame)?;
+        frames.push(frame.clone());
+    }
+    let e = sim.last_expectation();
+    let truth = Truth {
+        plus: e.i_plus_electrons.data.iter().map(|&v| v as f64).collect(),
+        minus: e.i_minus_electrons.data.iter().map(|&v| v as f64).collect(),
+    };
+    let with_read = UnmixOptions::default();
+    let no_read = UnmixOptions {
+        subtract_read_noise: false,
+        nonnegative: false,
+    };
+    let nonneg = UnmixOptions {
+        subtract_read_noise: true,
+        nonnegative: true,
+    };
+    let mut rows = Vec::new();
+
+    // M1 over N frames (time: per pushed frame, plus the final inversion).
+    let mut ns: Vec<usize> = [10, 30, 100, 300, 1000, 3000]
+        .into_iter()
+        .filter(|&n| n <= n_max)
+        .collect();
+    if ns.last() != Some(&n_max) {
+        ns.push(n_max);
+    }
+    for &n in &ns {
+        let t0 = Instant::now();
+        let mut acc = Welford::new(w, ht);
+        for f in &frames[..n] {
+            acc.push(f)?;
+        }
+        let m = acc.moments()?;
+        let sep = unmix(&m, &h, with_read)?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
+        rows.push(row("M1", format!("N={n}"), &sep, &truth, ms));
+        if n == n_max {
+            rows.push(row(
+                "M1",
+                format!("N={n}, read:=0"),
+                &unmix(&m, &h, no_read)?,
+                &truth,
+                ms,
+            ));
+            rows.push(row(
+                "M1",
+                format!("N={n}, non-neg"),
+                &unmix(&m, &h, nonneg)?,
+                &truth,
+                ms,
+            ));
+        }
+    }
+
+    // Single-frame estimators on the first frame.
+    let one = &frames[0];
+    let noise_dn = noise_sigma_dn(&truth, &h);
+    for radius in [1usize, 2, 4] {
+        let p = SegmentParams {
+            smooth_radius_px: radius,
+            ..SegmentParams::default()
+        };
+        let t0 = Instant::now();
+        let seg = auto_segment(one, p)?;
+        let m = segment_moments(one, &seg.labels, Some(&seg.interior))?;
+        let sep = unmix(&m, &h, with_read)?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        rows.push(row(
+            "M2 auto",
+            format!("smooth r={radius}"),
+            &sep,
+            &truth,
+            ms,
+        ));
+    }
+    for sd in [1.5, 3.0] {
+        for k in [2.0, 4.0] {
+            let p = BilateralParams::new(sd, k * noise_dn);
+            let params = format!("sd={sd} sr={k}sigma");
+            let (sep, ms) = time_single(one, &h, with_read, |f| bilateral_exact(f, p))?;
+            rows.push(row("M3 exact", params.clone(), &sep, &truth, ms));
+            let (sep, ms) = time_single(one, &h, with_read, |f| bilateral_separable(f, p))?;
+            rows.push(row("M3 separable", params, &sep, &truth, ms));
+        }
+    }
+
+    print_table(&name, w, ht, &rows);
+    std::fs::create_dir_all(&args.out).map_err(|e| ReportError::Io(args.out.clone(), e))?;
+    write_tsv(&args.out.join("separation.tsv"), &rows)?;
+    let svg = args.out.join("separation.svg");
+    plot(&svg, &name, &rows)?;
+    println!(
+        "wrote {} and {}",
+        svg.display(),
+        args.out.join("separation.tsv").display()
+    );
+    Ok(rows)
+}
+
+fn time_single(
+    frame: &Frame,
+    h: &SkellamMixing,
+    options: UnmixOptions,
+    estimator: impl Fn(&Frame) -> Result<Moments, SeparationError>,
+) -> Result<(Separated, f64), ReportError> {
+    // Median of a few runs: the machine is shared.
+    let mut times = Vec::new();
+    let mut last = None;
+    for _ in 0..3 {
+        let t0 = Instant::now();
+        let sep = unmix(&estimator(frame)?, h, options)?;
+        times.push(t0.elapsed().as_secs_f64() * 1e3);
+        last = Some(sep);
+    }
+    times.sort_by(f64::total_cmp);
+    let sep = last.ok_or(ReportError::Plot("no run".into()))?;
+    Ok((sep, times[1]))
+}
+
+/// Typical per-pixel noise of one frame, DN: sqrt(g^2 mean(I+ + I-) + read).
+fn noise_sigma_dn(t: &Truth, h: &SkellamMixing) -> f64 {
+    let n = t.plus.len().max(1) as f64;
+    let sum = t.plus.iter().zip(&t.minus).map(|(a, b)| a + b).sum::<f64>() / n;
+    let g = h.gain_dn_per_electron;
+    (g * g * sum + h.read_variance_dn2).sqrt().max(1.0)
+}
+
+fn rel(est: &Image<f32>, truth: &[f64]) -> (f64, f64) {
+    let n = truth.len().max(1) as f64;
+    let mean_t = (truth.iter().sum::<f64>() / n).abs().max(1e-9);
+    let (mut se, mut b) = (0.0, 0.0);
+    for (e, t) in est.data.iter().zip(truth) {
+        let d = *e as f64 - t;
+        se += d * d;
+        b += d;
+    }
+    ((se / n).sqrt() / mean_t, b / n / mean_t)
+}
+
+fn row(method: &'static str, params: String, sep: &Separated, t: &Truth, ms: f64) -> Row {
+    let (rmse_plus, bias_plus) = rel(&sep.i_plus_electrons, &t.plus);
+    let (rmse_minus, bias_minus) = rel(&sep.i_minus_electrons, &t.minus);
+    Row {
+        method,
+        params,
+        rmse_plus,
+        bias_plus,
+        rmse_minus,
+        bias_minus,
+        ms_per_frame: ms,
+    }
+}
+
+fn print_table(scene: &str, w: usize, h: usize, rows: &[Row]) {
+    println!("separation report: scene {scene}, {w}x{h}, TI preset, dark-frame subtracted");
+    println!(
+        "{:<13} {:<22} {:>10} {:>10} {:>10} {:>10} {:>12}",
+        "method", "params", "rmse I+", "bias I+", "rmse I-", "bias I-", "ms/frame"
+    );
+    for r in rows {
+        println!(
+            "{:<13} {:<22} {:>9.2}% {:>+9.2}% {:>9.2}% {:>+9.2}% {:>12.3}",
+            r.method,
+            r.params,
+            100.0 * r.rmse_plus,
+            100.0 * r.bias_plus,
+            100.0 * r.rmse_minus,
+            100.0 * r.bias_minus,
+            r.ms_per_frame
+        );
+    }
+}
+
+fn write_tsv(path: &Path, rows: &[Row]) -> Result<(), ReportError> {
+    let mut s = String::from("method\tparams\trel_rmse_plus\trel_bias_plus\trel_rmse_minus\trel_bias_minus\tms_per_frame\n");
+    for r in rows {
+        s += &format!(
+            "{}\t{}\t{:.6}\t{:.6}\t{:.6}\t{:.6}\t{:.4}\n",
+            r.method,
+            r.params,
+            r.rmse_plus,
+            r.bias_plus,
+            r.rmse_minus,
+            r.bias_minus,
+            r.ms_per_frame
+        );
+    }
+    std::fs::write(path, s).map_err(|e| ReportError::Io(path.to_path_buf(), e))
+}
+
+/// Error (mean of the I+ and I- relative RMSE) against time per frame, log-log.
+fn plot(path: &Path, scene: &str, rows: &[Row]) -> Result<(), ReportError> {
+    let err = |r: &Row| 0.5 * (r.rmse_plus + r.rmse_minus);
+    let pe = |e: DrawingAreaErrorKind<_>| ReportError::Plot(e.to_string());
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for r in rows {
+        x0 = x0.min(r.ms_per_frame);
+        x1 = x1.max(r.ms_per_frame);
+        y0 = y0.min(err(r));
+        y1 = y1.max(err(r));
+    }
+    let (x0, x1) = ((x0 * 0.5).max(1e-4), (x1 * 2.0).max(1e-3));
+    let (y0, y1) = ((y0 * 0.5).max(1e-4), (y1 * 2.0).max(1e-3));
+    let root = SVGBackend::new(path, (900, 600)).into_drawing_area();
+    root.fill(&WHITE).map_err(pe)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(
+            format!("SDI separation on {scene}: error vs run time"),
+            ("sans-serif", 22),
+        )
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(70)
+        .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+        .map_err(pe)?;
+    chart
+        .configure_mesh()
+        .x_desc("time per frame, ms")
+        .y_desc("relative RMSE, mean of I+ and I-")
+        .draw()
+        .map_err(pe)?;
+    let series: [(&str, &str, RGBColor); 6] = [
+        ("M1", "", BLUE),
+        ("M1", "read:=0", RGBColor(120, 120, 255)),
+        ("M1", "non-neg", RGBColor(0, 160, 160)),
+        ("M2 auto", "", GREEN),
+        ("M3 exact", "", RED),
+        ("M3 separable", "", RGBColor(230, 130, 0)),
+    ];
+    for (method, tag, colour) in series {
+        let pts: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| {
+                r.method == method
+                    && (tag.is_empty() && !r.params.contains(',')
+                        || !tag.is_empty() && r.params.contains(tag))
+            })
+            .map(|r| (r.ms_per_frame.max(x0), err(r)))
+            .collect();
+        if pts.is_empty() {
+            continue;
+        }
+        let label = if tag.is_empty() {
+            method.to_string()
+        } else {
+            format!("{method} ({tag})")
+        };
+        chart
+            .draw_series(LineSeries::new(pts.clone(), colour.stroke_width(2)))
+            .map_err(pe)?
+            .label(label)
+            .legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2))
+            });
+        chart
+            .draw_series(pts.iter().map(|&p| Circle::new(p, 4, colour.filled())))
+            .map_err(pe)?;
+    }
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()
+        .map_err(pe)?;
+    root.present().map_err(pe)?;
+    Ok(())
+}

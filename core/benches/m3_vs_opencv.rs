@@ -1,0 +1,159 @@
+//! Side-by-side benchmark, one run, one core: our M3 (separable bilateral
+//! moments, and the full separation with unmix) against OpenCV's bilateral
+//! filters computing the equivalent weighted mean and second moment.
+//!
+//! `cargo bench -p sdi-core --bench m3_vs_opencv` (needs /usr/bin/python3 with
+//! python3-opencv; without it only our timings are printed).
+
+use std::process::Command;
+use std::time::Instant;
+
+use rand::rngs::SmallRng;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+use sdi_core::sensor::SkellamMixing;
+use sdi_core::separation::{
+    bilateral_exact, bilateral_separable, unmix, BilateralParams, UnmixOptions,
+};
+use sdi_core::Frame;
+
+const W: usize = 640;
+const H: usize = 480;
+const REPS: usize = 21;
+
+/// A 6x4 chart of patches with the paper's noise (Gaussian limit of Skellam).
+fn chart_frame(h: &SkellamMixing) -> Frame {
+    let mut rng = SmallRng::seed_from_u64(7);
+    let mut f = Frame::new(W, H);
+    let g = h.gain_dn_per_electron;
+    for y in 0..H {
+        for x in 0..W {
+            let k = (y * 4 / H) * 6 + x * 6 / W;
+            let a = ((k as f64 * 0.618).fract() * 0.85 + 0.15) * 20_000.0;
+            let b = ((k as f64 * 0.414 + 0.3).fract() * 0.85 + 0.15) * 20_000.0;
+            let sd = (g * g * (a + b) + h.read_variance_dn2).sqrt();
+            let n = Normal::new(g * (a - b), sd).unwrap();
+            f.dn.data[y * W + x] = n.sample(&mut rng).round() as f32;
+        }
+    }
+    f
+}
+
+/// CPU time of this thread (user + system), ms, from /proc (10 ms ticks):
+/// robust against other processes sharing the core, unlike wall time.
+fn thread_cpu_ms() -> f64 {
+    let stat = std::fs::read_to_string("/proc/thread-self/stat").unwrap_or_default();
+    let after = stat.rsplit(')').next().unwrap_or("");
+    let f: Vec<f64> = after
+        .split_whitespace()
+        .filter_map(|v| v.parse().ok())
+        .collect();
+    // Fields after the command: state(skipped, not numeric) ... utime = 14th, stime = 15th overall.
+    match (f.get(10), f.get(11)) {
+        (Some(u), Some(s)) => (u + s) * 10.0,
+        _ => f64::NAN,
+    }
+}
+
+/// (median wall ms, mean CPU ms) over REPS runs.
+fn median_ms(mut run: impl FnMut()) -> (f64, f64) {
+    let c0 = thread_cpu_ms();
+    let mut t: Vec<f64> = (0..REPS)
+        .map(|_| {
+            let t0 = Instant::now();
+            run();
+            t0.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    let cpu = (thread_cpu_ms() - c0) / REPS as f64;
+    t.sort_by(f64::total_cmp);
+    (t[REPS / 2], cpu)
+}
+
+fn main() {
+    let h = SkellamMixing::new(0.08 * 0.65, 15.05);
+    let frame = chart_frame(&h);
+    let path = std::env::temp_dir().join(format!("sdi_m3_bench_{}.f32", std::process::id()));
+    let bytes: Vec<u8> = frame.dn.data.iter().flat_map(|v| v.to_le_bytes()).collect();
+    std::fs::write(&path, bytes).expect("write temp frame");
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/opencv_bilateral.py");
+    println!("M3 at {W}x{H}, one core, median of {REPS} runs");
+    println!("wall: median ms per frame; cpu: mean CPU ms per frame (immune to other load)");
+    println!(
+        "{:<8} {:>6} {:>20} {:>20} {:>20} {:>20} {:>14}",
+        "sigma_d",
+        "radius",
+        "sdi M3 wall/cpu",
+        "sdi M3+unmix",
+        "opencv joint",
+        "opencv mean",
+        "ratio wall/cpu"
+    );
+    for (sd, sr) in [(1.0, 20.0), (1.5, 20.0), (2.0, 30.0), (3.0, 30.0)] {
+        let p = BilateralParams::new(sd, sr);
+        let ours = median_ms(|| {
+            std::hint::black_box(bilateral_separable(&frame, p).unwrap());
+        });
+        let ours_full = median_ms(|| {
+            let m = bilateral_separable(&frame, p).unwrap();
+            std::hint::black_box(unmix(&m, &h, UnmixOptions::default()).unwrap());
+        });
+        let out = Command::new("/usr/bin/python3")
+            .arg(script)
+            .arg(&path)
+            .args([W.to_string(), H.to_string()])
+            .args([
+                sd.to_string(),
+                sr.to_string(),
+                p.radius().to_string(),
+                REPS.to_string(),
+            ])
+            .output();
+        let (mut joint, mut mean) = ((f64::NAN, f64::NAN), (f64::NAN, f64::NAN));
+        if let Ok(o) = out {
+            for line in String::from_utf8_lossy(&o.stdout).lines() {
+                let mut it = line.split_whitespace();
+                let name = it.next();
+                let v: Vec<f64> = it.filter_map(|v| v.parse().ok()).collect();
+                let pair = (
+                    v.first().copied().unwrap_or(f64::NAN),
+                    v.get(1).copied().unwrap_or(f64::NAN),
+                );
+                match name {
+                    Some("opencv_joint_mean_and_second_moment") => joint = pair,
+                    Some("opencv_bilateralFilter_mean_only") => mean = pair,
+                    _ => {}
+                }
+            }
+            if !o.status.success() {
+                eprintln!(
+                    "opencv script failed: {}",
+                    String::from_utf8_lossy(&o.stderr)
+                );
+            }
+        }
+        println!(
+            "{:<8} {:>6} {:>9.2} / {:>6.2} ms {:>9.2} / {:>6.2} ms {:>9.2} / {:>6.2} ms {:>9.2} / {:>6.2} ms {:>6.1}x / {:.1}x",
+            sd,
+            p.radius(),
+            ours.0,
+            ours.1,
+            ours_full.0,
+            ours_full.1,
+            joint.0,
+            joint.1,
+            mean.0,
+            mean.1,
+            joint.0 / ours_full.0,
+            joint.1 / ours_full.1,
+        );
+    }
+    // Exact M3 for scale (one run).
+    let t0 = Instant::now();
+    std::hint::black_box(bilateral_exact(&frame, BilateralParams::new(1.5, 20.0)).unwrap());
+    println!(
+        "exact M3 (sigma_d 1.5, radius 4): {:.1} ms",
+        t0.elapsed().as_secs_f64() * 1e3
+    );
+    let _ = std::fs::remove_file(&path);
+}

@@ -1,0 +1,42 @@
+//! Typed errors of the separation estimators.
+
+/// Why an estimator refused its input.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SeparationError {
+    #[error("need at least {needed} frames for a variance, got {got}")]
+    TooFewFrames { needed: usize, got: usize },
+    #[error("frame is {got_w}x{got_h}, expected {want_w}x{want_h}")]
+    SizeMismatch {
+        want_w: usize,
+        want_h: usize,
+        got_w: usize,
+        got_h: usize,
+    },
+    #[error("empty image")]
+    Empty,
+    #[error("{name} = {value} is out of range: expected {allowed}")]
+    Parameter {
+        name: &'static str,
+        value: f64,
+        allowed: &'static str,
+    },
+}
+
+impl SeparationError {
+    pub(crate) fn check(
+        name: &'static str,
+        value: f64,
+        ok: bool,
+        allowed: &'static str,
+    ) -> Result<(), Self> {
+        if ok && value.is_finite() {
+            Ok(())
+        } else {
+            Err(Self::Parameter {
+                name,
+                value,
+                allowed,
+            })
+        }
+    }
+}

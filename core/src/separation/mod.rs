@@ -1,0 +1,49 @@
+//! Recovering I+ and I- from difference images (paper section 6).
+//!
+//! Every estimator reduces frames to per-pixel [`Moments`] (mean, variance
+//! and their sampling variances, in DN); [`unmix`] then applies
+//! (I+, I-) = H^-1 (mu, sigma^2 - sigma_read^2) (eq. skellammatrix) with
+//! standard errors, flags and an optional non-negative projection.
+//!
+//! - M1 [`Welford`]: statistics over N frames, streaming, f64.
+//! - M2 [`segment_moments`]: statistics over segments of one frame; [`auto_segment`]
+//!   finds the segments.
+//! - M3 [`bilateral_exact`] and the fast separable [`bilateral_separable`]:
+//!   bilateral-weighted statistics of one frame.
+//! - [`LiveSeparator`]: per-frame separation for the daemon.
+
+mod bilateral;
+mod error;
+pub mod flags;
+mod live;
+mod moments;
+mod segments;
+mod unmix;
+mod welford;
+
+pub use bilateral::{bilateral_exact, bilateral_separable, BilateralParams};
+pub use error::SeparationError;
+pub use live::{LiveMethod, LiveSeparator};
+pub use moments::Moments;
+pub use segments::{auto_segment, segment_moments, SegmentParams, Segmentation, IGNORE_LABEL};
+pub use unmix::{unmix, Separated, UnmixOptions};
+pub use welford::{SlidingWelford, Welford};
+
+/// True when the sample at `i` of `frame` may enter the statistics.
+#[inline]
+pub(crate) fn usable(frame: &crate::Frame, i: usize) -> bool {
+    frame.saturated.data[i] == 0 && frame.dn.data[i].is_finite()
+}
+
+/// SATURATED and/or NONFINITE for the input sample at `i`.
+#[inline]
+pub(crate) fn input_flags(frame: &crate::Frame, i: usize) -> u8 {
+    let mut f = 0;
+    if frame.saturated.data[i] != 0 {
+        f |= flags::SATURATED;
+    }
+    if !frame.dn.data[i].is_finite() {
+        f |= flags::NONFINITE;
+    }
+    f
+}
