@@ -1,1 +1,47 @@
-//! Publishing frames on a v4l2loopback device.
+//! Publishing SDI frames on a v4l2loopback device, so browsers, ffmpeg and
+//! OpenCV see a real V4L2 camera.
+//!
+//! # Usage
+//!
+//! ```no_run
+//! use v4l2loopback_glue::{find_device, LoopbackWriter, OutputConfig};
+//! # fn main() -> Result<(), v4l2loopback_glue::GlueError> {
+//! let dev = find_device("SDI view")?; // path + module version
+//! let mut view = LoopbackWriter::open(&dev.path, OutputConfig::view(30))?;
+//! let rgb = vec![0u8; 640 * 480 * 3];
+//! view.write_rgb8(&rgb, 1_000_000)?; // sensor timestamp in µs
+//! view.write_no_signal()?; // sensor paused
+//! let _watching: Option<bool> = view.readers_present(); // None on 0.12.x
+//! # Ok(()) }
+//! ```
+//!
+//! * [`find_device`] / [`create_device`]: the node by card label, by module
+//!   version (0.12.x: module parameters only; 0.13/0.14: legacy control
+//!   ioctls; 0.15+: renumbered control ioctls + VERSION).
+//! * [`LoopbackWriter::open`] negotiates [`OutputConfig`] (VIDIOC_S_FMT on the
+//!   output type, VIDIOC_S_PARM), sets `keep_format` and `sustain_framerate`,
+//!   requests mmap buffers (falls back to `write()`), STREAMONs and shows the
+//!   "no signal" card, so a reader can open at once and keeps working across
+//!   daemon restarts.
+//! * Two profiles: [`OutputConfig::view`] (YUYV 640x480, browser-safe) and
+//!   [`OutputConfig::raw`] (Y16 at the sensor size; signed DN are stored as
+//!   `dn + 32768`, see [`PixelFormat::Y16`]).
+//! * Inputs are plain slices with width/height/stride ([`Src`], [`Input`]):
+//!   RGB8, grey8, signed DN as f32. No allocation per frame.
+//! * Errors are typed ([`GlueError`]): EBUSY, EINVAL, ENODEV, a locked format
+//!   under streaming readers, a missing module (with its modprobe command).
+
+mod convert;
+mod device;
+mod error;
+mod format;
+mod sys;
+mod writer;
+
+pub use convert::{dn_to_y16, Converter, Src, YuyvPath};
+pub use device::{
+    create_device, find_device, modprobe_command, CreateOptions, LoopbackDevice, ModuleVersion,
+};
+pub use error::GlueError;
+pub use format::{IoMethod, OutputConfig, PixelFormat, Y16_ZERO_DN};
+pub use writer::{DriverFeatures, Input, LoopbackWriter};

@@ -1,0 +1,260 @@
+//! Finding or creating a loopback node, by module version.
+//!
+//! * 0.12.x (Debian 12): no control device; nodes come from module
+//!   parameters and are found by card label in
+//!   `/sys/devices/virtual/video4linux/*/name`.
+//! * 0.13 / 0.14: control device `/dev/v4l2loopback` with the legacy
+//!   `ADD` ioctl `0x4C80`.
+//! * 0.15+: the control ioctls were renumbered (`_IOW('~', 1, ...)`) and a
+//!   `VERSION` ioctl (`_IOR('~', 0, u32)`) was added.
+
+use std::fs::File;
+use std::os::fd::AsFd;
+use std::path::{Path, PathBuf};
+
+use crate::error::err;
+use crate::sys;
+use crate::GlueError;
+
+const SYSFS_NODES: &str = "/sys/devices/virtual/video4linux";
+const CONTROL_DEVICE: &str = "/dev/v4l2loopback";
+
+/// Version of the loaded v4l2loopback module.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct ModuleVersion {
+    pub major: u32,
+    pub minor: u32,
+    pub patch: u32,
+}
+
+impl std::fmt::Display for ModuleVersion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}.{}.{}", self.major, self.minor, self.patch)
+    }
+}
+
+impl ModuleVersion {
+    const fn new(major: u32, minor: u32, patch: u32) -> Self {
+        Self {
+            major,
+            minor,
+            patch,
+        }
+    }
+
+    /// Parses "0.12.7" (extra suffixes such as "-1" are ignored).
+    pub fn parse(text: &str) -> Option<Self> {
+        let mut it = text
+            .trim()
+            .split(['.', '-', ' '])
+            .map(|p| p.parse::<u32>().ok());
+        Some(Self::new(
+            it.next()??,
+            it.next()??,
+            it.next().flatten().unwrap_or(0),
+        ))
+    }
+
+    /// From `KERNEL_VERSION(a, b, c)` as returned by the 0.15 VERSION ioctl.
+    pub fn from_code(code: u32) -> Self {
+        Self::new(code >> 16, (code >> 8) & 0xff, code & 0xff)
+    }
+
+    /// 0.13+: `/dev/v4l2loopback` can add devices.
+    pub fn has_control_device(self) -> bool {
+        self >= Self::new(0, 13, 0)
+    }
+
+    /// 0.13+: the client-usage event tells when capture readers stream.
+    pub fn has_client_usage_event(self) -> bool {
+        self >= Self::new(0, 13, 0)
+    }
+
+    /// 0.15+: renumbered control ioctls.
+    pub fn has_new_control_ioctls(self) -> bool {
+        self >= Self::new(0, 15, 0)
+    }
+
+    /// Version of the loaded module, or `ModuleNotLoaded` with the command
+    /// that loads it.
+    pub fn of_loaded_module() -> Result<Self, GlueError> {
+        if !Path::new("/sys/module/v4l2loopback").exists() {
+            return Err(GlueError::ModuleNotLoaded {
+                modprobe: modprobe_command("SDI"),
+            });
+        }
+        if let Ok(text) = std::fs::read_to_string("/sys/module/v4l2loopback/version") {
+            if let Some(v) = Self::parse(&text) {
+                return Ok(v);
+            }
+        }
+        if let Ok(ctl) = File::open(CONTROL_DEVICE) {
+            let mut code = 0u32;
+            if sys::ctl_version(ctl.as_fd(), &mut code).is_ok() {
+                return Ok(Self::from_code(code));
+            }
+            return Ok(Self::new(0, 13, 0));
+        }
+        Ok(Self::new(0, 12, 0))
+    }
+}
+
+/// The command that loads the module with one node labelled `label`.
+pub fn modprobe_command(label: &str) -> String {
+    format!("modprobe v4l2loopback devices=1 exclusive_caps=1 card_label=\"{label}\"")
+}
+
+/// A loopback node.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LoopbackDevice {
+    pub path: PathBuf,
+    pub label: String,
+    pub version: ModuleVersion,
+}
+
+/// All loopback nodes as (path, label).
+fn list_nodes() -> Vec<(PathBuf, String)> {
+    let Ok(entries) = std::fs::read_dir(SYSFS_NODES) else {
+        return Vec::new();
+    };
+    let mut nodes: Vec<(PathBuf, String)> = entries
+        .flatten()
+        .filter_map(|e| {
+            let name = std::fs::read_to_string(e.path().join("name")).ok()?;
+            Some((
+                Path::new("/dev").join(e.file_name()),
+                name.trim_end().to_owned(),
+            ))
+        })
+        .collect();
+    nodes.sort();
+    nodes
+}
+
+/// Finds the node whose card label is `label`.
+pub fn find_device(label: &str) -> Result<LoopbackDevice, GlueError> {
+    let version = ModuleVersion::of_loaded_module()?;
+    list_nodes()
+        .into_iter()
+        .find(|(_, l)| l == label)
+        .map(|(path, label)| LoopbackDevice {
+            path,
+            label,
+            version,
+        })
+        .ok_or_else(|| GlueError::DeviceNotFound {
+            label: label.to_owned(),
+            hint: if version.has_control_device() {
+                "create it with create_device() or `v4l2loopback-ctl add`".into()
+            } else {
+                format!(
+                    "v4l2loopback {version} has no control device: reload it with {}",
+                    modprobe_command(label)
+                )
+            },
+        })
+}
+
+/// Parameters of a node to create (0.13+).
+#[derive(Clone, Debug)]
+pub struct CreateOptions {
+    pub label: String,
+    /// Advertise only OUTPUT until a producer streams, then only CAPTURE
+    /// (browsers need this to list the node).
+    pub exclusive_caps: bool,
+    pub max_width: u32,
+    pub max_height: u32,
+    /// Requested `/dev/videoN`, or any.
+    pub video_nr: Option<u32>,
+}
+
+impl CreateOptions {
+    pub fn new(label: &str) -> Self {
+        Self {
+            label: label.to_owned(),
+            exclusive_caps: true,
+            max_width: 8192,
+            max_height: 8192,
+            video_nr: None,
+        }
+    }
+}
+
+/// Returns the node labelled `opts.label`, creating it through the control
+/// device when the module has one (0.13+). On 0.12.x an absent node is an
+/// error naming the modprobe command.
+pub fn create_device(opts: &CreateOptions) -> Result<LoopbackDevice, GlueError> {
+    match find_device(&opts.label) {
+        Err(GlueError::DeviceNotFound { .. }) => {}
+        other => return other,
+    }
+    let version = ModuleVersion::of_loaded_module()?;
+    if !version.has_control_device() {
+        return Err(GlueError::Unsupported {
+            version: version.to_string(),
+            what: "creating devices at run time (no /dev/v4l2loopback); use module parameters",
+        });
+    }
+    let ctl = File::options()
+        .read(true)
+        .write(true)
+        .open(CONTROL_DEVICE)
+        .map_err(|e| GlueError::Io {
+            op: "open /dev/v4l2loopback",
+            errno: nix::errno::Errno::from_raw(e.raw_os_error().unwrap_or(0)),
+        })?;
+    let mut label = [0u8; 32];
+    let n = opts.label.len().min(31);
+    label[..n].copy_from_slice(&opts.label.as_bytes()[..n]);
+    let nr = opts.video_nr.map_or(-1, |n| n as i32);
+    let created = if version.has_new_control_ioctls() {
+        let cfg = sys::loopback_config_v15 {
+            output_nr: nr,
+            unused: nr,
+            card_label: label,
+            max_width: opts.max_width,
+            max_height: opts.max_height,
+            announce_all_caps: i32::from(!opts.exclusive_caps),
+            ..Default::default()
+        };
+        sys::ctl_add_v15(ctl.as_fd(), &cfg)
+    } else {
+        let cfg = sys::loopback_config_legacy {
+            output_nr: nr,
+            unused: nr,
+            card_label: label,
+            max_width: opts.max_width as i32,
+            max_height: opts.max_height as i32,
+            announce_all_caps: i32::from(!opts.exclusive_caps),
+            ..Default::default()
+        };
+        sys::ctl_add_legacy(ctl.as_fd(), &cfg)
+    }
+    .map_err(err("V4L2LOOPBACK_CTL_ADD"))?;
+    Ok(LoopbackDevice {
+        path: PathBuf::from(format!("/dev/video{created}")),
+        label: opts.label.clone(),
+        version,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn versions_parse_and_gate_features() {
+        let v = ModuleVersion::parse("0.12.7\n").unwrap();
+        assert_eq!(v, ModuleVersion::new(0, 12, 7));
+        assert!(!v.has_control_device() && !v.has_client_usage_event());
+        let v = ModuleVersion::parse("0.13.2-1").unwrap();
+        assert!(v.has_control_device() && !v.has_new_control_ioctls());
+        assert_eq!(
+            ModuleVersion::from_code((15 << 8) | 1),
+            ModuleVersion::new(0, 15, 1)
+        );
+        assert!(ModuleVersion::new(0, 15, 0).has_new_control_ioctls());
+        assert!(ModuleVersion::parse("garbage").is_none());
+        assert!(modprobe_command("SDI view").contains("card_label=\"SDI view\""));
+    }
+}

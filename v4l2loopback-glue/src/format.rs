@@ -1,0 +1,170 @@
+//! Output pixel formats and the fixed geometry of a loopback node.
+
+/// Pixel formats the glue publishes.
+///
+/// * `Grey`: 8-bit luma (`GREY`).
+/// * `Y16`: 16-bit little-endian luma (`Y16 `). Signed difference images are
+///   offset to unsigned: `y16 = clamp(round(dn) + 32768, 0, 65535)`, so
+///   0 DN (no difference) is 32768 and the sign is `y16 >= 32768`.
+/// * `Yuyv`: packed 4:2:2, BT.601 limited range (browser-safe).
+/// * `Rgb24`: packed R, G, B bytes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PixelFormat {
+    Grey,
+    Y16,
+    Yuyv,
+    Rgb24,
+}
+
+/// Offset added to signed DN to store them in Y16 (see [`PixelFormat::Y16`]).
+pub const Y16_ZERO_DN: i32 = 32768;
+
+impl PixelFormat {
+    /// The V4L2 fourcc code.
+    pub fn fourcc(self) -> u32 {
+        let code: &[u8; 4] = match self {
+            Self::Grey => b"GREY",
+            Self::Y16 => b"Y16 ",
+            Self::Yuyv => b"YUYV",
+            Self::Rgb24 => b"RGB3",
+        };
+        u32::from_le_bytes(*code)
+    }
+
+    /// Inverse of [`fourcc`](Self::fourcc).
+    pub fn from_fourcc(code: u32) -> Option<Self> {
+        [Self::Grey, Self::Y16, Self::Yuyv, Self::Rgb24]
+            .into_iter()
+            .find(|f| f.fourcc() == code)
+    }
+
+    /// Bytes per pixel (YUYV: 2 per pixel on average).
+    pub fn bytes_per_pixel(self) -> usize {
+        match self {
+            Self::Grey => 1,
+            Self::Y16 | Self::Yuyv => 2,
+            Self::Rgb24 => 3,
+        }
+    }
+
+    /// ffmpeg's name for the same layout (for tests and tools).
+    pub fn ffmpeg_name(self) -> &'static str {
+        match self {
+            Self::Grey => "gray",
+            Self::Y16 => "gray16le",
+            Self::Yuyv => "yuyv422",
+            Self::Rgb24 => "rgb24",
+        }
+    }
+}
+
+impl std::fmt::Display for PixelFormat {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let code = self.fourcc().to_le_bytes();
+        write!(f, "{}", String::from_utf8_lossy(&code).trim_end())
+    }
+}
+
+/// How frames reach the driver.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum IoMethod {
+    /// mmap output streaming (QBUF with exact bytesused and timestamp);
+    /// falls back to `Write` when the driver refuses buffers.
+    #[default]
+    Mmap,
+    /// Plain `write()` of whole frames.
+    Write,
+}
+
+/// The fixed geometry and rate of one loopback node. All modes render into
+/// one geometry: the module cannot change resolution under open readers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OutputConfig {
+    pub width: u32,
+    pub height: u32,
+    pub format: PixelFormat,
+    pub fps: u32,
+    pub io: IoMethod,
+}
+
+impl OutputConfig {
+    /// Browser-safe view profile: YUYV 640x480 (a size Firefox lists).
+    pub fn view(fps: u32) -> Self {
+        Self {
+            width: 640,
+            height: 480,
+            format: PixelFormat::Yuyv,
+            fps,
+            io: IoMethod::Mmap,
+        }
+    }
+
+    /// Raw data profile: Y16 at the sensor's size.
+    pub fn raw(width: u32, height: u32, fps: u32) -> Self {
+        Self {
+            width,
+            height,
+            format: PixelFormat::Y16,
+            fps,
+            io: IoMethod::Mmap,
+        }
+    }
+
+    /// Bytes per line of the tightly packed output.
+    pub fn bytes_per_line(&self) -> usize {
+        self.width as usize * self.format.bytes_per_pixel()
+    }
+
+    /// Bytes of one frame (the exact `bytesused`).
+    pub fn frame_bytes(&self) -> usize {
+        self.bytes_per_line() * self.height as usize
+    }
+
+    /// Checks the geometry before any ioctl.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.width == 0 || self.height == 0 || self.fps == 0 {
+            return Err(format!("width, height and fps must be > 0 (got {self})"));
+        }
+        if self.format == PixelFormat::Yuyv && self.width & 1 == 1 {
+            return Err(format!("YUYV needs an even width (got {})", self.width));
+        }
+        if self.width > 8192 || self.height > 8192 {
+            return Err(format!("{}x{} exceeds 8192x8192", self.width, self.height));
+        }
+        Ok(())
+    }
+}
+
+impl std::fmt::Display for OutputConfig {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} {}x{} @{} fps",
+            self.format, self.width, self.height, self.fps
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fourcc_round_trip_and_sizes() {
+        for f in [
+            PixelFormat::Grey,
+            PixelFormat::Y16,
+            PixelFormat::Yuyv,
+            PixelFormat::Rgb24,
+        ] {
+            assert_eq!(PixelFormat::from_fourcc(f.fourcc()), Some(f));
+        }
+        assert_eq!(PixelFormat::Yuyv.fourcc(), 0x5659_5559);
+        let c = OutputConfig::view(30);
+        assert_eq!(c.bytes_per_line(), 1280);
+        assert_eq!(c.frame_bytes(), 640 * 480 * 2);
+        assert!(OutputConfig { width: 641, ..c }.validate().is_err());
+        assert!(OutputConfig { fps: 0, ..c }.validate().is_err());
+        assert_eq!(PixelFormat::Y16.to_string(), "Y16");
+    }
+}

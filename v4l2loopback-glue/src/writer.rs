@@ -1,0 +1,577 @@
+//! The producer side of one loopback node: negotiates the format before
+//! readers open, keeps the node capture-ready and writes frames without
+//! allocating.
+
+use std::fs::File;
+use std::os::fd::{AsFd, AsRawFd};
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+
+use nix::errno::Errno;
+
+use crate::convert::{Converter, Src, YuyvPath};
+use crate::device::ModuleVersion;
+use crate::error::err;
+use crate::format::{IoMethod, OutputConfig, PixelFormat};
+use crate::sys;
+use crate::GlueError;
+
+/// Driver buffers requested for mmap streaming.
+const MMAP_BUFFERS: u32 = 4;
+/// Driver name reported by VIDIOC_QUERYCAP.
+const LOOPBACK_DRIVER: &str = "v4l2 loopback";
+
+/// One source image handed to [`LoopbackWriter::write`].
+#[derive(Clone, Copy, Debug)]
+pub enum Input<'a> {
+    /// Interleaved RGB8.
+    Rgb8(Src<'a, u8>),
+    /// 8-bit grey, full range.
+    Grey8(Src<'a, u8>),
+    /// Signed difference image in DN.
+    SignedDn(Src<'a, f32>),
+    /// Bytes already packed in the output format (exactly `frame_bytes`).
+    Packed(&'a [u8]),
+}
+
+enum Io {
+    Mmap {
+        maps: Vec<sys::Mapping>,
+        first_pass: usize,
+    },
+    Write {
+        frame: Vec<u8>,
+    },
+}
+
+/// Which optional driver features took effect at open.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DriverFeatures {
+    /// `keep_format` control set: the format survives our restarts.
+    pub keep_format: bool,
+    /// `sustain_framerate` control set: the driver repeats the last frame.
+    pub sustain_framerate: bool,
+    /// Client-usage event subscribed (0.13+).
+    pub client_usage_event: bool,
+    /// S_PARM accepted our frame interval.
+    pub frame_interval: bool,
+}
+
+/// Writes frames to a v4l2loopback node.
+pub struct LoopbackWriter {
+    file: File,
+    path: PathBuf,
+    config: OutputConfig,
+    io: Io,
+    io_method: IoMethod,
+    conv: Converter,
+    no_signal: Vec<u8>,
+    version: Option<ModuleVersion>,
+    features: DriverFeatures,
+    readers: Option<bool>,
+    frames_written: u64,
+}
+
+fn pix_format(cfg: &OutputConfig) -> sys::v4l2_pix_format {
+    sys::v4l2_pix_format {
+        width: cfg.width,
+        height: cfg.height,
+        pixelformat: cfg.format.fourcc(),
+        field: sys::V4L2_FIELD_NONE,
+        bytesperline: cfg.bytes_per_line() as u32,
+        sizeimage: cfg.frame_bytes() as u32,
+        colorspace: match cfg.format {
+            PixelFormat::Yuyv => sys::V4L2_COLORSPACE_SMPTE170M,
+            _ => sys::V4L2_COLORSPACE_SRGB,
+        },
+        ..Default::default()
+    }
+}
+
+fn describe(fmt: &sys::v4l2_pix_format) -> String {
+    let code = fmt.pixelformat.to_le_bytes();
+    format!(
+        "{} {}x{}",
+        String::from_utf8_lossy(&code).trim_end(),
+        fmt.width,
+        fmt.height
+    )
+}
+
+/// The "no signal" card: 32-pixel checkerboard of two dark greys with a
+/// bright horizontal bar through the middle.
+fn no_signal_grey(width: usize, height: usize) -> Vec<u8> {
+    let mut img = vec![0u8; width * height];
+    for (y, row) in img.chunks_exact_mut(width).enumerate() {
+        let bar = y >= height * 7 / 16 && y < height * 9 / 16;
+        for (x, p) in row.iter_mut().enumerate() {
+            *p = if bar {
+                200
+            } else if (x / 32 + y / 32) % 2 == 0 {
+                40
+            } else {
+                72
+            };
+        }
+    }
+    img
+}
+
+impl LoopbackWriter {
+    /// Opens `path`, negotiates `config` (S_FMT on the output type, S_PARM),
+    /// starts streaming and shows the "no signal" card, so readers can start
+    /// at once.
+    pub fn open(path: impl AsRef<Path>, config: OutputConfig) -> Result<Self, GlueError> {
+        Self::open_with(path, config, YuyvPath::Simd)
+    }
+
+    /// [`open`](Self::open) with an explicit RGB->YUYV implementation.
+    pub fn open_with(
+        path: impl AsRef<Path>,
+        config: OutputConfig,
+        yuyv_path: YuyvPath,
+    ) -> Result<Self, GlueError> {
+        let path = path.as_ref().to_path_buf();
+        config
+            .validate()
+            .map_err(|detail| GlueError::InvalidArgument { op: "open", detail })?;
+        let file = File::options()
+            .read(true)
+            .write(true)
+            .custom_flags(libc::O_CLOEXEC)
+            .open(&path)
+            .map_err(|e| match e.raw_os_error() {
+                Some(libc::ENOENT) => GlueError::DeviceNotFound {
+                    label: path.display().to_string(),
+                    hint: "no such device node".into(),
+                },
+                code => GlueError::from_errno("open", Errno::from_raw(code.unwrap_or(0))),
+            })?;
+        let mut cap = sys::v4l2_capability::default();
+        sys::querycap(file.as_fd(), &mut cap).map_err(err("VIDIOC_QUERYCAP"))?;
+        let driver = String::from_utf8_lossy(&cap.driver)
+            .trim_end_matches('\0')
+            .to_owned();
+        if driver != LOOPBACK_DRIVER {
+            return Err(GlueError::NotLoopback {
+                path: path.display().to_string(),
+                driver,
+            });
+        }
+        let mut writer = Self {
+            file,
+            path,
+            config,
+            io: Io::Write { frame: Vec::new() },
+            io_method: IoMethod::Write,
+            conv: Converter::new(config.width, config.height, config.format, yuyv_path),
+            no_signal: Vec::new(),
+            version: ModuleVersion::of_loaded_module().ok(),
+            features: DriverFeatures::default(),
+            readers: None,
+            frames_written: 0,
+        };
+        writer.features.keep_format = writer.set_control(sys::CID_KEEP_FORMAT, 1);
+        writer.features.sustain_framerate = writer.set_control(sys::CID_SUSTAIN_FRAMERATE, 1);
+        writer.negotiate()?;
+        writer.subscribe_client_usage();
+        writer.write_no_signal()?;
+        Ok(writer)
+    }
+
+    fn set_control(&self, id: u32, value: i32) -> bool {
+        let mut ctrl = sys::v4l2_control { id, value };
+        sys::s_ctrl(self.file.as_fd(), &mut ctrl).is_ok()
+    }
+
+    /// S_FMT + check, S_PARM, buffers, STREAMON, no-signal card.
+    fn negotiate(&mut self) -> Result<(), GlueError> {
+        let cfg = self.config;
+        let mut fmt = sys::v4l2_format {
+            type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
+            fmt: sys::v4l2_format_union {
+                pix: pix_format(&cfg),
+            },
+        };
+        sys::s_fmt(self.file.as_fd(), &mut fmt).map_err(err("VIDIOC_S_FMT"))?;
+        let mut got = sys::v4l2_format {
+            type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
+            ..Default::default()
+        };
+        sys::g_fmt(self.file.as_fd(), &mut got).map_err(err("VIDIOC_G_FMT"))?;
+        let got_pix = got.pix();
+        if got_pix.width != cfg.width
+            || got_pix.height != cfg.height
+            || got_pix.pixelformat != cfg.format.fourcc()
+        {
+            return Err(GlueError::FormatLocked {
+                wanted: cfg.to_string(),
+                current: describe(&got_pix),
+            });
+        }
+        let mut parm = sys::v4l2_streamparm {
+            type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
+            ..Default::default()
+        };
+        parm.set_output(sys::v4l2_outputparm {
+            capability: sys::V4L2_CAP_TIMEPERFRAME,
+            timeperframe: sys::v4l2_fract {
+                numerator: 1,
+                denominator: cfg.fps,
+            },
+            ..Default::default()
+        });
+        self.features.frame_interval = match sys::s_parm(self.file.as_fd(), &mut parm) {
+            Ok(_) => true,
+            Err(Errno::ENODEV) => {
+                return Err(GlueError::DeviceGone {
+                    op: "VIDIOC_S_PARM",
+                })
+            }
+            Err(_) => false,
+        };
+        self.io = match cfg.io {
+            IoMethod::Mmap => match self.map_buffers() {
+                Ok(maps) => {
+                    self.io_method = IoMethod::Mmap;
+                    Io::Mmap {
+                        maps,
+                        first_pass: 0,
+                    }
+                }
+                Err(GlueError::DeviceGone { op }) => return Err(GlueError::DeviceGone { op }),
+                Err(_) => self.write_io(),
+            },
+            IoMethod::Write => self.write_io(),
+        };
+        if self.io_method == IoMethod::Mmap {
+            let ty = sys::V4L2_BUF_TYPE_VIDEO_OUTPUT as libc::c_int;
+            sys::streamon(self.file.as_fd(), &ty).map_err(err("VIDIOC_STREAMON"))?;
+        }
+        let grey = no_signal_grey(cfg.width as usize, cfg.height as usize);
+        self.no_signal = vec![0; cfg.frame_bytes()];
+        let src = Src::packed(&grey, cfg.width as usize, cfg.height as usize, 1);
+        self.conv.grey8(src, &mut self.no_signal)?;
+        Ok(())
+    }
+
+    fn write_io(&mut self) -> Io {
+        self.io_method = IoMethod::Write;
+        Io::Write {
+            frame: vec![0; self.config.frame_bytes()],
+        }
+    }
+
+    fn map_buffers(&self) -> Result<Vec<sys::Mapping>, GlueError> {
+        let fd = self.file.as_fd();
+        let mut req = sys::v4l2_requestbuffers {
+            count: MMAP_BUFFERS,
+            type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
+            memory: sys::V4L2_MEMORY_MMAP,
+            ..Default::default()
+        };
+        sys::reqbufs(fd, &mut req).map_err(err("VIDIOC_REQBUFS"))?;
+        if req.count == 0 {
+            return Err(GlueError::InvalidArgument {
+                op: "VIDIOC_REQBUFS",
+                detail: "0 buffers".into(),
+            });
+        }
+        (0..req.count)
+            .map(|index| {
+                let mut buf = sys::v4l2_buffer {
+                    index,
+                    type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
+                    memory: sys::V4L2_MEMORY_MMAP,
+                    ..Default::default()
+                };
+                sys::querybuf(fd, &mut buf).map_err(err("VIDIOC_QUERYBUF"))?;
+                if (buf.length as usize) < self.config.frame_bytes() {
+                    return Err(GlueError::InvalidArgument {
+                        op: "VIDIOC_QUERYBUF",
+                        detail: format!(
+                            "buffer of {} bytes < frame {}",
+                            buf.length,
+                            self.config.frame_bytes()
+                        ),
+                    });
+                }
+                sys::Mapping::new(fd, buf.length as usize, buf.mmap_offset()).map_err(err("mmap"))
+            })
+            .collect()
+    }
+
+    /// Subscribes to the client-usage event where the module has it.
+    fn subscribe_client_usage(&mut self) {
+        if !self
+            .version
+            .is_some_and(ModuleVersion::has_client_usage_event)
+        {
+            return;
+        }
+        let sub = sys::v4l2_event_subscription {
+            type_: sys::V4L2_EVENT_PRI_CLIENT_USAGE,
+            flags: sys::V4L2_EVENT_SUB_FL_SEND_INITIAL,
+            ..Default::default()
+        };
+        self.features.client_usage_event = sys::subscribe_event(self.file.as_fd(), &sub).is_ok();
+        if self.features.client_usage_event {
+            self.readers = Some(false);
+        }
+    }
+
+    /// Whether capture readers are streaming: `None` when the module cannot
+    /// tell (v4l2loopback < 0.13 has no client-usage event: "unsupported").
+    /// Drains pending events without blocking.
+    pub fn readers_present(&mut self) -> Option<bool> {
+        if !self.features.client_usage_event {
+            return None;
+        }
+        loop {
+            let mut fds = [nix::poll::PollFd::new(
+                self.file.as_fd(),
+                nix::poll::PollFlags::POLLPRI,
+            )];
+            let ready = nix::poll::poll(&mut fds, nix::poll::PollTimeout::ZERO).unwrap_or(0);
+            let pri = fds[0]
+                .revents()
+                .is_some_and(|r| r.contains(nix::poll::PollFlags::POLLPRI));
+            if ready == 0 || !pri {
+                break;
+            }
+            let mut ev = sys::v4l2_event::default();
+            if sys::dqevent(self.file.as_fd(), &mut ev).is_err() {
+                break;
+            }
+            if ev.type_ == sys::V4L2_EVENT_PRI_CLIENT_USAGE {
+                self.readers = Some(ev.u[0] as u32 > 0);
+            }
+        }
+        self.readers
+    }
+
+    /// Changes the output format. Refused with [`GlueError::FormatLocked`]
+    /// while readers stream (the module cannot change formats under them);
+    /// otherwise streaming is stopped, buffers released and the new format
+    /// negotiated.
+    pub fn reconfigure(&mut self, config: OutputConfig) -> Result<(), GlueError> {
+        config
+            .validate()
+            .map_err(|detail| GlueError::InvalidArgument {
+                op: "reconfigure",
+                detail,
+            })?;
+        if config == self.config {
+            return Ok(());
+        }
+        if self.readers_present() == Some(true) {
+            return Err(GlueError::FormatLocked {
+                wanted: config.to_string(),
+                current: format!("{} (readers are streaming)", self.config),
+            });
+        }
+        self.release_buffers();
+        let old = self.config;
+        self.config = config;
+        self.conv = Converter::new(config.width, config.height, config.format, YuyvPath::Simd);
+        if let Err(e) = self.negotiate() {
+            // back to the old geometry so the writer stays usable
+            self.config = old;
+            self.conv = Converter::new(old.width, old.height, old.format, YuyvPath::Simd);
+            self.release_buffers();
+            self.negotiate()?;
+            return Err(e);
+        }
+        self.write_no_signal()
+    }
+
+    fn release_buffers(&mut self) {
+        if let Io::Mmap { maps, .. } = &mut self.io {
+            let ty = sys::V4L2_BUF_TYPE_VIDEO_OUTPUT as libc::c_int;
+            let _ = sys::streamoff(self.file.as_fd(), &ty);
+            maps.clear();
+            let mut req = sys::v4l2_requestbuffers {
+                count: 0,
+                type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
+                memory: sys::V4L2_MEMORY_MMAP,
+                ..Default::default()
+            };
+            let _ = sys::reqbufs(self.file.as_fd(), &mut req);
+        }
+        self.io = Io::Write { frame: Vec::new() };
+    }
+
+    /// Publishes one frame; `timestamp_us` is the sensor timestamp.
+    pub fn write(&mut self, input: Input<'_>, timestamp_us: u64) -> Result<(), GlueError> {
+        let bytes = self.config.frame_bytes();
+        let Self { io, conv, file, .. } = self;
+        let mut fill = |dst: &mut [u8]| -> Result<(), GlueError> {
+            match input {
+                Input::Rgb8(src) => conv.rgb8(src, dst),
+                Input::Grey8(src) => conv.grey8(src, dst),
+                Input::SignedDn(src) => conv.signed_dn(src, dst),
+                Input::Packed(data) if data.len() == bytes => {
+                    dst.copy_from_slice(data);
+                    Ok(())
+                }
+                Input::Packed(data) => Err(GlueError::InputMismatch {
+                    expected: format!("{bytes} packed bytes"),
+                    got: data.len().to_string(),
+                }),
+            }
+        };
+        match io {
+            Io::Mmap { maps, first_pass } => {
+                let fd = file.as_fd();
+                let index = if *first_pass < maps.len() {
+                    *first_pass += 1;
+                    *first_pass - 1
+                } else {
+                    let mut buf = sys::v4l2_buffer {
+                        type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
+                        memory: sys::V4L2_MEMORY_MMAP,
+                        ..Default::default()
+                    };
+                    sys::dqbuf(fd, &mut buf).map_err(err("VIDIOC_DQBUF"))?;
+                    buf.index as usize % maps.len()
+                };
+                fill(&mut maps[index].as_mut_slice()[..bytes])?;
+                let mut buf = sys::v4l2_buffer {
+                    index: index as u32,
+                    type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
+                    memory: sys::V4L2_MEMORY_MMAP,
+                    bytesused: bytes as u32,
+                    field: sys::V4L2_FIELD_NONE,
+                    flags: sys::V4L2_BUF_FLAG_TIMESTAMP_COPY,
+                    timestamp: libc::timeval {
+                        tv_sec: (timestamp_us / 1_000_000) as libc::time_t,
+                        tv_usec: (timestamp_us % 1_000_000) as libc::suseconds_t,
+                    },
+                    ..Default::default()
+                };
+                sys::qbuf(fd, &mut buf).map_err(err("VIDIOC_QBUF"))?;
+            }
+            Io::Write { frame } => {
+                fill(frame)?;
+                let mut done = 0;
+                while done < frame.len() {
+                    match nix::unistd::write(file.as_fd(), &frame[done..]) {
+                        Ok(0) => {
+                            return Err(GlueError::Io {
+                                op: "write",
+                                errno: Errno::EIO,
+                            })
+                        }
+                        Ok(n) => done += n,
+                        Err(Errno::EINTR) => {}
+                        Err(e) => return Err(GlueError::from_errno("write", e)),
+                    }
+                }
+            }
+        }
+        self.frames_written += 1;
+        Ok(())
+    }
+
+    /// Publishes tightly packed RGB8 at the output size.
+    pub fn write_rgb8(&mut self, rgb: &[u8], timestamp_us: u64) -> Result<(), GlueError> {
+        let (w, h) = (self.config.width as usize, self.config.height as usize);
+        self.write(Input::Rgb8(Src::packed(rgb, w, h, 3)), timestamp_us)
+    }
+
+    /// Publishes tightly packed 8-bit grey at the output size.
+    pub fn write_grey8(&mut self, grey: &[u8], timestamp_us: u64) -> Result<(), GlueError> {
+        let (w, h) = (self.config.width as usize, self.config.height as usize);
+        self.write(Input::Grey8(Src::packed(grey, w, h, 1)), timestamp_us)
+    }
+
+    /// Publishes a signed difference image in DN (offset mapping of
+    /// [`PixelFormat::Y16`]).
+    pub fn write_signed_y16(&mut self, dn: &[f32], timestamp_us: u64) -> Result<(), GlueError> {
+        let (w, h) = (self.config.width as usize, self.config.height as usize);
+        self.write(Input::SignedDn(Src::packed(dn, w, h, 1)), timestamp_us)
+    }
+
+    /// Shows the "no signal" card (sensor paused), stamped with the current
+    /// monotonic time.
+    pub fn write_no_signal(&mut self) -> Result<(), GlueError> {
+        let card = std::mem::take(&mut self.no_signal);
+        let ts = nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
+            .map(|t| t.tv_sec() as u64 * 1_000_000 + t.tv_nsec() as u64 / 1000)
+            .unwrap_or(0);
+        let result = self.write(Input::Packed(&card), ts);
+        self.no_signal = card;
+        result
+    }
+
+    /// The bytes of the "no signal" card in the output format.
+    pub fn no_signal_frame(&self) -> &[u8] {
+        &self.no_signal
+    }
+
+    pub fn config(&self) -> OutputConfig {
+        self.config
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The I/O method in use (mmap falls back to write()).
+    pub fn io_method(&self) -> IoMethod {
+        self.io_method
+    }
+
+    pub fn module_version(&self) -> Option<ModuleVersion> {
+        self.version
+    }
+
+    pub fn features(&self) -> DriverFeatures {
+        self.features
+    }
+
+    pub fn frames_written(&self) -> u64 {
+        self.frames_written
+    }
+}
+
+impl AsRawFd for LoopbackWriter {
+    fn as_raw_fd(&self) -> std::os::fd::RawFd {
+        self.file.as_raw_fd()
+    }
+}
+
+impl Drop for LoopbackWriter {
+    fn drop(&mut self) {
+        self.release_buffers();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn no_signal_card_has_bar_and_checkerboard() {
+        let img = no_signal_grey(64, 64);
+        assert_eq!(img[0], 40);
+        assert_eq!(img[32], 72);
+        assert_eq!(img[32 * 64], 200);
+    }
+
+    #[test]
+    fn opening_a_non_device_is_a_typed_error() {
+        let e = LoopbackWriter::open("/nonexistent/video99", OutputConfig::view(30));
+        assert!(matches!(e, Err(GlueError::DeviceNotFound { .. })));
+        let e = LoopbackWriter::open("/dev/null", OutputConfig::view(30));
+        assert!(e.is_err());
+        let bad = OutputConfig {
+            width: 641,
+            ..OutputConfig::view(30)
+        };
+        assert!(matches!(
+            LoopbackWriter::open("/dev/null", bad),
+            Err(GlueError::InvalidArgument { .. })
+        ));
+    }
+}
