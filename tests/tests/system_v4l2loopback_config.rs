@@ -35,7 +35,7 @@ fn plain_modprobe_creates_the_sdi_camera() {
 
     assert!(Path::new("/dev/video42").exists(), "no /dev/video42");
     let label = fs::read_to_string("/sys/devices/virtual/video4linux/video42/name").unwrap();
-    assert_eq!(label.trim(), "SDI");
+    assert_eq!(label.trim(), "SDI camera");
     // exclusive_caps=1: with no writer yet, the node is an output device
     // only (it turns into a capture-only device once sdid writes).
     let info = Command::new("v4l2-ctl")
