@@ -1,3 +1,5 @@
 //! Shared helpers for SDI's integration tests.
 
+pub mod bench;
+pub mod loopback;
 pub mod vm;
