@@ -1,0 +1,312 @@
+//! SDI's D-Bus system policy (`udev/dbus/org.sdi.Daemon.conf`) on a real
+//! dbus-daemon configured like the system bus.
+//!
+//! Runs inside the VM, whose `/etc` is a throw-away overlay, so the test can
+//! create the control group `sdi`, a member of it and an unprivileged user
+//! without touching the host. The daemon owning `org.sdi.Daemon` runs as
+//! root; the users talk to it with `busctl` through `runuser`.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use sdi_tests::vm;
+
+const BUS_NAME: &str = "org.sdi.Daemon";
+const OBJECT: &str = "/org/sdi/Camera0";
+const INTERFACE: &str = "org.sdi.Camera1";
+const OPERATOR: &str = "sdi-operator";
+const GUEST: &str = "sdi-guest";
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("workspace root")
+        .to_path_buf()
+}
+
+/// Kills and reaps a child process when dropped.
+struct Reaped(Child);
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn run(cmd: &mut Command) -> Output {
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("spawn {cmd:?}: {e}"));
+    eprintln!(
+        "$ {cmd:?} -> {}\n{}{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn must(cmd: &mut Command) {
+    let out = run(cmd);
+    assert!(out.status.success(), "{cmd:?} failed");
+}
+
+/// A private bus with the system bus's deny-by-default policy plus SDI's.
+struct SystemLikeBus {
+    _daemon: Reaped,
+    address: String,
+}
+
+impl SystemLikeBus {
+    fn start(dir: &Path) -> Self {
+        let socket = dir.join("system_bus_socket");
+        let services = dir.join("system-services");
+        std::fs::create_dir_all(&services).unwrap();
+        let template =
+            std::fs::read_to_string(repo_root().join("tests/system/dbus-system-bus.conf.in"))
+                .unwrap();
+        let config = template
+            .replace("@SOCKET@", socket.to_str().unwrap())
+            .replace("@SERVICEDIR@", services.to_str().unwrap())
+            .replace(
+                "@POLICY@",
+                repo_root()
+                    .join("udev/dbus/org.sdi.Daemon.conf")
+                    .to_str()
+                    .unwrap(),
+            );
+        let config_path = dir.join("system.conf");
+        std::fs::write(&config_path, config).unwrap();
+        let mut child = Command::new("dbus-daemon")
+            .arg(format!("--config-file={}", config_path.display()))
+            .args(["--nofork", "--print-address"])
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("spawn dbus-daemon");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap())
+            .read_line(&mut line)
+            .unwrap();
+        let address = line.trim().to_owned();
+        assert!(!address.is_empty(), "dbus-daemon printed no address");
+        Self {
+            _daemon: Reaped(child),
+            address,
+        }
+    }
+
+    /// `busctl` on this bus as `user` (None: as root).
+    fn busctl(&self, user: Option<&str>, args: &[&str]) -> Output {
+        let mut cmd = match user {
+            Some(u) => {
+                let mut c = Command::new("runuser");
+                c.args(["-u", u, "--", "busctl"]);
+                c
+            }
+            None => Command::new("busctl"),
+        };
+        cmd.arg(format!("--address={}", self.address))
+            .arg("--timeout=5")
+            .args(args);
+        run(&mut cmd)
+    }
+
+    fn wait_for_owner(&self, name: &str) {
+        let deadline = Instant::now() + Duration::from_secs(60);
+        loop {
+            let out = self.busctl(
+                None,
+                &[
+                    "call",
+                    "org.freedesktop.DBus",
+                    "/org/freedesktop/DBus",
+                    "org.freedesktop.DBus",
+                    "NameHasOwner",
+                    "s",
+                    name,
+                ],
+            );
+            if String::from_utf8_lossy(&out.stdout).trim() == "b true" {
+                return;
+            }
+            assert!(
+                Instant::now() < deadline,
+                "{name} never appeared on the bus"
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+}
+
+fn denied(out: &Output) -> bool {
+    let err = String::from_utf8_lossy(&out.stderr);
+    !out.status.success() && (err.contains("Access denied") || err.contains("AccessDenied"))
+}
+
+/// The daemon that owns `org.sdi.Daemon`, running as root.
+fn start_daemon(bus: &SystemLikeBus) -> Reaped {
+    // Temporary stand-in until sdid is merged: this very binary serving a
+    // minimal org.sdi.Camera1 (see `standin_sdid`).
+    let child = Command::new(std::env::current_exe().unwrap())
+        .args(["--ignored", "--exact", "standin_sdid", "--nocapture"])
+        .env("DBUS_SYSTEM_BUS_ADDRESS", &bus.address)
+        .spawn()
+        .expect("spawn daemon");
+    Reaped(child)
+}
+
+#[test]
+fn policy_controls_who_may_do_what() {
+    if !vm::in_vm() {
+        vm::run_test_in_vm("policy_controls_who_may_do_what", 240);
+        return;
+    }
+    must(Command::new("groupadd").args(["--system", "sdi"]));
+    must(Command::new("useradd").args(["-M", "-N", "-G", "sdi", OPERATOR]));
+    must(Command::new("useradd").args(["-M", "-N", GUEST]));
+
+    let dir = PathBuf::from("/tmp/sdi-dbus-policy");
+    std::fs::create_dir_all(&dir).unwrap();
+    let bus = SystemLikeBus::start(&dir);
+    let _daemon = start_daemon(&bus);
+    bus.wait_for_owner(BUS_NAME);
+
+    // Control: only members of the group may call methods.
+    let call = [
+        "call",
+        BUS_NAME,
+        OBJECT,
+        INTERFACE,
+        "SetMode",
+        "s",
+        "depth-edge",
+    ];
+    let guest = bus.busctl(Some(GUEST), &call);
+    assert!(denied(&guest), "an unprivileged user could call SetMode");
+    let operator = bus.busctl(Some(OPERATOR), &call);
+    assert!(
+        operator.status.success(),
+        "a member of sdi could not call SetMode"
+    );
+
+    // Reading: everyone, including reading back the mode just set.
+    for user in [GUEST, OPERATOR] {
+        let get = bus.busctl(
+            Some(user),
+            &["get-property", BUS_NAME, OBJECT, INTERFACE, "Mode"],
+        );
+        assert!(get.status.success(), "{user} could not read Mode");
+        assert!(String::from_utf8_lossy(&get.stdout).contains("depth-edge"));
+        let all = bus.busctl(
+            Some(user),
+            &[
+                "call",
+                BUS_NAME,
+                OBJECT,
+                "org.freedesktop.DBus.Properties",
+                "GetAll",
+                "s",
+                INTERFACE,
+            ],
+        );
+        assert!(all.status.success(), "{user} could not GetAll");
+        let intro = bus.busctl(Some(user), &["introspect", BUS_NAME, OBJECT]);
+        assert!(intro.status.success(), "{user} could not introspect");
+        let ping = bus.busctl(
+            Some(user),
+            &[
+                "call",
+                BUS_NAME,
+                OBJECT,
+                "org.freedesktop.DBus.Peer",
+                "Ping",
+            ],
+        );
+        assert!(ping.status.success(), "{user} could not ping");
+    }
+
+    // Setting properties: the policy lets only the group through (what the
+    // daemon then does with the value is its business, not the bus's).
+    let set = [
+        "set-property",
+        BUS_NAME,
+        OBJECT,
+        INTERFACE,
+        "Mode",
+        "s",
+        "raw",
+    ];
+    assert!(
+        denied(&bus.busctl(Some(GUEST), &set)),
+        "guest could set a property"
+    );
+    assert!(
+        !denied(&bus.busctl(Some(OPERATOR), &set)),
+        "the bus denied a member of sdi setting a property"
+    );
+
+    // Ownership: nobody but root may take the name.
+    for user in [GUEST, OPERATOR] {
+        let own = run(Command::new("runuser")
+            .args(["-u", user, "--", "dbus-send"])
+            .args([
+                &format!("--bus={}", bus.address),
+                "--print-reply",
+                "--dest=org.freedesktop.DBus",
+                "/org/freedesktop/DBus",
+                "org.freedesktop.DBus.RequestName",
+                &format!("string:{BUS_NAME}"),
+                "uint32:0",
+            ]));
+        assert!(denied(&own), "{user} could own {BUS_NAME}");
+    }
+}
+
+/// Stand-in for sdid (temporary, until sdid is merged): owns
+/// `org.sdi.Daemon` on `DBUS_SYSTEM_BUS_ADDRESS` and serves SetMode and Mode.
+#[test]
+#[ignore = "helper process of policy_controls_who_may_do_what"]
+fn standin_sdid() {
+    struct Camera {
+        mode: String,
+    }
+
+    #[zbus::interface(name = "org.sdi.Camera1")]
+    impl Camera {
+        #[zbus(name = "SetMode")]
+        async fn change_mode(&mut self, mode: String) {
+            self.mode = mode;
+        }
+
+        #[zbus(property)]
+        async fn mode(&self) -> String {
+            self.mode.clone()
+        }
+
+        #[zbus(property)]
+        async fn set_mode(&mut self, mode: String) {
+            self.mode = mode;
+        }
+    }
+
+    let rt = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let camera = Camera { mode: "raw".into() };
+        let _conn = zbus::connection::Builder::system()
+            .unwrap()
+            .serve_at(OBJECT, camera)
+            .unwrap()
+            .name(BUS_NAME)
+            .unwrap()
+            .build()
+            .await
+            .unwrap();
+        std::future::pending::<()>().await;
+    });
+}

@@ -1,0 +1,292 @@
+//! Real hotplug of the board's USB IDs, inside the VM: a configfs USB gadget
+//! on dummy_hcd presents 0451:9105 (then 0451:9106, then an ID that is not
+//! ours), the real systemd-udevd applies `udev/70-sdi-board.rules` from the
+//! VM's throw-away `/etc`, and the test checks what systemd and the control
+//! group would see; unplugging the gadget is seen as a remove event.
+
+use std::fs;
+use std::os::unix::fs::{MetadataExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+use sdi_tests::vm;
+
+const GADGET: &str = "/sys/kernel/config/usb_gadget/sdi-board";
+const RULES: &str = "70-sdi-board.rules";
+
+fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("workspace root")
+        .to_path_buf()
+}
+
+/// Kills and reaps a child process when dropped.
+struct Reaped(Child);
+
+impl Drop for Reaped {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn run(cmd: &mut Command) -> Output {
+    let out = cmd
+        .output()
+        .unwrap_or_else(|e| panic!("spawn {cmd:?}: {e}"));
+    assert!(
+        out.status.success(),
+        "{cmd:?} failed ({}):\n{}{}",
+        out.status,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+/// udevadm; the VM runs tests in a chroot, where udevadm would otherwise
+/// refuse to settle or monitor.
+fn udevadm() -> Command {
+    let mut cmd = Command::new("udevadm");
+    cmd.env("SYSTEMD_IGNORE_CHROOT", "1");
+    cmd
+}
+
+fn write(path: impl AsRef<Path>, value: &str) {
+    let path = path.as_ref();
+    fs::write(path, value).unwrap_or_else(|e| panic!("write {value:?} to {}: {e}", path.display()));
+}
+
+fn wait_until(what: &str, mut ready: impl FnMut() -> bool) {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while !ready() {
+        assert!(Instant::now() < deadline, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// The enumerated USB device (host side of the gadget) with this vendor:product.
+fn usb_device(vendor: &str, product: &str) -> Option<PathBuf> {
+    fs::read_dir("/sys/bus/usb/devices")
+        .ok()?
+        .flatten()
+        .find_map(|e| {
+            let p = e.path();
+            let attr = |name: &str| fs::read_to_string(p.join(name)).map(|s| s.trim().to_owned());
+            (attr("idVendor").ok()? == vendor && attr("idProduct").ok()? == product)
+                .then(|| fs::canonicalize(&p).unwrap_or(p))
+        })
+}
+
+/// Builds the gadget (unbound) with one ACM function.
+fn create_gadget() {
+    let g = Path::new(GADGET);
+    fs::create_dir_all(g).unwrap();
+    fs::create_dir_all(g.join("strings/0x409")).unwrap();
+    write(g.join("strings/0x409/manufacturer"), "SDI tests");
+    write(g.join("strings/0x409/product"), "OPT8241 stand-in");
+    write(g.join("strings/0x409/serialnumber"), "SDI0001");
+    fs::create_dir_all(g.join("configs/c.1/strings/0x409")).unwrap();
+    write(g.join("configs/c.1/strings/0x409/configuration"), "sdi");
+    fs::create_dir_all(g.join("functions/acm.usb0")).unwrap();
+    std::os::unix::fs::symlink(g.join("functions/acm.usb0"), g.join("configs/c.1/acm.usb0"))
+        .unwrap();
+}
+
+fn plug(vendor: &str, product: &str) -> PathBuf {
+    write(format!("{GADGET}/idVendor"), &format!("0x{vendor}"));
+    write(format!("{GADGET}/idProduct"), &format!("0x{product}"));
+    write(format!("{GADGET}/UDC"), "dummy_udc.0");
+    let mut dev = None;
+    wait_until("the gadget to enumerate", || {
+        dev = usb_device(vendor, product);
+        dev.is_some()
+    });
+    run(udevadm().args(["settle", "--timeout=30"]));
+    dev.unwrap()
+}
+
+fn unplug(dev: &Path) {
+    write(format!("{GADGET}/UDC"), "\n");
+    wait_until("the device to disappear", || !dev.exists());
+    run(udevadm().args(["settle", "--timeout=30"]));
+}
+
+/// `udevadm info` properties as KEY=VALUE lines.
+fn properties(dev: &Path) -> String {
+    let out = run(udevadm().args(["info", "--query=property"]).arg(dev));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn device_node(props: &str) -> PathBuf {
+    props
+        .lines()
+        .find_map(|l| l.strip_prefix("DEVNAME="))
+        .map(PathBuf::from)
+        .expect("USB device without DEVNAME")
+}
+
+fn gid_of(group: &str) -> u32 {
+    let out = run(Command::new("getent").args(["group", group]));
+    String::from_utf8_lossy(&out.stdout)
+        .split(':')
+        .nth(2)
+        .and_then(|g| g.trim().parse().ok())
+        .expect("gid")
+}
+
+fn setup() -> Reaped {
+    run(Command::new("groupadd").args(["--system", "sdi"]));
+    fs::create_dir_all("/etc/udev/rules.d").unwrap();
+    fs::copy(
+        repo_root().join("udev").join(RULES),
+        Path::new("/etc/udev/rules.d").join(RULES),
+    )
+    .unwrap();
+    for module in ["dummy_hcd", "libcomposite", "usb_f_acm"] {
+        run(Command::new("modprobe").arg(module));
+    }
+    if !Path::new("/sys/kernel/config/usb_gadget").exists() {
+        run(Command::new("mount").args(["-t", "configfs", "none", "/sys/kernel/config"]));
+    }
+    let udevd = Command::new("/lib/systemd/systemd-udevd")
+        .env("SYSTEMD_IGNORE_CHROOT", "1")
+        .stdout(Stdio::null())
+        .spawn()
+        .expect("spawn systemd-udevd");
+    let udevd = Reaped(udevd);
+    wait_until("systemd-udevd", || Path::new("/run/udev/control").exists());
+    udevd
+}
+
+#[test]
+fn board_hotplug_tags_device_for_systemd_and_group() {
+    if !vm::in_vm() {
+        vm::run_test_in_vm("board_hotplug_tags_device_for_systemd_and_group", 240);
+        return;
+    }
+    let _udevd = setup();
+    let sdi_gid = gid_of("sdi");
+    create_gadget();
+
+    // Our rules parse cleanly: udevadm test loads every rules file and
+    // complains about the ones it cannot read.
+    let dev = plug("0451", "9105");
+    let test = run(udevadm().args(["test", "--action=add"]).arg(&dev));
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&test.stdout),
+        String::from_utf8_lossy(&test.stderr)
+    );
+    let complaints: Vec<&str> = log
+        .lines()
+        .filter(|l| l.contains(RULES))
+        .filter(|l| {
+            let l = l.to_lowercase();
+            l.contains("invalid") || l.contains("error") || l.contains("ignoring")
+        })
+        .collect();
+    assert!(
+        complaints.is_empty(),
+        "udev complains about {RULES}: {complaints:#?}"
+    );
+    assert!(
+        log.contains("SYSTEMD_WANTS=sdid.service"),
+        "udevadm test:\n{log}"
+    );
+    unplug(&dev);
+
+    for (product, mode) in [
+        ("9105", Some("bulk")),
+        ("9106", Some("uvc")),
+        ("9107", None),
+    ] {
+        let monitor = udevadm()
+            .args(["monitor", "--udev", "--subsystem-match=usb/usb_device"])
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("spawn udevadm monitor");
+        let mut monitor = Reaped(monitor);
+        std::thread::sleep(Duration::from_millis(500));
+
+        let dev = plug("0451", product);
+        let props = properties(&dev);
+        let node = device_node(&props);
+        let meta = fs::metadata(&node).unwrap();
+        eprintln!("0451:{product} at {}:\n{props}", dev.display());
+        match mode {
+            Some(mode) => {
+                assert!(
+                    props.contains("TAGS=") && props.contains(":systemd:"),
+                    "{props}"
+                );
+                assert!(
+                    props.lines().any(|l| l == "SYSTEMD_WANTS=sdid.service"),
+                    "{props}"
+                );
+                assert!(props
+                    .lines()
+                    .any(|l| l == format!("ID_SDI_BOARD_MODE={mode}")));
+                assert_eq!(
+                    meta.gid(),
+                    sdi_gid,
+                    "{} not owned by group sdi",
+                    node.display()
+                );
+                assert_eq!(meta.permissions().mode() & 0o777, 0o660);
+            }
+            None => {
+                assert!(
+                    !props.contains("SYSTEMD_WANTS"),
+                    "foreign device matched:\n{props}"
+                );
+                assert!(!props.contains("ID_SDI_BOARD"), "{props}");
+                assert_ne!(meta.gid(), sdi_gid);
+            }
+        }
+
+        unplug(&dev);
+        assert!(
+            !node.exists(),
+            "{} still exists after unplug",
+            node.display()
+        );
+        std::thread::sleep(Duration::from_millis(300));
+        let _ = monitor.0.kill();
+        let out = monitor.0.wait_with_output_ref();
+        let devpath = dev
+            .strip_prefix("/sys")
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
+        assert!(
+            out.lines()
+                .any(|l| l.contains("add") && l.contains(&devpath)),
+            "no add event for {devpath}:\n{out}"
+        );
+        assert!(
+            out.lines()
+                .any(|l| l.contains("remove") && l.contains(&devpath)),
+            "no remove event for {devpath}:\n{out}"
+        );
+    }
+}
+
+/// Reads what a killed child wrote to its piped stdout.
+trait OutputOfKilled {
+    fn wait_with_output_ref(&mut self) -> String;
+}
+
+impl OutputOfKilled for Child {
+    fn wait_with_output_ref(&mut self) -> String {
+        use std::io::Read;
+        let _ = self.wait();
+        let mut s = String::new();
+        if let Some(mut out) = self.stdout.take() {
+            let _ = out.read_to_string(&mut s);
+        }
+        s
+    }
+}
