@@ -78,6 +78,18 @@ impl From<zbus::Error> for OnlineError {
                     _ => OnlineError::Failed(msg),
                 }
             }
+            zbus::Error::FDO(f) => match **f {
+                zbus::fdo::Error::ServiceUnknown(_)
+                | zbus::fdo::Error::NameHasNoOwner(_)
+                | zbus::fdo::Error::NoReply(_)
+                | zbus::fdo::Error::Timeout(_) => OnlineError::Unreachable(format!(
+                    "{e} (is sdid running? start it with `sdid --session` or `systemctl start sdid`)"
+                )),
+                zbus::fdo::Error::InvalidArgs(_) | zbus::fdo::Error::UnknownProperty(_) => {
+                    OnlineError::Invalid(e.to_string())
+                }
+                _ => OnlineError::Failed(e.to_string()),
+            },
             zbus::Error::InputOutput(_) | zbus::Error::Address(_) | zbus::Error::Handshake(_) => {
                 OnlineError::Unreachable(format!("cannot reach the bus: {e}"))
             }
