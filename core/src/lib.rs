@@ -5,10 +5,13 @@
 //! [`mode`] pipeline turns frames into signed images. No I/O happens here:
 //! callers hand in buffers and writers.
 
+pub mod dark_frame;
+pub mod display;
 pub mod frame;
 pub mod image;
 pub mod mode;
 pub mod modulation;
+pub mod npy;
 pub mod scene;
 pub mod sensor;
 pub mod simulator;

@@ -1,21 +1,37 @@
 //! The physically faithful ToF simulator: scene -> wells -> readout -> ADC.
 //!
 //! Per pixel the wells collect Poisson counts with means
-//! I+- = integral of (f | 1 - f)(t) g_i(t) dt (eq. wellmeasurement), clipped at
-//! full well; the readout is D = rho * (eta * (N+ - N-) + n_read) (eq. pixeleff)
-//! plus black level and fixed-pattern offset, then quantized and clipped by the
-//! ADC. Moving scenes are integrated in sub-steps so motion inside one
-//! exposure (temporal gradients, two-shot ghosting) comes out of the model.
+//! I+- = integral of (f | 1 - f)(t) g_i(t) dt (eq. wellmeasurement,
+//! eq. poissonstats), clipped at full well; the readout is
+//! D = rho * (eta * (N+ - N-) + n_read) (eq. pixeleff, eq. skellamvar) plus
+//! the ADC black level and a per-pixel fixed-pattern offset, then quantized
+//! and clipped by the ADC. Light uncorrelated with f (ambient, `Constant`
+//! sources) splits between the wells by the duty of f: under the 50/50 square
+//! wave it cancels in the mean and adds shot noise. Moving scenes are
+//! integrated in sub-steps so motion inside one exposure (temporal gradients,
+//! two-shot ghosting) comes out of the model.
+//!
+//! [`Frame::dn`] holds the ADC code minus the (known, constant) black-level
+//! offset; the per-pixel fixed pattern stays in, as on the real sensor: dark
+//! frames ([`Simulator::capture_dark`]) measure it for subtraction.
+//!
+//! Speed: static scenes keep their expected wells and per-pixel readout plan
+//! (see [`readout`]) for each recently used illumination, so a frame costs one
+//! random draw per bright pixel.
+
+pub mod poisson;
+pub mod readout;
 
 use rand::rngs::SmallRng;
 use rand::SeedableRng;
-use rand_distr::{Distribution, Normal, Poisson};
+use rand_distr::{Distribution, Normal};
 
 use crate::frame::Frame;
 use crate::image::Image;
 use crate::modulation::{Illumination, SourceDrive};
 use crate::scene::{Radiance, Scene, SceneSpec};
 use crate::sensor::{ParamError, SensorParams};
+use readout::ReadoutPlan;
 
 /// Everything needed to build a simulator run.
 #[derive(Debug, Clone, PartialEq)]
@@ -39,6 +55,28 @@ impl SimConfig {
             substeps: 16,
         }
     }
+
+    /// Rejects bad sensor parameters, scene parameters, ambient and sub-steps.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        self.sensor.validate()?;
+        self.scene.validate()?;
+        let a = self.ambient_electrons_per_us;
+        if !(a.is_finite() && a >= 0.0) {
+            return Err(ParamError {
+                name: "ambient_electrons_per_us",
+                value: a,
+                allowed: "finite, >= 0",
+            });
+        }
+        if !(1..=4096).contains(&self.substeps) {
+            return Err(ParamError {
+                name: "substeps",
+                value: self.substeps as f64,
+                allowed: "1..=4096",
+            });
+        }
+        Ok(())
+    }
 }
 
 /// Expected well contents of one exposure, electrons: the ground truth.
@@ -48,6 +86,28 @@ pub struct WellExpectation {
     pub i_minus_electrons: Image<f32>,
 }
 
+impl WellExpectation {
+    fn zeros(width: usize, height: usize) -> Self {
+        Self {
+            i_plus_electrons: Image::new(width, height),
+            i_minus_electrons: Image::new(width, height),
+        }
+    }
+}
+
+/// Expected wells and readout plan for one illumination.
+struct CacheEntry {
+    /// `None` for a moving scene (recomputed every frame).
+    illumination: Option<Illumination>,
+    expected: WellExpectation,
+    plan: ReadoutPlan,
+    plan_valid: bool,
+}
+
+/// How many illuminations a static scene keeps precomputed (two-shot
+/// alternates two, plus dark frames).
+const CACHE_ENTRIES: usize = 3;
+
 /// A simulated sensor looking at a scene.
 pub struct Simulator {
     config: SimConfig,
@@ -55,43 +115,47 @@ pub struct Simulator {
     rng: SmallRng,
     fixed_pattern_dn: Image<f32>,
     radiance: Radiance,
-    expected: WellExpectation,
+    /// True once `radiance` holds a static scene's (time-independent) rates.
+    radiance_static: bool,
+    cache: Vec<CacheEntry>,
+    current: usize,
     time_us: f64,
     sequence: u64,
 }
 
 impl Simulator {
+    /// Validates the configuration (NaN, negative ambient, bad scene or
+    /// sensor parameters are rejected) and builds the scene and the fixed
+    /// pattern, both deterministic given the seed.
     pub fn new(config: SimConfig) -> Result<Self, ParamError> {
-        config.sensor.validate()?;
-        let a = config.ambient_electrons_per_us;
-        if !(a.is_finite() && a >= 0.0) {
-            return Err(ParamError {
-                name: "ambient_electrons_per_us",
-                value: a,
-                allowed: ">= 0",
-            });
-        }
+        config.validate()?;
         let (w, h) = (config.sensor.width, config.sensor.height);
         let scene = config.scene.build(w, h, config.seed);
-        let mut rng = SmallRng::seed_from_u64(config.seed);
+        // Separate streams: the fixed pattern does not depend on how many
+        // noise draws happen, and vice versa.
+        let mut fpn_rng = SmallRng::seed_from_u64(config.seed ^ 0x005E_EDF1_ED0F_F5E7);
         let sigma = config.sensor.fixed_pattern_sigma_dn;
         let fixed_pattern_dn = match Normal::new(0.0f32, sigma as f32) {
             Ok(n) if sigma > 0.0 => Image {
                 width: w,
                 height: h,
-                data: (0..w * h).map(|_| n.sample(&mut rng)).collect(),
+                data: (0..w * h).map(|_| n.sample(&mut fpn_rng)).collect(),
             },
             _ => Image::new(w, h),
         };
         Ok(Self {
             scene,
-            rng,
+            rng: SmallRng::seed_from_u64(config.seed),
             fixed_pattern_dn,
             radiance: Radiance::default(),
-            expected: WellExpectation {
-                i_plus_electrons: Image::new(w, h),
-                i_minus_electrons: Image::new(w, h),
-            },
+            radiance_static: false,
+            cache: vec![CacheEntry {
+                illumination: None,
+                expected: WellExpectation::zeros(w, h),
+                plan: ReadoutPlan::default(),
+                plan_valid: false,
+            }],
+            current: 0,
             time_us: 0.0,
             sequence: 0,
             config,
@@ -111,34 +175,80 @@ impl Simulator {
         self.time_us
     }
 
-    /// Expected well contents of the exposure most recently captured.
-    pub fn last_expectation(&self) -> &WellExpectation {
-        &self.expected
+    /// The per-pixel fixed-pattern offset, DN (ground truth for dark frames).
+    pub fn fixed_pattern_dn(&self) -> &Image<f32> {
+        &self.fixed_pattern_dn
     }
 
-    /// Integrates the expected well contents of an exposure starting at `t0_us`.
+    /// Expected well contents of the exposure most recently captured (or
+    /// integrated by [`Simulator::expect_wells`]).
+    pub fn last_expectation(&self) -> &WellExpectation {
+        &self.cache[self.current].expected
+    }
+
+    /// Integrates the expected well contents of an exposure starting at
+    /// `t0_us` (eq. wellmeasurement); [`Simulator::last_expectation`] then
+    /// returns them. Static scenes reuse earlier results for the same
+    /// illumination.
     pub fn expect_wells(&mut self, illumination: &Illumination, t0_us: f64) {
+        let is_static = self.scene.is_static();
+        if is_static {
+            if let Some(i) = self
+                .cache
+                .iter()
+                .position(|e| e.illumination.as_ref() == Some(illumination))
+            {
+                self.current = i;
+                return;
+            }
+            self.current = if self.cache.len() < CACHE_ENTRIES {
+                let (w, h) = (self.config.sensor.width, self.config.sensor.height);
+                self.cache.push(CacheEntry {
+                    illumination: None,
+                    expected: WellExpectation::zeros(w, h),
+                    plan: ReadoutPlan::default(),
+                    plan_valid: false,
+                });
+                self.cache.len() - 1
+            } else {
+                // Evict the entry after the current one (round robin).
+                (self.current + 1) % CACHE_ENTRIES
+            };
+        }
+        self.integrate(illumination, t0_us, is_static);
+        let entry = &mut self.cache[self.current];
+        entry.illumination = is_static.then(|| illumination.clone());
+        entry.plan_valid = false;
+    }
+
+    fn integrate(&mut self, illumination: &Illumination, t0_us: f64, is_static: bool) {
         let exposure_us = self.config.sensor.exposure_us;
-        let steps = if self.scene.is_static() {
+        let steps = if is_static {
             1
         } else {
             self.config.substeps.max(1)
         };
         let dt_us = exposure_us / steps as f64;
-        self.expected.i_plus_electrons.data.fill(0.0);
-        self.expected.i_minus_electrons.data.fill(0.0);
-        let ambient = self.config.ambient_electrons_per_us as f32;
+        let ambient = self.config.ambient_electrons_per_us;
+        let expected = &mut self.cache[self.current].expected;
+        expected.i_plus_electrons.data.fill(0.0);
+        expected.i_minus_electrons.data.fill(0.0);
         for k in 0..steps {
             let u0 = k as f64 / steps as f64;
             let u1 = (k + 1) as f64 / steps as f64;
             let duty = illumination.modulation.duty_over(u0, u1);
-            let t_mid_us = t0_us + (k as f64 + 0.5) * dt_us;
-            self.scene.render(t_mid_us, &mut self.radiance);
+            if !(is_static && self.radiance_static) {
+                let t_mid_us = t0_us + (k as f64 + 0.5) * dt_us;
+                self.scene.render(t_mid_us, &mut self.radiance);
+                self.radiance_static = is_static;
+            }
             let channels = [
                 (self.radiance.ls1.as_ref(), illumination.ls1),
                 (self.radiance.ls2.as_ref(), illumination.ls2),
                 (self.radiance.ambient.as_ref(), SourceDrive::Constant),
             ];
+            let plus = &mut expected.i_plus_electrons.data;
+            let minus = &mut expected.i_minus_electrons.data;
             for (rate, drive) in channels {
                 let (Some(rate), (fp, fm)) = (rate, drive.well_split(duty)) else {
                     continue;
@@ -147,22 +257,17 @@ impl Simulator {
                 if wp == 0.0 && wm == 0.0 {
                     continue;
                 }
-                let plus = &mut self.expected.i_plus_electrons.data;
-                let minus = &mut self.expected.i_minus_electrons.data;
                 for ((p, m), &r) in plus.iter_mut().zip(minus.iter_mut()).zip(&rate.data) {
                     *p += wp * r;
                     *m += wm * r;
                 }
             }
             if ambient > 0.0 {
+                // Uniform ambient: uncorrelated with f, split by the duty.
                 let (fp, fm) = SourceDrive::Constant.well_split(duty);
-                let (wp, wm) = ((fp * dt_us) as f32 * ambient, (fm * dt_us) as f32 * ambient);
-                for p in &mut self.expected.i_plus_electrons.data {
-                    *p += wp;
-                }
-                for m in &mut self.expected.i_minus_electrons.data {
-                    *m += wm;
-                }
+                let (wp, wm) = ((fp * dt_us * ambient) as f32, (fm * dt_us * ambient) as f32);
+                plus.iter_mut().for_each(|p| *p += wp);
+                minus.iter_mut().for_each(|m| *m += wm);
             }
         }
     }
@@ -170,50 +275,59 @@ impl Simulator {
     /// Captures one frame: integrates the exposure, samples shot and read
     /// noise, digitizes, and advances the clock by one frame period.
     pub fn capture(&mut self, illumination: &Illumination, out: &mut Frame) {
-        let p = &self.config.sensor;
-        let (w, h) = (p.width, p.height);
+        self.prepare(illumination, out);
+        let entry = &mut self.cache[self.current];
+        if !entry.plan_valid {
+            entry.plan.rebuild(
+                &self.config.sensor,
+                &entry.expected.i_plus_electrons.data,
+                &entry.expected.i_minus_electrons.data,
+                &self.fixed_pattern_dn.data,
+            );
+            entry.plan_valid = true;
+        }
+        entry.plan.sample(&self.config.sensor, &mut self.rng, out);
+        self.advance(out);
+    }
+
+    /// A dark ("black") frame: both sources off, same exposure and
+    /// modulation. It holds the fixed pattern, read noise and, if there is
+    /// ambient light, its shot noise (section 4, measurement procedure).
+    pub fn capture_dark(&mut self, out: &mut Frame) {
+        let dark = Illumination::dark(self.config.sensor.modulation_hz);
+        self.capture(&dark, out);
+    }
+
+    /// Like [`Simulator::capture`], but samples every pixel literally with
+    /// `rand_distr`'s Poisson (two draws) and Normal (one draw), without the
+    /// readout plan. Slow; kept as the reference the fast path is checked
+    /// and benchmarked against.
+    pub fn capture_reference(&mut self, illumination: &Illumination, out: &mut Frame) {
+        self.prepare(illumination, out);
+        let entry = &self.cache[self.current];
+        readout::sample_reference(
+            &self.config.sensor,
+            &entry.expected.i_plus_electrons,
+            &entry.expected.i_minus_electrons,
+            &self.fixed_pattern_dn,
+            &mut self.rng,
+            out,
+        );
+        self.advance(out);
+    }
+
+    fn prepare(&mut self, illumination: &Illumination, out: &mut Frame) {
+        let (w, h) = (self.config.sensor.width, self.config.sensor.height);
         if out.width() != w || out.height() != h {
             *out = Frame::new(w, h);
         }
-        let t0_us = self.time_us;
-        self.expect_wells(illumination, t0_us);
-        let p = &self.config.sensor;
-        let rho = p.conversion_gain_dn_per_electron;
-        let eta = p.demodulation_contrast;
-        let full_well = p.full_well_electrons;
-        let (lo, hi) = p.adc_range_dn();
-        let read = Normal::new(0.0, p.read_noise_electrons).ok();
-        let offset = p.adc_offset_dn;
-        for i in 0..w * h {
-            let np = poisson(&mut self.rng, self.expected.i_plus_electrons.data[i] as f64);
-            let nm = poisson(
-                &mut self.rng,
-                self.expected.i_minus_electrons.data[i] as f64,
-            );
-            let (np, nm) = (np.min(full_well), nm.min(full_well));
-            let well_full = np >= full_well || nm >= full_well;
-            let n_read = read.map_or(0.0, |n| n.sample(&mut self.rng));
-            let d =
-                rho * (eta * (np - nm) + n_read) + offset + self.fixed_pattern_dn.data[i] as f64;
-            let code = d.round();
-            let clipped = code < lo || code > hi;
-            out.dn.data[i] = code.clamp(lo, hi) as f32;
-            out.saturated.data[i] = u8::from(well_full || clipped);
-        }
-        out.timestamp_us = t0_us as u64;
+        self.expect_wells(illumination, self.time_us);
+    }
+
+    fn advance(&mut self, out: &mut Frame) {
+        out.timestamp_us = self.time_us as u64;
         out.sequence = self.sequence;
         self.sequence += 1;
-        self.time_us += 1e6 / p.frame_rate_hz;
-    }
-}
-
-fn poisson(rng: &mut SmallRng, mean: f64) -> f64 {
-    if mean <= 0.0 || !mean.is_finite() {
-        return 0.0;
-    }
-    match Poisson::new(mean) {
-        Ok(d) => d.sample(rng),
-        // Beyond the sampler's range the Poisson is Gaussian to far below a DN.
-        Err(_) => mean.round(),
+        self.time_us += 1e6 / self.config.sensor.frame_rate_hz;
     }
 }

@@ -183,6 +183,7 @@ impl FrameLoop {
                         mode,
                         PipelineConfig {
                             dark_frame_dn: dark,
+                            ..PipelineConfig::default()
                         },
                     );
                     self.backend.set_mode(mode);

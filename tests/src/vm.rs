@@ -52,7 +52,10 @@ pub fn run_test_in_vm(name: &str, timeout_s: u32) -> bool {
         return false;
     }
     let exe = std::env::current_exe().expect("test binary path");
+    // Wait at most 30 min for other VM tests; vmrun itself enforces
+    // `timeout_s` (exit 124) and kills QEMU on any exit path.
     let status = Command::new("flock")
+        .args(["-w", "1800", "-E", "75"])
         .arg(std::env::temp_dir().join("sdi-vm.lock"))
         .arg(vmrun_path())
         .args([
@@ -70,7 +73,8 @@ pub fn run_test_in_vm(name: &str, timeout_s: u32) -> bool {
         .expect("spawn vmrun");
     assert!(
         status.success(),
-        "{name} failed inside the VM ({status}; 124 = timeout, 125 = VM died)"
+        "{name} failed inside the VM ({status}; 124 = timeout after {timeout_s} s, \
+         125 = VM died (console tail above), 75 = waited 30 min for the VM lock)"
     );
     true
 }

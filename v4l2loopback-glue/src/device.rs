@@ -76,7 +76,9 @@ impl ModuleVersion {
     }
 
     /// Version of the loaded module, or `ModuleNotLoaded` with the command
-    /// that loads it.
+    /// that loads it. Debian's 0.12.7 build carries no version string
+    /// (neither sysfs nor modinfo), so a module without a control device and
+    /// without a version reads as 0.12.0, meaning "0.12.x".
     pub fn of_loaded_module() -> Result<Self, GlueError> {
         if !Path::new("/sys/module/v4l2loopback").exists() {
             return Err(GlueError::ModuleNotLoaded {
@@ -85,6 +87,15 @@ impl ModuleVersion {
         }
         if let Ok(text) = std::fs::read_to_string("/sys/module/v4l2loopback/version") {
             if let Some(v) = Self::parse(&text) {
+                return Ok(v);
+            }
+        }
+        // Debian's 0.12.7 build exposes no sysfs version: ask modinfo.
+        if let Ok(o) = std::process::Command::new("modinfo")
+            .args(["-F", "version", "v4l2loopback"])
+            .output()
+        {
+            if let Some(v) = Self::parse(&String::from_utf8_lossy(&o.stdout)) {
                 return Ok(v);
             }
         }

@@ -179,6 +179,14 @@ impl LoopbackWriter {
         Ok(writer)
     }
 
+    /// Turns the driver's frame duplication (`sustain_framerate`) on or off;
+    /// false when the module has no such control.
+    pub fn set_sustain_framerate(&mut self, on: bool) -> bool {
+        let ok = self.set_control(sys::CID_SUSTAIN_FRAMERATE, i32::from(on));
+        self.features.sustain_framerate = ok && on;
+        ok
+    }
+
     fn set_control(&self, id: u32, value: i32) -> bool {
         let mut ctrl = sys::v4l2_control { id, value };
         sys::s_ctrl(self.file.as_fd(), &mut ctrl).is_ok()

@@ -2,5 +2,15 @@
 //! pipeline of stages it runs on every frame.
 
 mod id;
+mod illumination;
+mod invalid_pixels;
+pub mod pipeline;
+mod snapshot;
+mod two_shot;
 
 pub use id::{ModeId, PhysicalSetup, UnknownMode};
+pub use illumination::{FALLBACK_SCENE, TEMPORAL_TRANSITION_AT};
+pub use invalid_pixels::handle_invalid;
+pub use pipeline::{build_pipeline, flags, ModeOutput, Pipeline, PipelineConfig};
+pub use snapshot::SnapshotPipeline;
+pub use two_shot::TwoShotPipeline;

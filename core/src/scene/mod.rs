@@ -1,13 +1,34 @@
 //! Deterministic synthetic scenes. Each models only what its mode needs and
 //! reports photoelectron rates per pixel at one instant.
 
+mod birefringent;
+mod colour_chart;
+mod depth_edge;
+mod fan_pellets;
 mod flat_field;
+mod polarization;
 
+pub use birefringent::BirefringentChart;
+pub use colour_chart::ColourChart;
+pub use depth_edge::{DepthEdgeScene, SourcePlacement};
+pub use fan_pellets::{FanPellets, FanPelletsParams};
 pub use flat_field::FlatField;
+pub use polarization::{Components, PolarizationScene, Region};
+
+/// Scene-specific constants and helpers (layouts, reflectances) for tests
+/// and tools that need the ground truth.
+pub mod layout {
+    pub use super::birefringent::{BACKGROUND_REFLECTANCE, MARKER_REFLECTANCE};
+    pub use super::colour_chart::{
+        patch_reflectance, COLUMNS, PATCHES, ROWS, SURROUND_REFLECTANCE,
+    };
+    pub use super::depth_edge::{Object, Shape, OBJECTS, WALL_ALBEDO, WALL_DEPTH_MM};
+}
 
 use serde::{Deserialize, Serialize};
 
 use crate::image::Image;
+use crate::sensor::ParamError;
 
 /// Photoelectron rates arriving at each pixel at one instant, electrons per
 /// microsecond, for each source at full power (before the modulation splits
@@ -40,31 +61,186 @@ pub enum SceneSpec {
         ls1_electrons_per_us: f64,
         ls2_electrons_per_us: f64,
     },
+    /// 24-patch colour chart, red LEDs on LS1, blue on LS2 (section 5.2).
+    ColourChart {
+        red_led_electrons_per_us: f64,
+        blue_led_electrons_per_us: f64,
+    },
+    /// Specular and depolarizing materials under crossed polarizers (section 5.1).
+    Polarization { source_electrons_per_us: f64 },
+    /// Objects at several depths, sources on opposite sides of the lens
+    /// (section 5.3). Named "depth-edge" (left/right) or
+    /// "depth-edge-vertical" (above/below) by `placement`.
+    DepthEdge {
+        source_spacing_mm: f64,
+        placement: SourcePlacement,
+        source_electrons_per_us: f64,
+    },
+    /// Resolution chart seen through a birefringent crystal (section 5.4).
+    Birefringent {
+        source_electrons_per_us: f64,
+        displacement_px: f64,
+    },
+    /// Rotating fan and bouncing pellets under ambient light only (section 5.4).
+    FanPellets {
+        background_electrons_per_us: f64,
+        object_electrons_per_us: f64,
+        fan_rpm: f64,
+        pellets: u32,
+    },
+}
+
+fn check_rate(name: &'static str, value: f64) -> Result<(), ParamError> {
+    check(name, value, (0.0..=1e6).contains(&value), "[0, 1e6]")
+}
+
+fn check(
+    name: &'static str,
+    value: f64,
+    ok: bool,
+    allowed: &'static str,
+) -> Result<(), ParamError> {
+    if ok && value.is_finite() {
+        Ok(())
+    } else {
+        Err(ParamError {
+            name,
+            value,
+            allowed,
+        })
+    }
 }
 
 impl SceneSpec {
     /// Names accepted on command lines.
-    pub const NAMES: &'static [&'static str] = &["flat-field"];
+    pub const NAMES: &'static [&'static str] = &[
+        "flat-field",
+        "colour-chart",
+        "polarization",
+        "depth-edge",
+        "depth-edge-vertical",
+        "birefringent",
+        "fan-pellets",
+    ];
 
     pub fn name(&self) -> &'static str {
         match self {
             SceneSpec::FlatField { .. } => "flat-field",
+            SceneSpec::ColourChart { .. } => "colour-chart",
+            SceneSpec::Polarization { .. } => "polarization",
+            SceneSpec::DepthEdge { placement, .. } => match placement {
+                SourcePlacement::Horizontal => "depth-edge",
+                SourcePlacement::Vertical => "depth-edge-vertical",
+            },
+            SceneSpec::Birefringent { .. } => "birefringent",
+            SceneSpec::FanPellets { .. } => "fan-pellets",
         }
     }
 
     /// The scene of that name with its default parameters.
     pub fn from_name(name: &str) -> Option<Self> {
+        let depth_edge = |placement| SceneSpec::DepthEdge {
+            source_spacing_mm: 100.0,
+            placement,
+            source_electrons_per_us: 12.0,
+        };
         match name {
             "flat-field" => Some(SceneSpec::FlatField {
                 ls1_electrons_per_us: 4.0,
                 ls2_electrons_per_us: 2.0,
             }),
+            "colour-chart" => Some(SceneSpec::ColourChart {
+                red_led_electrons_per_us: 12.0,
+                blue_led_electrons_per_us: 12.0,
+            }),
+            "polarization" => Some(SceneSpec::Polarization {
+                source_electrons_per_us: 12.0,
+            }),
+            "depth-edge" => Some(depth_edge(SourcePlacement::Horizontal)),
+            "depth-edge-vertical" => Some(depth_edge(SourcePlacement::Vertical)),
+            "birefringent" => Some(SceneSpec::Birefringent {
+                source_electrons_per_us: 12.0,
+                displacement_px: 1.0,
+            }),
+            "fan-pellets" => Some(SceneSpec::FanPellets {
+                background_electrons_per_us: 1.0,
+                object_electrons_per_us: 12.0,
+                fan_rpm: 1500.0,
+                pellets: 12,
+            }),
             _ => None,
         }
     }
 
+    /// Rejects NaN, negative rates and out-of-range geometry.
+    pub fn validate(&self) -> Result<(), ParamError> {
+        match *self {
+            SceneSpec::FlatField {
+                ls1_electrons_per_us,
+                ls2_electrons_per_us,
+            } => {
+                check_rate("ls1_electrons_per_us", ls1_electrons_per_us)?;
+                check_rate("ls2_electrons_per_us", ls2_electrons_per_us)
+            }
+            SceneSpec::ColourChart {
+                red_led_electrons_per_us,
+                blue_led_electrons_per_us,
+            } => {
+                check_rate("red_led_electrons_per_us", red_led_electrons_per_us)?;
+                check_rate("blue_led_electrons_per_us", blue_led_electrons_per_us)
+            }
+            SceneSpec::Polarization {
+                source_electrons_per_us,
+            } => check_rate("source_electrons_per_us", source_electrons_per_us),
+            SceneSpec::DepthEdge {
+                source_spacing_mm,
+                source_electrons_per_us,
+                ..
+            } => {
+                let s = source_spacing_mm;
+                check(
+                    "source_spacing_mm",
+                    s,
+                    (0.0..=2000.0).contains(&s),
+                    "[0, 2000] mm",
+                )?;
+                check_rate("source_electrons_per_us", source_electrons_per_us)
+            }
+            SceneSpec::Birefringent {
+                source_electrons_per_us,
+                displacement_px,
+            } => {
+                let d = displacement_px;
+                check(
+                    "displacement_px",
+                    d,
+                    (-8.0..=8.0).contains(&d),
+                    "[-8, 8] px",
+                )?;
+                check_rate("source_electrons_per_us", source_electrons_per_us)
+            }
+            SceneSpec::FanPellets {
+                background_electrons_per_us,
+                object_electrons_per_us,
+                fan_rpm,
+                pellets,
+            } => {
+                check_rate("background_electrons_per_us", background_electrons_per_us)?;
+                check_rate("object_electrons_per_us", object_electrons_per_us)?;
+                check(
+                    "fan_rpm",
+                    fan_rpm,
+                    fan_rpm.abs() <= 100_000.0,
+                    "[-1e5, 1e5] rpm",
+                )?;
+                let p = pellets as f64;
+                check("pellets", p, pellets <= 1000, "0..=1000")
+            }
+        }
+    }
+
     /// Builds the scene at the sensor's resolution.
-    pub fn build(&self, width: usize, height: usize, _seed: u64) -> Box<dyn Scene> {
+    pub fn build(&self, width: usize, height: usize, seed: u64) -> Box<dyn Scene> {
         match *self {
             SceneSpec::FlatField {
                 ls1_electrons_per_us,
@@ -75,6 +251,106 @@ impl SceneSpec {
                 ls1_electrons_per_us as f32,
                 ls2_electrons_per_us as f32,
             )),
+            SceneSpec::ColourChart {
+                red_led_electrons_per_us,
+                blue_led_electrons_per_us,
+            } => Box::new(ColourChart::new(
+                width,
+                height,
+                red_led_electrons_per_us as f32,
+                blue_led_electrons_per_us as f32,
+            )),
+            SceneSpec::Polarization {
+                source_electrons_per_us,
+            } => Box::new(PolarizationScene::new(
+                width,
+                height,
+                source_electrons_per_us as f32,
+            )),
+            SceneSpec::DepthEdge {
+                source_spacing_mm,
+                placement,
+                source_electrons_per_us,
+            } => Box::new(DepthEdgeScene::new(
+                width,
+                height,
+                source_spacing_mm as f32,
+                placement,
+                source_electrons_per_us as f32,
+            )),
+            SceneSpec::Birefringent {
+                source_electrons_per_us,
+                displacement_px,
+            } => Box::new(BirefringentChart::new(
+                width,
+                height,
+                source_electrons_per_us as f32,
+                displacement_px as f32,
+            )),
+            SceneSpec::FanPellets {
+                background_electrons_per_us,
+                object_electrons_per_us,
+                fan_rpm,
+                pellets,
+            } => Box::new(FanPellets::new(
+                width,
+                height,
+                FanPelletsParams {
+                    background_electrons_per_us: background_electrons_per_us as f32,
+                    object_electrons_per_us: object_electrons_per_us as f32,
+                    fan_rpm: fan_rpm as f32,
+                    pellets: pellets as usize,
+                },
+                seed,
+            )),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_name_round_trips_and_builds() {
+        for &name in SceneSpec::NAMES {
+            let spec = SceneSpec::from_name(name).unwrap();
+            assert_eq!(spec.name(), name);
+            spec.validate().unwrap();
+            let toml = toml::to_string(&spec).unwrap();
+            let back: SceneSpec = toml::from_str(&toml).unwrap();
+            assert_eq!(back, spec);
+            let scene = spec.build(32, 24, 1);
+            let mut r = Radiance::default();
+            scene.render(0.0, &mut r);
+            assert_eq!((scene.width(), scene.height()), (32, 24));
+        }
+        assert!(SceneSpec::from_name("nope").is_none());
+    }
+
+    #[test]
+    fn bad_parameters_are_rejected() {
+        let bad = [
+            SceneSpec::FlatField {
+                ls1_electrons_per_us: f64::NAN,
+                ls2_electrons_per_us: 1.0,
+            },
+            SceneSpec::ColourChart {
+                red_led_electrons_per_us: -1.0,
+                blue_led_electrons_per_us: 1.0,
+            },
+            SceneSpec::DepthEdge {
+                source_spacing_mm: f64::INFINITY,
+                placement: SourcePlacement::Vertical,
+                source_electrons_per_us: 1.0,
+            },
+            SceneSpec::Birefringent {
+                source_electrons_per_us: 1.0,
+                displacement_px: 100.0,
+            },
+        ];
+        for s in bad {
+            assert!(s.validate().is_err(), "{s:?}");
         }
     }
 }

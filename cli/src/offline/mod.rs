@@ -1,0 +1,3 @@
+//! Offline tools: run the imaging core without the daemon.
+
+pub mod sim;

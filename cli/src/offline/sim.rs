@@ -1,0 +1,276 @@
+//! `sdictl sim`: simulator + mode pipeline, written as an N x H x W float32
+//! `.npy` in DN and optionally one display frame as PNG.
+//!
+//! Like the paper's measurement procedure (section 4), a dark frame is first
+//! averaged (LEDs off, 50/50 modulation so uncorrelated light cancels in the
+//! mean) and then subtracted by the pipeline of modes that need it.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use clap::builder::{PossibleValuesParser, TypedValueParser};
+use clap::Args;
+use sdi_core::dark_frame::DarkFrameAverager;
+use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
+use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
+use sdi_core::modulation::Illumination;
+use sdi_core::npy::NpyF32Writer;
+use sdi_core::scene::SceneSpec;
+use sdi_core::sensor::SensorPreset;
+use sdi_core::simulator::{SimConfig, Simulator};
+use sdi_core::{Frame, Image};
+
+use crate::atomic_file::AtomicFile;
+use crate::exit::CliError;
+
+/// Most output frames one run may write.
+pub const MAX_FRAMES: usize = 10_000;
+/// Most dark frames one run may average.
+pub const MAX_DARK_FRAMES: u32 = 10_000;
+/// Longest exposure accepted, microseconds.
+pub const MAX_EXPOSURE_US: f64 = 1e6;
+/// Brightest uniform ambient light accepted, electrons per microsecond per pixel.
+pub const MAX_AMBIENT_ELECTRONS_PER_US: f64 = 1e6;
+
+#[derive(Debug, Args)]
+pub struct SimArgs {
+    /// Scene to simulate [default: the mode's own scene, flat-field if it is not built in].
+    #[arg(long, value_parser = PossibleValuesParser::new(available_scenes()))]
+    pub scene: Option<String>,
+    /// Difference mode to run.
+    #[arg(long, value_parser = PossibleValuesParser::new(ModeId::names())
+        .try_map(|s| ModeId::from_name(&s)))]
+    pub mode: ModeId,
+    /// Number of output frames to write (1..=10000).
+    #[arg(long, value_parser = parse_frames, allow_negative_numbers = true)]
+    pub frames: usize,
+    /// Sensor preset.
+    #[arg(long, default_value = "ti", value_parser = PossibleValuesParser::new(["ti", "pmd"])
+        .try_map(|s| SensorPreset::from_name(&s).ok_or("unknown sensor")))]
+    pub sensor: SensorPreset,
+    /// Exposure per frame, microseconds (0 < X <= 1e6) [default: the sensor's].
+    #[arg(long, value_parser = parse_exposure_us, allow_negative_numbers = true)]
+    pub exposure_us: Option<f64>,
+    /// Uniform ambient light, electrons per microsecond per pixel (0 <= X <= 1e6).
+    #[arg(long, default_value_t = 0.0, value_parser = parse_ambient, allow_negative_numbers = true)]
+    pub ambient: f64,
+    /// Random seed: same seed, same frames.
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+    pub seed: u64,
+    /// Dark frames averaged before the run and subtracted (0 = none).
+    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(0..=i64::from(MAX_DARK_FRAMES)), allow_negative_numbers = true)]
+    pub dark_frames: u32,
+    /// Output .npy file (N x H x W float32, DN).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also write the last frame as a display image (PNG).
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Colormap of the PNG.
+    #[arg(long, default_value = "diverging",
+        value_parser = PossibleValuesParser::new(Colormap::NAMES).try_map(|s| s.parse::<Colormap>()))]
+    pub colormap: Colormap,
+    /// Display range of the PNG: 'auto' (robust symmetric) or max |DN| (> 0).
+    #[arg(long, default_value = "auto", value_parser = |s: &str| s.parse::<DisplayRange>(), allow_negative_numbers = true)]
+    pub range: DisplayRange,
+}
+
+/// Scene names this build can simulate.
+fn available_scenes() -> Vec<&'static str> {
+    SceneSpec::NAMES
+        .iter()
+        .copied()
+        .filter(|n| SceneSpec::from_name(n).is_some())
+        .collect()
+}
+
+fn parse_frames(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=MAX_FRAMES).contains(&n) => Ok(n),
+        _ => Err(format!("expected a whole number from 1 to {MAX_FRAMES}")),
+    }
+}
+
+fn parse_bounded(s: &str, ok: impl Fn(f64) -> bool, allowed: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && ok(v) => Ok(v),
+        _ => Err(format!("expected a finite number {allowed}")),
+    }
+}
+
+fn parse_exposure_us(s: &str) -> Result<f64, String> {
+    parse_bounded(
+        s,
+        |v| v > 0.0 && v <= MAX_EXPOSURE_US,
+        "of microseconds, 0 < X <= 1000000",
+    )
+}
+
+fn parse_ambient(s: &str) -> Result<f64, String> {
+    parse_bounded(
+        s,
+        |v| (0.0..=MAX_AMBIENT_ELECTRONS_PER_US).contains(&v),
+        "of electrons/us, 0 <= X <= 1000000",
+    )
+}
+
+fn io_error(what: &str, path: &Path, e: impl std::fmt::Display) -> CliError {
+    CliError::Runtime(format!("{what} '{}': {e}", path.display()))
+}
+
+/// Creates the file's directory if needed and refuses a destination that is a
+/// directory, so the final renames cannot fail half-way.
+fn prepare_destination(path: &Path) -> Result<(), CliError> {
+    if path.is_dir() {
+        return Err(io_error("cannot write", path, "is a directory"));
+    }
+    ensure_parent_dir(path)
+}
+
+fn ensure_parent_dir(path: &Path) -> Result<(), CliError> {
+    match path.parent() {
+        Some(dir) if !dir.as_os_str().is_empty() => {
+            std::fs::create_dir_all(dir).map_err(|e| io_error("cannot create directory", dir, e))
+        }
+        _ => Ok(()),
+    }
+}
+
+/// Runs `sdictl sim`.
+pub fn run(args: SimArgs) -> Result<(), CliError> {
+    if args.png.as_deref() == Some(args.out.as_path()) {
+        return Err(CliError::Usage(
+            "--out and --png must be different files".into(),
+        ));
+    }
+    let scene = match &args.scene {
+        Some(name) => SceneSpec::from_name(name).ok_or_else(|| {
+            CliError::Usage(format!(
+                "scene '{name}' is not available; valid scenes: {}",
+                available_scenes().join(", ")
+            ))
+        })?,
+        None => args.mode.default_scene(),
+    };
+    let mut sensor = args.sensor.params();
+    if let Some(exposure_us) = args.exposure_us {
+        sensor.exposure_us = exposure_us;
+    }
+    let carrier_hz = sensor.modulation_hz;
+    let mut config = SimConfig::new(sensor, scene);
+    config.ambient_electrons_per_us = args.ambient;
+    config.seed = args.seed;
+    let mut sim = Simulator::new(config).map_err(|e| CliError::Usage(e.to_string()))?;
+    let (w, h) = (sim.params().width, sim.params().height);
+
+    prepare_destination(&args.out)?;
+    let npy_file = AtomicFile::new(&args.out).map_err(|e| io_error("bad output", &args.out, e))?;
+    let png_file = match &args.png {
+        Some(p) => {
+            prepare_destination(p)?;
+            Some(AtomicFile::new(p).map_err(|e| io_error("bad output", p, e))?)
+        }
+        None => None,
+    };
+    let tmp = npy_file.tmp_path().to_path_buf();
+    let writer = npy_file
+        .create()
+        .map_err(|e| io_error("cannot create", &tmp, e))?;
+    let mut npy = NpyF32Writer::new(writer, &[args.frames, h, w])
+        .map_err(|e| io_error("cannot write", &tmp, e))?;
+
+    let mut frame = Frame::new(w, h);
+    let mut next_sequence = 0u64;
+    let mut dark = DarkFrameAverager::new(w, h);
+    let dark_illumination = Illumination::dark(carrier_hz);
+    for _ in 0..args.dark_frames {
+        sim.capture(&dark_illumination, &mut frame);
+        next_sequence = frame.sequence + 1;
+        dark.add(&frame);
+    }
+    let mut pipeline = build_pipeline(
+        args.mode,
+        PipelineConfig {
+            dark_frame_dn: dark.mean_dn(),
+            ..PipelineConfig::default()
+        },
+    );
+
+    let mut last = Image::<f32>::new(w, h);
+    let mut written = 0usize;
+    // Two-shot needs two captures per output; anything beyond that is a bug.
+    let max_captures = args.frames.saturating_mul(2).saturating_add(2);
+    let mut captures = 0usize;
+    while written < args.frames {
+        if captures >= max_captures {
+            return Err(CliError::Runtime(format!(
+                "mode {} produced only {written} frames from {captures} captures",
+                args.mode
+            )));
+        }
+        sim.capture(
+            &args.mode.illumination(next_sequence, carrier_hz),
+            &mut frame,
+        );
+        captures += 1;
+        next_sequence = frame.sequence + 1;
+        if let Some(out) = pipeline.process(&frame) {
+            npy.write(&out.signed_dn.data)
+                .map_err(|e| io_error("cannot write", &tmp, e))?;
+            written += 1;
+            if written == args.frames {
+                last.data.copy_from_slice(&out.signed_dn.data);
+            }
+        }
+    }
+    npy.finish()
+        .and_then(|mut w| w.flush())
+        .map_err(|e| io_error("cannot write", &tmp, e))?;
+
+    let display = DisplayMap::new(args.colormap, args.range);
+    if let Some(png) = &png_file {
+        write_png(png.tmp_path(), &display, &last)?;
+    }
+    npy_file
+        .commit()
+        .map_err(|e| io_error("cannot write", &args.out, e))?;
+    if let (Some(png), Some(path)) = (png_file, &args.png) {
+        png.commit()
+            .map_err(|e| io_error("cannot write", path, e))?;
+    }
+    println!(
+        "wrote {} frames of {w}x{h} ({} on scene {}, {} dark frames averaged) to {}{}",
+        args.frames,
+        args.mode,
+        sim.config().scene.name(),
+        dark.frames(),
+        args.out.display(),
+        match &args.png {
+            Some(p) => format!(
+                "; display frame (+-{:.1} DN) to {}",
+                display.max_abs_dn(&last),
+                p.display()
+            ),
+            None => String::new(),
+        }
+    );
+    Ok(())
+}
+
+fn write_png(path: &Path, display: &DisplayMap, img: &Image<f32>) -> Result<(), CliError> {
+    let (w, h) = (img.width as u32, img.height as u32);
+    let (buf, colour) = match display.colormap {
+        Colormap::Grey => {
+            let mut buf = vec![0u8; img.len()];
+            display.render_grey8(img, &mut buf);
+            (buf, image::ExtendedColorType::L8)
+        }
+        Colormap::Diverging => {
+            let mut buf = vec![0u8; img.len() * 3];
+            display.render_rgb8(img, &mut buf);
+            (buf, image::ExtendedColorType::Rgb8)
+        }
+    };
+    image::save_buffer_with_format(path, &buf, w, h, colour, image::ImageFormat::Png)
+        .map_err(|e| io_error("cannot write", path, e))
+}

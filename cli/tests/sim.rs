@@ -1,0 +1,229 @@
+//! `sdictl sim` end to end: exit statuses, messages, the .npy contents, the
+//! PNG, and that nothing is left behind on error.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use sdi_core::npy::read_f32;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("sim-{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn sdictl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sdictl"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn entries(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect()
+}
+
+#[test]
+fn writes_npy_of_n_frames_and_png_of_sensor_size() {
+    let dir = scratch("ok");
+    let out = dir.join("f.npy");
+    let png = dir.join("sub/f.png");
+    let o = sdictl(&[
+        "sim",
+        "--scene",
+        "flat-field",
+        "--mode",
+        "raw",
+        "--frames",
+        "3",
+        "--sensor",
+        "pmd",
+        "--seed",
+        "7",
+        "--out",
+        out.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (shape, data) = read_f32(std::fs::File::open(&out).unwrap()).unwrap();
+    assert_eq!(shape, vec![3, 120, 165]);
+    // Flat field 4 vs 2 electrons/us, 2000 us, 50/50: I+ - I- = 2000 electrons;
+    // PMD g = 0.5 * 0.4 DN/electron -> 400 DN.
+    let mean = data.iter().map(|&v| f64::from(v)).sum::<f64>() / data.len() as f64;
+    assert!((mean - 400.0).abs() < 2.0, "mean {mean}");
+    assert!(data.iter().all(|v| v.is_finite()));
+    let img = image::open(&png).unwrap().to_rgb8();
+    assert_eq!(img.dimensions(), (165, 120));
+    // Positive signal renders red-ish.
+    let p = img.get_pixel(80, 60);
+    assert!(p[0] > p[2], "{p:?}");
+    // No temporary files left.
+    assert_eq!(entries(&dir).len(), 2, "{:?}", entries(&dir));
+}
+
+#[test]
+fn same_seed_same_frames() {
+    let dir = scratch("seed");
+    let run = |name: &str| {
+        let out = dir.join(name);
+        let o = sdictl(&[
+            "sim",
+            "--mode",
+            "bipolar-colour",
+            "--frames",
+            "2",
+            "--seed",
+            "3",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        std::fs::read(out).unwrap()
+    };
+    assert_eq!(run("a.npy"), run("b.npy"));
+}
+
+#[test]
+fn two_shot_and_temporal_gradient_run() {
+    let dir = scratch("modes");
+    for mode in ["two-shot", "temporal-gradient", "depth-edge-vertical"] {
+        let out = dir.join(format!("{mode}.npy"));
+        let o = sdictl(&[
+            "sim",
+            "--mode",
+            mode,
+            "--frames",
+            "2",
+            "--dark-frames",
+            "0",
+            "--colormap",
+            "grey",
+            "--range",
+            "50",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{mode}: {}", stderr(&o));
+        let (shape, _) = read_f32(std::fs::File::open(&out).unwrap()).unwrap();
+        assert_eq!(shape, vec![2, 240, 320]);
+    }
+}
+
+#[test]
+fn bad_input_exits_2_with_choices_and_writes_nothing() {
+    let dir = scratch("bad");
+    let out = dir.join("x.npy");
+    let out = out.to_str().unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (&["--mode", "nope", "--frames", "1"], "two-shot"),
+        (
+            &["--mode", "raw", "--scene", "moon", "--frames", "1"],
+            "flat-field",
+        ),
+        (&["--mode", "raw", "--frames", "0"], "1 to 10000"),
+        (&["--mode", "raw", "--frames", "-3"], "1 to 10000"),
+        (&["--mode", "raw", "--frames", "99999999999"], "1 to 10000"),
+        (
+            &["--mode", "raw", "--frames", "1", "--sensor", "sony"],
+            "pmd",
+        ),
+        (
+            &["--mode", "raw", "--frames", "1", "--exposure-us", "NaN"],
+            "exposure",
+        ),
+        (
+            &["--mode", "raw", "--frames", "1", "--exposure-us", "0"],
+            "exposure",
+        ),
+        (
+            &["--mode", "raw", "--frames", "1", "--exposure-us", "1e300"],
+            "exposure",
+        ),
+        (
+            &["--mode", "raw", "--frames", "1", "--ambient", "-1"],
+            "ambient",
+        ),
+        (
+            &["--mode", "raw", "--frames", "1", "--ambient", "inf"],
+            "ambient",
+        ),
+        (
+            &["--mode", "raw", "--frames", "1", "--colormap", "jet"],
+            "diverging",
+        ),
+        (&["--mode", "raw", "--frames", "1", "--range", "0"], "auto"),
+        (
+            &["--mode", "raw", "--frames", "1", "--range", "NaN"],
+            "auto",
+        ),
+        (&["--mode", "raw", "--frames", "1", "--seed", "-1"], "seed"),
+    ];
+    for (args, hint) in cases {
+        let mut all = vec!["sim"];
+        all.extend_from_slice(args);
+        all.extend_from_slice(&["--out", out, "--png", "p.png"]);
+        let o = sdictl(&all);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains(hint), "{args:?}: {}", stderr(&o));
+        assert!(
+            entries(&dir).is_empty(),
+            "{args:?} left {:?}",
+            entries(&dir)
+        );
+    }
+    // Same file for both outputs.
+    let o = sdictl(&[
+        "sim", "--mode", "raw", "--frames", "1", "--out", out, "--png", out,
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(entries(&dir).is_empty());
+}
+
+#[test]
+fn unwritable_output_fails_without_leftovers() {
+    let dir = scratch("io");
+    // The PNG's directory is a file, or the PNG is a directory: nothing written.
+    std::fs::write(dir.join("blocker"), b"").unwrap();
+    let out = dir.join("f.npy");
+    let png = dir.join("blocker/f.png");
+    let o = sdictl(&[
+        "sim",
+        "--mode",
+        "raw",
+        "--frames",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("blocker"), "{}", stderr(&o));
+    assert_eq!(entries(&dir), vec!["blocker".to_string()]);
+    std::fs::create_dir(dir.join("png-dir")).unwrap();
+    let o = sdictl(&[
+        "sim",
+        "--mode",
+        "raw",
+        "--frames",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+        "--png",
+        dir.join("png-dir").to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    let mut left = entries(&dir);
+    left.sort();
+    assert_eq!(left, vec!["blocker".to_string(), "png-dir".to_string()]);
+    assert!(entries(&dir.join("png-dir")).is_empty());
+}
