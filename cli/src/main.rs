@@ -6,10 +6,11 @@
 mod atomic_file;
 mod exit;
 mod offline;
+mod online;
 
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 
 #[derive(Debug, Parser)]
 #[command(
@@ -18,6 +19,8 @@ use clap::{Parser, Subcommand};
     about = "Snapshot difference imaging control and offline tools"
 )]
 struct Cli {
+    #[command(flatten)]
+    bus: online::BusArgs,
     #[command(subcommand)]
     command: Command,
 }
@@ -29,6 +32,12 @@ enum Command {
     /// Offline reports on simulator data.
     #[command(subcommand)]
     Report(Report),
+    #[command(flatten)]
+    Online(online::OnlineCommand),
+    /// Print shell completions (bash, zsh, fish, elvish, powershell).
+    Completions { shell: clap_complete::Shell },
+    /// Print the man page (roff) generated from these definitions.
+    Man,
 }
 
 #[derive(Debug, Subcommand)]
@@ -42,6 +51,14 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Sim(args) => offline::sim::run(args),
         Command::Report(Report::Separation(args)) => offline::report::run_cli(&args),
+        Command::Online(cmd) => return online::run(cmd, cli.bus),
+        Command::Completions { shell } => {
+            clap_complete::generate(shell, &mut Cli::command(), "sdictl", &mut std::io::stdout());
+            Ok(())
+        }
+        Command::Man => clap_mangen::Man::new(Cli::command())
+            .render(&mut std::io::stdout())
+            .map_err(|e| exit::CliError::Runtime(e.to_string())),
     };
     exit::report(result)
 }

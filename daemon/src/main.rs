@@ -1,4 +1,383 @@
-fn main() {
-    eprintln!("sdid: not built yet");
-    std::process::exit(1);
+//! sdid: the SDI difference-camera daemon.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::mpsc;
+
+use clap::Parser;
+use sdi_core::mode::ModeId;
+use sdi_core::sensor::SensorPreset;
+use sdi_daemon::backend::replay::ReplayBackend;
+use sdi_daemon::backend::sim::SimBackend;
+use sdi_daemon::backend::{Backend, CaptureSettings};
+use sdi_daemon::bus::{self, PrivateBus};
+use sdi_daemon::config::Config;
+use sdi_daemon::dbus::camera::{Camera, CameraInfo};
+use sdi_daemon::dbus::{BUS_NAME, OBJECT_PATH};
+use sdi_daemon::frame_loop::{Command, FrameLoop};
+use sdi_daemon::modes::{Colormap, DisplayMap, DisplayRange};
+use sdi_daemon::recording::Calibration;
+use sdi_daemon::sink::loopback::LoopbackSink;
+use sdi_daemon::sink::output::Output;
+use sdi_daemon::sink::y4m::Y4mSink;
+use sdi_daemon::sink::Sink;
+use sdi_daemon::stats::Stats;
+use tokio::sync::watch;
+
+/// The SDI difference-camera daemon.
+#[derive(Debug, Parser)]
+#[command(name = "sdid", version, about)]
+struct Args {
+    /// Configuration file [default: /etc/sdi/sdid.toml if present].
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// Serve on the session bus (starts a private one if none exists) instead of the system bus.
+    #[arg(long)]
+    session: bool,
+    /// Serve on the bus at this address.
+    #[arg(long, conflicts_with = "session")]
+    bus_address: Option<String>,
+    /// Frame source: sim or replay.
+    #[arg(long)]
+    backend: Option<String>,
+    /// Recording to play (implies --backend replay).
+    #[arg(long)]
+    replay: Option<PathBuf>,
+    /// Loop the replayed recording.
+    #[arg(long = "loop")]
+    looping: bool,
+    /// Mode at start.
+    #[arg(long)]
+    mode: Option<String>,
+    /// Simulator sensor preset: ti or pmd.
+    #[arg(long)]
+    sensor: Option<String>,
+    #[arg(long)]
+    frame_rate_hz: Option<f64>,
+    #[arg(long)]
+    exposure_us: Option<f64>,
+    #[arg(long)]
+    modulation_hz: Option<f64>,
+    /// Output sink: auto, loopback or y4m.
+    #[arg(long)]
+    sink: Option<String>,
+    /// y4m fallback target: "-" (stdout) or a FIFO path.
+    #[arg(long)]
+    y4m_path: Option<String>,
+}
+
+fn apply(args: &Args, c: &mut Config) {
+    if let Some(b) = &args.backend {
+        c.backend = b.clone();
+    }
+    if let Some(p) = &args.replay {
+        c.backend = "replay".into();
+        c.replay.path = Some(p.clone());
+    }
+    if args.looping {
+        c.replay.looping = true;
+    }
+    if let Some(m) = &args.mode {
+        c.mode = m.clone();
+    }
+    if let Some(s) = &args.sensor {
+        c.sensor = s.clone();
+    }
+    c.frame_rate_hz = args.frame_rate_hz.or(c.frame_rate_hz);
+    c.exposure_us = args.exposure_us.or(c.exposure_us);
+    c.modulation_hz = args.modulation_hz.or(c.modulation_hz);
+    if let Some(s) = &args.sink {
+        c.output.sink = s.clone();
+    }
+    if let Some(p) = &args.y4m_path {
+        c.output.y4m_path = p.clone();
+    }
+}
+
+fn init_logging() {
+    use tracing_subscriber::prelude::*;
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let registry = tracing_subscriber::registry().with(filter);
+    if std::env::var_os("JOURNAL_STREAM").is_some() {
+        if let Ok(j) = tracing_journald::layer() {
+            registry
+                .with(j.with_syslog_identifier("sdid".into()))
+                .init();
+            return;
+        }
+    }
+    registry
+        .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
+        .init();
+}
+
+fn build_backend(c: &Config, mode: ModeId) -> Result<Box<dyn Backend>, String> {
+    match c.backend.as_str() {
+        "sim" => {
+            let preset = SensorPreset::from_name(&c.sensor)
+                .ok_or_else(|| format!("unknown sensor preset '{}': use ti or pmd", c.sensor))?;
+            let mut p = preset.params();
+            p.exposure_us = c.exposure_us.unwrap_or(p.exposure_us);
+            p.frame_rate_hz = c.frame_rate_hz.unwrap_or(p.frame_rate_hz);
+            p.modulation_hz = c.modulation_hz.unwrap_or(p.modulation_hz);
+            Ok(Box::new(
+                SimBackend::new(p, mode, c.seed).map_err(|e| e.to_string())?,
+            ))
+        }
+        "replay" => {
+            let path = c
+                .replay
+                .path
+                .as_ref()
+                .ok_or("backend replay needs a recording: --replay FILE")?;
+            let mut b = ReplayBackend::open(path, c.replay.looping).map_err(|e| e.to_string())?;
+            if let Some(fps) = c.frame_rate_hz {
+                let mut s = b.settings();
+                s.frame_rate_hz = fps;
+                b.configure(&s).map_err(|e| e.to_string())?;
+            }
+            Ok(Box::new(b))
+        }
+        other => Err(format!("unknown backend '{other}': use sim or replay")),
+    }
+}
+
+fn build_sink(c: &Config, width: usize, height: usize, fps: f64) -> Result<Box<dyn Sink>, String> {
+    match c.output.sink.as_str() {
+        "auto" | "loopback" => {
+            match LoopbackSink::open(&c.output.label, &c.output.data_label, width, height, fps) {
+                Ok(s) => {
+                    tracing::info!(device = %s.info().device, "publishing on v4l2loopback");
+                    return Ok(Box::new(s));
+                }
+                Err(e) if c.output.sink == "loopback" => return Err(e.to_string()),
+                Err(e) => tracing::warn!(
+                    "{e}\nNo usable v4l2loopback device labelled \"{}\". To publish a camera: sudo apt install v4l2loopback-dkms && sudo {}\nFalling back to a y4m stream.",
+                    c.output.label,
+                    v4l2loopback_glue::modprobe_command(&c.output.label)
+                ),
+            }
+        }
+        "y4m" => {}
+        other => return Err(format!("unknown sink '{other}': use auto, loopback or y4m")),
+    }
+    let path = (!c.output.y4m_path.is_empty()).then(|| PathBuf::from(&c.output.y4m_path));
+    let sink = Y4mSink::new(path.as_deref(), width, height, fps)
+        .map_err(|e| format!("y4m output: {e}"))?;
+    let loc = sink.location();
+    if loc == "stdout" {
+        tracing::info!("streaming y4m on stdout (e.g. sdid ... | ffplay -i -)");
+    } else {
+        tracing::info!("streaming y4m into the FIFO {loc}: watch with `ffplay {loc}`");
+        eprintln!("sdid: view the stream with: ffplay {loc}");
+    }
+    Ok(Box::new(sink))
+}
+
+fn display_from(c: &Config) -> Result<DisplayMap, String> {
+    let colormap = match c.display.colormap.as_str() {
+        "diverging" => Colormap::Diverging,
+        "grey" | "gray" => Colormap::Grey,
+        o => return Err(format!("unknown colormap '{o}': use diverging or grey")),
+    };
+    let r = c.display.range_max_abs_dn;
+    let range = if r == 0.0 {
+        DisplayRange::SymmetricAuto
+    } else if r.is_finite() && r > 0.0 {
+        DisplayRange::Fixed {
+            max_abs_dn: r as f32,
+        }
+    } else {
+        return Err(format!("display range {r} must be 0 (auto) or positive"));
+    };
+    Ok(DisplayMap { colormap, range })
+}
+
+async fn connect(args: &Args) -> Result<(zbus::Connection, Option<PrivateBus>), String> {
+    let mut private = None;
+    let builder = if let Some(a) = &args.bus_address {
+        zbus::connection::Builder::address(a.as_str())
+    } else if args.session {
+        let addr = match bus::session_address() {
+            Some(a) => a,
+            None => {
+                let p = PrivateBus::spawn().map_err(|e| {
+                    format!("no session bus and cannot start dbus-daemon: {e} (install dbus)")
+                })?;
+                eprintln!(
+                    "sdid: no session bus found; started a private one:\n  export DBUS_SESSION_BUS_ADDRESS='{}'\n(sdictl --session finds it automatically)",
+                    p.address
+                );
+                let a = p.address.clone();
+                private = Some(p);
+                a
+            }
+        };
+        zbus::connection::Builder::address(addr.as_str())
+    } else {
+        zbus::connection::Builder::system()
+    }
+    .map_err(|e| e.to_string())?;
+    let conn = builder
+        .build()
+        .await
+        .map_err(|e| format!("connecting to D-Bus: {e}"))?;
+    Ok((conn, private))
+}
+
+async fn wait_for_signal() -> &'static str {
+    use tokio::signal::unix::{signal, SignalKind};
+    let (Ok(mut term), Ok(mut int)) = (
+        signal(SignalKind::terminate()),
+        signal(SignalKind::interrupt()),
+    ) else {
+        std::future::pending::<()>().await;
+        return "";
+    };
+    tokio::select! {
+        _ = term.recv() => "SIGTERM",
+        _ = int.recv() => "SIGINT",
+    }
+}
+
+async fn run(args: Args) -> Result<(), String> {
+    let mut config = Config::load(args.config.as_deref()).map_err(|e| e.to_string())?;
+    apply(&args, &mut config);
+    let mut mode = ModeId::from_name(&config.mode).map_err(|e| e.to_string())?;
+    let backend = build_backend(&config, mode)?;
+    if backend.kind() == "replay" && args.mode.is_none() {
+        if let Ok(m) = sdi_daemon::recording::RecordingReader::open(
+            config
+                .replay
+                .path
+                .as_deref()
+                .unwrap_or(std::path::Path::new("")),
+        )
+        .map(|r| r.header().mode.clone())
+        .map_err(|_| ())
+        .and_then(|m| ModeId::from_name(&m).map_err(|_| ()))
+        {
+            mode = m;
+        }
+    }
+    let display = display_from(&config)?;
+    let sensor = backend.sensor().clone();
+    let capture: CaptureSettings = backend.settings();
+    let sink = build_sink(&config, sensor.width, sensor.height, capture.frame_rate_hz)?;
+    let output = Output::spawn(sink).map_err(|e| e.to_string())?;
+    let info = CameraInfo {
+        backend: backend.kind().into(),
+        device: backend.device(),
+        sink: output.info().clone(),
+        limits: backend.limits(),
+        sensor: sensor.clone(),
+    };
+    let (stats_tx, stats_rx) = watch::channel(Stats::default());
+    let (cal_tx, cal_rx) = watch::channel(Calibration::default());
+    let (cmd_tx, cmd_rx) = mpsc::channel::<Command>();
+    let frame_loop = FrameLoop::new(backend, mode, display, output, stats_tx, cal_tx);
+    let loop_thread = std::thread::Builder::new()
+        .name("sdid-frames".into())
+        .spawn(move || frame_loop.run(cmd_rx))
+        .map_err(|e| e.to_string())?;
+    tracing::info!(backend = %info.backend, device = %info.device, mode = mode.name(), "frame loop started");
+
+    let (conn, private_bus) = connect(&args).await?;
+    let camera = Camera::new(
+        info,
+        mode,
+        capture,
+        display,
+        cmd_tx.clone(),
+        stats_rx.clone(),
+        cal_rx,
+    );
+    conn.object_server()
+        .at(OBJECT_PATH, camera)
+        .await
+        .map_err(|e| e.to_string())?;
+    // The object is served before the name is requested: a client that sees
+    // the name can call it at once.
+    use zbus::fdo::{RequestNameFlags, RequestNameReply};
+    match conn
+        .request_name_with_flags(BUS_NAME, RequestNameFlags::DoNotQueue.into())
+        .await
+        .map_err(|e| format!("requesting {BUS_NAME}: {e}"))?
+    {
+        RequestNameReply::PrimaryOwner | RequestNameReply::AlreadyOwner => {}
+        _ => {
+            return Err(format!(
+                "{BUS_NAME} is already owned: is another sdid running?"
+            ))
+        }
+    }
+    tracing::info!(name = BUS_NAME, path = OBJECT_PATH, "serving D-Bus API");
+
+    // Stats change signals, about once a second.
+    let stats_conn = conn.clone();
+    let mut stats_watch = stats_rx;
+    let stats_task = tokio::spawn(async move {
+        let Ok(iface) = stats_conn
+            .object_server()
+            .interface::<_, Camera>(OBJECT_PATH)
+            .await
+        else {
+            return;
+        };
+        loop {
+            tokio::time::sleep(std::time::Duration::from_secs(1)).await;
+            if stats_watch.has_changed().unwrap_or(false) {
+                stats_watch.borrow_and_update();
+                let cam = iface.get().await;
+                let _ = cam.stats_changed(iface.signal_emitter()).await;
+            }
+        }
+    });
+
+    let why = wait_for_signal().await;
+    tracing::info!("{why}: shutting down");
+    stats_task.abort();
+    let _ = conn.release_name(BUS_NAME).await;
+    let _ = cmd_tx.send(Command::Shutdown);
+    let result = tokio::task::spawn_blocking(move || loop_thread.join())
+        .await
+        .map_err(|e| e.to_string())?
+        .map_err(|_| "frame loop panicked".to_string())?;
+    match result {
+        Some(Ok(s)) => tracing::info!(
+            frames = s.frames,
+            dropped = s.dropped,
+            "recording finalized"
+        ),
+        Some(Err(e)) => tracing::error!("finalizing recording: {e}"),
+        None => {}
+    }
+    drop(conn);
+    drop(private_bus);
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    init_logging();
+    let rt = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("sdid: cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match rt.block_on(run(args)) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            tracing::error!("{e}");
+            eprintln!("sdid: {e}");
+            ExitCode::FAILURE
+        }
+    }
 }

@@ -1,5 +1,6 @@
 //! Shared helpers for SDI's integration tests.
 
 pub mod bench;
+pub mod dbus;
 pub mod loopback;
 pub mod vm;

@@ -1,0 +1,444 @@
+//! Online subcommands: talk to `sdid` over D-Bus (`org.sdi.Camera1`).
+
+mod errors;
+mod export;
+mod proxy;
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::{Args, Subcommand};
+use futures_util::StreamExt;
+use indicatif::{ProgressBar, ProgressStyle};
+use serde_json::{json, Value as Json};
+use zbus::zvariant::OwnedValue;
+
+pub use errors::OnlineError;
+use proxy::Camera1Proxy;
+
+/// How to reach the daemon; global flags.
+#[derive(Debug, Clone, Args)]
+pub struct BusArgs {
+    /// Use the session bus (or the private bus `sdid --session` started) instead of the system bus.
+    #[arg(long, global = true)]
+    pub session: bool,
+    /// Use the bus at this address.
+    #[arg(long, global = true, value_name = "ADDRESS")]
+    pub bus_address: Option<String>,
+    /// Machine-readable JSON on stdout.
+    #[arg(long, global = true)]
+    pub json: bool,
+}
+
+/// Subcommands that control a running daemon.
+#[derive(Debug, Subcommand)]
+pub enum OnlineCommand {
+    /// Show mode, setup, device, settings and statistics.
+    Status,
+    /// List the modes.
+    Modes,
+    /// Switch mode (takes effect on the next frame).
+    SetMode { mode: String },
+    /// Print one property (Mode, ExposureUs, FrameRate, Stats, ...).
+    Get { property: String },
+    /// Change a setting: exposure-us, frame-rate, modulation-hz, colormap, range, mode.
+    Set {
+        property: String,
+        #[arg(allow_hyphen_values = true)]
+        value: String,
+    },
+    /// Average FRAMES frames with the sources off into the dark frame.
+    DarkFrame {
+        #[arg(default_value_t = 32)]
+        frames: u32,
+    },
+    /// Dark calibration: dark frame, read-noise variance, fixed-pattern sigma.
+    Calibrate {
+        #[arg(default_value_t = 64)]
+        frames: u32,
+    },
+    /// Record raw frames to a new .sdirec file (stops after --seconds if given).
+    Record {
+        path: PathBuf,
+        #[arg(long)]
+        seconds: Option<f64>,
+    },
+    /// Stop the recording.
+    Stop,
+    /// Save the latest frame: .png (as displayed) or .npy (signed DN).
+    Snapshot { path: PathBuf },
+    /// Live frame rate and latency (Ctrl-C to stop).
+    Monitor {
+        /// Stop after this many updates.
+        #[arg(long)]
+        count: Option<u64>,
+    },
+    /// Convert a recording to .npy (frames x height x width, float32 DN); offline.
+    Export { recording: PathBuf, out: PathBuf },
+}
+
+/// Runs an online subcommand and maps the outcome to an exit status.
+pub fn run(cmd: OnlineCommand, bus: BusArgs) -> ExitCode {
+    let json = bus.json;
+    let result = match cmd {
+        OnlineCommand::Export { recording, out } => export::run(&recording, &out, json),
+        cmd => match tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+        {
+            Ok(rt) => rt.block_on(run_async(cmd, &bus)),
+            Err(e) => Err(OnlineError::Failed(e.to_string())),
+        },
+    };
+    errors::report(result, json)
+}
+
+fn bus_address(bus: &BusArgs) -> Option<String> {
+    if let Some(a) = &bus.bus_address {
+        return Some(a.clone());
+    }
+    if !bus.session {
+        return None;
+    }
+    sdi_daemon::bus::session_address().or_else(|| {
+        std::fs::read_to_string(sdi_daemon::bus::private_bus_file())
+            .ok()
+            .map(|s| s.trim().to_owned())
+    })
+}
+
+async fn connect(bus: &BusArgs) -> Result<Camera1Proxy<'static>, OnlineError> {
+    let builder = match bus_address(bus) {
+        Some(a) => zbus::connection::Builder::address(a.as_str()),
+        None if bus.session => {
+            return Err(OnlineError::Unreachable(
+                "no session bus found (DBUS_SESSION_BUS_ADDRESS unset) and no private bus of sdid --session".into(),
+            ))
+        }
+        None => zbus::connection::Builder::system(),
+    }
+    .map_err(|e| OnlineError::Unreachable(e.to_string()))?;
+    let conn = tokio::time::timeout(Duration::from_secs(10), builder.build())
+        .await
+        .map_err(|_| OnlineError::Unreachable("timed out connecting to the bus".into()))?
+        .map_err(|e| OnlineError::Unreachable(format!("cannot connect to the bus: {e}")))?;
+    Ok(Camera1Proxy::new(&conn).await?)
+}
+
+fn to_json(v: &OwnedValue) -> Json {
+    use zbus::zvariant::Value;
+    match &**v {
+        Value::U8(x) => json!(x),
+        Value::Bool(x) => json!(x),
+        Value::I16(x) => json!(x),
+        Value::U16(x) => json!(x),
+        Value::I32(x) => json!(x),
+        Value::U32(x) => json!(x),
+        Value::I64(x) => json!(x),
+        Value::U64(x) => json!(x),
+        Value::F64(x) => json!(x),
+        Value::Str(s) => json!(s.as_str()),
+        other => match OwnedValue::try_from(other.try_clone().unwrap_or(Value::U8(0))) {
+            Ok(o) => match Vec::<String>::try_from(o) {
+                Ok(list) => json!(list),
+                Err(_) => match HashMap::<String, String>::try_from(
+                    v.try_clone()
+                        .map_err(|_| ())
+                        .unwrap_or_else(|_| OwnedValue::from(0u8)),
+                ) {
+                    Ok(map) => json!(map),
+                    Err(_) => match HashMap::<String, OwnedValue>::try_from(
+                        v.try_clone().unwrap_or_else(|_| OwnedValue::from(0u8)),
+                    ) {
+                        Ok(map) => {
+                            Json::Object(map.iter().map(|(k, v)| (k.clone(), to_json(v))).collect())
+                        }
+                        Err(_) => json!(other.to_string()),
+                    },
+                },
+            },
+            Err(_) => json!(other.to_string()),
+        },
+    }
+}
+
+fn dict_json(d: &HashMap<String, OwnedValue>) -> Json {
+    Json::Object(d.iter().map(|(k, v)| (k.clone(), to_json(v))).collect())
+}
+
+async fn all_properties(
+    cam: &Camera1Proxy<'_>,
+) -> Result<serde_json::Map<String, Json>, OnlineError> {
+    let props = zbus::fdo::PropertiesProxy::builder(cam.inner().connection())
+        .destination(cam.inner().destination().to_owned())?
+        .path(cam.inner().path().to_owned())?
+        .build()
+        .await?;
+    let iface = zbus::names::InterfaceName::from_static_str_unchecked("org.sdi.Camera1");
+    let all = props.get_all(iface).await.map_err(zbus::Error::from)?;
+    Ok(all.iter().map(|(k, v)| (k.clone(), to_json(v))).collect())
+}
+
+/// Accepts "exposure-us", "ExposureUs", "exposure_us".
+fn property_name(name: &str) -> String {
+    name.split(['-', '_'])
+        .map(|w| {
+            let mut c = w.chars();
+            match c.next() {
+                Some(f) => f.to_uppercase().chain(c).collect::<String>(),
+                None => String::new(),
+            }
+        })
+        .collect()
+}
+
+fn absolute(path: &Path) -> Result<String, OnlineError> {
+    let p = if path.is_absolute() {
+        path.to_owned()
+    } else {
+        std::env::current_dir()
+            .map_err(|e| OnlineError::Failed(e.to_string()))?
+            .join(path)
+    };
+    p.to_str()
+        .map(str::to_owned)
+        .ok_or_else(|| OnlineError::Invalid(format!("{} is not valid UTF-8", p.display())))
+}
+
+fn parse_f64(prop: &str, v: &str) -> Result<f64, OnlineError> {
+    v.parse::<f64>()
+        .map_err(|_| OnlineError::Invalid(format!("{prop}: '{v}' is not a number")))
+}
+
+fn bar(len: u64, msg: &str, json: bool) -> ProgressBar {
+    if json {
+        return ProgressBar::hidden();
+    }
+    let pb = ProgressBar::new(len);
+    if let Ok(style) = ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} {elapsed}") {
+        pb.set_style(style.progress_chars("=> "));
+    }
+    pb.set_message(msg.to_owned());
+    pb
+}
+
+/// Runs a long call while a progress bar advances at the camera's frame rate.
+async fn with_progress<T>(
+    cam: &Camera1Proxy<'_>,
+    frames: u32,
+    msg: &str,
+    json: bool,
+    call: impl std::future::Future<Output = zbus::Result<T>>,
+) -> Result<T, OnlineError> {
+    let fps = cam.frame_rate().await.unwrap_or(30.0).max(0.1);
+    let pb = bar(frames as u64, msg, json);
+    let start = Instant::now();
+    tokio::pin!(call);
+    let mut tick = tokio::time::interval(Duration::from_millis(100));
+    let r = loop {
+        tokio::select! {
+            r = &mut call => break r,
+            _ = tick.tick() => pb.set_position(((start.elapsed().as_secs_f64() * fps) as u64).min(frames as u64)),
+        }
+    };
+    pb.finish_and_clear();
+    Ok(r?)
+}
+
+fn print_dict(d: &HashMap<String, OwnedValue>, json: bool) {
+    if json {
+        println!("{}", dict_json(d));
+    } else {
+        let mut keys: Vec<_> = d.keys().collect();
+        keys.sort();
+        for k in keys {
+            println!("{k}: {}", to_json(&d[k]));
+        }
+    }
+}
+
+async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError> {
+    let json = bus.json;
+    let cam = connect(bus).await?;
+    match cmd {
+        OnlineCommand::Status => {
+            let p = all_properties(&cam).await?;
+            if json {
+                println!("{}", Json::Object(p));
+            } else {
+                for key in [
+                    "Mode",
+                    "Setup",
+                    "Backend",
+                    "Device",
+                    "Format",
+                    "Width",
+                    "Height",
+                    "FrameRate",
+                    "ExposureUs",
+                    "ModulationHz",
+                    "Colormap",
+                    "Range",
+                    "Recording",
+                    "Stats",
+                ] {
+                    if let Some(v) = p.get(key) {
+                        println!("{key:>13}: {v}");
+                    }
+                }
+            }
+        }
+        OnlineCommand::Modes => {
+            let p = all_properties(&cam).await?;
+            let modes = p.get("Modes").cloned().unwrap_or(Json::Null);
+            let current = p.get("Mode").cloned().unwrap_or(Json::Null);
+            if json {
+                println!("{}", json!({"modes": modes, "current": current}));
+            } else if let Json::Array(list) = modes {
+                for m in list {
+                    let mark = if m == current { "*" } else { " " };
+                    println!("{mark} {}", m.as_str().unwrap_or(""));
+                }
+            }
+        }
+        OnlineCommand::SetMode { mode } => {
+            cam.set_mode(&mode).await?;
+            if json {
+                println!("{}", json!({"mode": mode}));
+            }
+        }
+        OnlineCommand::Get { property } => {
+            let name = property_name(&property);
+            let p = all_properties(&cam).await?;
+            let v = p.get(&name).ok_or_else(|| {
+                let mut names: Vec<_> = p.keys().cloned().collect();
+                names.sort();
+                OnlineError::Invalid(format!(
+                    "unknown property '{property}'; properties: {}",
+                    names.join(", ")
+                ))
+            })?;
+            if json {
+                println!("{}", json!({ name: v }));
+            } else {
+                match v {
+                    Json::String(s) => println!("{s}"),
+                    other => println!("{other}"),
+                }
+            }
+        }
+        OnlineCommand::Set { property, value } => {
+            let name = property_name(&property);
+            match name.as_str() {
+                "Mode" => cam.set_mode(&value).await?,
+                "ExposureUs" => cam.set_exposure_us(parse_f64(&name, &value)?).await?,
+                "FrameRate" | "FrameRateHz" => cam.set_frame_rate(parse_f64(&name, &value)?).await?,
+                "ModulationHz" => cam.set_modulation_hz(parse_f64(&name, &value)?).await?,
+                "Colormap" => cam.set_colormap(&value).await?,
+                "Range" => cam.set_range(parse_f64(&name, &value)?).await?,
+                _ => {
+                    return Err(OnlineError::Invalid(format!(
+                        "'{property}' cannot be set; settable: mode, exposure-us, frame-rate, modulation-hz, colormap, range"
+                    )))
+                }
+            }
+            if json {
+                println!("{}", json!({ name: value }));
+            }
+        }
+        OnlineCommand::DarkFrame { frames } => {
+            let d = with_progress(
+                &cam,
+                frames,
+                "dark frame",
+                json,
+                cam.capture_dark_frame(frames),
+            )
+            .await?;
+            print_dict(&d, json);
+        }
+        OnlineCommand::Calibrate { frames } => {
+            let d = with_progress(&cam, frames, "calibrating", json, cam.calibrate(frames)).await?;
+            print_dict(&d, json);
+        }
+        OnlineCommand::Record { path, seconds } => {
+            let path = absolute(&path)?;
+            if let Some(s) = seconds {
+                if !(s.is_finite() && s > 0.0 && s <= 86_400.0) {
+                    return Err(OnlineError::Invalid(format!(
+                        "--seconds {s} is out of range: allowed (0, 86400]"
+                    )));
+                }
+            }
+            cam.start_recording(&path).await?;
+            match seconds {
+                None => {
+                    if json {
+                        println!("{}", json!({"recording": path}));
+                    } else {
+                        println!("recording to {path}; stop with `sdictl stop`");
+                    }
+                }
+                Some(s) => {
+                    let pb = bar((s * 10.0) as u64, "recording", json);
+                    let start = Instant::now();
+                    while start.elapsed().as_secs_f64() < s {
+                        tokio::time::sleep(Duration::from_millis(100)).await;
+                        pb.set_position((start.elapsed().as_secs_f64() * 10.0) as u64);
+                    }
+                    pb.finish_and_clear();
+                    let d = cam.stop_recording().await?;
+                    print_dict(&d, json);
+                }
+            }
+        }
+        OnlineCommand::Stop => {
+            let d = cam.stop_recording().await?;
+            print_dict(&d, json);
+        }
+        OnlineCommand::Snapshot { path } => {
+            let path = absolute(&path)?;
+            cam.snapshot(&path).await?;
+            if json {
+                println!("{}", json!({"snapshot": path}));
+            } else {
+                println!("{path}");
+            }
+        }
+        OnlineCommand::Monitor { count } => {
+            let mut stream = cam.receive_stats_changed().await;
+            let mut n = 0u64;
+            if !json {
+                println!(
+                    "{:>10} {:>8} {:>12} {:>12} {:>8}",
+                    "frames", "fps", "latency_us", "max_us", "dropped"
+                );
+            }
+            while let Some(change) = stream.next().await {
+                let s = change.get().await?;
+                let d = dict_json(&s);
+                if json {
+                    println!("{d}");
+                } else {
+                    let g = |k: &str| d.get(k).and_then(Json::as_f64).unwrap_or(0.0);
+                    println!(
+                        "{:>10} {:>8.2} {:>12.0} {:>12.0} {:>8}",
+                        g("frames"),
+                        g("fps"),
+                        g("latency_us"),
+                        g("latency_max_us"),
+                        g("dropped_view") + g("dropped_recording")
+                    );
+                }
+                n += 1;
+                if count.is_some_and(|c| n >= c) {
+                    break;
+                }
+            }
+        }
+        OnlineCommand::Export { .. } => unreachable!("handled offline"),
+    }
+    Ok(())
+}

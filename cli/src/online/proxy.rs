@@ -1,0 +1,32 @@
+//! Client side of `org.sdi.Camera1`.
+
+use std::collections::HashMap;
+
+use zbus::proxy;
+use zbus::zvariant::OwnedValue;
+
+#[proxy(
+    interface = "org.sdi.Camera1",
+    default_service = "org.sdi.Daemon",
+    default_path = "/org/sdi/Camera0"
+)]
+pub trait Camera1 {
+    fn set_mode(&self, mode: &str) -> zbus::Result<()>;
+    fn set_exposure_us(&self, exposure_us: f64) -> zbus::Result<()>;
+    fn set_frame_rate(&self, frame_rate_hz: f64) -> zbus::Result<()>;
+    fn set_modulation_hz(&self, modulation_hz: f64) -> zbus::Result<()>;
+    fn set_colormap(&self, colormap: &str) -> zbus::Result<()>;
+    fn set_range(&self, max_abs_dn: f64) -> zbus::Result<()>;
+    fn capture_dark_frame(&self, frames: u32) -> zbus::Result<HashMap<String, OwnedValue>>;
+    fn calibrate(&self, frames: u32) -> zbus::Result<HashMap<String, OwnedValue>>;
+    fn start_recording(&self, path: &str) -> zbus::Result<()>;
+    fn stop_recording(&self) -> zbus::Result<HashMap<String, OwnedValue>>;
+    fn snapshot(&self, path: &str) -> zbus::Result<()>;
+
+    #[zbus(property)]
+    fn mode(&self) -> zbus::Result<String>;
+    #[zbus(property)]
+    fn stats(&self) -> zbus::Result<HashMap<String, OwnedValue>>;
+    #[zbus(property)]
+    fn frame_rate(&self) -> zbus::Result<f64>;
+}

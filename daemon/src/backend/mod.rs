@@ -1,0 +1,79 @@
+//! Frame sources behind one trait: the simulator, recordings, and (later)
+//! the real board. A backend delivers sensor frames, paced at its frame rate.
+
+pub mod pacer;
+pub mod replay;
+pub mod sim;
+
+use sdi_core::mode::ModeId;
+use sdi_core::modulation::Illumination;
+use sdi_core::sensor::SensorParams;
+use sdi_core::{Frame, Image};
+
+/// Capture settings a client may change at run time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CaptureSettings {
+    pub exposure_us: f64,
+    pub frame_rate_hz: f64,
+    pub modulation_hz: f64,
+}
+
+/// Closed ranges a backend accepts.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Limits {
+    pub exposure_us: (f64, f64),
+    pub frame_rate_hz: (f64, f64),
+    pub modulation_hz: (f64, f64),
+}
+
+impl Limits {
+    /// Broad physical limits of a two-well ToF sensor.
+    pub const DEFAULT: Limits = Limits {
+        exposure_us: (1.0, 1_000_000.0),
+        frame_rate_hz: (0.1, 240.0),
+        modulation_hz: (1e3, 100e6),
+    };
+}
+
+/// What went wrong in a backend.
+#[derive(Debug, thiserror::Error)]
+pub enum BackendError {
+    #[error("device unavailable: {0}")]
+    Unavailable(String),
+    #[error("{0}")]
+    OutOfRange(String),
+    #[error("end of recording")]
+    EndOfStream,
+    #[error("{0}")]
+    Failed(String),
+}
+
+/// A source of sensor frames.
+pub trait Backend: Send {
+    /// Short kind name: "sim", "replay", "opt8241".
+    fn kind(&self) -> &'static str;
+    /// Human-readable device (model, file or USB path).
+    fn device(&self) -> String;
+    fn sensor(&self) -> &SensorParams;
+    fn limits(&self) -> Limits {
+        Limits::DEFAULT
+    }
+    fn settings(&self) -> CaptureSettings;
+    /// Applies new capture settings from the next frame on.
+    fn configure(&mut self, settings: &CaptureSettings) -> Result<(), BackendError>;
+    /// The mode changed: backends that model the scene or drive lights adapt.
+    fn set_mode(&mut self, _mode: ModeId) {}
+    /// Blocks until the next frame is ready and writes it into `frame`.
+    fn capture(
+        &mut self,
+        illumination: &Illumination,
+        frame: &mut Frame,
+    ) -> Result<(), BackendError>;
+    /// A dark frame that came with the source (a recording's), handed over once.
+    fn take_dark_frame(&mut self) -> Option<(u32, Image<f32>)> {
+        None
+    }
+}
+
+/// Backends selectable by name.
+pub const KINDS: &[&str] = &["sim", "replay"];

@@ -1,0 +1,92 @@
+//! The simulator backend: the physically faithful sensor model of sdi-core.
+
+use sdi_core::mode::ModeId;
+use sdi_core::modulation::Illumination;
+use sdi_core::scene::SceneSpec;
+use sdi_core::sensor::SensorParams;
+use sdi_core::simulator::{SimConfig, Simulator};
+use sdi_core::Frame;
+
+use super::pacer::Pacer;
+use super::{Backend, BackendError, CaptureSettings};
+use crate::modes;
+
+pub struct SimBackend {
+    sim: Simulator,
+    scene: SceneSpec,
+    pacer: Pacer,
+    seed: u64,
+}
+
+impl SimBackend {
+    pub fn new(sensor: SensorParams, mode: ModeId, seed: u64) -> Result<Self, BackendError> {
+        let scene = modes::default_scene(mode);
+        let sim = build(sensor, scene.clone(), seed)?;
+        Ok(Self {
+            sim,
+            scene,
+            pacer: Pacer::new(),
+            seed,
+        })
+    }
+}
+
+fn build(sensor: SensorParams, scene: SceneSpec, seed: u64) -> Result<Simulator, BackendError> {
+    let mut config = SimConfig::new(sensor, scene);
+    config.seed = seed;
+    Simulator::new(config).map_err(|e| BackendError::OutOfRange(e.to_string()))
+}
+
+impl Backend for SimBackend {
+    fn kind(&self) -> &'static str {
+        "sim"
+    }
+
+    fn device(&self) -> String {
+        format!("simulator ({})", self.sim.params().model)
+    }
+
+    fn sensor(&self) -> &SensorParams {
+        self.sim.params()
+    }
+
+    fn settings(&self) -> CaptureSettings {
+        let p = self.sim.params();
+        CaptureSettings {
+            exposure_us: p.exposure_us,
+            frame_rate_hz: p.frame_rate_hz,
+            modulation_hz: p.modulation_hz,
+        }
+    }
+
+    fn configure(&mut self, s: &CaptureSettings) -> Result<(), BackendError> {
+        let mut sensor = self.sim.params().clone();
+        sensor.exposure_us = s.exposure_us;
+        sensor.frame_rate_hz = s.frame_rate_hz;
+        sensor.modulation_hz = s.modulation_hz;
+        self.seed = self.seed.wrapping_add(1);
+        self.sim = build(sensor, self.scene.clone(), self.seed)?;
+        Ok(())
+    }
+
+    fn set_mode(&mut self, mode: ModeId) {
+        let scene = modes::default_scene(mode);
+        if scene != self.scene {
+            self.seed = self.seed.wrapping_add(1);
+            if let Ok(sim) = build(self.sim.params().clone(), scene.clone(), self.seed) {
+                self.sim = sim;
+                self.scene = scene;
+            }
+        }
+    }
+
+    fn capture(
+        &mut self,
+        illumination: &Illumination,
+        frame: &mut Frame,
+    ) -> Result<(), BackendError> {
+        self.pacer.wait(self.sim.params().frame_rate_hz);
+        self.sim.capture(illumination, frame);
+        Ok(())
+    }
+}

@@ -1,0 +1,535 @@
+//! `org.sdi.Camera1` on `/org/sdi/Camera0`: properties mirror the daemon's
+//! state, methods validate their input and forward it to the frame loop.
+
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::sync::mpsc::Sender;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use sdi_core::mode::ModeId;
+use tokio::sync::{oneshot, watch};
+use zbus::message::Header;
+use zbus::object_server::SignalEmitter;
+use zbus::zvariant::{OwnedValue, Value};
+use zbus::{interface, Connection};
+
+use super::errors::{check_range, SdiError};
+use super::paths::{validate_output_path, OutputKind};
+use crate::backend::{BackendError, CaptureSettings, Limits};
+use crate::frame_loop::{Command, DarkStats};
+use crate::modes::{Colormap, DisplayMap, DisplayRange};
+use crate::recording::{Calibration, Header as RecHeader, RecordingWriter};
+use crate::sink::SinkInfo;
+use crate::stats::Stats;
+
+/// Largest number of frames one dark-frame or calibration call may average.
+pub const MAX_AVERAGE_FRAMES: u32 = 10_000;
+/// Largest fixed display range, DN.
+pub const MAX_RANGE_DN: f64 = 1e6;
+
+/// Fixed facts about this camera, known at start.
+#[derive(Debug, Clone)]
+pub struct CameraInfo {
+    pub backend: String,
+    pub device: String,
+    pub sink: SinkInfo,
+    pub limits: Limits,
+    pub sensor: sdi_core::sensor::SensorParams,
+}
+
+/// State changed by clients.
+#[derive(Debug, Clone)]
+struct State {
+    mode: ModeId,
+    capture: CaptureSettings,
+    display: DisplayMap,
+    recording: Option<PathBuf>,
+}
+
+pub struct Camera {
+    info: CameraInfo,
+    state: Mutex<State>,
+    commands: Mutex<Sender<Command>>,
+    stats: watch::Receiver<Stats>,
+    calibration: watch::Receiver<Calibration>,
+    /// Serializes mode and setting changes (zbus runs calls concurrently).
+    change_lock: tokio::sync::Mutex<()>,
+    /// Held during dark frames and calibration.
+    long_op: Arc<tokio::sync::Mutex<()>>,
+}
+
+fn colormap_name(c: Colormap) -> &'static str {
+    match c {
+        Colormap::Diverging => "diverging",
+        Colormap::Grey => "grey",
+    }
+}
+
+fn ov(v: Value<'_>) -> OwnedValue {
+    v.try_to_owned().unwrap_or_else(|_| OwnedValue::from(0u8))
+}
+
+fn dark_dict(s: &DarkStats) -> HashMap<String, OwnedValue> {
+    HashMap::from([
+        ("frames".to_owned(), ov(Value::from(s.frames))),
+        ("mean_dn".to_owned(), ov(Value::from(s.mean_dn))),
+        (
+            "read_noise_variance_dn2".to_owned(),
+            ov(Value::from(s.read_noise_variance_dn2)),
+        ),
+        (
+            "fixed_pattern_sigma_dn".to_owned(),
+            ov(Value::from(s.fixed_pattern_sigma_dn)),
+        ),
+    ])
+}
+
+async fn caller_uid(conn: &Connection, hdr: &Header<'_>) -> Option<u32> {
+    let sender = hdr.sender()?.to_owned();
+    let proxy = zbus::fdo::DBusProxy::new(conn).await.ok()?;
+    proxy
+        .get_connection_unix_user(zbus::names::BusName::Unique(sender))
+        .await
+        .ok()
+}
+
+impl Camera {
+    pub fn new(
+        info: CameraInfo,
+        mode: ModeId,
+        capture: CaptureSettings,
+        display: DisplayMap,
+        commands: Sender<Command>,
+        stats: watch::Receiver<Stats>,
+        calibration: watch::Receiver<Calibration>,
+    ) -> Self {
+        Self {
+            info,
+            state: Mutex::new(State {
+                mode,
+                capture,
+                display,
+                recording: None,
+            }),
+            commands: Mutex::new(commands),
+            stats,
+            calibration,
+            change_lock: tokio::sync::Mutex::new(()),
+            long_op: Arc::new(tokio::sync::Mutex::new(())),
+        }
+    }
+
+    fn state(&self) -> State {
+        match self.state.lock() {
+            Ok(s) => s.clone(),
+            Err(p) => p.into_inner().clone(),
+        }
+    }
+
+    fn update(&self, f: impl FnOnce(&mut State)) {
+        match self.state.lock() {
+            Ok(mut s) => f(&mut s),
+            Err(p) => f(&mut p.into_inner()),
+        }
+    }
+
+    fn send(&self, cmd: Command) -> Result<(), SdiError> {
+        let tx = self
+            .commands
+            .lock()
+            .map_err(|_| SdiError::Failed("command channel poisoned".into()))?;
+        tx.send(cmd)
+            .map_err(|_| SdiError::DeviceUnavailable("the frame loop has stopped".into()))
+    }
+
+    async fn ask<T>(
+        &self,
+        make: impl FnOnce(oneshot::Sender<T>) -> Command,
+    ) -> Result<T, SdiError> {
+        let (tx, rx) = oneshot::channel();
+        self.send(make(tx))?;
+        rx.await
+            .map_err(|_| SdiError::DeviceUnavailable("the frame loop has stopped".into()))
+    }
+
+    async fn configure(
+        &self,
+        emitter: &SignalEmitter<'_>,
+        f: impl FnOnce(&mut CaptureSettings),
+    ) -> Result<(), SdiError> {
+        let _guard = self.change_lock.lock().await;
+        let mut capture = self.state().capture;
+        f(&mut capture);
+        let l = self.info.limits;
+        let period_us = 1e6 / capture.frame_rate_hz;
+        if capture.exposure_us > period_us {
+            return Err(SdiError::OutOfRange(format!(
+                "ExposureUs = {} us exceeds the frame period {period_us:.1} us at {} Hz: allowed [{}, {period_us:.1}] us",
+                capture.exposure_us, capture.frame_rate_hz, l.exposure_us.0
+            )));
+        }
+        let result = self.ask(|tx| Command::Configure(capture, tx)).await?;
+        result.map_err(|e| match e {
+            BackendError::OutOfRange(m) => SdiError::OutOfRange(m),
+            BackendError::Unavailable(m) => SdiError::DeviceUnavailable(m),
+            other => SdiError::Failed(other.to_string()),
+        })?;
+        self.update(|s| s.capture = capture);
+        let _ = self.exposure_us_changed(emitter).await;
+        let _ = self.frame_rate_changed(emitter).await;
+        let _ = self.modulation_hz_changed(emitter).await;
+        Ok(())
+    }
+
+    async fn set_display(
+        &self,
+        emitter: &SignalEmitter<'_>,
+        f: impl FnOnce(&mut DisplayMap),
+    ) -> Result<(), SdiError> {
+        let _guard = self.change_lock.lock().await;
+        let mut d = self.state().display;
+        f(&mut d);
+        self.send(Command::SetDisplay(d))?;
+        self.update(|s| s.display = d);
+        let _ = self.colormap_changed(emitter).await;
+        let _ = self.range_changed(emitter).await;
+        Ok(())
+    }
+
+    async fn dark(&self, frames: u32, min: u32) -> Result<DarkStats, SdiError> {
+        if frames < min || frames > MAX_AVERAGE_FRAMES {
+            return Err(SdiError::OutOfRange(format!(
+                "frames = {frames} is out of range: allowed [{min}, {MAX_AVERAGE_FRAMES}]"
+            )));
+        }
+        let _guard = self.long_op.try_lock().map_err(|_| {
+            SdiError::Busy("a dark-frame capture or calibration is already running".into())
+        })?;
+        let r = self.ask(|tx| Command::CaptureDark(frames, tx)).await?;
+        r.map_err(|e| SdiError::DeviceUnavailable(e.to_string()))
+    }
+}
+
+#[interface(name = "org.sdi.Camera1")]
+impl Camera {
+    /// Switches the mode; takes effect from the next frame, the output stays open.
+    async fn set_mode(
+        &self,
+        mode: &str,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+    ) -> Result<(), SdiError> {
+        let m = ModeId::from_name(mode).map_err(|_| SdiError::invalid_mode(mode))?;
+        let _guard = self.change_lock.lock().await;
+        self.ask(|tx| Command::SetMode(m, tx)).await?;
+        let changed = self.state().mode != m;
+        self.update(|s| s.mode = m);
+        if changed {
+            tracing::info!(mode = m.name(), "mode changed");
+            let _ = self.mode_changed(&emitter).await;
+            let _ = self.setup_changed(&emitter).await;
+        }
+        Ok(())
+    }
+
+    /// Exposure per frame, microseconds; at most the frame period.
+    async fn set_exposure_us(
+        &self,
+        exposure_us: f64,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+    ) -> Result<(), SdiError> {
+        let (lo, hi) = self.info.limits.exposure_us;
+        let v = check_range("ExposureUs", exposure_us, lo, hi, "us")?;
+        self.configure(&emitter, |c| c.exposure_us = v).await
+    }
+
+    /// Frame rate, Hz.
+    async fn set_frame_rate(
+        &self,
+        frame_rate_hz: f64,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+    ) -> Result<(), SdiError> {
+        let (lo, hi) = self.info.limits.frame_rate_hz;
+        let v = check_range("FrameRate", frame_rate_hz, lo, hi, "Hz")?;
+        self.configure(&emitter, |c| c.frame_rate_hz = v).await
+    }
+
+    /// Modulation (carrier) frequency, Hz.
+    async fn set_modulation_hz(
+        &self,
+        modulation_hz: f64,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+    ) -> Result<(), SdiError> {
+        let (lo, hi) = self.info.limits.modulation_hz;
+        let v = check_range("ModulationHz", modulation_hz, lo, hi, "Hz")?;
+        self.configure(&emitter, |c| c.modulation_hz = v).await
+    }
+
+    /// Colour map of the view stream and PNG snapshots: "diverging" or "grey".
+    async fn set_colormap(
+        &self,
+        colormap: &str,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+    ) -> Result<(), SdiError> {
+        let c = match colormap {
+            "diverging" => Colormap::Diverging,
+            "grey" | "gray" => Colormap::Grey,
+            other => {
+                return Err(SdiError::OutOfRange(format!(
+                    "unknown colormap '{}': allowed diverging, grey",
+                    other.escape_debug()
+                )))
+            }
+        };
+        self.set_display(&emitter, |d| d.colormap = c).await
+    }
+
+    /// Display range: |DN| mapped to full scale; 0 = symmetric auto range per frame.
+    async fn set_range(
+        &self,
+        max_abs_dn: f64,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+    ) -> Result<(), SdiError> {
+        let v = check_range("Range", max_abs_dn, 0.0, MAX_RANGE_DN, "DN")?;
+        self.set_display(&emitter, |d| {
+            d.range = if v == 0.0 {
+                DisplayRange::SymmetricAuto
+            } else {
+                DisplayRange::Fixed {
+                    max_abs_dn: v as f32,
+                }
+            }
+        })
+        .await
+    }
+
+    /// Averages `frames` frames with both sources off into the dark frame the
+    /// pipelines subtract; returns its statistics.
+    async fn capture_dark_frame(
+        &self,
+        frames: u32,
+    ) -> Result<HashMap<String, OwnedValue>, SdiError> {
+        let s = self.dark(frames, 1).await?;
+        Ok(dark_dict(&s))
+    }
+
+    /// Dark calibration: dark frame, read-noise variance (DN^2, eq. skellamvar
+    /// with no light) and fixed-pattern sigma from `frames` >= 2 dark frames.
+    async fn calibrate(&self, frames: u32) -> Result<HashMap<String, OwnedValue>, SdiError> {
+        let s = self.dark(frames, 2).await?;
+        Ok(dark_dict(&s))
+    }
+
+    /// Starts recording raw sensor frames to a new `.sdirec` file at an absolute path.
+    async fn start_recording(
+        &self,
+        path: &str,
+        #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+    ) -> Result<(), SdiError> {
+        let uid = caller_uid(conn, &hdr).await;
+        let (path, _) = validate_output_path(path, &[OutputKind::Recording], uid)?;
+        let _guard = self.change_lock.lock().await;
+        let st = self.state();
+        if let Some(p) = &st.recording {
+            return Err(SdiError::Busy(format!(
+                "already recording to {}",
+                p.display()
+            )));
+        }
+        let mut sensor = self.info.sensor.clone();
+        sensor.exposure_us = st.capture.exposure_us;
+        sensor.frame_rate_hz = st.capture.frame_rate_hz;
+        sensor.modulation_hz = st.capture.modulation_hz;
+        let header = RecHeader {
+            format_version: 1,
+            mode: st.mode.name().into(),
+            backend: self.info.backend.clone(),
+            sensor,
+            exposure_us: st.capture.exposure_us,
+            frame_rate_hz: st.capture.frame_rate_hz,
+            modulation_hz: st.capture.modulation_hz,
+            started_unix_s: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64()),
+            calibration: self.calibration.borrow().clone(),
+        };
+        let p2 = path.clone();
+        let writer = tokio::task::spawn_blocking(move || RecordingWriter::create(&p2, &header))
+            .await
+            .map_err(|e| SdiError::Failed(e.to_string()))?
+            .map_err(|e| SdiError::InvalidPath(format!("{}: {e}", path.display())))?;
+        crate::snapshot::give_to(&path, uid);
+        self.ask(|tx| Command::StartRecording(Box::new(writer), tx))
+            .await?;
+        tracing::info!(path = %path.display(), "recording started");
+        self.update(|s| s.recording = Some(path));
+        let _ = self.recording_changed(&emitter).await;
+        Ok(())
+    }
+
+    /// Stops recording; returns {path, frames, dropped}.
+    async fn stop_recording(
+        &self,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+    ) -> Result<HashMap<String, OwnedValue>, SdiError> {
+        let _guard = self.change_lock.lock().await;
+        let Some(path) = self.state().recording else {
+            return Err(SdiError::NotRecording("no recording in progress".into()));
+        };
+        let summary = self.ask(Command::StopRecording).await?;
+        self.update(|s| s.recording = None);
+        let _ = self.recording_changed(&emitter).await;
+        let summary = summary
+            .ok_or_else(|| SdiError::NotRecording("no recording in progress".into()))?
+            .map_err(|e| SdiError::Failed(format!("finishing {}: {e}", path.display())))?;
+        tracing::info!(path = %path.display(), frames = summary.frames, dropped = summary.dropped, "recording stopped");
+        Ok(HashMap::from([
+            (
+                "path".to_owned(),
+                ov(Value::from(path.display().to_string())),
+            ),
+            ("frames".to_owned(), ov(Value::from(summary.frames))),
+            ("dropped".to_owned(), ov(Value::from(summary.dropped))),
+        ]))
+    }
+
+    /// Writes the latest processed frame to a new file: `.png` (as displayed)
+    /// or `.npy` (signed DN, float32, shape (height, width)).
+    async fn snapshot(
+        &self,
+        path: &str,
+        #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+    ) -> Result<(), SdiError> {
+        let uid = caller_uid(conn, &hdr).await;
+        let (path, kind) = validate_output_path(path, &[OutputKind::Png, OutputKind::Npy], uid)?;
+        let mut snap = None;
+        for _ in 0..20 {
+            snap = self.ask(Command::Snapshot).await?;
+            if snap.is_some() {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        let snap =
+            snap.ok_or_else(|| SdiError::NoFrame("no frame has been processed yet".into()))?;
+        let p2 = path.clone();
+        tokio::task::spawn_blocking(move || crate::snapshot::write(&p2, kind, &snap))
+            .await
+            .map_err(|e| SdiError::Failed(e.to_string()))?
+            .map_err(|e| SdiError::Failed(format!("{}: {e}", path.display())))?;
+        crate::snapshot::give_to(&path, uid);
+        Ok(())
+    }
+
+    /// Current mode name.
+    #[zbus(property)]
+    async fn mode(&self) -> String {
+        self.state().mode.name().into()
+    }
+
+    /// All mode names.
+    #[zbus(property(emits_changed_signal = "const"))]
+    async fn modes(&self) -> Vec<String> {
+        ModeId::names().into_iter().map(String::from).collect()
+    }
+
+    /// Physical setup the current mode expects: {ls1, ls2, optics}.
+    #[zbus(property)]
+    async fn setup(&self) -> HashMap<String, String> {
+        let s = self.state().mode.setup();
+        HashMap::from([
+            ("ls1".to_owned(), s.ls1.to_owned()),
+            ("ls2".to_owned(), s.ls2.to_owned()),
+            ("optics".to_owned(), s.optics.to_owned()),
+        ])
+    }
+
+    #[zbus(property(emits_changed_signal = "const"))]
+    async fn backend(&self) -> String {
+        self.info.backend.clone()
+    }
+
+    /// Sensor device and output device, "sensor -> output".
+    #[zbus(property(emits_changed_signal = "const"))]
+    async fn device(&self) -> String {
+        format!("{} -> {}", self.info.device, self.info.sink.device)
+    }
+
+    /// Output pixel format.
+    #[zbus(property(emits_changed_signal = "const"))]
+    async fn format(&self) -> String {
+        self.info.sink.format.clone()
+    }
+
+    #[zbus(property(emits_changed_signal = "const"))]
+    async fn width(&self) -> u32 {
+        self.info.sink.width
+    }
+
+    #[zbus(property(emits_changed_signal = "const"))]
+    async fn height(&self) -> u32 {
+        self.info.sink.height
+    }
+
+    /// Frames per second, Hz.
+    #[zbus(property)]
+    async fn frame_rate(&self) -> f64 {
+        self.state().capture.frame_rate_hz
+    }
+
+    #[zbus(property)]
+    async fn exposure_us(&self) -> f64 {
+        self.state().capture.exposure_us
+    }
+
+    #[zbus(property)]
+    async fn modulation_hz(&self) -> f64 {
+        self.state().capture.modulation_hz
+    }
+
+    #[zbus(property)]
+    async fn colormap(&self) -> String {
+        colormap_name(self.state().display.colormap).into()
+    }
+
+    /// |DN| at full scale; 0 = symmetric auto range.
+    #[zbus(property)]
+    async fn range(&self) -> f64 {
+        match self.state().display.range {
+            DisplayRange::SymmetricAuto => 0.0,
+            DisplayRange::Fixed { max_abs_dn } => max_abs_dn as f64,
+        }
+    }
+
+    /// Path being recorded to, "" when not recording.
+    #[zbus(property)]
+    async fn recording(&self) -> String {
+        self.state()
+            .recording
+            .map(|p| p.display().to_string())
+            .unwrap_or_default()
+    }
+
+    /// {frames, fps, latency_us, latency_max_us, dropped_view, dropped_recording}; emitted about once a second.
+    #[zbus(property)]
+    async fn stats(&self) -> HashMap<String, OwnedValue> {
+        let s = *self.stats.borrow();
+        HashMap::from([
+            ("frames".to_owned(), ov(Value::from(s.frames))),
+            ("fps".to_owned(), ov(Value::from(s.fps))),
+            ("latency_us".to_owned(), ov(Value::from(s.latency_us))),
+            (
+                "latency_max_us".to_owned(),
+                ov(Value::from(s.latency_max_us)),
+            ),
+            ("dropped_view".to_owned(), ov(Value::from(s.dropped_view))),
+            (
+                "dropped_recording".to_owned(),
+                ov(Value::from(s.dropped_recording)),
+            ),
+        ])
+    }
+}

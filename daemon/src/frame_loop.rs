@@ -1,0 +1,295 @@
+//! The frame loop: a dedicated thread that captures, processes and hands
+//! frames on. It never waits on D-Bus, logging or disk: commands arrive on a
+//! channel polled between frames, replies go out on one-shot channels, and
+//! outputs and recordings sit behind bounded non-blocking queues.
+
+use std::sync::mpsc::{Receiver, TryRecvError};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use sdi_core::mode::ModeId;
+use sdi_core::{Frame, Image};
+use tokio::sync::{oneshot, watch};
+
+use crate::backend::{Backend, BackendError, CaptureSettings};
+use crate::modes::{self, DisplayMap, ModeOutput, Pipeline, PipelineConfig};
+use crate::recording::{Calibration, RecordingWriter, Summary};
+use crate::sink::output::Output;
+use crate::stats::{Stats, StatsWindow};
+
+/// Statistics of a dark-frame capture.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DarkStats {
+    pub frames: u32,
+    pub mean_dn: f64,
+    /// Mean per-pixel temporal variance, DN^2: the read noise (eq. skellamvar with no light).
+    pub read_noise_variance_dn2: f64,
+    /// Spatial standard deviation of the dark frame, DN.
+    pub fixed_pattern_sigma_dn: f64,
+}
+
+/// The latest processed frame, for snapshots.
+pub struct SnapshotData {
+    pub mode: ModeId,
+    pub output: Arc<ModeOutput>,
+    pub display: DisplayMap,
+}
+
+pub type Reply<T> = oneshot::Sender<T>;
+
+/// Requests to the frame loop.
+pub enum Command {
+    SetMode(ModeId, Reply<()>),
+    Configure(CaptureSettings, Reply<Result<(), BackendError>>),
+    SetDisplay(DisplayMap),
+    CaptureDark(u32, Reply<Result<DarkStats, BackendError>>),
+    Snapshot(Reply<Option<SnapshotData>>),
+    StartRecording(Box<RecordingWriter>, Reply<()>),
+    StopRecording(Reply<Option<std::io::Result<Summary>>>),
+    Shutdown,
+}
+
+struct DarkJob {
+    wanted: u32,
+    n: u32,
+    sum: Vec<f64>,
+    sum_sq: Vec<f64>,
+    reply: Reply<Result<DarkStats, BackendError>>,
+}
+
+pub struct FrameLoop {
+    backend: Box<dyn Backend>,
+    pipeline: Box<dyn Pipeline>,
+    mode: ModeId,
+    display: DisplayMap,
+    output: Output,
+    recorder: Option<RecordingWriter>,
+    dark: Option<(u32, Image<f32>)>,
+    calibration: Calibration,
+    dark_job: Option<DarkJob>,
+    last: Option<Arc<ModeOutput>>,
+    stats: StatsWindow,
+    stats_tx: watch::Sender<Stats>,
+    calibration_tx: watch::Sender<Calibration>,
+    frame_index: u64,
+}
+
+impl FrameLoop {
+    pub fn new(
+        backend: Box<dyn Backend>,
+        mode: ModeId,
+        display: DisplayMap,
+        output: Output,
+        stats_tx: watch::Sender<Stats>,
+        calibration_tx: watch::Sender<Calibration>,
+    ) -> Self {
+        Self {
+            backend,
+            pipeline: modes::build_pipeline(mode, PipelineConfig::default()),
+            mode,
+            display,
+            output,
+            recorder: None,
+            dark: None,
+            calibration: Calibration::default(),
+            dark_job: None,
+            last: None,
+            stats: StatsWindow::new(),
+            stats_tx,
+            calibration_tx,
+            frame_index: 0,
+        }
+    }
+
+    /// Runs until `Shutdown` or until every command sender is gone; finalizes any recording.
+    pub fn run(mut self, commands: Receiver<Command>) -> Option<std::io::Result<Summary>> {
+        let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
+        let mut frame = Frame::new(w, h);
+        let mut stalled = false;
+        loop {
+            loop {
+                match commands.try_recv() {
+                    Ok(Command::Shutdown) | Err(TryRecvError::Disconnected) => {
+                        return self.recorder.take().map(RecordingWriter::finish);
+                    }
+                    Ok(cmd) => self.handle(cmd),
+                    Err(TryRecvError::Empty) => break,
+                }
+            }
+            let carrier_hz = self.backend.settings().modulation_hz;
+            let illumination = if self.dark_job.is_some() {
+                sdi_core::modulation::Illumination::dark(carrier_hz)
+            } else {
+                modes::illumination(self.mode, self.frame_index, carrier_hz)
+            };
+            match self.backend.capture(&illumination, &mut frame) {
+                Ok(()) => stalled = false,
+                Err(e) => {
+                    if !stalled {
+                        tracing::warn!("backend: {e}; showing no-signal");
+                        stalled = true;
+                    }
+                    if let Some(job) = self.dark_job.take() {
+                        let _ = job.reply.send(Err(e));
+                    }
+                    self.output.send_no_signal();
+                    std::thread::sleep(Duration::from_millis(200));
+                    continue;
+                }
+            }
+            let t0 = Instant::now();
+            self.frame_index += 1;
+            if let Some(dark) = self.backend.take_dark_frame() {
+                self.set_dark(dark.0, dark.1);
+            }
+            if let (Some(rec), None) = (&self.recorder, &self.dark_job) {
+                rec.push_frame(self.mode.name(), &frame);
+            }
+            if self.dark_job.is_some() {
+                self.accumulate_dark(&frame);
+            } else if let Some(out) = self.pipeline.process(&frame) {
+                let out = Arc::new(out.clone());
+                self.output.send(out.clone(), self.display);
+                self.last = Some(out);
+            }
+            if self.stats.frame(t0.elapsed()) {
+                let mut s = self.stats.current;
+                s.dropped_view = self.output.dropped();
+                s.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
+                    r.counters()
+                        .dropped
+                        .load(std::sync::atomic::Ordering::Relaxed)
+                });
+                self.stats_tx.send_replace(s);
+            }
+        }
+    }
+
+    fn set_dark(&mut self, frames: u32, dn: Image<f32>) {
+        self.pipeline.set_dark_frame(Some(dn.clone()));
+        if let Some(rec) = &self.recorder {
+            rec.push_dark(frames, &dn);
+        }
+        self.dark = Some((frames, dn));
+        self.calibration.dark_frames = frames;
+    }
+
+    fn handle(&mut self, cmd: Command) {
+        match cmd {
+            Command::SetMode(mode, reply) => {
+                if mode != self.mode {
+                    let dark = self.dark.as_ref().map(|d| d.1.clone());
+                    self.pipeline = modes::build_pipeline(
+                        mode,
+                        PipelineConfig {
+                            dark_frame_dn: dark,
+                            ..PipelineConfig::default()
+                        },
+                    );
+                    self.backend.set_mode(mode);
+                    self.mode = mode;
+                    self.frame_index = 0;
+                }
+                let _ = reply.send(());
+            }
+            Command::Configure(settings, reply) => {
+                let _ = reply.send(self.backend.configure(&settings));
+            }
+            Command::SetDisplay(d) => self.display = d,
+            Command::CaptureDark(n, reply) => {
+                let px = self.backend.sensor().width * self.backend.sensor().height;
+                self.dark_job = Some(DarkJob {
+                    wanted: n.max(1),
+                    n: 0,
+                    sum: vec![0.0; px],
+                    sum_sq: vec![0.0; px],
+                    reply,
+                });
+            }
+            Command::Snapshot(reply) => {
+                let _ = reply.send(self.last.clone().map(|output| SnapshotData {
+                    mode: self.mode,
+                    output,
+                    display: self.display,
+                }));
+            }
+            Command::StartRecording(rec, reply) => {
+                if let Some((frames, dn)) = &self.dark {
+                    rec.push_dark(*frames, dn);
+                }
+                if let Some(old) = self.recorder.replace(*rec) {
+                    let _ = old.finish();
+                }
+                let _ = reply.send(());
+            }
+            Command::StopRecording(reply) => {
+                let _ = reply.send(self.recorder.take().map(RecordingWriter::finish));
+            }
+            Command::Shutdown => {}
+        }
+    }
+
+    fn accumulate_dark(&mut self, frame: &Frame) {
+        let Some(job) = self.dark_job.as_mut() else {
+            return;
+        };
+        if job.sum.len() != frame.dn.data.len() {
+            return;
+        }
+        for ((s, q), &v) in job
+            .sum
+            .iter_mut()
+            .zip(job.sum_sq.iter_mut())
+            .zip(&frame.dn.data)
+        {
+            let v = v as f64;
+            *s += v;
+            *q += v * v;
+        }
+        job.n += 1;
+        if job.n < job.wanted {
+            return;
+        }
+        let Some(job) = self.dark_job.take() else {
+            return;
+        };
+        let n = job.n as f64;
+        let px = job.sum.len() as f64;
+        let means: Vec<f32> = job.sum.iter().map(|s| (s / n) as f32).collect();
+        let mean_dn = job.sum.iter().sum::<f64>() / (n * px);
+        let var_t = if job.n > 1 {
+            job.sum
+                .iter()
+                .zip(&job.sum_sq)
+                .map(|(s, q)| (q - s * s / n) / (n - 1.0))
+                .sum::<f64>()
+                / px
+        } else {
+            f64::NAN
+        };
+        let var_s = means
+            .iter()
+            .map(|&m| (m as f64 - mean_dn).powi(2))
+            .sum::<f64>()
+            / px;
+        let stats = DarkStats {
+            frames: job.n,
+            mean_dn,
+            read_noise_variance_dn2: var_t,
+            fixed_pattern_sigma_dn: var_s.sqrt(),
+        };
+        let (w, h) = (frame.width(), frame.height());
+        self.set_dark(
+            job.n,
+            Image {
+                width: w,
+                height: h,
+                data: means,
+            },
+        );
+        self.calibration.read_noise_variance_dn2 = var_t.is_finite().then_some(var_t);
+        self.calibration.fixed_pattern_sigma_dn = Some(stats.fixed_pattern_sigma_dn);
+        self.calibration_tx.send_replace(self.calibration.clone());
+        let _ = job.reply.send(Ok(stats));
+    }
+}

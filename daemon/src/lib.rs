@@ -1,0 +1,16 @@
+//! sdid: captures frames from a backend, runs the chosen mode's pipeline,
+//! publishes the result on an output sink, and serves the D-Bus API.
+//!
+//! Data flows one way: backend -> frame_loop (pipeline) -> sink / recording;
+//! D-Bus talks to the frame loop only through its command channel.
+
+pub mod backend;
+pub mod bus;
+pub mod config;
+pub mod dbus;
+pub mod frame_loop;
+pub mod modes;
+pub mod recording;
+pub mod sink;
+pub mod snapshot;
+pub mod stats;

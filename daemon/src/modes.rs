@@ -1,0 +1,25 @@
+//! The daemon's view of sdi-core's modes and display mapping, in one place.
+
+pub use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
+pub use sdi_core::mode::{build_pipeline, ModeId, ModeOutput, Pipeline, PipelineConfig};
+use sdi_core::modulation::Illumination;
+use sdi_core::scene::SceneSpec;
+
+/// How the sources are driven for `mode` in frame `frame_index`.
+pub fn illumination(mode: ModeId, frame_index: u64, carrier_hz: f64) -> Illumination {
+    mode.illumination(frame_index, carrier_hz)
+}
+
+/// The simulator scene that shows `mode` off.
+pub fn default_scene(mode: ModeId) -> SceneSpec {
+    mode.default_scene()
+}
+
+/// Writes a float32 `.npy` array.
+pub fn write_npy_f32<W: std::io::Write>(
+    w: &mut W,
+    shape: &[usize],
+    data: &[f32],
+) -> std::io::Result<()> {
+    sdi_core::npy::write_f32(w, shape, data)
+}

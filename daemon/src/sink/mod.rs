@@ -1,0 +1,38 @@
+//! Where processed frames go: a v4l2loopback device, or the y4m fallback.
+//! Sinks run on their own thread ([`output`]) so a slow reader never stalls
+//! the frame loop.
+
+pub mod loopback;
+pub mod output;
+pub mod y4m;
+
+use crate::modes::{DisplayMap, ModeOutput};
+
+/// What a sink publishes, for the D-Bus properties.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SinkInfo {
+    pub kind: &'static str,
+    pub device: String,
+    /// Pixel format as a FourCC-like name ("YUYV", "C444" ...).
+    pub format: String,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// Why a sink could not write.
+#[derive(Debug, thiserror::Error)]
+pub enum SinkError {
+    #[error("output device unavailable: {0}")]
+    Unavailable(String),
+    #[error("output I/O error: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// A consumer of processed frames.
+pub trait Sink: Send {
+    fn info(&self) -> SinkInfo;
+    /// Renders and publishes one processed frame.
+    fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError>;
+    /// Publishes a "no signal" frame (sensor paused or unplugged).
+    fn write_no_signal(&mut self) -> Result<(), SinkError>;
+}

@@ -1,0 +1,93 @@
+//! The output thread: owns the sink, takes frames from a two-slot queue and
+//! drops (and counts) frames when the reader is slower than the sensor.
+
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::mpsc::{sync_channel, SyncSender, TrySendError};
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+use super::{Sink, SinkInfo};
+use crate::modes::{DisplayMap, ModeOutput};
+
+enum Msg {
+    Frame(Arc<ModeOutput>, DisplayMap),
+    NoSignal,
+}
+
+/// Sending side, held by the frame loop.
+pub struct Output {
+    tx: Option<SyncSender<Msg>>,
+    info: SinkInfo,
+    dropped: Arc<AtomicU64>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Output {
+    pub fn spawn(mut sink: Box<dyn Sink>) -> std::io::Result<Self> {
+        let info = sink.info();
+        let (tx, rx) = sync_channel::<Msg>(2);
+        let thread = std::thread::Builder::new()
+            .name("sdid-output".into())
+            .spawn(move || {
+                let mut failing = false;
+                while let Ok(msg) = rx.recv() {
+                    let r = match msg {
+                        Msg::Frame(out, display) => sink.write(&out, &display),
+                        Msg::NoSignal => sink.write_no_signal(),
+                    };
+                    match r {
+                        Ok(()) => failing = false,
+                        Err(e) if !failing => {
+                            tracing::warn!("output sink: {e}");
+                            failing = true;
+                        }
+                        Err(_) => {}
+                    }
+                }
+            })?;
+        Ok(Self {
+            tx: Some(tx),
+            info,
+            dropped: Arc::new(AtomicU64::new(0)),
+            thread: Some(thread),
+        })
+    }
+
+    pub fn info(&self) -> &SinkInfo {
+        &self.info
+    }
+
+    /// Frames not shown because the output was busy.
+    pub fn dropped(&self) -> u64 {
+        self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// Queues a frame; never blocks.
+    pub fn send(&self, out: Arc<ModeOutput>, display: DisplayMap) {
+        self.try_send(Msg::Frame(out, display));
+    }
+
+    pub fn send_no_signal(&self) {
+        self.try_send(Msg::NoSignal);
+    }
+
+    fn try_send(&self, msg: Msg) {
+        if let Some(tx) = &self.tx {
+            if let Err(TrySendError::Full(_)) = tx.try_send(msg) {
+                self.dropped.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+}
+
+impl Drop for Output {
+    fn drop(&mut self) {
+        self.tx = None;
+        // The thread may be blocked in a write to a stalled reader; do not wait forever.
+        if let Some(t) = self.thread.take() {
+            if t.is_finished() {
+                let _ = t.join();
+            }
+        }
+    }
+}

@@ -1,0 +1,224 @@
+//! Fallback sink when no v4l2loopback device exists: a YUV4MPEG2 (C444)
+//! stream on stdout or into a FIFO, which `ffplay`/`ffmpeg` read directly.
+
+use std::fs::File;
+use std::io::{self, IsTerminal, Write};
+use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
+use std::path::{Path, PathBuf};
+
+use super::{Sink, SinkError, SinkInfo};
+use crate::modes::{DisplayMap, ModeOutput};
+
+enum Target {
+    Stdout {
+        broken: bool,
+    },
+    /// A FIFO opened (non-blocking) whenever a reader is present.
+    Fifo {
+        path: PathBuf,
+        file: Option<File>,
+    },
+}
+
+pub struct Y4mSink {
+    target: Target,
+    width: usize,
+    height: usize,
+    frame_rate_hz: f64,
+    rgb: Vec<u8>,
+    out: Vec<u8>,
+    header_sent: bool,
+}
+
+/// Where the fallback stream goes by default: stdout when it is a pipe or
+/// file, else a FIFO in the runtime directory.
+pub fn default_fifo_path() -> PathBuf {
+    let dir = std::env::var_os("XDG_RUNTIME_DIR")
+        .map(PathBuf::from)
+        .filter(|d| d.is_dir())
+        .unwrap_or_else(|| PathBuf::from("/tmp"));
+    dir.join("sdid-view.y4m")
+}
+
+impl Y4mSink {
+    /// `path`: `None` or "-" picks stdout unless it is a terminal, else the default FIFO.
+    pub fn new(
+        path: Option<&Path>,
+        width: usize,
+        height: usize,
+        frame_rate_hz: f64,
+    ) -> io::Result<Self> {
+        let target = match path {
+            Some(p) if p != Path::new("-") => fifo(p)?,
+            _ if !io::stdout().is_terminal() => Target::Stdout { broken: false },
+            _ => fifo(&default_fifo_path())?,
+        };
+        Ok(Self {
+            target,
+            width,
+            height,
+            frame_rate_hz,
+            rgb: vec![0; width * height * 3],
+            out: Vec::with_capacity(width * height * 3 + 16),
+            header_sent: false,
+        })
+    }
+
+    /// Where a user points `ffplay`.
+    pub fn location(&self) -> String {
+        match &self.target {
+            Target::Stdout { .. } => "stdout".into(),
+            Target::Fifo { path, .. } => path.display().to_string(),
+        }
+    }
+
+    fn header(&self) -> String {
+        let (num, den) = ((self.frame_rate_hz * 1000.0).round().max(1.0) as u64, 1000);
+        format!(
+            "YUV4MPEG2 W{} H{} F{num}:{den} Ip A1:1 C444 XCOLORRANGE=FULL\n",
+            self.width, self.height
+        )
+    }
+
+    fn pack_frame(&mut self) {
+        let n = self.width * self.height;
+        self.out.clear();
+        self.out.extend_from_slice(b"FRAME\n");
+        self.out.resize(6 + 3 * n, 0);
+        let (y, uv) = self.out[6..].split_at_mut(n);
+        let (u, v) = uv.split_at_mut(n);
+        // BT.601 full range.
+        for (i, px) in self.rgb.chunks_exact(3).enumerate() {
+            let (r, g, b) = (px[0] as f32, px[1] as f32, px[2] as f32);
+            y[i] = (0.299 * r + 0.587 * g + 0.114 * b).round() as u8;
+            u[i] = (128.0 - 0.168_736 * r - 0.331_264 * g + 0.5 * b)
+                .round()
+                .clamp(0.0, 255.0) as u8;
+            v[i] = (128.0 + 0.5 * r - 0.418_688 * g - 0.081_312 * b)
+                .round()
+                .clamp(0.0, 255.0) as u8;
+        }
+    }
+
+    fn send(&mut self) -> Result<(), SinkError> {
+        let header = self.header();
+        match &mut self.target {
+            Target::Stdout { broken } => {
+                if *broken {
+                    return Ok(());
+                }
+                let mut so = io::stdout().lock();
+                let r = (|| {
+                    if !self.header_sent {
+                        so.write_all(header.as_bytes())?;
+                    }
+                    so.write_all(&self.out)?;
+                    so.flush()
+                })();
+                match r {
+                    Ok(()) => self.header_sent = true,
+                    Err(e) if e.kind() == io::ErrorKind::BrokenPipe => {
+                        tracing::warn!("stdout reader went away; no longer streaming");
+                        *broken = true;
+                    }
+                    Err(e) => return Err(e.into()),
+                }
+            }
+            Target::Fifo { path, file } => {
+                if file.is_none() {
+                    // O_NONBLOCK: fails with ENXIO while nobody reads, which we skip.
+                    match std::fs::OpenOptions::new()
+                        .write(true)
+                        .custom_flags(libc::O_NONBLOCK)
+                        .open(&*path)
+                    {
+                        Ok(f) => {
+                            set_blocking(&f)?;
+                            *file = Some(f);
+                            self.header_sent = false;
+                            tracing::info!(path = %path.display(), "y4m reader connected");
+                        }
+                        Err(e) if e.raw_os_error() == Some(libc::ENXIO) => return Ok(()),
+                        Err(e) => return Err(e.into()),
+                    }
+                }
+                if let Some(f) = file {
+                    let r = (|| {
+                        if !self.header_sent {
+                            f.write_all(header.as_bytes())?;
+                        }
+                        f.write_all(&self.out)
+                    })();
+                    match r {
+                        Ok(()) => self.header_sent = true,
+                        Err(e) if e.kind() == io::ErrorKind::BrokenPipe => {
+                            tracing::info!(path = %path.display(), "y4m reader went away");
+                            *file = None;
+                        }
+                        Err(e) => return Err(e.into()),
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+fn fifo(path: &Path) -> io::Result<Target> {
+    match std::fs::symlink_metadata(path) {
+        Ok(m) if m.file_type().is_fifo() => {}
+        Ok(_) => {
+            return Err(io::Error::new(
+                io::ErrorKind::AlreadyExists,
+                format!("{} exists and is not a FIFO", path.display()),
+            ))
+        }
+        Err(_) => nix::unistd::mkfifo(path, nix::sys::stat::Mode::from_bits_truncate(0o600))
+            .map_err(io::Error::from)?,
+    }
+    Ok(Target::Fifo {
+        path: path.to_owned(),
+        file: None,
+    })
+}
+
+fn set_blocking(f: &File) -> io::Result<()> {
+    use nix::fcntl::{fcntl, FcntlArg, OFlag};
+    use std::os::fd::AsRawFd;
+    let flags = fcntl(f.as_raw_fd(), FcntlArg::F_GETFL).map_err(io::Error::from)?;
+    let flags = OFlag::from_bits_truncate(flags) & !OFlag::O_NONBLOCK;
+    fcntl(f.as_raw_fd(), FcntlArg::F_SETFL(flags)).map_err(io::Error::from)?;
+    Ok(())
+}
+
+impl Sink for Y4mSink {
+    fn info(&self) -> SinkInfo {
+        SinkInfo {
+            kind: "y4m",
+            device: self.location(),
+            format: "C444".into(),
+            width: self.width as u32,
+            height: self.height as u32,
+        }
+    }
+
+    fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError> {
+        if output.signed_dn.width != self.width || output.signed_dn.height != self.height {
+            return Ok(());
+        }
+        display.render_rgb8(&output.signed_dn, &mut self.rgb);
+        self.pack_frame();
+        self.send()
+    }
+
+    fn write_no_signal(&mut self) -> Result<(), SinkError> {
+        // Dark grey with a diagonal stripe pattern.
+        for (i, px) in self.rgb.chunks_exact_mut(3).enumerate() {
+            let (x, y) = (i % self.width, i / self.width);
+            let g = if (x + y) / 16 % 2 == 0 { 40 } else { 60 };
+            px.copy_from_slice(&[g, g, g]);
+        }
+        self.pack_frame();
+        self.send()
+    }
+}

@@ -1,0 +1,55 @@
+//! Snapshots: the latest processed frame as PNG (rendered as the view stream
+//! shows it) or `.npy` (signed DN, float32, shape (height, width)).
+
+use std::fs::OpenOptions;
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+
+use crate::dbus::paths::OutputKind;
+use crate::frame_loop::SnapshotData;
+use crate::modes;
+
+/// Writes `snap` to a new file at `path`.
+pub fn write(path: &Path, kind: OutputKind, snap: &SnapshotData) -> io::Result<()> {
+    let img = &snap.output.signed_dn;
+    let file = OpenOptions::new().write(true).create_new(true).open(path)?;
+    let mut w = BufWriter::new(file);
+    match kind {
+        OutputKind::Npy | OutputKind::Recording => {
+            modes::write_npy_f32(&mut w, &[img.height, img.width], &img.data)?
+        }
+        OutputKind::Png => {
+            let mut rgb = vec![0u8; img.width * img.height * 3];
+            snap.display.render_rgb8(img, &mut rgb);
+            let png = encode_png(&rgb, img.width as u32, img.height as u32)?;
+            w.write_all(&png)?;
+        }
+    }
+    w.flush()?;
+    w.get_ref().sync_all()
+}
+
+fn encode_png(rgb: &[u8], width: u32, height: u32) -> io::Result<Vec<u8>> {
+    let mut buf = io::Cursor::new(Vec::new());
+    image::write_buffer_with_format(
+        &mut buf,
+        rgb,
+        width,
+        height,
+        image::ExtendedColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .map_err(io::Error::other)?;
+    Ok(buf.into_inner())
+}
+
+/// Hands a file the daemon (as root) wrote over to the caller.
+pub fn give_to(path: &Path, uid: Option<u32>) {
+    if let Some(uid) = uid {
+        if nix::unistd::geteuid().is_root() && uid != 0 {
+            if let Err(e) = std::os::unix::fs::chown(path, Some(uid), None) {
+                tracing::warn!(path = %path.display(), "chown to uid {uid}: {e}");
+            }
+        }
+    }
+}
