@@ -23,7 +23,9 @@ pub fn vmrun_path() -> PathBuf {
 pub fn unavailable_reason() -> Option<String> {
     let qemu = Command::new("qemu-system-x86_64").arg("--version").output();
     if !matches!(qemu, Ok(ref o) if o.status.success()) {
-        return Some("qemu-system-x86_64 is not installed (run: sudo tests/vm/setup-host.sh)".into());
+        return Some(
+            "qemu-system-x86_64 is not installed (run: sudo tests/vm/setup-host.sh)".into(),
+        );
     }
     let kernels = std::fs::read_dir("/boot").ok()?;
     let has_module = kernels.flatten().any(|e| {
@@ -53,7 +55,15 @@ pub fn run_test_in_vm(name: &str, timeout_s: u32) -> bool {
     let status = Command::new("flock")
         .arg(std::env::temp_dir().join("sdi-vm.lock"))
         .arg(vmrun_path())
-        .args(["-s", "2", "-t", &timeout_s.to_string(), "-e", "IN_VM=1", "--"])
+        .args([
+            "-s",
+            "2",
+            "-t",
+            &timeout_s.to_string(),
+            "-e",
+            "IN_VM=1",
+            "--",
+        ])
         .arg(&exe)
         .args(["--exact", name, "--nocapture", "--test-threads=1"])
         .status()

@@ -11,7 +11,10 @@ fn vm_boots_and_loads_modules() {
         return;
     }
     for module in ["v4l2loopback", "dummy_hcd", "libcomposite", "usb_f_fs"] {
-        let ok = Command::new("modprobe").arg(module).status().expect("modprobe");
+        let ok = Command::new("modprobe")
+            .arg(module)
+            .status()
+            .expect("modprobe");
         assert!(ok.success(), "modprobe {module} failed");
     }
 }
