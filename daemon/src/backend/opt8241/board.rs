@@ -82,14 +82,18 @@ pub struct Opt8241 {
     pub transfers_in_flight: usize,
 }
 
+fn new_context() -> Result<Context, BoardError> {
+    Ok(Context::new().map_err(|e| UsbError::Usb {
+        op: "initializing libusb",
+        error: e.to_string(),
+    })?)
+}
+
 impl Opt8241 {
     /// Finds, opens and configures the board, and starts streaming.
     pub fn open(selector: BoardSelector, config: BoardConfig) -> Result<Self, BoardError> {
         config.validate()?;
-        let context = Context::new().map_err(|e| UsbError::Usb {
-            op: "initializing libusb",
-            error: e.to_string(),
-        })?;
+        let context = new_context()?;
         let mut board = Self {
             context,
             selector,
@@ -108,6 +112,9 @@ impl Opt8241 {
 
     fn connect(&mut self) -> Result<(), BoardError> {
         self.session = None;
+        // A fresh libusb context rescans the bus: works without udev or
+        // libusb hotplug support (e.g. inside minimal VMs and containers).
+        self.context = new_context()?;
         let open = open_board(&self.context, &self.selector)?;
         let mut bus = RegisterBus::new(UsbTransport {
             handle: open.handle.clone(),
