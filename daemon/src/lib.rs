@@ -9,6 +9,7 @@ pub mod bus;
 pub mod config;
 pub mod dbus;
 pub mod frame_loop;
+pub mod light;
 pub mod modes;
 pub mod recording;
 pub mod sink;

@@ -1,6 +1,7 @@
 //! Shared helpers for SDI's integration tests.
 
 pub mod bench;
+pub mod board_emulator;
 pub mod dbus;
 pub mod loopback;
 pub mod vm;

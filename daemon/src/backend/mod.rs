@@ -1,6 +1,7 @@
 //! Frame sources behind one trait: the simulator, recordings, and (later)
 //! the real board. A backend delivers sensor frames, paced at its frame rate.
 
+pub mod opt8241;
 pub mod pacer;
 pub mod replay;
 pub mod sim;

@@ -1,0 +1,502 @@
+//! Raw-quad frames: from bulk transfers to the pipeline's signed difference frame.
+//!
+//! With output_mode = 15 the board sends, per pixel in row order,
+//! quad_cnt_max little-endian 16-bit words, each a signed 12-bit A-B value in
+//! bits 11:0 (SDK `TI3DToF/ToFFrameGenerator.cpp`, `_generateToFRawIQFrame`,
+//! "Sign extension"; frame size `width * height * quads * 2`,
+//! `TintinCDKCamera.cpp` `_setStreamerFrameSize`). With LS1 driven by f and
+//! LS2 by not-f, quad 0 is LS1 - LS2 (I+ - I-, eq. pixeleff) and quad 2 its
+//! negative.
+//!
+//! Frame boundaries: the SDK reads `frame_bytes + 255` per bulk transfer and
+//! keeps only transfers of exactly `frame_bytes` (`Voxel/USBBulkStreamer.cpp`).
+//! How the firmware terminates a frame is not documented, so the
+//! [`FrameAssembler`] also checks the frame number that
+//! `debug_frame_number_en` writes into the first byte of every frame, drops
+//! frames that are out of sequence and locks on again after two consecutive
+//! numbers.
+
+use sdi_core::Frame;
+
+/// Geometry of one raw-quad frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct QuadLayout {
+    pub width: usize,
+    pub height: usize,
+    /// quad_cnt_max: 4 or 6.
+    pub quads: usize,
+}
+
+impl QuadLayout {
+    pub const OPT8241_FULL: QuadLayout = QuadLayout {
+        width: 320,
+        height: 240,
+        quads: 4,
+    };
+
+    /// Bytes of one frame on the wire (614,400 for 320x240 with 4 quads).
+    pub const fn frame_bytes(&self) -> usize {
+        self.width * self.height * self.quads * 2
+    }
+}
+
+/// Smallest and largest 12-bit code: pixels there are flagged saturated.
+pub const CODE_MIN_DN: i16 = -2048;
+pub const CODE_MAX_DN: i16 = 2047;
+
+/// Signed value of bits 11:0 of a quad word.
+#[inline]
+pub fn sign_extend_12(word: u16) -> i16 {
+    ((word << 4) as i16) >> 4
+}
+
+/// Which quads make the difference image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum QuadCombine {
+    /// Quad 0 alone: one readout, the paper's noise model (eq. skellamvar).
+    #[default]
+    Quad0,
+    /// (quad 0 - quad 2) / 2: two readouts averaged, same DN scale.
+    Quad0MinusQuad2,
+}
+
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DecodeError {
+    #[error("raw frame has {got} bytes, expected {expected}")]
+    Length { expected: usize, got: usize },
+    #[error("dark frame is {got} pixels, expected {expected}")]
+    DarkSize { expected: usize, got: usize },
+}
+
+/// Decodes raw-quad buffers into [`Frame`]s, subtracting a dark frame.
+#[derive(Debug, Clone)]
+pub struct QuadDecoder {
+    pub layout: QuadLayout,
+    pub combine: QuadCombine,
+    /// The first byte of a frame carries its number (debug_frame_number_en):
+    /// pixel (0, 0) is then copied from its right neighbour.
+    pub frame_number_in_first_byte: bool,
+    dark_dn: Option<Vec<f32>>,
+}
+
+impl QuadDecoder {
+    pub fn new(layout: QuadLayout) -> Self {
+        Self {
+            layout,
+            combine: QuadCombine::default(),
+            frame_number_in_first_byte: true,
+            dark_dn: None,
+        }
+    }
+
+    /// Sets (or clears) the dark frame subtracted from every frame, DN.
+    pub fn set_dark_dn(&mut self, dark: Option<Vec<f32>>) -> Result<(), DecodeError> {
+        let n = self.layout.width * self.layout.height;
+        if let Some(d) = &dark {
+            if d.len() != n {
+                return Err(DecodeError::DarkSize {
+                    expected: n,
+                    got: d.len(),
+                });
+            }
+        }
+        self.dark_dn = dark;
+        Ok(())
+    }
+
+    /// Decodes one frame. `out` is resized if needed; its timestamp and
+    /// sequence are left to the caller.
+    pub fn decode(&self, raw: &[u8], out: &mut Frame) -> Result<(), DecodeError> {
+        let l = self.layout;
+        if raw.len() != l.frame_bytes() {
+            return Err(DecodeError::Length {
+                expected: l.frame_bytes(),
+                got: raw.len(),
+            });
+        }
+        if out.width() != l.width || out.height() != l.height {
+            *out = Frame::new(l.width, l.height);
+        }
+        let stride = l.quads * 2;
+        for (i, px) in raw.chunks_exact(stride).enumerate() {
+            let quad = |k: usize| sign_extend_12(u16::from_le_bytes([px[2 * k], px[2 * k + 1]]));
+            let q0 = quad(0);
+            let (value, saturated) = match self.combine {
+                QuadCombine::Quad0 => (q0 as f32, q0 <= CODE_MIN_DN || q0 >= CODE_MAX_DN),
+                QuadCombine::Quad0MinusQuad2 => {
+                    let q2 = quad(2);
+                    let sat = [q0, q2]
+                        .iter()
+                        .any(|&q| q <= CODE_MIN_DN || q >= CODE_MAX_DN);
+                    ((q0 as f32 - q2 as f32) * 0.5, sat)
+                }
+            };
+            let dark = self.dark_dn.as_ref().map_or(0.0, |d| d[i]);
+            out.dn.data[i] = value - dark;
+            out.saturated.data[i] = u8::from(saturated);
+        }
+        if self.frame_number_in_first_byte && l.width > 1 {
+            out.dn.data[0] = out.dn.data[1];
+            out.saturated.data[0] = out.saturated.data[1];
+        }
+        Ok(())
+    }
+}
+
+/// Encodes a difference image as raw quads (q0 = d, q1 = q3 = 0, q2 = -d):
+/// the inverse of [`QuadDecoder::decode`] for emulators and tests.
+pub fn encode_quads(layout: QuadLayout, dn: &[f32], frame_number: Option<u8>) -> Vec<u8> {
+    let mut out = vec![0u8; layout.frame_bytes()];
+    for (px, &d) in out.chunks_exact_mut(layout.quads * 2).zip(dn) {
+        let q0 = d.round().clamp(CODE_MIN_DN as f32, CODE_MAX_DN as f32) as i16;
+        let words = [q0, 0, -q0, 0, 0, 0];
+        for (k, w) in words.iter().take(layout.quads).enumerate() {
+            let bits = (*w as u16) & 0x0FFF;
+            px[2 * k..2 * k + 2].copy_from_slice(&bits.to_le_bytes());
+        }
+    }
+    if let (Some(n), Some(b)) = (frame_number, out.first_mut()) {
+        *b = n;
+    }
+    out
+}
+
+/// What the assembler made of a bulk transfer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Assembled {
+    /// A complete, in-sequence frame (its first byte's frame number, if used).
+    Frame {
+        bytes: Vec<u8>,
+        frame_number: Option<u8>,
+        /// Frames the board numbered but we never received.
+        skipped: u32,
+    },
+    /// Data kept, frame not complete yet.
+    Pending,
+    /// A transfer or frame that was thrown away, and why.
+    Dropped(DropReason),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DropReason {
+    /// A frame ended with the wrong byte count (short packet too early, or
+    /// data ran past the frame size): the stream was misaligned.
+    WrongLength { got: usize },
+    /// Frame number out of sequence: misaligned or reordered; waiting to lock on.
+    OutOfSequence { expected: u8, got: u8 },
+    /// First frame(s) after a loss of lock, used to re-lock.
+    Relocking,
+}
+
+/// Cuts the bulk byte stream into frames and keeps it aligned.
+///
+/// Transfers ending in a short packet end a frame. Without frame numbers a
+/// frame is accepted when it has exactly `frame_bytes` (as the SDK does);
+/// with frame numbers it must also follow the previous one (mod 256; small
+/// forward gaps count as skipped frames).
+#[derive(Debug)]
+pub struct FrameAssembler {
+    frame_bytes: usize,
+    check_numbers: bool,
+    buf: Vec<u8>,
+    /// Discarding until the next short packet (after an overrun).
+    discarding: bool,
+    last_number: Option<u8>,
+    locked: bool,
+    pub stats: AssemblerStats,
+}
+
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct AssemblerStats {
+    pub frames: u64,
+    pub dropped: u64,
+    pub misaligned: u64,
+    pub resyncs: u64,
+    pub skipped: u64,
+}
+
+/// Largest forward jump of the frame number still taken as dropped frames
+/// rather than misalignment.
+pub const MAX_FRAME_NUMBER_GAP: u8 = 8;
+
+impl FrameAssembler {
+    pub fn new(frame_bytes: usize, check_numbers: bool) -> Self {
+        Self {
+            frame_bytes,
+            check_numbers,
+            buf: Vec::with_capacity(frame_bytes),
+            discarding: false,
+            last_number: None,
+            locked: !check_numbers,
+            stats: AssemblerStats::default(),
+        }
+    }
+
+    pub fn frame_bytes(&self) -> usize {
+        self.frame_bytes
+    }
+
+    /// True while frames are being delivered in sequence.
+    pub fn is_locked(&self) -> bool {
+        self.locked
+    }
+
+    /// Forgets partial data and the sequence (after a halt clear or replug).
+    pub fn reset(&mut self) {
+        self.buf.clear();
+        self.discarding = false;
+        self.last_number = None;
+        self.locked = !self.check_numbers;
+    }
+
+    /// Feeds one completed bulk transfer; `short` is true when it ended in a
+    /// short (or zero-length) packet, i.e. at a frame boundary.
+    pub fn push(&mut self, data: &[u8], short: bool) -> Assembled {
+        if self.discarding {
+            if short {
+                self.discarding = false;
+            }
+            return Assembled::Pending;
+        }
+        self.buf.extend_from_slice(data);
+        if self.buf.len() > self.frame_bytes {
+            let got = self.buf.len();
+            self.buf.clear();
+            self.discarding = !short;
+            return self.drop_misaligned(DropReason::WrongLength { got });
+        }
+        if !short {
+            return Assembled::Pending;
+        }
+        let bytes = std::mem::take(&mut self.buf);
+        self.buf.reserve(self.frame_bytes);
+        if bytes.len() != self.frame_bytes {
+            return self.drop_misaligned(DropReason::WrongLength { got: bytes.len() });
+        }
+        if !self.check_numbers {
+            self.stats.frames += 1;
+            return Assembled::Frame {
+                bytes,
+                frame_number: None,
+                skipped: 0,
+            };
+        }
+        let number = bytes[0];
+        let previous = self.last_number.replace(number);
+        match previous {
+            Some(prev) => {
+                let gap = number.wrapping_sub(prev);
+                if (1..=MAX_FRAME_NUMBER_GAP).contains(&gap) {
+                    if !self.locked {
+                        // Locking on after a loss (not the first lock) is a resync.
+                        if self.stats.frames > 0 {
+                            self.stats.resyncs += 1;
+                        }
+                        self.locked = true;
+                    }
+                    let skipped = u32::from(gap - 1);
+                    self.stats.skipped += u64::from(skipped);
+                    self.stats.frames += 1;
+                    Assembled::Frame {
+                        bytes,
+                        frame_number: Some(number),
+                        skipped,
+                    }
+                } else if self.locked {
+                    self.locked = false;
+                    self.drop_misaligned(DropReason::OutOfSequence {
+                        expected: prev.wrapping_add(1),
+                        got: number,
+                    })
+                } else {
+                    self.stats.dropped += 1;
+                    Assembled::Dropped(DropReason::Relocking)
+                }
+            }
+            None => {
+                // The very first frame after start or reset: nothing to check yet.
+                self.stats.dropped += 1;
+                Assembled::Dropped(DropReason::Relocking)
+            }
+        }
+    }
+
+    fn drop_misaligned(&mut self, reason: DropReason) -> Assembled {
+        self.stats.dropped += 1;
+        self.stats.misaligned += 1;
+        if self.check_numbers {
+            self.locked = false;
+        }
+        Assembled::Dropped(reason)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SMALL: QuadLayout = QuadLayout {
+        width: 4,
+        height: 3,
+        quads: 4,
+    };
+
+    #[test]
+    fn full_frame_is_614400_bytes() {
+        assert_eq!(QuadLayout::OPT8241_FULL.frame_bytes(), 614_400);
+    }
+
+    #[test]
+    fn sign_extension_of_12_bit_words() {
+        assert_eq!(sign_extend_12(0x0000), 0);
+        assert_eq!(sign_extend_12(0x07FF), 2047);
+        assert_eq!(sign_extend_12(0x0800), -2048);
+        assert_eq!(sign_extend_12(0x0FFF), -1);
+        // bits 15:12 are not part of the value
+        assert_eq!(sign_extend_12(0xF001), 1);
+        assert_eq!(sign_extend_12(0xA801), -2047);
+    }
+
+    #[test]
+    fn decode_is_pixel_major_row_order_and_inverts_encode() {
+        let dn: Vec<f32> = (0..12).map(|i| (i as f32 - 6.0) * 100.0).collect();
+        let raw = encode_quads(SMALL, &dn, None);
+        assert_eq!(raw.len(), SMALL.frame_bytes());
+        // pixel 1 starts at byte 8: q0 = -500 -> 0xE0C (12 bits)
+        assert_eq!(
+            u16::from_le_bytes([raw[8], raw[9]]),
+            (-500i16 as u16) & 0xFFF
+        );
+        let mut dec = QuadDecoder::new(SMALL);
+        dec.frame_number_in_first_byte = false;
+        let mut f = Frame::new(1, 1);
+        dec.decode(&raw, &mut f).unwrap();
+        assert_eq!(f.width(), 4);
+        assert_eq!(f.dn.data, dn);
+        dec.combine = QuadCombine::Quad0MinusQuad2;
+        dec.decode(&raw, &mut f).unwrap();
+        assert_eq!(f.dn.data, dn);
+    }
+
+    #[test]
+    fn extremes_are_flagged_saturated_and_dark_is_subtracted() {
+        let mut dn = vec![0.0f32; 12];
+        dn[5] = 5000.0;
+        dn[6] = -5000.0;
+        dn[7] = 7.0;
+        let raw = encode_quads(SMALL, &dn, Some(9));
+        let mut dec = QuadDecoder::new(SMALL);
+        dec.set_dark_dn(Some(vec![2.0; 12])).unwrap();
+        let mut f = Frame::new(4, 3);
+        dec.decode(&raw, &mut f).unwrap();
+        assert_eq!(f.dn.data[5], 2047.0 - 2.0);
+        assert_eq!(f.dn.data[6], -2048.0 - 2.0);
+        assert_eq!(f.dn.data[7], 5.0);
+        assert_eq!(f.saturated.data[5], 1);
+        assert_eq!(f.saturated.data[6], 1);
+        assert_eq!(f.saturated_count(), 2);
+        // pixel 0 carried the frame number: replaced by its neighbour
+        assert_eq!(f.dn.data[0], f.dn.data[1]);
+        assert!(dec.set_dark_dn(Some(vec![0.0; 3])).is_err());
+    }
+
+    #[test]
+    fn wrong_length_is_a_typed_error() {
+        let dec = QuadDecoder::new(SMALL);
+        let mut f = Frame::new(4, 3);
+        let e = dec.decode(&[0u8; 10], &mut f).unwrap_err();
+        assert_eq!(
+            e,
+            DecodeError::Length {
+                expected: 96,
+                got: 10
+            }
+        );
+    }
+
+    fn frame(n: u8) -> Vec<u8> {
+        encode_quads(SMALL, &[1.0; 12], Some(n))
+    }
+
+    #[test]
+    fn assembler_accepts_in_sequence_frames_split_over_transfers() {
+        let mut a = FrameAssembler::new(SMALL.frame_bytes(), true);
+        assert!(matches!(
+            a.push(&frame(1), true),
+            Assembled::Dropped(DropReason::Relocking)
+        ));
+        let f2 = frame(2);
+        assert_eq!(a.push(&f2[..64], false), Assembled::Pending);
+        match a.push(&f2[64..], true) {
+            Assembled::Frame {
+                frame_number,
+                skipped,
+                bytes,
+            } => {
+                assert_eq!((frame_number, skipped), (Some(2), 0));
+                assert_eq!(bytes, f2);
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(a.is_locked());
+        // a dropped frame on the board side: gap of 2 -> one skipped
+        assert!(matches!(
+            a.push(&frame(4), true),
+            Assembled::Frame { skipped: 1, .. }
+        ));
+        // wrap-around 255 -> 0
+        let mut b = FrameAssembler::new(SMALL.frame_bytes(), true);
+        b.push(&frame(255), true);
+        assert!(matches!(b.push(&frame(0), true), Assembled::Frame { .. }));
+    }
+
+    #[test]
+    fn misaligned_frame_is_detected_and_recovered() {
+        let mut a = FrameAssembler::new(SMALL.frame_bytes(), true);
+        a.push(&frame(10), true);
+        assert!(matches!(a.push(&frame(11), true), Assembled::Frame { .. }));
+        // a transfer that starts mid-frame: the board's stream shifted by 7 bytes
+        let mut shifted = frame(12)[7..].to_vec();
+        shifted.extend_from_slice(&frame(13)[..7]);
+        let r = a.push(&shifted, true);
+        assert!(
+            matches!(
+                r,
+                Assembled::Dropped(DropReason::OutOfSequence { expected: 12, .. })
+            ),
+            "{r:?}"
+        );
+        assert!(!a.is_locked());
+        // a short packet too early: wrong length
+        assert!(matches!(
+            a.push(&frame(14)[..50], true),
+            Assembled::Dropped(DropReason::WrongLength { got: 50 })
+        ));
+        // two in-sequence frames lock on again
+        assert!(matches!(a.push(&frame(15), true), Assembled::Dropped(_)));
+        assert!(matches!(
+            a.push(&frame(16), true),
+            Assembled::Frame {
+                frame_number: Some(16),
+                ..
+            }
+        ));
+        assert!(a.is_locked());
+        assert_eq!(a.stats.resyncs, 1);
+        assert!(a.stats.misaligned >= 2);
+    }
+
+    #[test]
+    fn overrun_without_terminator_discards_until_next_boundary() {
+        let mut a = FrameAssembler::new(SMALL.frame_bytes(), false);
+        let f = frame(0);
+        assert_eq!(a.push(&f, false), Assembled::Pending);
+        assert!(matches!(
+            a.push(&f[..8], false),
+            Assembled::Dropped(DropReason::WrongLength { got: 104 })
+        ));
+        assert_eq!(a.push(&f[8..], true), Assembled::Pending);
+        assert!(matches!(a.push(&f, true), Assembled::Frame { .. }));
+        assert_eq!(a.stats.frames, 1);
+    }
+}

@@ -1,0 +1,20 @@
+//! TI OPT8241-CDK over USB (vendor bulk mode, USB 0451:9105).
+//!
+//! Layers, each usable alone: [`registers`] (OPT9221 field map) ->
+//! [`protocol`] (vendor control requests over a [`protocol::Transport`]) ->
+//! [`init`] (the SDK's configuration order and safety limits); [`frame`]
+//! (raw quads -> difference frame, alignment); [`usb`] (libusb transport,
+//! discovery, bulk stream); [`board`] ties them into the backend.
+//! Sources of every register and request: `docs/hardware.md`.
+
+pub mod board;
+pub mod frame;
+pub mod ids;
+pub mod init;
+pub mod protocol;
+pub mod registers;
+pub mod usb;
+
+pub use board::{BoardError, Opt8241};
+pub use init::BoardConfig;
+pub use usb::BoardSelector;

@@ -1,0 +1,366 @@
+//! libusb (rusb) side of the board: finding it, its endpoints, control
+//! transfers and the bulk stream.
+//!
+//! The stream runs on dedicated threads, each with its own synchronous bulk
+//! read in flight, so several transfers are queued at the host controller at
+//! any time (the SDK keeps one read and two frame buffers, and its users see
+//! frame drops: `Voxel/USBBulkStreamer.cpp`, `MAX_BUFFER_COUNT 2`). Each read
+//! asks for `frame_bytes + 255` like the SDK (`BULK_XFER_EXTRA_SIZE`), so a
+//! frame ends at the device's short or zero-length packet. Completions are
+//! delivered in completion order; the frame-number check of
+//! [`super::frame::FrameAssembler`] catches the rare reordering.
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc;
+use std::sync::Arc;
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use rusb::{Context, Device, DeviceHandle, Direction, TransferType, UsbContext};
+
+use super::ids;
+use super::protocol::{Transport, TransportError};
+
+/// Extra bytes asked for beyond one frame (SDK `BULK_XFER_EXTRA_SIZE`).
+pub const BULK_EXTRA_BYTES: usize = 255;
+
+/// Errors of finding and opening the board.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum UsbError {
+    #[error("no OPT8241-CDK (USB {vid:04x}:{pid:04x}) found{}", serial.as_ref().map(|s| format!(" with serial {s}")).unwrap_or_default())]
+    NotFound {
+        vid: u16,
+        pid: u16,
+        serial: Option<String>,
+    },
+    #[error("{} boards attached ({}): choose one by serial number", serials.len(), serials.join(", "))]
+    Ambiguous { serials: Vec<String> },
+    #[error("the board is in UVC mode (USB 0451:9106); sdid drives the vendor bulk mode 0451:9105 — switch it with TI's tools (UVC extension unit 3, selector 6) and replug")]
+    UvcMode,
+    #[error("permission denied opening the board: install sdid's udev rules (udev/board-ids) or run sdid as root")]
+    Access,
+    #[error("interface {interface} has no bulk IN endpoint")]
+    NoBulkInEndpoint { interface: u8 },
+    #[error("the board is busy (claimed by another program)")]
+    Busy,
+    #[error("device disconnected")]
+    Disconnected,
+    #[error("USB error during {op}: {error}")]
+    Usb { op: &'static str, error: String },
+}
+
+fn usb_err(op: &'static str, e: rusb::Error) -> UsbError {
+    match e {
+        rusb::Error::Access => UsbError::Access,
+        rusb::Error::NoDevice => UsbError::Disconnected,
+        rusb::Error::Busy => UsbError::Busy,
+        other => UsbError::Usb {
+            op,
+            error: other.to_string(),
+        },
+    }
+}
+
+/// Maps a libusb error to the protocol's transport error.
+pub fn transport_error(e: rusb::Error) -> TransportError {
+    match e {
+        rusb::Error::Timeout => TransportError::Timeout,
+        rusb::Error::Pipe => TransportError::Stall,
+        rusb::Error::NoDevice => TransportError::Disconnected,
+        other => TransportError::Other(other.to_string()),
+    }
+}
+
+/// Which board to open.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BoardSelector {
+    pub vendor_id: u16,
+    pub product_id: u16,
+    /// Required when several boards are attached.
+    pub serial: Option<String>,
+}
+
+impl Default for BoardSelector {
+    fn default() -> Self {
+        Self {
+            vendor_id: ids::VENDOR_ID,
+            product_id: ids::PRODUCT_ID_BULK,
+            serial: None,
+        }
+    }
+}
+
+/// The bulk IN endpoint, as the descriptors give it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BulkEndpoint {
+    pub interface: u8,
+    pub address: u8,
+    pub max_packet_bytes: u16,
+}
+
+/// First bulk IN endpoint of `interface` in the active configuration.
+pub fn find_bulk_in(device: &Device<Context>, interface: u8) -> Result<BulkEndpoint, UsbError> {
+    let config = device
+        .active_config_descriptor()
+        .map_err(|e| usb_err("reading the configuration descriptor", e))?;
+    config
+        .interfaces()
+        .filter(|i| i.number() == interface)
+        .flat_map(|i| i.descriptors())
+        .flat_map(|d| d.endpoint_descriptors().collect::<Vec<_>>())
+        .find(|e| e.direction() == Direction::In && e.transfer_type() == TransferType::Bulk)
+        .map(|e| BulkEndpoint {
+            interface,
+            address: e.address(),
+            max_packet_bytes: e.max_packet_size(),
+        })
+        .ok_or(UsbError::NoBulkInEndpoint { interface })
+}
+
+fn serial_of(device: &Device<Context>) -> Option<String> {
+    let desc = device.device_descriptor().ok()?;
+    let handle = device.open().ok()?;
+    handle.read_serial_number_string_ascii(&desc).ok()
+}
+
+/// Is a board (any mode) attached? Cheap: descriptors only.
+pub fn board_present(context: &Context) -> bool {
+    context.devices().is_ok_and(|list| {
+        list.iter().any(|d| {
+            d.device_descriptor().is_ok_and(|desc| {
+                desc.vendor_id() == ids::VENDOR_ID
+                    && (desc.product_id() == ids::PRODUCT_ID_BULK
+                        || desc.product_id() == ids::PRODUCT_ID_UVC)
+            })
+        })
+    })
+}
+
+/// Finds the board the selector names.
+pub fn find_board(context: &Context, sel: &BoardSelector) -> Result<Device<Context>, UsbError> {
+    let list = context
+        .devices()
+        .map_err(|e| usb_err("listing devices", e))?;
+    let mut matches = Vec::new();
+    let mut uvc = false;
+    for d in list.iter() {
+        let Ok(desc) = d.device_descriptor() else {
+            continue;
+        };
+        if desc.vendor_id() != sel.vendor_id {
+            continue;
+        }
+        if desc.product_id() == sel.product_id {
+            matches.push(d);
+        } else if desc.product_id() == ids::PRODUCT_ID_UVC {
+            uvc = true;
+        }
+    }
+    let not_found = || {
+        if uvc {
+            UsbError::UvcMode
+        } else {
+            UsbError::NotFound {
+                vid: sel.vendor_id,
+                pid: sel.product_id,
+                serial: sel.serial.clone(),
+            }
+        }
+    };
+    match (&sel.serial, matches.len()) {
+        (_, 0) => Err(not_found()),
+        (None, 1) => Ok(matches.remove(0)),
+        (None, _) => Err(UsbError::Ambiguous {
+            serials: matches
+                .iter()
+                .map(|d| serial_of(d).unwrap_or_else(|| "?".into()))
+                .collect(),
+        }),
+        (Some(want), _) => matches
+            .into_iter()
+            .find(|d| serial_of(d).as_deref() == Some(want.as_str()))
+            .ok_or_else(not_found),
+    }
+}
+
+/// An opened, claimed board.
+pub struct OpenBoard {
+    pub handle: Arc<DeviceHandle<Context>>,
+    pub endpoint: BulkEndpoint,
+    pub serial: Option<String>,
+}
+
+/// Opens the board, claims its interface and finds its endpoint.
+pub fn open_board(context: &Context, sel: &BoardSelector) -> Result<OpenBoard, UsbError> {
+    let device = find_board(context, sel)?;
+    let endpoint = find_bulk_in(&device, ids::INTERFACE)?;
+    let handle = device.open().map_err(|e| usb_err("opening", e))?;
+    // Not supported on every platform; harmless when no kernel driver is bound.
+    let _ = handle.set_auto_detach_kernel_driver(true);
+    handle
+        .claim_interface(endpoint.interface)
+        .map_err(|e| usb_err("claiming interface 0", e))?;
+    let serial = device
+        .device_descriptor()
+        .ok()
+        .and_then(|d| handle.read_serial_number_string_ascii(&d).ok());
+    Ok(OpenBoard {
+        handle: Arc::new(handle),
+        endpoint,
+        serial,
+    })
+}
+
+/// Vendor control transfers over libusb.
+pub struct UsbTransport {
+    pub handle: Arc<DeviceHandle<Context>>,
+}
+
+impl Transport for UsbTransport {
+    fn control_in(
+        &mut self,
+        request: u8,
+        value: u16,
+        index: u16,
+        buf: &mut [u8],
+        timeout: Duration,
+    ) -> Result<usize, TransportError> {
+        let rt = rusb::request_type(
+            Direction::In,
+            rusb::RequestType::Vendor,
+            rusb::Recipient::Device,
+        );
+        self.handle
+            .read_control(rt, request, value, index, buf, timeout)
+            .map_err(transport_error)
+    }
+
+    fn control_out(
+        &mut self,
+        request: u8,
+        value: u16,
+        index: u16,
+        data: &[u8],
+        timeout: Duration,
+    ) -> Result<usize, TransportError> {
+        let rt = rusb::request_type(
+            Direction::Out,
+            rusb::RequestType::Vendor,
+            rusb::Recipient::Device,
+        );
+        self.handle
+            .write_control(rt, request, value, index, data, timeout)
+            .map_err(transport_error)
+    }
+}
+
+/// What the stream threads report.
+#[derive(Debug)]
+pub enum StreamEvent {
+    /// A completed transfer; `short` when it ended before the requested length.
+    Data { bytes: Vec<u8>, short: bool },
+    /// No data within the read timeout (board stopped or not streaming).
+    Timeout,
+    /// The endpoint stalled; its halt was cleared.
+    HaltCleared,
+    /// The device sent more than asked (babble): the stream was misaligned.
+    Overflow,
+    /// Any other transfer error (retried).
+    Error(String),
+    /// The device is gone; the thread has ended.
+    Disconnected,
+}
+
+/// Several bulk reads in flight on dedicated threads.
+pub struct BulkStream {
+    stop: Arc<AtomicBool>,
+    threads: Vec<JoinHandle<()>>,
+    pub events: mpsc::Receiver<StreamEvent>,
+}
+
+impl BulkStream {
+    /// Starts `in_flight` reader threads on `endpoint`, each reading
+    /// `frame_bytes + BULK_EXTRA_BYTES` per transfer.
+    pub fn start(
+        handle: Arc<DeviceHandle<Context>>,
+        endpoint: BulkEndpoint,
+        frame_bytes: usize,
+        in_flight: usize,
+        read_timeout: Duration,
+    ) -> Self {
+        let stop = Arc::new(AtomicBool::new(false));
+        let (tx, events) = mpsc::sync_channel(in_flight.max(1) * 4);
+        // A halt left over from an earlier session (the SDK clears it too).
+        let _ = handle.clear_halt(endpoint.address);
+        let threads = (0..in_flight.max(1))
+            .map(|i| {
+                let (handle, stop, tx) = (handle.clone(), stop.clone(), tx.clone());
+                std::thread::Builder::new()
+                    .name(format!("opt8241-bulk-{i}"))
+                    .spawn(move || {
+                        read_loop(&handle, endpoint, frame_bytes, read_timeout, &stop, &tx)
+                    })
+            })
+            .filter_map(Result::ok)
+            .collect();
+        Self {
+            stop,
+            threads,
+            events,
+        }
+    }
+
+    /// Stops the readers and waits for them (at most one read timeout).
+    pub fn stop(&mut self) {
+        self.stop.store(true, Ordering::SeqCst);
+        // Drain so no reader blocks on a full channel.
+        while self.events.try_recv().is_ok() {}
+        for t in self.threads.drain(..) {
+            while !t.is_finished() {
+                while self.events.try_recv().is_ok() {}
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            let _ = t.join();
+        }
+    }
+}
+
+impl Drop for BulkStream {
+    fn drop(&mut self) {
+        self.stop();
+    }
+}
+
+fn read_loop(
+    handle: &DeviceHandle<Context>,
+    ep: BulkEndpoint,
+    frame_bytes: usize,
+    timeout: Duration,
+    stop: &AtomicBool,
+    tx: &mpsc::SyncSender<StreamEvent>,
+) {
+    let want = frame_bytes + BULK_EXTRA_BYTES;
+    let mut buf = vec![0u8; want];
+    while !stop.load(Ordering::SeqCst) {
+        let event = match handle.read_bulk(ep.address, &mut buf, timeout) {
+            Ok(n) => StreamEvent::Data {
+                bytes: buf[..n].to_vec(),
+                short: n < want,
+            },
+            Err(rusb::Error::Timeout) => StreamEvent::Timeout,
+            Err(rusb::Error::Pipe) => match handle.clear_halt(ep.address) {
+                Ok(()) => StreamEvent::HaltCleared,
+                Err(e) => StreamEvent::Error(format!("clearing halt: {e}")),
+            },
+            Err(rusb::Error::Overflow) => StreamEvent::Overflow,
+            Err(rusb::Error::NoDevice) | Err(rusb::Error::Io) => {
+                let _ = tx.send(StreamEvent::Disconnected);
+                return;
+            }
+            Err(e) => StreamEvent::Error(e.to_string()),
+        };
+        if tx.send(event).is_err() {
+            return;
+        }
+    }
+}

@@ -1,0 +1,53 @@
+//! FunctionFS descriptor and string blobs for the emulated OPT8241-CDK
+//! (linux/usb/functionfs.h, v2 format): interface 0, vendor class, one bulk
+//! IN endpoint, as the board's bulk-mode descriptors.
+
+const DESCRIPTORS_MAGIC_V2: u32 = 3;
+const STRINGS_MAGIC: u32 = 2;
+const HAS_FS_DESC: u32 = 1;
+const HAS_HS_DESC: u32 = 2;
+/// Vendor requests to the device (not only the interface) reach us.
+const ALL_CTRL_RECIP: u32 = 64;
+
+fn interface() -> [u8; 9] {
+    // bLength, INTERFACE, number 0, alt 0, 1 endpoint, vendor class, 0, 0, iInterface 1
+    [9, 4, 0, 0, 1, 0xFF, 0, 0, 1]
+}
+
+fn bulk_in(max_packet: u16) -> [u8; 7] {
+    let mp = max_packet.to_le_bytes();
+    // ENDPOINT, address 0x82 (EP2 IN as on the board), bulk
+    [7, 5, 0x82, 2, mp[0], mp[1], 0]
+}
+
+/// The blob written first to ep0.
+pub fn descriptors() -> Vec<u8> {
+    let mut body = Vec::new();
+    body.extend_from_slice(&2u32.to_le_bytes()); // fs_count
+    body.extend_from_slice(&2u32.to_le_bytes()); // hs_count
+    body.extend_from_slice(&interface());
+    body.extend_from_slice(&bulk_in(64));
+    body.extend_from_slice(&interface());
+    body.extend_from_slice(&bulk_in(512));
+    let mut out = Vec::new();
+    out.extend_from_slice(&DESCRIPTORS_MAGIC_V2.to_le_bytes());
+    out.extend_from_slice(&((12 + body.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&(HAS_FS_DESC | HAS_HS_DESC | ALL_CTRL_RECIP).to_le_bytes());
+    out.extend_from_slice(&body);
+    out
+}
+
+/// The string blob written second to ep0.
+pub fn strings(interface_name: &str) -> Vec<u8> {
+    let mut body = Vec::new();
+    body.extend_from_slice(&0x0409u16.to_le_bytes());
+    body.extend_from_slice(interface_name.as_bytes());
+    body.push(0);
+    let mut out = Vec::new();
+    out.extend_from_slice(&STRINGS_MAGIC.to_le_bytes());
+    out.extend_from_slice(&((16 + body.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&1u32.to_le_bytes()); // str_count
+    out.extend_from_slice(&1u32.to_le_bytes()); // lang_count
+    out.extend_from_slice(&body);
+    out
+}

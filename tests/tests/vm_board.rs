@@ -1,0 +1,158 @@
+//! The OPT8241 backend against the board emulator over the kernel's real USB
+//! stack (dummy_hcd + configfs gadget + FunctionFS), inside the VM.
+
+use std::time::{Duration, Instant};
+
+use sdi_core::modulation::Illumination;
+use sdi_core::Frame;
+use sdi_daemon::backend::opt8241::init::Roi;
+use sdi_daemon::backend::opt8241::protocol::RegisterBus;
+use sdi_daemon::backend::opt8241::registers::field;
+use sdi_daemon::backend::opt8241::usb::{open_board, UsbTransport};
+use sdi_daemon::backend::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
+use sdi_tests::board_emulator::BoardEmulator;
+use sdi_tests::vm;
+
+fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let t0 = Instant::now();
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(t0.elapsed() < timeout, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+fn matches_sent(emu: &BoardEmulator, frame: &Frame) -> bool {
+    let s = emu.state.lock().unwrap();
+    s.sent
+        .iter()
+        .any(|(_, dn)| dn.len() == frame.dn.data.len() && dn[1..] == frame.dn.data[1..])
+}
+
+#[test]
+fn opt8241_backend_against_usb_emulator() {
+    if !vm::in_vm() {
+        vm::run_test_in_vm("opt8241_backend_against_usb_emulator", 600);
+        return;
+    }
+    let emu = BoardEmulator::start("opt8241", "EMU0001").expect("gadget");
+    let selector = BoardSelector::default();
+
+    // 1. enumerate: found by IDs, endpoint from the descriptors
+    let open = wait_for("enumeration", Duration::from_secs(20), || {
+        // A fresh context per attempt: its device list is a new scan.
+        let ctx = rusb::Context::new().unwrap();
+        match open_board(&ctx, &selector) {
+            Ok(o) => Some(o),
+            Err(e) => {
+                let devs = std::fs::read_dir("/sys/bus/usb/devices")
+                    .map(|d| d.flatten().map(|e| e.file_name()).collect::<Vec<_>>())
+                    .unwrap_or_default();
+                eprintln!("not yet: {e}; sysfs: {devs:?}");
+                None
+            }
+        }
+    });
+    assert_eq!(open.serial.as_deref(), Some("EMU0001"));
+    assert_eq!(open.endpoint.address & 0x80, 0x80);
+    eprintln!("endpoint {:?}", open.endpoint);
+
+    // 2. registers over real control transfers; the firmware's clamps are reported
+    let mut bus = RegisterBus::new(UsbTransport {
+        handle: open.handle.clone(),
+    });
+    assert_eq!(bus.firmware_version().unwrap(), (0x00, 0x11));
+    assert_eq!(bus.serial_number().unwrap(), "EMU0001");
+    let w = bus.write_field(field::INTG_DUTY_CYCLE, 40).unwrap();
+    assert!(w.clamped() && w.actual == 20, "{w:?}");
+    let w = bus.write_field(field::PIX_CNT_MAX, 1000).unwrap();
+    assert_eq!(w.actual, 60_000);
+    drop(bus);
+    drop(open);
+
+    // 3. configure the whole board; the emulator checks what it received
+    let config = BoardConfig {
+        roi: Roi {
+            x: 0,
+            y: 0,
+            width: 64,
+            height: 48,
+        },
+        frame_rate_hz: 30.0,
+        integration_percent: 90.0,
+        ..BoardConfig::default()
+    };
+    let mut board = Opt8241::open(selector.clone(), config).expect("open board");
+    let clamps: Vec<_> = board.init_report().clamps.iter().map(|c| c.field).collect();
+    assert_eq!(clamps, vec!["intg_duty_cycle"]);
+    {
+        let s = emu.state.lock().unwrap();
+        let after_setup = &s.writes[2..];
+        assert_eq!(
+            after_setup.first().map(|w| (w.address, w.written & 1)),
+            Some((0x5880, 1))
+        );
+        assert_eq!(
+            after_setup.last().map(|w| (w.address, w.written & 1)),
+            Some((0x5880, 0))
+        );
+        for w in after_setup {
+            assert_eq!(
+                w.written, w.kept,
+                "sdid wrote a value the firmware had to clamp: {w:?}"
+            );
+        }
+        assert_eq!(s.reg_value(0x5C4C) & 0x3F, 20);
+        assert_eq!((s.reg_value(0x5C25) >> 8) & 0xF, 15);
+        assert!(s.stalled.is_empty(), "{:?}", s.stalled);
+    }
+
+    // 4. stream N frames and compare with what the emulator sent
+    let ill = Illumination::snapshot(12e6);
+    let mut frame = Frame::new(1, 1);
+    for i in 0..8 {
+        board
+            .next_frame(&ill, &mut frame)
+            .unwrap_or_else(|e| panic!("frame {i}: {e}"));
+        assert_eq!((frame.width(), frame.height()), (64, 48));
+        assert!(
+            matches_sent(&emu, &frame),
+            "frame {i} differs from every frame sent"
+        );
+    }
+
+    // 5. a misaligned frame is detected and the stream recovers
+    emu.shift_next_frame
+        .store(10, std::sync::atomic::Ordering::SeqCst);
+    for i in 0..6 {
+        board
+            .next_frame(&ill, &mut frame)
+            .unwrap_or_else(|e| panic!("after shift {i}: {e}"));
+        assert!(matches_sent(&emu, &frame));
+    }
+    let stats = board.stats();
+    eprintln!("stats {stats:?}");
+    assert!(stats.assembler.misaligned >= 1, "{stats:?}");
+    assert!(stats.assembler.resyncs >= 1, "{stats:?}");
+
+    // 6. unplug mid-stream, then plug back in
+    emu.unplug().unwrap();
+    wait_for("DeviceUnavailable", Duration::from_secs(20), || match board
+        .next_frame(&ill, &mut frame)
+    {
+        Err(BoardError::DeviceUnavailable) => Some(()),
+        _ => None,
+    });
+    assert!(!board.is_connected());
+    emu.plug().unwrap();
+    wait_for("reconnect", Duration::from_secs(30), || {
+        board.reconnect().ok()
+    });
+    board
+        .next_frame(&ill, &mut frame)
+        .expect("frame after replug");
+    assert!(matches_sent(&emu, &frame));
+    assert_eq!(board.stats().reconnects, 1);
+}
