@@ -146,21 +146,24 @@ fn denied(out: &Output) -> bool {
     !out.status.success() && (err.contains("Access denied") || err.contains("AccessDenied"))
 }
 
-/// The daemon that owns `org.sdi.Daemon`, running as root.
+/// The real sdid owning `org.sdi.Daemon` as root, on the simulator, connected
+/// the production way (system bus; here the address of the test bus).
 fn start_daemon(bus: &SystemLikeBus) -> Reaped {
-    // Temporary stand-in until sdid is merged: this very binary serving a
-    // minimal org.sdi.Camera1 (see `standin_sdid`).
-    let child = Command::new(std::env::current_exe().unwrap())
-        .args(["--ignored", "--exact", "standin_sdid", "--nocapture"])
+    let child = Command::new(std::env::var_os("SDID").expect("SDID path from the host"))
+        .args(["--backend", "sim", "--sink", "y4m"])
         .env("DBUS_SYSTEM_BUS_ADDRESS", &bus.address)
+        .stdout(Stdio::null())
         .spawn()
-        .expect("spawn daemon");
+        .expect("spawn sdid");
     Reaped(child)
 }
 
 #[test]
 fn policy_controls_who_may_do_what() {
     if !vm::in_vm() {
+        // Built on the host: the VM's root is read-only. The environment
+        // (SDID) is passed into the VM.
+        std::env::set_var("SDID", sdi_tests::dbus::bin("sdid"));
         vm::run_test_in_vm("policy_controls_who_may_do_what", 240);
         return;
     }
@@ -263,50 +266,4 @@ fn policy_controls_who_may_do_what() {
             ]));
         assert!(denied(&own), "{user} could own {BUS_NAME}");
     }
-}
-
-/// Stand-in for sdid (temporary, until sdid is merged): owns
-/// `org.sdi.Daemon` on `DBUS_SYSTEM_BUS_ADDRESS` and serves SetMode and Mode.
-#[test]
-#[ignore = "helper process of policy_controls_who_may_do_what"]
-fn standin_sdid() {
-    struct Camera {
-        mode: String,
-    }
-
-    #[zbus::interface(name = "org.sdi.Camera1")]
-    impl Camera {
-        #[zbus(name = "SetMode")]
-        async fn change_mode(&mut self, mode: String) {
-            self.mode = mode;
-        }
-
-        #[zbus(property)]
-        async fn mode(&self) -> String {
-            self.mode.clone()
-        }
-
-        #[zbus(property)]
-        async fn set_mode(&mut self, mode: String) {
-            self.mode = mode;
-        }
-    }
-
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(async {
-        let camera = Camera { mode: "raw".into() };
-        let _conn = zbus::connection::Builder::system()
-            .unwrap()
-            .serve_at(OBJECT, camera)
-            .unwrap()
-            .name(BUS_NAME)
-            .unwrap()
-            .build()
-            .await
-            .unwrap();
-        std::future::pending::<()>().await;
-    });
 }
