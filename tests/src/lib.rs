@@ -4,4 +4,5 @@ pub mod bench;
 pub mod board_emulator;
 pub mod dbus;
 pub mod loopback;
+pub mod process;
 pub mod vm;

@@ -8,9 +8,10 @@
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use sdi_tests::process::{must, repo_root, run, Reaped};
 use sdi_tests::vm;
 
 const BUS_NAME: &str = "org.sdi.Daemon";
@@ -18,41 +19,6 @@ const OBJECT: &str = "/org/sdi/Camera0";
 const INTERFACE: &str = "org.sdi.Camera1";
 const OPERATOR: &str = "sdi-operator";
 const GUEST: &str = "sdi-guest";
-
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("workspace root")
-        .to_path_buf()
-}
-
-/// Kills and reaps a child process when dropped.
-struct Reaped(Child);
-
-impl Drop for Reaped {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd
-        .output()
-        .unwrap_or_else(|e| panic!("spawn {cmd:?}: {e}"));
-    eprintln!(
-        "$ {cmd:?} -> {}\n{}{}",
-        out.status,
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-fn must(cmd: &mut Command) {
-    let out = run(cmd);
-    assert!(out.status.success(), "{cmd:?} failed");
-}
 
 /// A private bus with the system bus's deny-by-default policy plus SDI's.
 struct SystemLikeBus {
