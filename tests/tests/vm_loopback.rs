@@ -126,7 +126,7 @@ fn in_vm_checks() {
     // 1. module absent: a typed error naming the modprobe command
     match find_device("sdi-view") {
         Err(GlueError::ModuleNotLoaded { modprobe }) => {
-            assert!(modprobe.contains("modprobe v4l2loopback"))
+            assert!(modprobe.contains("modprobe v4l2loopback") && modprobe.contains("sdi-view"))
         }
         other => panic!("expected ModuleNotLoaded, got {other:?}"),
     }

@@ -144,7 +144,13 @@ fn list_nodes() -> Vec<(PathBuf, String)> {
 
 /// Finds the node whose card label is `label`.
 pub fn find_device(label: &str) -> Result<LoopbackDevice, GlueError> {
-    let version = ModuleVersion::of_loaded_module()?;
+    let version = ModuleVersion::of_loaded_module().map_err(|e| match e {
+        // Name the label the caller looks for in the command that loads it.
+        GlueError::ModuleNotLoaded { .. } => GlueError::ModuleNotLoaded {
+            modprobe: modprobe_command(label),
+        },
+        other => other,
+    })?;
     list_nodes()
         .into_iter()
         .find(|(_, l)| l == label)
