@@ -28,7 +28,7 @@ pub mod layout {
 use serde::{Deserialize, Serialize};
 
 use crate::image::Image;
-use crate::sensor::ParamError;
+use crate::sensor::{check, ParamError};
 
 /// Photoelectron rates arriving at each pixel at one instant, electrons per
 /// microsecond, for each source at full power (before the modulation splits
@@ -92,23 +92,6 @@ pub enum SceneSpec {
 
 fn check_rate(name: &'static str, value: f64) -> Result<(), ParamError> {
     check(name, value, (0.0..=1e6).contains(&value), "[0, 1e6]")
-}
-
-fn check(
-    name: &'static str,
-    value: f64,
-    ok: bool,
-    allowed: &'static str,
-) -> Result<(), ParamError> {
-    if ok && value.is_finite() {
-        Ok(())
-    } else {
-        Err(ParamError {
-            name,
-            value,
-            allowed,
-        })
-    }
 }
 
 impl SceneSpec {

@@ -4,6 +4,7 @@ mod params;
 mod presets;
 mod skellam;
 
+pub(crate) use params::check;
 pub use params::{ParamError, SensorParams};
 pub use presets::SensorPreset;
 pub use skellam::SkellamMixing;

@@ -43,7 +43,9 @@ pub struct ParamError {
     pub allowed: &'static str,
 }
 
-fn check(
+/// `Ok` when `ok` holds and `value` is finite, else the [`ParamError`]
+/// naming the allowed range; shared by every parameter check in the crate.
+pub(crate) fn check(
     name: &'static str,
     value: f64,
     ok: bool,
