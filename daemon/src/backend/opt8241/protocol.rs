@@ -232,51 +232,10 @@ impl<T: Transport> RegisterBus<T> {
         index: u16,
         buf: &mut [u8],
     ) -> Result<(), ProtocolError> {
-        let address = ((value & 0xFF) << 8) | (index & 0xFF);
-        let attempts = self.attempts.max(1);
-        let mut last = None;
-        for attempt in 1..=attempts {
-            match self
-                .transport
-                .control_in(request, value, index, buf, self.timeout)
-            {
-                Ok(n) if n == buf.len() => return Ok(()),
-                Ok(n) => {
-                    tracing::warn!(request, address, got = n, attempt, "short control read");
-                    last = Some(ProtocolError::Short {
-                        request,
-                        address,
-                        expected: buf.len(),
-                        got: n,
-                        attempts: attempt,
-                    });
-                }
-                Err(TransportError::Disconnected) => {
-                    return Err(ProtocolError::Transport {
-                        request,
-                        address,
-                        attempts: attempt,
-                        source: TransportError::Disconnected,
-                    })
-                }
-                Err(e) => {
-                    tracing::warn!(request, address, attempt, error = %e, "control read failed");
-                    last = Some(ProtocolError::Transport {
-                        request,
-                        address,
-                        attempts: attempt,
-                        source: e,
-                    });
-                }
-            }
-        }
-        Err(last.unwrap_or(ProtocolError::Short {
-            request,
-            address,
-            expected: buf.len(),
-            got: 0,
-            attempts,
-        }))
+        let expected = buf.len();
+        self.with_retries(request, value, index, expected, |t, timeout| {
+            t.control_in(request, value, index, buf, timeout)
+        })
     }
 
     fn write_all(
@@ -286,23 +245,37 @@ impl<T: Transport> RegisterBus<T> {
         index: u16,
         data: &[u8],
     ) -> Result<(), ProtocolError> {
+        self.with_retries(request, value, index, data.len(), |t, timeout| {
+            t.control_out(request, value, index, data, timeout)
+        })
+    }
+
+    /// Runs one control `transfer` of `expected` bytes up to `attempts`
+    /// times: short transfers and transport errors are retried (Linux drivers
+    /// return short control reads now and then), a disconnect is final.
+    fn with_retries(
+        &mut self,
+        request: u8,
+        value: u16,
+        index: u16,
+        expected: usize,
+        mut transfer: impl FnMut(&mut T, Duration) -> Result<usize, TransportError>,
+    ) -> Result<(), ProtocolError> {
         let address = ((value & 0xFF) << 8) | (index & 0xFF);
         let attempts = self.attempts.max(1);
         let mut last = None;
         for attempt in 1..=attempts {
-            match self
-                .transport
-                .control_out(request, value, index, data, self.timeout)
-            {
-                Ok(n) if n == data.len() => return Ok(()),
+            match transfer(&mut self.transport, self.timeout) {
+                Ok(n) if n == expected => return Ok(()),
                 Ok(n) => {
+                    tracing::warn!(request, address, got = n, attempt, "short control transfer");
                     last = Some(ProtocolError::Short {
                         request,
                         address,
-                        expected: data.len(),
+                        expected,
                         got: n,
                         attempts: attempt,
-                    })
+                    });
                 }
                 Err(TransportError::Disconnected) => {
                     return Err(ProtocolError::Transport {
@@ -313,20 +286,20 @@ impl<T: Transport> RegisterBus<T> {
                     })
                 }
                 Err(e) => {
-                    tracing::warn!(request, address, attempt, error = %e, "control write failed");
+                    tracing::warn!(request, address, attempt, error = %e, "control transfer failed");
                     last = Some(ProtocolError::Transport {
                         request,
                         address,
                         attempts: attempt,
                         source: e,
-                    })
+                    });
                 }
             }
         }
         Err(last.unwrap_or(ProtocolError::Short {
             request,
             address,
-            expected: data.len(),
+            expected,
             got: 0,
             attempts,
         }))
