@@ -1,7 +1,7 @@
 //! Snapshots: the latest processed frame as PNG (rendered as the view stream
 //! shows it) or `.npy` (signed DN, float32, shape (height, width)).
 
-use std::fs::OpenOptions;
+use std::fs::{File, OpenOptions};
 use std::io::{self, BufWriter, Write};
 use std::path::Path;
 
@@ -11,8 +11,13 @@ use crate::modes;
 
 /// Writes `snap` to a new file at `path`.
 pub fn write(path: &Path, kind: OutputKind, snap: &SnapshotData) -> io::Result<()> {
-    let img = &snap.output.signed_dn;
     let file = OpenOptions::new().write(true).create_new(true).open(path)?;
+    write_to(file, kind, snap)
+}
+
+/// Writes `snap` into `file` (e.g. a descriptor a client passed), then syncs it.
+pub fn write_to(file: File, kind: OutputKind, snap: &SnapshotData) -> io::Result<()> {
+    let img = &snap.output.signed_dn;
     let mut w = BufWriter::new(file);
     match kind {
         OutputKind::Npy | OutputKind::Recording => {

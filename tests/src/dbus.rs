@@ -86,7 +86,21 @@ impl Daemon {
     /// Starts `sdid --bus-address ADDR --backend sim --sink y4m` (stdout to /dev/null)
     /// plus `extra` arguments, and waits until it answers.
     pub fn start(bus: &Bus, extra: &[&str]) -> Self {
-        let child = Command::new(bin("sdid"))
+        Self::start_wrapped(bus, &[], extra)
+    }
+
+    /// Like [`Daemon::start`], with sdid run by `wrapper` (a program and its
+    /// arguments, which must exec sdid in the same process, e.g. `unshare`).
+    pub fn start_wrapped(bus: &Bus, wrapper: &[&str], extra: &[&str]) -> Self {
+        let mut cmd = match wrapper.split_first() {
+            Some((program, args)) => {
+                let mut c = Command::new(program);
+                c.args(args).arg(bin("sdid"));
+                c
+            }
+            None => Command::new(bin("sdid")),
+        };
+        let child = cmd
             .args([
                 "--bus-address",
                 &bus.address,

@@ -79,8 +79,12 @@ fn snapshot_files_are_correct() {
     );
     let img = image::open(&png).unwrap();
     assert_eq!((img.width(), img.height()), (320, 240));
-    // Refuses to overwrite and relative paths.
+    // Refuses to overwrite: sdictl itself (descriptor, the default) and the
+    // daemon (--by-path).
     let again = d.ctl(&["snapshot", npy.to_str().unwrap()]);
+    assert_eq!(again.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&again.stderr).contains("exists"));
+    let again = d.ctl(&["snapshot", "--by-path", npy.to_str().unwrap()]);
     assert_eq!(again.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&again.stderr).contains("org.sdi.Error.InvalidPath"));
 }
@@ -105,8 +109,12 @@ fn introspection_matches_checked_in_xml() {
         .output()
         .unwrap();
     let text = ok(&out);
-    // gdbus prints ('<xml>',) with escaped newlines.
-    let xml = text.replace("\\n", "\n").replace("\\'", "'");
+    // gdbus prints ('<xml>',) (or ("<xml>",) when the text holds a quote)
+    // with escaped newlines and quotes.
+    let xml = text
+        .replace("\\n", "\n")
+        .replace("\\'", "'")
+        .replace("\\\"", "\"");
     let served = interface_block(&xml);
     let file = std::fs::read_to_string(concat!(
         env!("CARGO_MANIFEST_DIR"),

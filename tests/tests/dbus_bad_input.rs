@@ -39,9 +39,9 @@ fn typed_errors_and_exit_codes() {
     assert!(code == 2 && msg.contains("OutOfRange"), "{msg}");
     let (code, msg) = err(&d.ctl(&["stop"]));
     assert!(code == 6 && msg.contains("NotRecording"), "{msg}");
-    let (code, msg) = err(&d.ctl(&["record", "/proc/x.sdirec"]));
+    let (code, msg) = err(&d.ctl(&["record", "--by-path", "/proc/x.sdirec"]));
     assert!(code == 2 && msg.contains("InvalidPath"), "{msg}");
-    let (code, msg) = err(&d.ctl(&["snapshot", "/tmp/x.jpg"]));
+    let (code, msg) = err(&d.ctl(&["snapshot", "--by-path", "/tmp/x.jpg"]));
     assert!(code == 2 && msg.contains("InvalidPath"), "{msg}");
     // Unreachable daemon: exit 3.
     let other = Bus::start();

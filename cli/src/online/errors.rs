@@ -62,6 +62,7 @@ impl From<zbus::Error> for OnlineError {
                     "org.sdi.Error.InvalidMode"
                     | "org.sdi.Error.OutOfRange"
                     | "org.sdi.Error.InvalidPath"
+                    | "org.sdi.Error.InvalidFd"
                     | "org.freedesktop.DBus.Error.InvalidArgs"
                     | "org.freedesktop.DBus.Error.UnknownProperty" => OnlineError::Invalid(msg),
                     "org.sdi.Error.Busy" => OnlineError::Busy(msg),

@@ -2,6 +2,7 @@
 
 mod errors;
 mod export;
+mod new_file;
 mod proxy;
 
 use std::collections::HashMap;
@@ -16,7 +17,9 @@ use serde_json::{json, Value as Json};
 use zbus::zvariant::OwnedValue;
 
 pub use errors::OnlineError;
+use new_file::NewFile;
 use proxy::Camera1Proxy;
+use zbus::zvariant::Fd;
 
 /// How to reach the daemon; global flags.
 #[derive(Debug, Clone, Args)]
@@ -60,15 +63,30 @@ pub enum OnlineCommand {
         frames: u32,
     },
     /// Record raw frames to a new .sdirec file (stops after --seconds if given).
+    ///
+    /// sdictl creates the file as you and passes the daemon its descriptor,
+    /// so any place you may write works, even though the service cannot see
+    /// home directories or /tmp.
     Record {
         path: PathBuf,
         #[arg(long)]
         seconds: Option<f64>,
+        /// Let the daemon create PATH itself (a place the service may write, e.g. /var/lib/sdi).
+        #[arg(long)]
+        by_path: bool,
     },
     /// Stop the recording.
     Stop,
     /// Save the latest frame: .png (as displayed) or .npy (signed DN).
-    Snapshot { path: PathBuf },
+    ///
+    /// sdictl creates the file as you (whole or not at all) and passes the
+    /// daemon its descriptor.
+    Snapshot {
+        path: PathBuf,
+        /// Let the daemon create PATH itself (a place the service may write, e.g. /var/lib/sdi).
+        #[arg(long)]
+        by_path: bool,
+    },
     /// Live frame rate and latency (Ctrl-C to stop).
     Monitor {
         /// Stop after this many updates.
@@ -205,6 +223,39 @@ fn absolute(path: &Path) -> Result<String, OnlineError> {
     p.to_str()
         .map(str::to_owned)
         .ok_or_else(|| OnlineError::Invalid(format!("{} is not valid UTF-8", p.display())))
+}
+
+/// The lower-case extension of `path` if it is one of `allowed`.
+fn output_extension(path: &str, allowed: &[&str]) -> Result<String, OnlineError> {
+    let ext = Path::new(path)
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase)
+        .unwrap_or_default();
+    if allowed.contains(&ext.as_str()) {
+        Ok(ext)
+    } else {
+        Err(OnlineError::Invalid(format!(
+            "{path}: the extension must be one of .{}",
+            allowed.join(", .")
+        )))
+    }
+}
+
+/// Creates the recording as the calling user and starts the daemon writing
+/// into its descriptor; the file gets its name once the daemon has accepted
+/// it (the header is written by then, and the format survives a crash).
+async fn start_recording_to_fd(cam: &Camera1Proxy<'_>, path: &str) -> Result<(), OnlineError> {
+    output_extension(path, &["sdirec"])?;
+    let out = NewFile::create(Path::new(path))?;
+    cam.start_recording_to_fd(Fd::from(out.file()), path)
+        .await?;
+    if let Err(e) = out.commit() {
+        // Nothing may record into a file that has no name.
+        let _ = cam.stop_recording().await;
+        return Err(e);
+    }
+    Ok(())
 }
 
 fn parse_f64(prop: &str, v: &str) -> Result<f64, OnlineError> {
@@ -363,7 +414,11 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
             let d = with_progress(&cam, frames, "calibrating", json, cam.calibrate(frames)).await?;
             print_dict(&d, json);
         }
-        OnlineCommand::Record { path, seconds } => {
+        OnlineCommand::Record {
+            path,
+            seconds,
+            by_path,
+        } => {
             let path = absolute(&path)?;
             if let Some(s) = seconds {
                 if !(s.is_finite() && s > 0.0 && s <= 86_400.0) {
@@ -372,7 +427,11 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                     )));
                 }
             }
-            cam.start_recording(&path).await?;
+            if by_path {
+                cam.start_recording(&path).await?;
+            } else {
+                start_recording_to_fd(&cam, &path).await?;
+            }
             match seconds {
                 None => {
                     if json {
@@ -398,9 +457,16 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
             let d = cam.stop_recording().await?;
             print_dict(&d, json);
         }
-        OnlineCommand::Snapshot { path } => {
+        OnlineCommand::Snapshot { path, by_path } => {
             let path = absolute(&path)?;
-            cam.snapshot(&path).await?;
+            if by_path {
+                cam.snapshot(&path).await?;
+            } else {
+                let format = output_extension(&path, &["png", "npy"])?;
+                let out = NewFile::create(Path::new(&path))?;
+                cam.snapshot_to_fd(Fd::from(out.file()), &format).await?;
+                out.commit()?;
+            }
             if json {
                 println!("{}", json!({"snapshot": path}));
             } else {

@@ -3,7 +3,7 @@
 use std::collections::HashMap;
 
 use zbus::proxy;
-use zbus::zvariant::OwnedValue;
+use zbus::zvariant::{Fd, OwnedValue};
 
 #[proxy(
     interface = "org.sdi.Camera1",
@@ -22,6 +22,8 @@ pub trait Camera1 {
     fn start_recording(&self, path: &str) -> zbus::Result<()>;
     fn stop_recording(&self) -> zbus::Result<HashMap<String, OwnedValue>>;
     fn snapshot(&self, path: &str) -> zbus::Result<()>;
+    fn start_recording_to_fd(&self, fd: Fd<'_>, label: &str) -> zbus::Result<()>;
+    fn snapshot_to_fd(&self, fd: Fd<'_>, format: &str) -> zbus::Result<()>;
 
     #[zbus(property)]
     fn mode(&self) -> zbus::Result<String>;

@@ -14,6 +14,7 @@ use zbus::object_server::SignalEmitter;
 use zbus::zvariant::{OwnedValue, Value};
 use zbus::{interface, Connection};
 
+use super::client_fd::{self, recording_label};
 use super::errors::{check_range, SdiError};
 use super::paths::{validate_output_path, OutputKind};
 use crate::backend::{BackendError, CaptureSettings, Limits};
@@ -211,6 +212,69 @@ impl Camera {
     }
 }
 
+/// Recording and snapshot steps shared by the path and descriptor methods.
+impl Camera {
+    fn recording_header(&self, st: &State) -> RecHeader {
+        let mut sensor = self.info.sensor.clone();
+        sensor.exposure_us = st.capture.exposure_us;
+        sensor.frame_rate_hz = st.capture.frame_rate_hz;
+        sensor.modulation_hz = st.capture.modulation_hz;
+        RecHeader {
+            format_version: 1,
+            mode: st.mode.name().into(),
+            backend: self.info.backend.clone(),
+            sensor,
+            exposure_us: st.capture.exposure_us,
+            frame_rate_hz: st.capture.frame_rate_hz,
+            modulation_hz: st.capture.modulation_hz,
+            started_unix_s: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64()),
+            calibration: self.calibration.borrow().clone(),
+        }
+    }
+
+    /// Opens a writer with `open` (off the async runtime) and hands it to the
+    /// frame loop; `label` is what the Recording property shows.
+    async fn begin_recording(
+        &self,
+        label: PathBuf,
+        emitter: &SignalEmitter<'_>,
+        open: impl FnOnce(&RecHeader) -> std::io::Result<RecordingWriter> + Send + 'static,
+    ) -> Result<(), SdiError> {
+        let _guard = self.change_lock.lock().await;
+        let st = self.state();
+        if let Some(p) = &st.recording {
+            return Err(SdiError::Busy(format!(
+                "already recording to {}",
+                p.display()
+            )));
+        }
+        let header = self.recording_header(&st);
+        let writer = tokio::task::spawn_blocking(move || open(&header))
+            .await
+            .map_err(|e| SdiError::Failed(e.to_string()))?
+            .map_err(|e| SdiError::InvalidPath(format!("{}: {e}", label.display())))?;
+        self.ask(|tx| Command::StartRecording(Box::new(writer), tx))
+            .await?;
+        tracing::info!(path = %label.display(), "recording started");
+        self.update(|s| s.recording = Some(label));
+        let _ = self.recording_changed(emitter).await;
+        Ok(())
+    }
+
+    /// The latest processed frame, waiting up to 2 s for the first one.
+    async fn latest_frame(&self) -> Result<crate::frame_loop::SnapshotData, SdiError> {
+        for _ in 0..20 {
+            if let Some(snap) = self.ask(Command::Snapshot).await? {
+                return Ok(snap);
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        Err(SdiError::NoFrame("no frame has been processed yet".into()))
+    }
+}
+
 #[interface(name = "org.sdi.Camera1")]
 impl Camera {
     /// Switches the mode; takes effect from the next frame, the output stays open.
@@ -320,7 +384,8 @@ impl Camera {
         Ok(dark_dict(&s))
     }
 
-    /// Starts recording raw sensor frames to a new `.sdirec` file at an absolute path.
+    /// Starts recording raw sensor frames to a new `.sdirec` file at an absolute path
+    /// the daemon itself may write (under the system service: below /var/lib/sdi).
     async fn start_recording(
         &self,
         path: &str,
@@ -330,43 +395,31 @@ impl Camera {
     ) -> Result<(), SdiError> {
         let uid = caller_uid(conn, &hdr).await;
         let (path, _) = validate_output_path(path, &[OutputKind::Recording], uid)?;
-        let _guard = self.change_lock.lock().await;
-        let st = self.state();
-        if let Some(p) = &st.recording {
-            return Err(SdiError::Busy(format!(
-                "already recording to {}",
-                p.display()
-            )));
-        }
-        let mut sensor = self.info.sensor.clone();
-        sensor.exposure_us = st.capture.exposure_us;
-        sensor.frame_rate_hz = st.capture.frame_rate_hz;
-        sensor.modulation_hz = st.capture.modulation_hz;
-        let header = RecHeader {
-            format_version: 1,
-            mode: st.mode.name().into(),
-            backend: self.info.backend.clone(),
-            sensor,
-            exposure_us: st.capture.exposure_us,
-            frame_rate_hz: st.capture.frame_rate_hz,
-            modulation_hz: st.capture.modulation_hz,
-            started_unix_s: std::time::SystemTime::now()
-                .duration_since(std::time::UNIX_EPOCH)
-                .map_or(0.0, |d| d.as_secs_f64()),
-            calibration: self.calibration.borrow().clone(),
-        };
         let p2 = path.clone();
-        let writer = tokio::task::spawn_blocking(move || RecordingWriter::create(&p2, &header))
-            .await
-            .map_err(|e| SdiError::Failed(e.to_string()))?
-            .map_err(|e| SdiError::InvalidPath(format!("{}: {e}", path.display())))?;
+        self.begin_recording(path.clone(), &emitter, move |header| {
+            RecordingWriter::create(&p2, header)
+        })
+        .await?;
         crate::snapshot::give_to(&path, uid);
-        self.ask(|tx| Command::StartRecording(Box::new(writer), tx))
-            .await?;
-        tracing::info!(path = %path.display(), "recording started");
-        self.update(|s| s.recording = Some(path));
-        let _ = self.recording_changed(&emitter).await;
         Ok(())
+    }
+
+    /// Starts recording into `fd`, a new empty file the caller opened for
+    /// writing (the daemon never sees a path); `label` (e.g. the path of
+    /// the file) is what the Recording property shows.
+    async fn start_recording_to_fd(
+        &self,
+        fd: zbus::zvariant::OwnedFd,
+        label: &str,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+    ) -> Result<(), SdiError> {
+        let label = PathBuf::from(recording_label(label)?);
+        let file = client_fd::output_file(fd.into())?;
+        let l2 = label.clone();
+        self.begin_recording(label, &emitter, move |header| {
+            RecordingWriter::from_file(file, &l2, header)
+        })
+        .await
     }
 
     /// Stops recording; returns {path, frames, dropped}.
@@ -396,7 +449,8 @@ impl Camera {
     }
 
     /// Writes the latest processed frame to a new file: `.png` (as displayed)
-    /// or `.npy` (signed DN, float32, shape (height, width)).
+    /// or `.npy` (signed DN, float32, shape (height, width)), at an absolute
+    /// path the daemon itself may write.
     async fn snapshot(
         &self,
         path: &str,
@@ -405,16 +459,7 @@ impl Camera {
     ) -> Result<(), SdiError> {
         let uid = caller_uid(conn, &hdr).await;
         let (path, kind) = validate_output_path(path, &[OutputKind::Png, OutputKind::Npy], uid)?;
-        let mut snap = None;
-        for _ in 0..20 {
-            snap = self.ask(Command::Snapshot).await?;
-            if snap.is_some() {
-                break;
-            }
-            tokio::time::sleep(Duration::from_millis(100)).await;
-        }
-        let snap =
-            snap.ok_or_else(|| SdiError::NoFrame("no frame has been processed yet".into()))?;
+        let snap = self.latest_frame().await?;
         let p2 = path.clone();
         tokio::task::spawn_blocking(move || crate::snapshot::write(&p2, kind, &snap))
             .await
@@ -422,6 +467,22 @@ impl Camera {
             .map_err(|e| SdiError::Failed(format!("{}: {e}", path.display())))?;
         crate::snapshot::give_to(&path, uid);
         Ok(())
+    }
+
+    /// Writes the latest processed frame into `fd`, a new empty file the
+    /// caller opened for writing; `format` is "png" or "npy".
+    async fn snapshot_to_fd(
+        &self,
+        fd: zbus::zvariant::OwnedFd,
+        format: &str,
+    ) -> Result<(), SdiError> {
+        let kind = client_fd::snapshot_format(format)?;
+        let file = client_fd::output_file(fd.into())?;
+        let snap = self.latest_frame().await?;
+        tokio::task::spawn_blocking(move || crate::snapshot::write_to(file, kind, &snap))
+            .await
+            .map_err(|e| SdiError::Failed(e.to_string()))?
+            .map_err(|e| SdiError::Failed(format!("writing the snapshot: {e}")))
     }
 
     /// Current mode name.

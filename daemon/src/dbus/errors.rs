@@ -18,6 +18,8 @@ pub enum SdiError {
     Busy(String),
     /// A path that is empty, relative, of the wrong type, or not writable by the caller.
     InvalidPath(String),
+    /// A passed file descriptor that is not an empty regular file open for writing.
+    InvalidFd(String),
     /// StopRecording without a recording.
     NotRecording(String),
     /// Snapshot before the first frame.

@@ -1,6 +1,7 @@
 //! The D-Bus API: `org.sdi.Daemon`, `/org/sdi/Camera0`, `org.sdi.Camera1`.
 
 pub mod camera;
+pub mod client_fd;
 pub mod errors;
 pub mod paths;
 

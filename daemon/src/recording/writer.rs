@@ -48,7 +48,14 @@ pub struct RecordingWriter {
 impl RecordingWriter {
     /// Creates `path` (which must not exist), writes the header and starts the writer thread.
     pub fn create(path: &Path, header: &Header) -> io::Result<Self> {
-        let mut file = OpenOptions::new().write(true).create_new(true).open(path)?;
+        let file = OpenOptions::new().write(true).create_new(true).open(path)?;
+        Self::from_file(file, path, header)
+    }
+
+    /// Records into `file`, an empty file opened for writing by someone else
+    /// (a client passing its descriptor over D-Bus); `label` names it in
+    /// status output only and is never opened.
+    pub fn from_file(mut file: File, label: &Path, header: &Header) -> io::Result<Self> {
         let json = serde_json::to_vec(header).map_err(io::Error::other)?;
         let mut head = Vec::with_capacity(json.len() + 16);
         head.extend_from_slice(format::FILE_MAGIC);
@@ -63,7 +70,7 @@ impl RecordingWriter {
             .name("sdid-recorder".into())
             .spawn(move || run(file, rx, c))?;
         Ok(Self {
-            path: path.to_owned(),
+            path: label.to_owned(),
             tx: Some(tx),
             counters,
             thread: Some(thread),

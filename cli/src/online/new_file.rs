@@ -1,0 +1,150 @@
+//! A new output file that sdictl creates as the calling user and hands to
+//! the daemon as a descriptor: written under a hidden temporary name in the
+//! destination's directory, linked to its name on commit (never replacing an
+//! existing file), removed if dropped uncommitted, so an error leaves nothing
+//! behind.
+
+use std::fs::{File, OpenOptions};
+use std::io::ErrorKind;
+use std::os::unix::fs::OpenOptionsExt;
+use std::path::{Path, PathBuf};
+use std::time::{SystemTime, UNIX_EPOCH};
+
+use super::errors::OnlineError;
+
+pub struct NewFile {
+    tmp: PathBuf,
+    dest: PathBuf,
+    file: File,
+    committed: bool,
+}
+
+fn io_error(what: &str, path: &Path, e: std::io::Error) -> OnlineError {
+    let msg = format!("{what} {}: {e}", path.display());
+    match e.kind() {
+        ErrorKind::NotFound | ErrorKind::PermissionDenied | ErrorKind::AlreadyExists => {
+            OnlineError::Invalid(msg)
+        }
+        _ => OnlineError::Failed(msg),
+    }
+}
+
+impl NewFile {
+    /// Creates the empty temporary file next to `dest`, which must not exist.
+    pub fn create(dest: &Path) -> Result<Self, OnlineError> {
+        let name = dest
+            .file_name()
+            .ok_or_else(|| OnlineError::Invalid(format!("'{}' names no file", dest.display())))?;
+        if dest.symlink_metadata().is_ok() {
+            return Err(OnlineError::Invalid(format!(
+                "{} exists (sdictl never overwrites)",
+                dest.display()
+            )));
+        }
+        let nanos = SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.subsec_nanos());
+        let mut tmp_name = std::ffi::OsString::from(".");
+        tmp_name.push(name);
+        tmp_name.push(format!(".sdictl-{}-{nanos:09}", std::process::id()));
+        let tmp = dest.with_file_name(tmp_name);
+        let file = OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .mode(0o644)
+            .open(&tmp)
+            .map_err(|e| io_error("cannot create", &tmp, e))?;
+        Ok(Self {
+            tmp,
+            dest: dest.to_owned(),
+            file,
+            committed: false,
+        })
+    }
+
+    /// The open file, to pass to the daemon.
+    pub fn file(&self) -> &File {
+        &self.file
+    }
+
+    /// Gives the finished file its name; fails (removing the temporary file)
+    /// if something appeared at the destination meanwhile.
+    pub fn commit(mut self) -> Result<(), OnlineError> {
+        match std::fs::hard_link(&self.tmp, &self.dest) {
+            Ok(()) => {}
+            // File systems without hard links (vfat, some FUSE): rename,
+            // after checking again that nothing is in the way.
+            Err(e)
+                if e.kind() != ErrorKind::AlreadyExists
+                    && self.dest.symlink_metadata().is_err() =>
+            {
+                std::fs::rename(&self.tmp, &self.dest)
+                    .map_err(|e| io_error("cannot rename into", &self.dest, e))?;
+                self.committed = true;
+                return Ok(());
+            }
+            Err(e) => return Err(io_error("cannot create", &self.dest, e)),
+        }
+        self.committed = true;
+        let _ = std::fs::remove_file(&self.tmp);
+        Ok(())
+    }
+}
+
+impl Drop for NewFile {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::io::Write;
+
+    fn entries(dir: &Path) -> Vec<String> {
+        let mut v: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn commit_links_and_drop_cleans_up() {
+        let dir = std::env::temp_dir().join(format!("sdictl-newfile-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        let dest = dir.join("a.npy");
+        let f = NewFile::create(&dest).unwrap();
+        f.file().write_all(b"abc").unwrap();
+        f.commit().unwrap();
+        assert_eq!(std::fs::read(&dest).unwrap(), b"abc");
+        assert_eq!(entries(&dir), ["a.npy"]);
+        // Existing destination: refused before anything is created.
+        assert!(matches!(
+            NewFile::create(&dest),
+            Err(OnlineError::Invalid(_))
+        ));
+        // Dropped uncommitted: nothing left.
+        let f = NewFile::create(&dir.join("b.png")).unwrap();
+        f.file().write_all(b"half").unwrap();
+        drop(f);
+        assert_eq!(entries(&dir), ["a.npy"]);
+        // Something appears at the destination meanwhile: not replaced.
+        let f = NewFile::create(&dir.join("c.png")).unwrap();
+        std::fs::write(dir.join("c.png"), b"theirs").unwrap();
+        assert!(f.commit().is_err());
+        assert_eq!(std::fs::read(dir.join("c.png")).unwrap(), b"theirs");
+        assert_eq!(entries(&dir), ["a.npy", "c.png"]);
+        // A directory that does not exist: a usage error.
+        assert!(matches!(
+            NewFile::create(&dir.join("missing/x.npy")),
+            Err(OnlineError::Invalid(_))
+        ));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}
