@@ -280,6 +280,10 @@ fn bad_descriptors_get_typed_errors() {
         fs::File::create(&empty_path).unwrap();
         let read_only = fs::File::open(&empty_path).unwrap();
         let directory = fs::File::open(dir.path()).unwrap();
+        let procfs = fs::OpenOptions::new()
+            .write(true)
+            .open("/proc/self/comm")
+            .unwrap();
 
         for method in ["SnapshotToFd", "StartRecordingToFd"] {
             let arg = if method == "SnapshotToFd" { "npy" } else { "" };
@@ -290,6 +294,7 @@ fn bad_descriptors_get_typed_errors() {
                 ("non-empty file", Fd::from(&full)),
                 ("read-only file", Fd::from(&read_only)),
                 ("directory", Fd::from(&directory)),
+                ("procfs file", Fd::from(&procfs)),
             ] {
                 assert_eq!(
                     call_with_fd(&conn, method, fd, arg).await,

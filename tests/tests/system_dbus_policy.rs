@@ -130,6 +130,7 @@ fn policy_controls_who_may_do_what() {
         // Built on the host: the VM's root is read-only. The environment
         // (SDID) is passed into the VM.
         std::env::set_var("SDID", sdi_tests::dbus::bin("sdid"));
+        std::env::set_var("SDICTL", sdi_tests::dbus::bin("sdictl"));
         vm::run_test_in_vm("policy_controls_who_may_do_what", 240);
         return;
     }
@@ -216,6 +217,47 @@ fn policy_controls_who_may_do_what() {
         !denied(&bus.busctl(Some(OPERATOR), &set)),
         "the bus denied a member of sdi setting a property"
     );
+
+    // Output files by descriptor: sdictl, run as the user, creates the file
+    // in a directory only that user may write and passes it to the daemon.
+    let sdictl = std::env::var_os("SDICTL").expect("SDICTL path from the host");
+    let snapshot_as = |user: &str, file: &Path| {
+        run(Command::new("runuser")
+            .args(["-u", user, "--", "env"])
+            .arg(format!("DBUS_SYSTEM_BUS_ADDRESS={}", bus.address))
+            .arg(&sdictl)
+            .arg("snapshot")
+            .arg(file))
+    };
+    let own_dir = |user: &str| {
+        let d = dir.join(format!("out-{user}"));
+        std::fs::create_dir_all(&d).unwrap();
+        must(Command::new("chown").arg(user).arg(&d));
+        must(Command::new("chmod").arg("0700").arg(&d));
+        d
+    };
+    let op_dir = own_dir(OPERATOR);
+    let snap = op_dir.join("snap.npy");
+    assert!(
+        snapshot_as(OPERATOR, &snap).status.success(),
+        "a member of sdi could not snapshot through a descriptor"
+    );
+    let meta = std::fs::metadata(&snap).unwrap();
+    assert!(meta.len() > 128, "empty snapshot");
+    let op_uid = String::from_utf8_lossy(&must(Command::new("id").args(["-u", OPERATOR])).stdout)
+        .trim()
+        .parse::<u32>()
+        .unwrap();
+    assert_eq!(std::os::unix::fs::MetadataExt::uid(&meta), op_uid);
+    let guest_dir = own_dir(GUEST);
+    let denied_snapshot = snapshot_as(GUEST, &guest_dir.join("snap.npy"));
+    assert!(
+        !denied_snapshot.status.success()
+            && String::from_utf8_lossy(&denied_snapshot.stderr).contains("AccessDenied"),
+        "an unprivileged user could snapshot"
+    );
+    let left: Vec<_> = std::fs::read_dir(&guest_dir).unwrap().collect();
+    assert!(left.is_empty(), "a denied snapshot left {left:?}");
 
     // Ownership: nobody but root may take the name.
     for user in [GUEST, OPERATOR] {

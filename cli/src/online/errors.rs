@@ -70,6 +70,9 @@ impl From<zbus::Error> for OnlineError {
                     "org.sdi.Error.NotRecording" | "org.sdi.Error.NoFrame" => {
                         OnlineError::Nothing(msg)
                     }
+                    "org.freedesktop.DBus.Error.AccessDenied" => OnlineError::Failed(format!(
+                        "{msg} (only members of the group sdi may control the camera: sudo usermod -aG sdi $USER, then log in again)"
+                    )),
                     "org.freedesktop.DBus.Error.ServiceUnknown"
                     | "org.freedesktop.DBus.Error.NameHasNoOwner"
                     | "org.freedesktop.DBus.Error.NoReply"

@@ -15,8 +15,8 @@ use super::paths::OutputKind;
 pub const MAX_LABEL_BYTES: usize = 4096;
 
 /// Accepts `fd` if it is an empty regular file open for writing: not a
-/// pipe, socket, tty or device, not read-only, and holding no data the
-/// daemon would write over.
+/// pipe, socket, tty or device, not on procfs/sysfs and the like, not
+/// read-only, and holding no data the daemon would write over.
 pub fn output_file(fd: OwnedFd) -> Result<File, SdiError> {
     let bad = |why: String| SdiError::InvalidFd(why);
     let file = File::from(fd);
@@ -27,6 +27,11 @@ pub fn output_file(fd: OwnedFd) -> Result<File, SdiError> {
         let what = kind_name(&meta);
         return Err(bad(format!(
             "the descriptor is {what}, not a regular file: pass a file opened for writing"
+        )));
+    }
+    if let Some(fs) = pseudo_file_system(&file) {
+        return Err(bad(format!(
+            "the file lives on {fs}, not on a file system for data"
         )));
     }
     let flags = fcntl(file.as_raw_fd(), FcntlArg::F_GETFL)
@@ -44,6 +49,28 @@ pub fn output_file(fd: OwnedFd) -> Result<File, SdiError> {
         )));
     }
     Ok(file)
+}
+
+/// Kernel interface file systems whose "files" act when written (and may
+/// check the writer's privileges at write time): never write there on a
+/// client's behalf.
+fn pseudo_file_system(file: &File) -> Option<&'static str> {
+    use nix::sys::statfs::{self as sfs, fstatfs};
+    let kind = fstatfs(file).ok()?.filesystem_type();
+    [
+        (sfs::PROC_SUPER_MAGIC, "procfs"),
+        (sfs::SYSFS_MAGIC, "sysfs"),
+        (sfs::CGROUP_SUPER_MAGIC, "cgroupfs"),
+        (sfs::CGROUP2_SUPER_MAGIC, "cgroup2fs"),
+        (sfs::DEBUGFS_MAGIC, "debugfs"),
+        (sfs::TRACEFS_MAGIC, "tracefs"),
+        (sfs::SECURITYFS_MAGIC, "securityfs"),
+        (sfs::BPF_FS_MAGIC, "bpffs"),
+        (sfs::DEVPTS_SUPER_MAGIC, "devpts"),
+    ]
+    .into_iter()
+    .find(|(magic, _)| *magic == kind)
+    .map(|(_, name)| name)
 }
 
 fn kind_name(meta: &std::fs::Metadata) -> &'static str {
@@ -136,6 +163,12 @@ mod tests {
             .unwrap();
         assert!(rejected(null.into()));
         assert!(rejected(File::open(dir.path()).unwrap().into()));
+        // An empty, writable regular file on procfs.
+        let comm = std::fs::OpenOptions::new()
+            .write(true)
+            .open("/proc/self/comm")
+            .unwrap();
+        assert!(rejected(comm.into()));
     }
 
     #[test]
