@@ -1,7 +1,7 @@
 //! Helpers for the v4l2loopback VM tests and bench: module loading, a
 //! background writer, ffmpeg / v4l2-compliance runners.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -10,20 +10,216 @@ use std::time::Duration;
 
 use v4l2loopback_glue::{GlueError, Input, LoopbackWriter, OutputConfig, Src};
 
-/// Loads v4l2loopback with one node per (video_nr, label), exclusive_caps=1.
+/// Which v4l2loopback build a VM test loads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ModuleBuild {
+    /// Debian 12's 0.12.7 from DKMS: what a plain `modprobe v4l2loopback` loads.
+    Debian0127,
+    /// Debian trixie's 0.15.0, built out of tree by `tests/vm/setup-host.sh`
+    /// into [`V15_DIR`] (never into /lib/modules).
+    V0150,
+}
+
+/// Where `setup-host.sh` installs the 0.15.0 module, per kernel version.
+pub const V15_DIR: &str = "/var/lib/sdi-test/v4l2loopback-0.15.0";
+
+impl ModuleBuild {
+    /// The version string the loaded module reports (`None`: Debian's 0.12.7
+    /// build has no MODULE_VERSION).
+    pub fn version(self) -> Option<&'static str> {
+        match self {
+            Self::Debian0127 => None,
+            Self::V0150 => Some("0.15.0"),
+        }
+    }
+
+    /// The out-of-tree `.ko` for kernel `kver` (`None` for the DKMS build).
+    pub fn ko_path(self, kver: &str) -> Option<PathBuf> {
+        match self {
+            Self::Debian0127 => None,
+            Self::V0150 => Some(Path::new(V15_DIR).join(kver).join("v4l2loopback.ko")),
+        }
+    }
+}
+
+impl std::fmt::Display for ModuleBuild {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Debian0127 => "v4l2loopback 0.12.7 (Debian 12, DKMS)",
+            Self::V0150 => "v4l2loopback 0.15.0 (out of tree)",
+        })
+    }
+}
+
+/// Why loading or unloading the module failed.
+#[derive(Debug)]
+pub enum ModuleError {
+    /// The out-of-tree module was never built for this kernel.
+    NotBuilt { build: ModuleBuild, path: PathBuf },
+    /// A command (modprobe, insmod, rmmod) failed.
+    Command { command: String, detail: String },
+    /// The module is still loaded (nodes held open?) after rmmod.
+    StillLoaded,
+    /// Loaded, but it reports another version than asked for.
+    WrongVersion {
+        build: ModuleBuild,
+        found: Option<String>,
+    },
+}
+
+impl std::fmt::Display for ModuleError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::NotBuilt { build, path } => write!(
+                f,
+                "{build}: {} is missing; build it with: sudo tests/vm/setup-host.sh",
+                path.display()
+            ),
+            Self::Command { command, detail } => write!(f, "`{command}` failed: {detail}"),
+            Self::StillLoaded => {
+                f.write_str("v4l2loopback is still loaded after rmmod (a node is still open?)")
+            }
+            Self::WrongVersion { build, found } => {
+                write!(f, "asked for {build}, the loaded module reports {found:?}")
+            }
+        }
+    }
+}
+
+impl std::error::Error for ModuleError {}
+
+/// Parameters of a module load: one node per (video_nr, label).
+#[derive(Clone, Debug, Default)]
+pub struct ModuleParams {
+    pub nodes: Vec<(u32, String)>,
+    /// exclusive_caps=1 for every node (browsers list only such nodes).
+    pub exclusive_caps: bool,
+    /// Extra `name=value` parameters (e.g. `max_buffers=4`).
+    pub extra: Vec<String>,
+}
+
+impl ModuleParams {
+    /// Nodes with exclusive_caps=1.
+    pub fn nodes(nodes: &[(u32, &str)]) -> Self {
+        Self {
+            nodes: nodes.iter().map(|(n, l)| (*n, (*l).to_owned())).collect(),
+            exclusive_caps: true,
+            extra: Vec::new(),
+        }
+    }
+
+    /// The `name=value` arguments for modprobe / insmod.
+    pub fn args(&self) -> Vec<String> {
+        let mut args = vec![format!("devices={}", self.nodes.len())];
+        if !self.nodes.is_empty() {
+            let join = |f: &dyn Fn(&(u32, String)) -> String| {
+                self.nodes.iter().map(f).collect::<Vec<_>>().join(",")
+            };
+            args.push(format!("video_nr={}", join(&|(n, _)| n.to_string())));
+            args.push(format!("card_label={}", join(&|(_, l)| l.clone())));
+            let caps = u8::from(self.exclusive_caps).to_string();
+            args.push(format!("exclusive_caps={}", join(&|_| caps.clone())));
+        }
+        args.extend(self.extra.iter().cloned());
+        args
+    }
+}
+
+fn run_cmd(program: &str, args: &[String]) -> Result<(), ModuleError> {
+    let command = format!("{program} {}", args.join(" "));
+    let o = Command::new(program)
+        .args(args)
+        .output()
+        .map_err(|e| ModuleError::Command {
+            command: command.clone(),
+            detail: format!("cannot spawn: {e}"),
+        })?;
+    if o.status.success() {
+        return Ok(());
+    }
+    Err(ModuleError::Command {
+        command,
+        detail: format!(
+            "{}: {}",
+            o.status,
+            String::from_utf8_lossy(&o.stderr).trim()
+        ),
+    })
+}
+
+/// True while v4l2loopback is loaded.
+pub fn module_loaded() -> bool {
+    Path::new("/sys/module/v4l2loopback").exists()
+}
+
+/// Unloads v4l2loopback if it is loaded (VM only: the host cannot load
+/// modules, and a real system's module belongs to its owner).
+pub fn unload_module() -> Result<(), ModuleError> {
+    if !module_loaded() {
+        return Ok(());
+    }
+    run_cmd("rmmod", &["v4l2loopback".to_owned()])?;
+    for _ in 0..50 {
+        if !module_loaded() {
+            return Ok(());
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    Err(ModuleError::StillLoaded)
+}
+
+/// Replaces whatever v4l2loopback is loaded by `build` with `params`:
+/// rmmod, then `modprobe v4l2loopback ...` (0.12.7) or `modprobe videodev`
+/// + `insmod <setup-host.sh's .ko> ...` (0.15.0). Checks the loaded version.
+pub fn load_module(build: ModuleBuild, params: &ModuleParams) -> Result<(), ModuleError> {
+    unload_module()?;
+    let args = params.args();
+    match build {
+        ModuleBuild::Debian0127 => {
+            let mut a = vec!["v4l2loopback".to_owned()];
+            a.extend(args);
+            run_cmd("modprobe", &a)?;
+        }
+        ModuleBuild::V0150 => {
+            let kver = std::fs::read_to_string("/proc/sys/kernel/osrelease").map_err(|e| {
+                ModuleError::Command {
+                    command: "read /proc/sys/kernel/osrelease".into(),
+                    detail: e.to_string(),
+                }
+            })?;
+            let path = build.ko_path(kver.trim()).expect("out-of-tree build");
+            if !path.is_file() {
+                return Err(ModuleError::NotBuilt { build, path });
+            }
+            run_cmd("modprobe", &["videodev".to_owned()])?;
+            let mut a = vec![path.display().to_string()];
+            a.extend(args);
+            run_cmd("insmod", &a)?;
+        }
+    }
+    let found = std::fs::read_to_string("/sys/module/v4l2loopback/version")
+        .ok()
+        .map(|s| s.trim().to_owned());
+    let matches = match build {
+        // Debian's DKMS build of 0.12.7 carries no version string
+        ModuleBuild::Debian0127 => match found.as_deref() {
+            None => true,
+            Some(v) => v.starts_with("0.12."),
+        },
+        ModuleBuild::V0150 => found.as_deref() == build.version(),
+    };
+    if !matches {
+        return Err(ModuleError::WrongVersion { build, found });
+    }
+    Ok(())
+}
+
+/// Loads Debian's v4l2loopback with one node per (video_nr, label),
+/// exclusive_caps=1; panics with the reason on failure.
 pub fn modprobe(nodes: &[(u32, &str)]) {
-    let nrs: Vec<String> = nodes.iter().map(|(n, _)| n.to_string()).collect();
-    let labels: Vec<&str> = nodes.iter().map(|(_, l)| *l).collect();
-    let caps: Vec<&str> = nodes.iter().map(|_| "1").collect();
-    let status = Command::new("modprobe")
-        .arg("v4l2loopback")
-        .arg(format!("devices={}", nodes.len()))
-        .arg(format!("video_nr={}", nrs.join(",")))
-        .arg(format!("card_label={}", labels.join(",")))
-        .arg(format!("exclusive_caps={}", caps.join(",")))
-        .status()
-        .expect("spawn modprobe");
-    assert!(status.success(), "modprobe v4l2loopback failed");
+    if let Err(e) = load_module(ModuleBuild::Debian0127, &ModuleParams::nodes(nodes)) {
+        panic!("loading v4l2loopback failed: {e}");
+    }
 }
 
 /// What the background writer publishes each frame.

@@ -287,3 +287,41 @@ fn vm_loopback_end_to_end() {
     }
     in_vm_checks();
 }
+
+/// The harness swaps module builds inside the VM: 0.15.0 from setup-host.sh's
+/// out-of-tree build, then back to Debian's 0.12.7.
+fn module_switch_checks() {
+    use loopback::{ModuleBuild, ModuleParams};
+    loopback::load_module(ModuleBuild::V0150, &ModuleParams::nodes(&[(30, "sdi-v15")]))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let v15 = find_device("sdi-v15").unwrap();
+    assert_eq!(v15.path, dev(30));
+    assert_eq!(v15.version.to_string(), "0.15.0");
+    assert!(
+        Path::new("/dev/v4l2loopback").exists(),
+        "0.15 control device"
+    );
+    eprintln!("ok: loaded {}: {}", ModuleBuild::V0150, v15.path.display());
+    loopback::load_module(
+        ModuleBuild::Debian0127,
+        &ModuleParams::nodes(&[(31, "sdi-v12")]),
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    let v12 = find_device("sdi-v12").unwrap();
+    assert!(v12.version < v4l2loopback_glue::ModuleVersion::parse("0.13").unwrap());
+    assert!(
+        !Path::new("/dev/v4l2loopback").exists(),
+        "0.12.7 has no control device"
+    );
+    loopback::unload_module().unwrap_or_else(|e| panic!("{e}"));
+    eprintln!("ok: back to {} ({})", ModuleBuild::Debian0127, v12.version);
+}
+
+#[test]
+fn vm_loopback_module_switch() {
+    if !vm::in_vm() {
+        vm::run_test_in_vm("vm_loopback_module_switch", 300);
+        return;
+    }
+    module_switch_checks();
+}
