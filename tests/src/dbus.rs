@@ -112,6 +112,8 @@ impl Daemon {
             .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
             .args(extra)
             .env("RUST_LOG", "warn")
+            // Not a systemd service, even when the tests run inside one.
+            .env_remove("INVOCATION_ID")
             .stdout(Stdio::null())
             .stderr(Stdio::inherit())
             .spawn()

@@ -325,3 +325,21 @@ fn bad_descriptors_get_typed_errors() {
     assert!(header.contains("'<f4'") && len > 0);
     assert_eq!(ok(&d.ctl(&["get", "recording"])).trim(), "");
 }
+
+/// Under systemd (INVOCATION_ID set) the daemon's /tmp is private: a path
+/// there is refused with a hint, while the descriptor way works.
+#[test]
+fn service_refuses_paths_into_its_private_tmp() {
+    require_dbus!();
+    let dir = tempfile::tempdir_in("/tmp").unwrap();
+    let bus = Bus::start();
+    let d = Daemon::start_wrapped(&bus, &["env", "INVOCATION_ID=sdi-test"], &[]);
+    let by_path = dir.path().join("by-path.npy");
+    let out = d.ctl(&["snapshot", "--by-path", by_path.to_str().unwrap()]);
+    failed_with(&out, 2, "org.sdi.Error.InvalidPath");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("PrivateTmp"));
+    assert!(!by_path.exists());
+    let by_fd = dir.path().join("by-fd.npy");
+    ok(&d.ctl(&["snapshot", by_fd.to_str().unwrap()]));
+    assert!(by_fd.is_file());
+}

@@ -65,6 +65,9 @@ pub fn validate_output_path(
             return Err(bad(&format!("writing under {forbidden} is not allowed")));
         }
     }
+    if let Some(why) = sandbox_hides(p, std::env::var_os("INVOCATION_ID").is_some()) {
+        return Err(bad(&why));
+    }
     if std::fs::symlink_metadata(p).is_ok() {
         return Err(bad("file exists (the daemon never overwrites)"));
     }
@@ -84,6 +87,19 @@ pub fn validate_output_path(
         }
     }
     Ok((p.to_owned(), kind))
+}
+
+/// Under systemd (`INVOCATION_ID` set) the unit's `PrivateTmp=yes` gives
+/// sdid its own /tmp and /var/tmp: a file written there would "succeed" and
+/// stay invisible to the caller, so such paths are refused with a hint.
+pub fn sandbox_hides(path: &Path, under_systemd: bool) -> Option<String> {
+    let private = ["/tmp", "/var/tmp"];
+    (under_systemd && private.iter().any(|d| path.starts_with(d))).then(|| {
+        "the service has a private /tmp (PrivateTmp=yes): a file written there would be \
+         invisible to you; let sdictl create the file (sdictl snapshot/record without \
+         --by-path passes a descriptor) or use a path below /var/lib/sdi"
+            .to_owned()
+    })
 }
 
 #[cfg(test)]
@@ -113,6 +129,10 @@ mod tests {
         let ok = dir.path().join("a.npy");
         let (_, kind) = validate_output_path(ok.to_str().unwrap(), &all, Some(0)).unwrap();
         assert_eq!(kind, OutputKind::Npy);
+        assert!(sandbox_hides(Path::new("/tmp/x.png"), true).is_some());
+        assert!(sandbox_hides(Path::new("/var/tmp/x.png"), true).is_some());
+        assert!(sandbox_hides(Path::new("/tmp/x.png"), false).is_none());
+        assert!(sandbox_hides(Path::new("/var/lib/sdi/x.png"), true).is_none());
         std::fs::write(&ok, b"x").unwrap();
         assert!(validate_output_path(ok.to_str().unwrap(), &all, Some(0)).is_err());
     }
