@@ -54,8 +54,15 @@ pub struct Bus {
 
 impl Bus {
     pub fn start() -> Self {
+        Self::start_with(&[])
+    }
+
+    /// Like [`Bus::start`] with extra dbus-daemon arguments (e.g.
+    /// `--address=unix:abstract=NAME`, a socket no mount namespace hides).
+    pub fn start_with(extra: &[&str]) -> Self {
         let mut child = Command::new("dbus-daemon")
             .args(["--session", "--nofork", "--nopidfile", "--print-address=1"])
+            .args(extra)
             .stdout(Stdio::piped())
             .spawn()
             .expect("start dbus-daemon");
