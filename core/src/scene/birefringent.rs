@@ -5,8 +5,7 @@
 //! `displacement_px` along x, so I+ - I- is a horizontal gradient: uniform
 //! areas cancel, edges give opposite signs on opposite sides.
 
-use super::{Radiance, Scene};
-use crate::image::Image;
+use super::StillScene;
 
 /// Reflectance of the chart's background and of its aluminium markers.
 pub const BACKGROUND_REFLECTANCE: f32 = 0.15;
@@ -55,35 +54,17 @@ impl BirefringentChart {
     }
 }
 
-impl Scene for BirefringentChart {
-    fn width(&self) -> usize {
-        self.width
+impl StillScene for BirefringentChart {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
     }
 
-    fn height(&self) -> usize {
-        self.height
-    }
-
-    fn is_static(&self) -> bool {
-        true
-    }
-
-    fn render(&self, _t_us: f64, out: &mut Radiance) {
-        let (w, h) = (self.width, self.height);
-        let mut plus = Image::new(w, h);
-        let mut minus = Image::new(w, h);
+    fn rates_at(&self, x: usize, y: usize) -> (f32, f32) {
+        let (xc, yc) = (x as f32 + 0.5, y as f32 + 0.5);
         let s = self.source_electrons_per_us;
-        for y in 0..h {
-            let yc = y as f32 + 0.5;
-            for x in 0..w {
-                let xc = x as f32 + 0.5;
-                let i = plus.index(x, y);
-                plus.data[i] = s * self.reflectance(xc, yc);
-                minus.data[i] = s * self.reflectance(xc - self.displacement_px, yc);
-            }
-        }
-        out.ls1 = Some(plus);
-        out.ls2 = Some(minus);
-        out.ambient = None;
+        (
+            s * self.reflectance(xc, yc),
+            s * self.reflectance(xc - self.displacement_px, yc),
+        )
     }
 }

@@ -7,8 +7,7 @@
 //! blue channels of the standard ColorChecker sRGB patch colours, a stand-in
 //! for the patch reflectance in those two narrow LED bands.
 
-use super::{Radiance, Scene};
-use crate::image::Image;
+use super::StillScene;
 
 /// Patch columns and rows (the ColorChecker's 6 x 4 layout).
 pub const COLUMNS: usize = 6;
@@ -96,37 +95,20 @@ impl ColourChart {
     }
 }
 
-impl Scene for ColourChart {
-    fn width(&self) -> usize {
-        self.width
+impl StillScene for ColourChart {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
     }
 
-    fn height(&self) -> usize {
-        self.height
-    }
-
-    fn is_static(&self) -> bool {
-        true
-    }
-
-    fn render(&self, _t_us: f64, out: &mut Radiance) {
-        let (w, h) = (self.width, self.height);
-        let mut red = Image::new(w, h);
-        let mut blue = Image::new(w, h);
-        for y in 0..h {
-            for x in 0..w {
-                let (r, b) = self.patch_at(x, y).map_or(
-                    (SURROUND_REFLECTANCE, SURROUND_REFLECTANCE),
-                    patch_reflectance,
-                );
-                let i = red.index(x, y);
-                red.data[i] = r * self.red_led_electrons_per_us;
-                blue.data[i] = b * self.blue_led_electrons_per_us;
-            }
-        }
-        out.ls1 = Some(red);
-        out.ls2 = Some(blue);
-        out.ambient = None;
+    fn rates_at(&self, x: usize, y: usize) -> (f32, f32) {
+        let (r, b) = self.patch_at(x, y).map_or(
+            (SURROUND_REFLECTANCE, SURROUND_REFLECTANCE),
+            patch_reflectance,
+        );
+        (
+            r * self.red_led_electrons_per_us,
+            b * self.blue_led_electrons_per_us,
+        )
     }
 }
 

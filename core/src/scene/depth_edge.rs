@@ -13,8 +13,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::{Radiance, Scene};
-use crate::image::Image;
+use super::StillScene;
 
 /// Where the two sources sit relative to the lens.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -139,36 +138,16 @@ impl DepthEdgeScene {
     }
 }
 
-impl Scene for DepthEdgeScene {
-    fn width(&self) -> usize {
-        self.width
+impl StillScene for DepthEdgeScene {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
     }
 
-    fn height(&self) -> usize {
-        self.height
-    }
-
-    fn is_static(&self) -> bool {
-        true
-    }
-
-    fn render(&self, _t_us: f64, out: &mut Radiance) {
-        let (w, h) = (self.width, self.height);
-        let mut ls1 = Image::new(w, h);
-        let mut ls2 = Image::new(w, h);
-        for y in 0..h {
-            for x in 0..w {
-                let (z, albedo) = self.surface_at(x as f32 + 0.5, y as f32 + 0.5);
-                let falloff = (REFERENCE_DEPTH_MM / z).powi(2);
-                let rate = self.source_electrons_per_us * albedo * falloff;
-                let (l1, l2) = self.lit_by(x, y);
-                let i = ls1.index(x, y);
-                ls1.data[i] = if l1 { rate } else { 0.0 };
-                ls2.data[i] = if l2 { rate } else { 0.0 };
-            }
-        }
-        out.ls1 = Some(ls1);
-        out.ls2 = Some(ls2);
-        out.ambient = None;
+    fn rates_at(&self, x: usize, y: usize) -> (f32, f32) {
+        let (z, albedo) = self.surface_at(x as f32 + 0.5, y as f32 + 0.5);
+        let falloff = (REFERENCE_DEPTH_MM / z).powi(2);
+        let rate = self.source_electrons_per_us * albedo * falloff;
+        let (l1, l2) = self.lit_by(x, y);
+        (if l1 { rate } else { 0.0 }, if l2 { rate } else { 0.0 })
     }
 }

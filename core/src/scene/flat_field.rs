@@ -1,7 +1,6 @@
 //! A uniform target: the same LS1 and LS2 rate everywhere.
 
-use super::{Radiance, Scene};
-use crate::image::Image;
+use super::StillScene;
 
 pub struct FlatField {
     width: usize,
@@ -26,22 +25,12 @@ impl FlatField {
     }
 }
 
-impl Scene for FlatField {
-    fn width(&self) -> usize {
-        self.width
+impl StillScene for FlatField {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
     }
 
-    fn height(&self) -> usize {
-        self.height
-    }
-
-    fn is_static(&self) -> bool {
-        true
-    }
-
-    fn render(&self, _t_us: f64, out: &mut Radiance) {
-        let (w, h) = (self.width, self.height);
-        out.ls1 = Some(Image::filled(w, h, self.ls1_electrons_per_us));
-        out.ls2 = Some(Image::filled(w, h, self.ls2_electrons_per_us));
+    fn rates_at(&self, _x: usize, _y: usize) -> (f32, f32) {
+        (self.ls1_electrons_per_us, self.ls2_electrons_per_us)
     }
 }

@@ -52,6 +52,52 @@ pub trait Scene: Send {
     fn render(&self, t_us: f64, out: &mut Radiance);
 }
 
+/// A scene that does not move and is lit only by LS1 and LS2, described
+/// pixel by pixel. Every such scene is a [`Scene`] through the impl below.
+pub trait StillScene: Send {
+    /// Width and height, pixels.
+    fn size(&self) -> (usize, usize);
+    /// LS1 and LS2 rates at pixel (x, y), electrons per microsecond.
+    fn rates_at(&self, x: usize, y: usize) -> (f32, f32);
+}
+
+impl<T: StillScene> Scene for T {
+    fn width(&self) -> usize {
+        self.size().0
+    }
+
+    fn height(&self) -> usize {
+        self.size().1
+    }
+
+    fn is_static(&self) -> bool {
+        true
+    }
+
+    fn render(&self, _t_us: f64, out: &mut Radiance) {
+        let (w, h) = self.size();
+        let mut ls1 = reuse(out.ls1.take(), w, h);
+        let mut ls2 = reuse(out.ls2.take(), w, h);
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                (ls1.data[i], ls2.data[i]) = self.rates_at(x, y);
+            }
+        }
+        out.ls1 = Some(ls1);
+        out.ls2 = Some(ls2);
+        out.ambient = None;
+    }
+}
+
+/// `img` if it already has the size, else a new zeroed image.
+fn reuse(img: Option<Image<f32>>, width: usize, height: usize) -> Image<f32> {
+    match img {
+        Some(i) if i.width == width && i.height == height => i,
+        _ => Image::new(width, height),
+    }
+}
+
 /// Which scene to build, with its parameters. Deterministic given the seed.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]

@@ -8,8 +8,7 @@
 //! I+ = I_par^direct + I_par^rot / 2, I- = I_perp^rot / 2, so
 //! I+ - I- = I^direct. Only that is modelled: no Mueller calculus, no spectra.
 
-use super::{Radiance, Scene};
-use crate::image::Image;
+use super::StillScene;
 
 /// Which object a pixel sees.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -95,35 +94,15 @@ impl PolarizationScene {
     }
 }
 
-impl Scene for PolarizationScene {
-    fn width(&self) -> usize {
-        self.width
+impl StillScene for PolarizationScene {
+    fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
     }
 
-    fn height(&self) -> usize {
-        self.height
-    }
-
-    fn is_static(&self) -> bool {
-        true
-    }
-
-    fn render(&self, _t_us: f64, out: &mut Radiance) {
-        let (w, h) = (self.width, self.height);
-        let mut plus = Image::new(w, h);
-        let mut minus = Image::new(w, h);
+    fn rates_at(&self, x: usize, y: usize) -> (f32, f32) {
+        let (_, c) = self.components_at(x, y);
         let s = self.source_electrons_per_us;
-        for y in 0..h {
-            for x in 0..w {
-                let (_, c) = self.components_at(x, y);
-                let i = plus.index(x, y);
-                // Section 5.1: I+ = direct + rot/2, I- = rot/2.
-                plus.data[i] = s * (c.direct + 0.5 * c.rot);
-                minus.data[i] = s * 0.5 * c.rot;
-            }
-        }
-        out.ls1 = Some(plus);
-        out.ls2 = Some(minus);
-        out.ambient = None;
+        // Section 5.1: I+ = direct + rot/2, I- = rot/2.
+        (s * (c.direct + 0.5 * c.rot), s * 0.5 * c.rot)
     }
 }
