@@ -8,11 +8,12 @@
 //! - M1 [`Welford`]: statistics over N frames, streaming, f64.
 //! - M2 [`segment_moments`]: statistics over segments of one frame; [`auto_segment`]
 //!   finds the segments.
-//! - M3 [`bilateral_exact`] and the fast separable [`bilateral_separable`]:
-//!   bilateral-weighted statistics of one frame.
+//! - M3 [`bilateral_exact`], the fast [`BilateralGrid`] (O(1) per pixel) and
+//!   the separable [`bilateral_separable`]: bilateral-weighted statistics of one frame.
 //! - [`LiveSeparator`]: per-frame separation for the daemon.
 
 mod bilateral;
+mod bilateral_grid;
 mod error;
 pub mod flags;
 mod live;
@@ -22,6 +23,7 @@ mod unmix;
 mod welford;
 
 pub use bilateral::{bilateral_exact, bilateral_separable, BilateralParams};
+pub use bilateral_grid::{bilateral_grid, BilateralGrid, MAX_LEVELS};
 pub use error::SeparationError;
 pub use live::{LiveMethod, LiveSeparator};
 pub use moments::Moments;
