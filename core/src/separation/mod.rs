@@ -10,6 +10,8 @@
 //!   finds the segments.
 //! - M3 [`bilateral_exact`], the fast [`BilateralGrid`] (O(1) per pixel) and
 //!   the separable [`bilateral_separable`]: bilateral-weighted statistics of one frame.
+//! - Beyond the paper, [`pool_moments`]: M1 followed by edge-aware pooling of
+//!   the per-pixel moments.
 //! - [`LiveSeparator`]: per-frame separation for the daemon.
 
 mod bilateral;
@@ -18,6 +20,7 @@ mod error;
 pub mod flags;
 mod live;
 mod moments;
+mod pooling;
 mod segments;
 mod unmix;
 mod welford;
@@ -27,6 +30,7 @@ pub use bilateral_grid::{bilateral_grid, BilateralGrid, MAX_LEVELS};
 pub use error::SeparationError;
 pub use live::{LiveMethod, LiveSeparator};
 pub use moments::Moments;
+pub use pooling::{pool_moments, PoolParams};
 pub use segments::{auto_segment, segment_moments, SegmentParams, Segmentation, IGNORE_LABEL};
 pub use unmix::{unmix, Separated, UnmixOptions};
 pub use welford::{SlidingWelford, Welford};
