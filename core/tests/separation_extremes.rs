@@ -4,8 +4,8 @@ mod separation_support;
 
 use sdi_core::sensor::SkellamMixing;
 use sdi_core::separation::{
-    auto_segment, bilateral_exact, bilateral_separable, flags, segment_moments, unmix,
-    BilateralParams, SegmentParams, SeparationError, UnmixOptions, Welford,
+    auto_segment, bilateral_exact, bilateral_grid, bilateral_separable, flags, segment_moments,
+    unmix, BilateralParams, SegmentParams, SeparationError, UnmixOptions, Welford,
 };
 use sdi_core::{Frame, Image};
 use separation_support::{chart, ti_h, Sampler, Truth};
@@ -211,6 +211,7 @@ fn one_by_one_and_one_by_n_images() {
     for m in [
         bilateral_exact(&f, BilateralParams::new(2.0, 30.0)).unwrap(),
         bilateral_separable(&f, BilateralParams::new(2.0, 30.0)).unwrap(),
+        bilateral_grid(&f, BilateralParams::new(2.0, 30.0)).unwrap(),
         segment_moments(&f, &Image::filled(1, 1, 0), None).unwrap(),
     ] {
         assert_ne!(m.flags.data[0] & flags::INSUFFICIENT, 0);
@@ -224,6 +225,8 @@ fn one_by_one_and_one_by_n_images() {
         for m in [
             bilateral_exact(&f, BilateralParams::new(3.0, 1e9)).unwrap(),
             bilateral_separable(&f, BilateralParams::new(3.0, 1e9)).unwrap(),
+            bilateral_grid(&f, BilateralParams::new(3.0, 1e9)).unwrap(),
+            bilateral_grid(&f, BilateralParams::new(0.5, 30.0)).unwrap(),
             {
                 let seg = auto_segment(&f, SegmentParams::default()).unwrap();
                 segment_moments(&f, &seg.labels, Some(&seg.interior))
@@ -240,6 +243,10 @@ fn one_by_one_and_one_by_n_images() {
         bilateral_separable(&Frame::new(0, 0), BilateralParams::new(1.0, 1.0)).unwrap_err(),
         SeparationError::Empty
     );
+    assert_eq!(
+        bilateral_grid(&Frame::new(0, 0), BilateralParams::new(1.0, 1.0)).unwrap_err(),
+        SeparationError::Empty
+    );
 }
 
 #[test]
@@ -251,6 +258,7 @@ fn sigma_range_extremes_underflow_cleanly() {
         for m in [
             bilateral_exact(&f, BilateralParams::new(2.0, sr)).unwrap(),
             bilateral_separable(&f, BilateralParams::new(2.0, sr)).unwrap(),
+            bilateral_grid(&f, BilateralParams::new(2.0, sr)).unwrap(),
         ] {
             assert!(m.mean_dn.data.iter().all(|v| v.is_finite()), "sr {sr}");
             assert!(m.variance_dn2.data.iter().all(|v| v.is_finite()), "sr {sr}");
@@ -268,6 +276,10 @@ fn sigma_range_extremes_underflow_cleanly() {
     for bad in [0.0, -1.0, f64::NAN] {
         assert!(matches!(
             bilateral_separable(&f, BilateralParams::new(2.0, bad)),
+            Err(SeparationError::Parameter { .. })
+        ));
+        assert!(matches!(
+            bilateral_grid(&f, BilateralParams::new(2.0, bad)),
             Err(SeparationError::Parameter { .. })
         ));
     }
@@ -296,6 +308,7 @@ fn nan_and_inf_inputs_are_masked_never_spread() {
     for m in [
         bilateral_exact(&f, BilateralParams::new(2.0, 20.0)).unwrap(),
         bilateral_separable(&f, BilateralParams::new(2.0, 20.0)).unwrap(),
+        bilateral_grid(&f, BilateralParams::new(2.0, 20.0)).unwrap(),
         segment_moments(&f, &labels.labels, Some(&labels.interior)).unwrap(),
         acc.moments().unwrap(),
     ] {

@@ -3,8 +3,8 @@
 use proptest::prelude::*;
 use sdi_core::sensor::SkellamMixing;
 use sdi_core::separation::{
-    bilateral_exact, bilateral_separable, flags, segment_moments, unmix, BilateralParams,
-    UnmixOptions, Welford,
+    bilateral_exact, bilateral_grid, bilateral_separable, flags, segment_moments, unmix,
+    BilateralParams, UnmixOptions, Welford,
 };
 use sdi_core::{Frame, Image};
 
@@ -43,7 +43,7 @@ proptest! {
     fn no_nan_and_nonnegative_when_promised(f in frame(), h in h(), sd in 0.3f64..4.0, sr in 0.01f64..1e4) {
         let p = BilateralParams::new(sd, sr);
         let labels = Image { width: f.width(), height: f.height(), data: (0..f.dn.len() as u32).map(|i| i % 3).collect() };
-        for m in [bilateral_exact(&f, p).unwrap(), bilateral_separable(&f, p).unwrap(), segment_moments(&f, &labels, None).unwrap()] {
+        for m in [bilateral_exact(&f, p).unwrap(), bilateral_separable(&f, p).unwrap(), bilateral_grid(&f, p).unwrap(), segment_moments(&f, &labels, None).unwrap()] {
             for nonnegative in [false, true] {
                 let sep = unmix(&m, &h, UnmixOptions { subtract_read_noise: true, nonnegative }).unwrap();
                 for i in 0..f.dn.len() {

@@ -42,7 +42,7 @@ impl BilateralParams {
         }
     }
 
-    fn validate(&self) -> Result<(), SeparationError> {
+    pub(crate) fn validate(&self) -> Result<(), SeparationError> {
         let d = self.sigma_domain_px;
         SeparationError::check("sigma_domain_px", d, d > 0.0, "> 0, finite")?;
         let r = self.sigma_range_dn;

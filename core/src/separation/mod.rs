@@ -8,23 +8,29 @@
 //! - M1 [`Welford`]: statistics over N frames, streaming, f64.
 //! - M2 [`segment_moments`]: statistics over segments of one frame; [`auto_segment`]
 //!   finds the segments.
-//! - M3 [`bilateral_exact`] and the fast separable [`bilateral_separable`]:
-//!   bilateral-weighted statistics of one frame.
+//! - M3 [`bilateral_exact`], the fast [`BilateralGrid`] (O(1) per pixel) and
+//!   the separable [`bilateral_separable`]: bilateral-weighted statistics of one frame.
+//! - Beyond the paper, [`pool_moments`]: M1 followed by edge-aware pooling of
+//!   the per-pixel moments.
 //! - [`LiveSeparator`]: per-frame separation for the daemon.
 
 mod bilateral;
+mod bilateral_grid;
 mod error;
 pub mod flags;
 mod live;
 mod moments;
+mod pooling;
 mod segments;
 mod unmix;
 mod welford;
 
 pub use bilateral::{bilateral_exact, bilateral_separable, BilateralParams};
+pub use bilateral_grid::{bilateral_grid, BilateralGrid, MAX_LEVELS};
 pub use error::SeparationError;
 pub use live::{LiveMethod, LiveSeparator};
 pub use moments::Moments;
+pub use pooling::{pool_moments, PoolParams};
 pub use segments::{auto_segment, segment_moments, SegmentParams, Segmentation, IGNORE_LABEL};
 pub use unmix::{unmix, Separated, UnmixOptions};
 pub use welford::{SlidingWelford, Welford};

@@ -113,6 +113,12 @@ pub struct SegmentParams {
     pub tolerance_sigmas: f64,
     /// Regions smaller than this are merged into their most similar neighbour.
     pub min_pixels: usize,
+    /// Half-width of the box over which the local variance (second feature)
+    /// is taken, px; 0 disables the variance feature.
+    pub variance_radius_px: usize,
+    /// A pixel joins a region only when its local noise level differs from
+    /// the region's mean by less than this fraction of that mean.
+    pub variance_tolerance_rel: f64,
 }
 
 impl Default for SegmentParams {
@@ -121,18 +127,27 @@ impl Default for SegmentParams {
             smooth_radius_px: 2,
             tolerance_sigmas: 4.0,
             min_pixels: 16,
+            variance_radius_px: 4,
+            variance_tolerance_rel: 0.6,
         }
     }
 }
 
 /// Segments a difference frame into flat regions: box-filter it, estimate the
-/// noise from neighbour differences (robust MAD), join 4-neighbours whose
-/// smoothed values differ by less than the tolerance (edges of a patch are
-/// steeper than that and split it), then merge small regions (the blurred
+/// noise from neighbour differences (robust MAD), grow regions over
+/// 4-neighbours whose smoothed value is within the tolerance of the region's
+/// running mean (the edge of a patch leaves it and splits the region), then merge small regions (the blurred
 /// edges themselves) into the neighbouring region with the closest mean. Unusable pixels get [`IGNORE_LABEL`].
 ///
-/// It sees only the difference mu, so two patches with equal I+ - I- but
-/// different I+ + I- end up in one segment.
+/// The difference mu alone cannot tell apart patches with equal I+ - I- but
+/// different I+ + I- (the grey row of a colour chart and its black
+/// surround), so the local noise level, proportional to the variance
+/// g^2 (I+ + I-) + sigma_read^2 (the other half of H), is a second feature:
+/// the box mean (radius `variance_radius_px`) of min(dx^2, dy^2) over
+/// neighbour differences, which a step along x or y does not inflate. A
+/// pixel joins a region only when that feature is within
+/// `variance_tolerance_rel` of the region's mean, and small regions merge
+/// into the neighbour closest in both features.
 pub fn auto_segment(frame: &Frame, params: SegmentParams) -> Result<Segmentation, SeparationError> {
     let (w, h) = (frame.width(), frame.height());
     if w * h == 0 {
@@ -145,9 +160,22 @@ pub fn auto_segment(frame: &Frame, params: SegmentParams) -> Result<Segmentation
     let box_n = (side.min(w) * side.min(h)) as f64;
     let sigma = noise_sigma(frame) / box_n.sqrt();
     let tol = (t * sigma).max(0.5 / box_n.sqrt());
+    let tv = params.variance_tolerance_rel;
+    SeparationError::check("variance_tolerance_rel", tv, tv > 0.0, "> 0")?;
+    let use_var = params.variance_radius_px > 0;
+    let local_var = if use_var {
+        noise_feature(frame, params.variance_radius_px)
+    } else {
+        vec![0.0; w * h]
+    };
+    let var_rel_se = if use_var { tv } else { 0.0 };
+    let var_ok = |v: f64, region_mean: f64| {
+        !use_var || (v - region_mean).abs() <= tv * region_mean.max(1e-9)
+    };
     let mut labels = Image::filled(w, h, IGNORE_LABEL);
     let mut sizes: Vec<usize> = Vec::new();
     let mut means: Vec<f64> = Vec::new();
+    let mut var_means: Vec<f64> = Vec::new();
     let mut stack = Vec::new();
     for start in 0..w * h {
         if labels.data[start] != IGNORE_LABEL || !usable(frame, start) {
@@ -155,17 +183,23 @@ pub fn auto_segment(frame: &Frame, params: SegmentParams) -> Result<Segmentation
         }
         let id = sizes.len() as u32;
         let (mut n, mut s) = (0usize, 0.0f64);
+        let mut sv = 0.0f64;
         labels.data[start] = id;
         stack.push(start);
         while let Some(p) = stack.pop() {
             n += 1;
             s += smooth[p];
-            let here = smooth[p];
+            sv += local_var[p];
+            let region_var = sv / n as f64;
+            // Against the region's running mean, so a gentle ramp (a blurred
+            // step spread over the box) cannot carry a region across an edge.
+            let here = s / n as f64;
             let (x, y) = (p % w, p / w);
             let mut visit = |q: usize| {
                 if labels.data[q] == IGNORE_LABEL
                     && usable(frame, q)
                     && (smooth[q] - here).abs() <= tol
+                    && var_ok(local_var[q], region_var)
                 {
                     labels.data[q] = id;
                     stack.push(q);
@@ -186,8 +220,20 @@ pub fn auto_segment(frame: &Frame, params: SegmentParams) -> Result<Segmentation
         }
         sizes.push(n);
         means.push(s / n as f64);
+        var_means.push(sv / n as f64);
     }
-    merge_small(&mut labels, &smooth, &sizes, &means, &params);
+    // Distances in units of each feature's noise.
+    let scale = Features {
+        mean: sigma.max(1e-9),
+        var_rel: if use_var { var_rel_se } else { 0.0 },
+    };
+    merge_small(
+        &mut labels,
+        (&smooth, &local_var),
+        (&sizes, &means, &var_means),
+        &params,
+        scale,
+    );
     let interior = interior_mask(&labels, params.smooth_radius_px + 1, true);
     Ok(Segmentation { labels, interior })
 }
@@ -223,13 +269,14 @@ fn interior_mask(labels: &Image<u32>, r: usize, fill_thin: bool) -> Image<u8> {
 /// whose mean is closest to the pixel's smoothed value.
 fn merge_small(
     labels: &mut Image<u32>,
-    smooth: &[f64],
-    sizes: &[usize],
-    means: &[f64],
+    (smooth, local_var): (&[f64], &[f64]),
+    (sizes, means, var_means): (&[usize], &[f64], &[f64]),
     params: &SegmentParams,
+    scale: Features,
 ) {
     let (w, h) = (labels.width, labels.height);
-    let probe = interior_mask(labels, 1, false);
+    // Kept regions need an interior at the radius the statistics use.
+    let probe = interior_mask(labels, params.smooth_radius_px + 1, false);
     let mut inner = vec![0usize; sizes.len()];
     for (m, &l) in probe.data.iter().zip(&labels.data) {
         if *m != 0 && l != IGNORE_LABEL {
@@ -257,7 +304,12 @@ fn merge_small(
             let mut consider = |q: usize| {
                 let lq = labels.data[q];
                 if kept(lq) {
-                    let d = (means[lq as usize] - here).abs();
+                    let k = lq as usize;
+                    let mut d = (means[k] - here).abs() / scale.mean;
+                    if scale.var_rel > 0.0 {
+                        d += (var_means[k] - local_var[p]).abs()
+                            / (scale.var_rel * var_means[k].max(1e-9));
+                    }
                     if best.is_none_or(|(bd, _)| d < bd) {
                         best = Some((d, lq));
                     }
@@ -284,6 +336,54 @@ fn merge_small(
             break;
         }
     }
+}
+
+/// Noise scales of the two segmentation features.
+#[derive(Debug, Clone, Copy)]
+struct Features {
+    /// Noise sigma of the smoothed difference, DN.
+    mean: f64,
+    /// Relative standard error of the local variance (0: feature off).
+    var_rel: f64,
+}
+
+/// Box mean (radius `r`) of min(dx^2, dy^2), the squared differences to the
+/// next pixel along x and y: proportional to the local noise variance
+/// (factor about 2 (1 - 2/pi) for Gaussian noise) and blind to a straight
+/// step, which shows in only one of the two differences.
+fn noise_feature(frame: &Frame, r: usize) -> Vec<f64> {
+    let (w, h) = (frame.width(), frame.height());
+    let mut e = Frame::new(w, h);
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            // Forward differences, backward on the last row/column.
+            let jx = if x + 1 < w {
+                i + 1
+            } else {
+                i.saturating_sub(1)
+            };
+            let jy = if y + 1 < h {
+                i + w
+            } else {
+                i.saturating_sub(w)
+            };
+            let d = |j: usize| {
+                if j != i && usable(frame, i) && usable(frame, j) {
+                    let v = frame.dn.data[j] as f64 - frame.dn.data[i] as f64;
+                    Some(v * v)
+                } else {
+                    None
+                }
+            };
+            match (d(jx), d(jy)) {
+                (Some(a), Some(b)) => e.dn.data[i] = a.min(b) as f32,
+                (Some(a), None) | (None, Some(a)) => e.dn.data[i] = a as f32,
+                (None, None) => e.saturated.data[i] = 1,
+            }
+        }
+    }
+    box_mean(&e, r)
 }
 
 /// Box mean over usable pixels (integral images, f64), radius `r`.

@@ -2,6 +2,8 @@
 //! I+ and I-, sampled with the paper's noise model (eq. skellamvar).
 #![allow(dead_code)]
 
+pub mod colour_chart;
+
 use rand::rngs::SmallRng;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal, Poisson};

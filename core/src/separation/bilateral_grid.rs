@@ -1,0 +1,481 @@
+//! Fast M3 on a bilateral grid (Paris & Durand 2006; Chen, Paris & Durand
+//! 2007): O(1) work per pixel, whatever sigma_domain.
+//!
+//! Every usable pixel is splatted into a grid over (x, y, range): nearest cell
+//! in x and y (cells of `s` px), linear in range (levels `z_k = z_0 + k s_r`).
+//! Each grid node holds the weighted moments (sum w, sum w (I - z_k),
+//! sum w (I - z_k)^2) about its own level, so f32 suffices (values stay within
+//! a few s_r) and moving a moment to another level is the exact binomial
+//! shift. The grid is blurred with [1 2 1]/4 along range, x and y, then
+//! sliced at each pixel (x, y, I) by trilinear interpolation, which gives
+//! the paper's M3 statistics with a Gaussian-like weight
+//! mu = E_w[I], sigma^2 = E_w[I^2] - E_w[I]^2 (section 6, M3).
+//!
+//! Effective kernel: box splat (s^2/12) + blur (s^2/2) + bilinear slice
+//! (s^2/6) = 0.75 s^2 in each spatial axis, tent + blur + tent = 0.833 s_r^2
+//! in range, so the spacings are s = sigma_domain / sqrt(0.75) (at least
+//! 1 px) and s_r = sigma_range / sqrt(0.833).
+//!
+//! The range axis is sparse: each (x, y) cell stores only the levels that
+//! pixels within two cells of it occupy (plus one level of padding), which is
+//! exactly what blur and slicing ever read, so the result equals the dense
+//! grid's while a flat patch costs a handful of levels per cell.
+//!
+//! Extremes: a sigma_range so large that one level spans 8x the frame's
+//! value range disables range weighting (a plain Gaussian, as the exact M3
+//! does at infinity); one so small that the frame would need more than
+//! [`MAX_LEVELS`] levels is raised to (value range / MAX_LEVELS).
+//! Saturated and non-finite pixels are not splatted and are flagged.
+//!
+//! The effective sample count behind a pixel (for standard errors) is
+//! approximated as (m0 / m0 of a flat patch) * 4 pi sigma_eff^2, the
+//! Gaussian's (sum w)^2 / sum w^2 scaled by the fraction of the window the
+//! range weights keep, and never more than the frame's usable pixels.
+
+use super::{input_flags, usable, BilateralParams, Moments, SeparationError};
+use crate::frame::Frame;
+
+/// Largest number of range levels over a frame's value range.
+pub const MAX_LEVELS: f32 = 4096.0;
+
+/// Spatial sigma of the grid's kernel in cells (box splat, blur, bilinear slice).
+const SPATIAL_SIGMA_CELLS: f32 = 0.866_025_4;
+/// Range sigma of the grid's kernel in levels (tent splat, blur, tent slice).
+const RANGE_SIGMA_LEVELS: f32 = 0.912_870_9;
+
+/// One grid node: (sum w, sum w d, sum w d^2, unused) with d = I - z_k;
+/// four lanes so every node operation is one SIMD operation.
+type Node = [f32; 4];
+
+#[inline(always)]
+fn axpy(acc: &mut Node, a: f32, x: &Node) {
+    for l in 0..4 {
+        acc[l] += a * x[l];
+    }
+}
+
+/// Reusable bilateral-grid M3: keeps its buffers between frames, so a live
+/// pipeline allocates nothing after the first frame.
+#[derive(Debug, Clone)]
+pub struct BilateralGrid {
+    /// First level and level count of each (x, y) cell.
+    lo: Vec<i32>,
+    len: Vec<u32>,
+    offset: Vec<usize>,
+    scratch_lo: Vec<i32>,
+    scratch_hi: Vec<i32>,
+    a: Vec<Node>,
+    b: Vec<Node>,
+    out: Moments,
+}
+
+impl Default for BilateralGrid {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl BilateralGrid {
+    pub fn new() -> Self {
+        Self {
+            lo: Vec::new(),
+            len: Vec::new(),
+            offset: Vec::new(),
+            scratch_lo: Vec::new(),
+            scratch_hi: Vec::new(),
+            a: Vec::new(),
+            b: Vec::new(),
+            out: Moments::new(0, 0),
+        }
+    }
+
+    /// The moments of the last [`Self::compute`].
+    pub fn moments(&self) -> &Moments {
+        &self.out
+    }
+
+    /// Gives up the output (the buffers are dropped).
+    pub fn into_moments(self) -> Moments {
+        self.out
+    }
+
+    /// M3 of `frame` (see module docs).
+    pub fn compute(
+        &mut self,
+        frame: &Frame,
+        params: BilateralParams,
+    ) -> Result<&Moments, SeparationError> {
+        params.validate()?;
+        if frame.dn.is_empty() || !frame.dn.same_size(&frame.saturated) {
+            return Err(SeparationError::Empty);
+        }
+        let (w, h) = (frame.width(), frame.height());
+        if self.out.width() != w || self.out.height() != h {
+            self.out = Moments::new(w, h);
+        }
+        self.out.flags.data.fill(0);
+
+        let (mut vmin, mut vmax) = (f32::INFINITY, f32::NEG_INFINITY);
+        let mut usable_px = 0usize;
+        for i in 0..w * h {
+            if usable(frame, i) {
+                usable_px += 1;
+                let v = frame.dn.data[i];
+                vmin = vmin.min(v);
+                vmax = vmax.max(v);
+            }
+        }
+        if vmin > vmax {
+            for i in 0..w * h {
+                self.out.set_insufficient(i);
+                self.out.flags.data[i] |= input_flags(frame, i);
+            }
+            return Ok(&self.out);
+        }
+
+        let s = ((params.sigma_domain_px as f32) / SPATIAL_SIGMA_CELLS).max(1.0);
+        let spread = (vmax - vmin).max(1.0);
+        let sr_wanted = params.sigma_range_dn as f32 / RANGE_SIGMA_LEVELS;
+        let flat = sr_wanted >= 8.0 * spread;
+        let (z0, sr) = if flat {
+            (0.5 * (vmin + vmax), 1.0)
+        } else {
+            (vmin, sr_wanted.max(spread / MAX_LEVELS))
+        };
+        let gx = (w as f32 / s).ceil().max(1.0) as usize;
+        let gy = (h as f32 / s).ceil().max(1.0) as usize;
+        let cell_of = |p: usize, g: usize| (((p as f32 + 0.5) / s) as usize).min(g - 1);
+        let level = |v: f32| if flat { 0.0 } else { (v - z0) / sr };
+
+        self.layout(frame, gx, gy, &cell_of, &level);
+        let total = self.offset.last().copied().unwrap_or(0);
+        self.splat(frame, gx, &cell_of, &level, flat, z0, sr, total);
+        if !flat {
+            self.blur_range(sr);
+        } else {
+            std::mem::swap(&mut self.a, &mut self.b);
+        }
+        // b -> a along x, a -> b along y.
+        self.blur_cells(gx, gy, true);
+        self.blur_cells(gx, gy, false);
+        self.slice(frame, s, gx, gy, &level, flat, z0, sr, usable_px as f32);
+        Ok(&self.out)
+    }
+
+    /// Per cell: the levels its own pixels touch, dilated over 5 x 5 cells
+    /// and padded by one level (what blur and slicing read).
+    fn layout(
+        &mut self,
+        frame: &Frame,
+        gx: usize,
+        gy: usize,
+        cell_of: &impl Fn(usize, usize) -> usize,
+        level: &impl Fn(f32) -> f32,
+    ) {
+        let (w, h) = (frame.width(), frame.height());
+        let cells = gx * gy;
+        let (lo, hi) = (&mut self.scratch_lo, &mut self.scratch_hi);
+        lo.clear();
+        lo.resize(cells, i32::MAX);
+        hi.clear();
+        hi.resize(cells, i32::MIN);
+        for y in 0..h {
+            let cy = cell_of(y, gy);
+            for x in 0..w {
+                let i = y * w + x;
+                if !usable(frame, i) {
+                    continue;
+                }
+                let k = level(frame.dn.data[i]) as i32;
+                let c = cy * gx + cell_of(x, gx);
+                lo[c] = lo[c].min(k);
+                hi[c] = hi[c].max(k + 1);
+            }
+        }
+        dilate(lo, hi, gx, gy);
+        self.lo.clear();
+        self.len.clear();
+        self.offset.clear();
+        self.offset.push(0);
+        let mut total = 0usize;
+        for c in 0..cells {
+            let (l, n) = if lo[c] <= hi[c] {
+                (lo[c] - 1, (hi[c] - lo[c] + 3) as u32)
+            } else {
+                (0, 0)
+            };
+            self.lo.push(l);
+            self.len.push(n);
+            total += n as usize;
+            self.offset.push(total);
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn splat(
+        &mut self,
+        frame: &Frame,
+        gx: usize,
+        cell_of: &impl Fn(usize, usize) -> usize,
+        level: &impl Fn(f32) -> f32,
+        flat: bool,
+        z0: f32,
+        sr: f32,
+        total: usize,
+    ) {
+        let (w, h) = (frame.width(), frame.height());
+        let gy = self.len.len() / gx;
+        self.a.clear();
+        self.a.resize(total, [0.0; 4]);
+        let cols: Vec<usize> = (0..w).map(|x| cell_of(x, gx)).collect();
+        for y in 0..h {
+            let row = cell_of(y, gy) * gx;
+            for (x, &cx) in cols.iter().enumerate() {
+                let i = y * w + x;
+                if !usable(frame, i) {
+                    continue;
+                }
+                let v = frame.dn.data[i];
+                let c = row + cx;
+                let base = self.offset[c] as isize - self.lo[c] as isize;
+                if flat {
+                    let d = v - z0;
+                    axpy(&mut self.a[base as usize], 1.0, &[1.0, d, d * d, 0.0]);
+                    continue;
+                }
+                let t = level(v);
+                let k = t as i32;
+                let f = t - k as f32;
+                // v - z_k and v - z_{k+1}.
+                let d = f * sr;
+                let d1 = d - sr;
+                let j = (base + k as isize) as usize;
+                axpy(&mut self.a[j], 1.0 - f, &[1.0, d, d * d, 0.0]);
+                axpy(&mut self.a[j + 1], f, &[1.0, d1, d1 * d1, 0.0]);
+            }
+        }
+    }
+
+    /// a -> b: [1 2 1]/4 along range within each cell, moments shifted to
+    /// each node's level.
+    fn blur_range(&mut self, sr: f32) {
+        let total = self.a.len();
+        // Every node is written below.
+        self.b.resize(total, [0.0; 4]);
+        let (a, b) = (&self.a, &mut self.b);
+        // From the level below, I - z_k = (I - z_{k-1}) - s_r; from above, + s_r.
+        let shift = |p: &Node, s: f32| -> Node {
+            [
+                p[0],
+                p[1] + s * p[0],
+                p[2] + 2.0 * s * p[1] + s * s * p[0],
+                0.0,
+            ]
+        };
+        for c in 0..self.len.len() {
+            let (o, n) = (self.offset[c], self.len[c] as usize);
+            if n == 0 {
+                continue;
+            }
+            let (src, dst) = (&a[o..o + n], &mut b[o..o + n]);
+            for j in 0..n {
+                let mut acc = [0.0f32; 4];
+                axpy(&mut acc, 0.5, &src[j]);
+                if j > 0 {
+                    axpy(&mut acc, 0.25, &shift(&src[j - 1], -sr));
+                }
+                if j + 1 < n {
+                    axpy(&mut acc, 0.25, &shift(&src[j + 1], sr));
+                }
+                dst[j] = acc;
+            }
+        }
+    }
+
+    /// [1 2 1]/4 across cells at equal levels: b -> a along x, then a -> b
+    /// along y (call with `along_x` true, then false).
+    fn blur_cells(&mut self, gx: usize, gy: usize, along_x: bool) {
+        let (src, dst) = if along_x {
+            (&self.b, &mut self.a)
+        } else {
+            (&self.a, &mut self.b)
+        };
+        // Every node is written below (cells own disjoint ranges).
+        dst.resize(src.len(), [0.0; 4]);
+        for cy in 0..gy {
+            for cx in 0..gx {
+                let c = cy * gx + cx;
+                let n = self.len[c] as usize;
+                if n == 0 {
+                    continue;
+                }
+                let o = self.offset[c];
+                for (t, f) in dst[o..o + n].iter_mut().zip(&src[o..o + n]) {
+                    *t = [0.5 * f[0], 0.5 * f[1], 0.5 * f[2], 0.0];
+                }
+                let neighbours = if along_x {
+                    [(cx > 0).then(|| c - 1), (cx + 1 < gx).then(|| c + 1)]
+                } else {
+                    [(cy > 0).then(|| c - gx), (cy + 1 < gy).then(|| c + gx)]
+                };
+                for q in neighbours.into_iter().flatten() {
+                    let nq = self.len[q] as i32;
+                    let (l, lq) = (self.lo[c], self.lo[q]);
+                    let from = l.max(lq);
+                    let to = (l + n as i32).min(lq + nq);
+                    if from >= to {
+                        continue;
+                    }
+                    let m = (to - from) as usize;
+                    let d = o + (from - l) as usize;
+                    let s = self.offset[q] + (from - lq) as usize;
+                    for (t, f) in dst[d..d + m].iter_mut().zip(&src[s..s + m]) {
+                        axpy(t, 0.25, f);
+                    }
+                }
+            }
+        }
+    }
+
+    /// Trilinear read of the blurred grid (in `b`) at every pixel.
+    #[allow(clippy::too_many_arguments)]
+    fn slice(
+        &mut self,
+        frame: &Frame,
+        s: f32,
+        gx: usize,
+        gy: usize,
+        level: &impl Fn(f32) -> f32,
+        flat: bool,
+        z0: f32,
+        sr: f32,
+        usable_px: f32,
+    ) {
+        let (w, h) = (frame.width(), frame.height());
+        let axis = |n: usize, g: usize| -> Vec<(usize, usize, f32)> {
+            (0..n)
+                .map(|p| {
+                    let u = ((p as f32 + 0.5) / s - 0.5).max(0.0);
+                    let c0 = (u as usize).min(g - 1);
+                    let c1 = (c0 + 1).min(g - 1);
+                    (c0, c1, if c1 > c0 { u - c0 as f32 } else { 0.0 })
+                })
+                .collect()
+        };
+        let xs = axis(w, gx);
+        let ys = axis(h, gy);
+        let sigma_eff = s * SPATIAL_SIGMA_CELLS;
+        let n_full = 4.0 * std::f32::consts::PI * sigma_eff * sigma_eff;
+        let cell_area = s * s;
+        let grid = &self.b;
+        let (lo, len, offset) = (&self.lo, &self.len, &self.offset);
+        // Nodes k and k + 1 of cell c (zero outside its levels).
+        let read2 = |c: usize, k: i32| -> (Node, Node) {
+            let (l, n) = (lo[c], len[c] as i32);
+            let at = |kk: i32| {
+                if kk < l || kk >= l + n {
+                    [0.0; 4]
+                } else {
+                    grid[offset[c] + (kk - l) as usize]
+                }
+            };
+            (at(k), at(k + 1))
+        };
+        for (y, &(cy0, cy1, fy)) in ys.iter().enumerate() {
+            for (x, &(cx0, cx1, fx)) in xs.iter().enumerate() {
+                let i = y * w + x;
+                self.out.flags.data[i] |= input_flags(frame, i);
+                if !usable(frame, i) {
+                    self.out.set_insufficient(i);
+                    continue;
+                }
+                let v = frame.dn.data[i];
+                let t = level(v);
+                let k = t as i32;
+                let f = if flat { 0.0 } else { t - k as f32 };
+                let corners = [
+                    (cy0 * gx + cx0, (1.0 - fx) * (1.0 - fy)),
+                    (cy0 * gx + cx1, fx * (1.0 - fy)),
+                    (cy1 * gx + cx0, (1.0 - fx) * fy),
+                    (cy1 * gx + cx1, fx * fy),
+                ];
+                let (mut q, mut q1) = ([0.0f32; 4], [0.0f32; 4]);
+                for &(c, wc) in &corners {
+                    let (n0, n1) = read2(c, k);
+                    axpy(&mut q, wc, &n0);
+                    axpy(&mut q1, wc, &n1);
+                }
+                // Moments about z_k and z_{k+1} moved to the pixel's own value.
+                let (delta, delta1) = if flat {
+                    (z0 - v, 0.0)
+                } else {
+                    (-f * sr, (1.0 - f) * sr)
+                };
+                let (wr, wr1) = if flat { (1.0, 0.0) } else { (1.0 - f, f) };
+                let s0 = wr * q[0] + wr1 * q1[0];
+                let s1 = wr * (q[1] + delta * q[0]) + wr1 * (q1[1] + delta1 * q1[0]);
+                let s2 = wr * (q[2] + 2.0 * delta * q[1] + delta * delta * q[0])
+                    + wr1 * (q1[2] + 2.0 * delta1 * q1[1] + delta1 * delta1 * q1[0]);
+                if !(s0 > 0.0 && s0.is_finite()) {
+                    self.out.set_insufficient(i);
+                    continue;
+                }
+                let m = s1 / s0;
+                let var = (s2 / s0 - m * m).max(0.0);
+                // Range weight of a pixel with itself in a flat patch.
+                let self_range = if flat {
+                    1.0
+                } else {
+                    0.5 * ((1.0 - f) * (1.0 - f) + f * f + f * (1.0 - f))
+                };
+                let n_eff = ((s0 / (cell_area * self_range)).min(1.0) * n_full).min(usable_px);
+                if n_eff < 1.5 {
+                    self.out.set_insufficient(i);
+                    self.out.samples.data[i] = n_eff as f64;
+                    continue;
+                }
+                self.out
+                    .set_from_central(i, n_eff as f64, (v + m) as f64, var as f64, 0.0, None);
+            }
+        }
+    }
+}
+
+/// Min of `lo` and max of `hi` over each cell's 5 x 5 neighbourhood (separable).
+fn dilate(lo: &mut [i32], hi: &mut [i32], gx: usize, gy: usize) {
+    const R: usize = 2;
+    let mut tl = lo.to_vec();
+    let mut th = hi.to_vec();
+    for cy in 0..gy {
+        for cx in 0..gx {
+            let c = cy * gx + cx;
+            let (a, b) = (cx.saturating_sub(R), (cx + R + 1).min(gx));
+            let row = cy * gx;
+            tl[c] = lo[row + a..row + b]
+                .iter()
+                .copied()
+                .min()
+                .unwrap_or(i32::MAX);
+            th[c] = hi[row + a..row + b]
+                .iter()
+                .copied()
+                .max()
+                .unwrap_or(i32::MIN);
+        }
+    }
+    for cy in 0..gy {
+        let (a, b) = (cy.saturating_sub(R), (cy + R + 1).min(gy));
+        for cx in 0..gx {
+            let c = cy * gx + cx;
+            lo[c] = (a..b).map(|yy| tl[yy * gx + cx]).min().unwrap_or(i32::MAX);
+            hi[c] = (a..b).map(|yy| th[yy * gx + cx]).max().unwrap_or(i32::MIN);
+        }
+    }
+}
+
+/// One-shot M3 on a bilateral grid (see [`BilateralGrid`] to reuse buffers).
+pub fn bilateral_grid(frame: &Frame, params: BilateralParams) -> Result<Moments, SeparationError> {
+    let mut grid = BilateralGrid::new();
+    grid.compute(frame, params)?;
+    Ok(grid.into_moments())
+}
