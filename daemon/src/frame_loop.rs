@@ -7,7 +7,8 @@ use std::sync::mpsc::{Receiver, TryRecvError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use sdi_core::mode::ModeId;
+use sdi_core::mode::{ModeId, SeparationConfig};
+use sdi_core::separation::LiveMethod;
 use sdi_core::{Frame, Image};
 use tokio::sync::{oneshot, watch};
 
@@ -72,6 +73,8 @@ pub struct FrameLoop {
     stats_tx: watch::Sender<Stats>,
     calibration_tx: watch::Sender<Calibration>,
     frame_index: u64,
+    /// Estimator and H of the separation mode.
+    separation: SeparationConfig,
 }
 
 impl FrameLoop {
@@ -83,9 +86,20 @@ impl FrameLoop {
         stats_tx: watch::Sender<Stats>,
         calibration_tx: watch::Sender<Calibration>,
     ) -> Self {
+        let separation = SeparationConfig {
+            h: backend.sensor().skellam(),
+            ..SeparationConfig::default()
+        };
+        let pipeline = modes::build_pipeline(
+            mode,
+            PipelineConfig {
+                separation,
+                ..PipelineConfig::default()
+            },
+        );
         Self {
             backend,
-            pipeline: modes::build_pipeline(mode, PipelineConfig::default()),
+            pipeline,
             mode,
             display,
             output,
@@ -98,7 +112,27 @@ impl FrameLoop {
             stats_tx,
             calibration_tx,
             frame_index: 0,
+            separation,
         }
+    }
+
+    /// Selects the separation mode's estimator (M3 by default).
+    pub fn with_separation(mut self, method: LiveMethod) -> Self {
+        self.separation.method = method;
+        self.rebuild_pipeline();
+        self
+    }
+
+    /// A fresh pipeline for the current mode, with the dark frame and H held.
+    fn rebuild_pipeline(&mut self) {
+        self.pipeline = modes::build_pipeline(
+            self.mode,
+            PipelineConfig {
+                dark_frame_dn: self.dark.as_ref().map(|d| d.1.clone()),
+                separation: self.separation,
+                ..PipelineConfig::default()
+            },
+        );
     }
 
     /// Runs until `Shutdown` or until every command sender is gone; finalizes any recording.
@@ -178,16 +212,9 @@ impl FrameLoop {
         match cmd {
             Command::SetMode(mode, reply) => {
                 if mode != self.mode {
-                    let dark = self.dark.as_ref().map(|d| d.1.clone());
-                    self.pipeline = modes::build_pipeline(
-                        mode,
-                        PipelineConfig {
-                            dark_frame_dn: dark,
-                            ..PipelineConfig::default()
-                        },
-                    );
-                    self.backend.set_mode(mode);
                     self.mode = mode;
+                    self.rebuild_pipeline();
+                    self.backend.set_mode(mode);
                     self.frame_index = 0;
                 }
                 let _ = reply.send(());

@@ -262,6 +262,7 @@ async fn run(args: Args) -> Result<(), String> {
         }
     }
     let display = display_from(&config)?;
+    let separation = config.separation.live_method()?;
     let sensor = backend.sensor().clone();
     let capture: CaptureSettings = backend.settings();
     let sink = build_sink(&config, sensor.width, sensor.height, capture.frame_rate_hz)?;
@@ -276,7 +277,8 @@ async fn run(args: Args) -> Result<(), String> {
     let (stats_tx, stats_rx) = watch::channel(Stats::default());
     let (cal_tx, cal_rx) = watch::channel(Calibration::default());
     let (cmd_tx, cmd_rx) = mpsc::channel::<Command>();
-    let frame_loop = FrameLoop::new(backend, mode, display, output, stats_tx, cal_tx);
+    let frame_loop = FrameLoop::new(backend, mode, display, output, stats_tx, cal_tx)
+        .with_separation(separation);
     let loop_thread = std::thread::Builder::new()
         .name("sdid-frames".into())
         .spawn(move || frame_loop.run(cmd_rx))

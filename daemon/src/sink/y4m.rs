@@ -206,7 +206,7 @@ impl Sink for Y4mSink {
         if output.signed_dn.width != self.width || output.signed_dn.height != self.height {
             return Ok(());
         }
-        display.render_rgb8(&output.signed_dn, &mut self.rgb);
+        display.render_output_rgb8(output, &mut self.rgb);
         self.pack_frame();
         self.send()
     }
