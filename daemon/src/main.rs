@@ -61,7 +61,8 @@ struct Args {
     /// Output sink: auto, loopback or y4m.
     #[arg(long)]
     sink: Option<String>,
-    /// y4m fallback target: "-" (stdout) or a FIFO path.
+    /// y4m fallback target: "-" (stdout) or a FIFO path [default: stdout if
+    /// it is a pipe, else $XDG_RUNTIME_DIR/sdid-view.y4m].
     #[arg(long)]
     y4m_path: Option<String>,
 }
