@@ -11,6 +11,7 @@ pub mod dbus;
 pub mod frame_loop;
 pub mod light;
 pub mod modes;
+pub mod photon_transfer;
 pub mod recording;
 pub mod sink;
 pub mod snapshot;

@@ -112,3 +112,28 @@ fn separation_mode_recovers_both_channels_live() {
     eprintln!("separation stats: {s}",);
     assert!(s["fps"].as_f64().unwrap_or(0.0) > 20.0, "{s}");
 }
+
+#[test]
+fn calibrate_fits_the_sensor_gain() {
+    require_dbus!();
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &[]);
+    let out = ok(&d.ctl(&["--json", "calibrate", "30"]));
+    let v: serde_json::Value = serde_json::from_str(&out).expect("json");
+    let truth = SensorPreset::TiOpt8241.params();
+    let (g_true, r_true) = (truth.gain_dn_per_electron(), truth.read_variance_dn2());
+    let g = v["gain_dn_per_electron"].as_f64().expect("gain");
+    let g_se = v["gain_se"].as_f64().expect("gain_se");
+    let r = v["ptc_read_variance_dn2"].as_f64().expect("read variance");
+    let r_se = v["ptc_read_variance_se_dn2"]
+        .as_f64()
+        .expect("read variance se");
+    eprintln!(
+        "photon transfer: gain {g:.5} +- {g_se:.5} (true {g_true:.5}, {:+.2}%), read variance {r:.2} +- {r_se:.2} DN^2 (true {r_true:.2}); {v}",
+        100.0 * (g / g_true - 1.0)
+    );
+    assert!((g / g_true - 1.0).abs() < 0.03, "gain {g} vs {g_true}");
+    assert!(g_se > 0.0 && g_se < 0.03 * g_true, "gain se {g_se}");
+    // The exposure is restored after the calibration.
+    assert_eq!(ok(&d.ctl(&["get", "exposure-us"])).trim(), "2000.0");
+}

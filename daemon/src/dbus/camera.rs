@@ -377,11 +377,32 @@ impl Camera {
         Ok(dark_dict(&s))
     }
 
-    /// Dark calibration: dark frame, read-noise variance (DN^2, eq. skellamvar
-    /// with no light) and fixed-pattern sigma from `frames` >= 2 dark frames.
+    /// Calibration: the dark frame, read-noise variance (DN^2, eq. skellamvar
+    /// with no light) and fixed-pattern sigma from `frames` >= 2 dark frames;
+    /// then photon transfer (LS1 alone at 5 exposures, `frames` frames each):
+    /// gain g = rho eta (DN/electron) and read variance with standard errors,
+    /// which the separation mode's H uses from then on.
     async fn calibrate(&self, frames: u32) -> Result<HashMap<String, OwnedValue>, SdiError> {
         let s = self.dark(frames, 2).await?;
-        Ok(dark_dict(&s))
+        let mut d = dark_dict(&s);
+        let _guard = self.long_op.try_lock().map_err(|_| {
+            SdiError::Busy("a dark-frame capture or calibration is already running".into())
+        })?;
+        let fit = self
+            .ask(|tx| Command::PhotonTransfer(frames, tx))
+            .await?
+            .map_err(|e| SdiError::Failed(format!("photon transfer: {e}")))?;
+        for (k, v) in [
+            ("gain_dn_per_electron", fit.gain_dn_per_electron),
+            ("gain_se", fit.gain_se),
+            ("ptc_read_variance_dn2", fit.read_variance_dn2),
+            ("ptc_read_variance_se_dn2", fit.read_variance_se_dn2),
+            ("reduced_chi2", fit.reduced_chi2),
+        ] {
+            d.insert(k.to_owned(), ov(Value::from(v)));
+        }
+        d.insert("ptc_points".to_owned(), ov(Value::from(fit.points as u32)));
+        Ok(d)
     }
 
     /// Starts recording raw sensor frames to a new `.sdirec` file at an absolute path
