@@ -6,6 +6,7 @@
 
 pub mod backend;
 pub mod bus;
+pub mod calibration_store;
 pub mod config;
 pub mod dbus;
 pub mod frame_loop;

@@ -2,13 +2,15 @@
 //! `sdictl set-mode separation`, and a snapshot whose two channels are
 //! compared with the simulator's ground truth.
 
+use std::io::{BufRead, BufReader};
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
-use sdi_tests::dbus::{stats, Bus, Daemon};
+use sdi_tests::dbus::{bin, stats, Bus, Daemon};
 use sdi_tests::require_dbus;
 
 fn ok(out: &std::process::Output) -> String {
@@ -117,7 +119,9 @@ fn separation_mode_recovers_both_channels_live() {
 fn calibrate_fits_the_sensor_gain() {
     require_dbus!();
     let bus = Bus::start();
-    let d = Daemon::start(&bus, &[]);
+    let state = tempfile::tempdir().unwrap();
+    let state_dir = state.path().to_str().unwrap();
+    let mut d = Daemon::start(&bus, &["--state-dir", state_dir]);
     let out = ok(&d.ctl(&["--json", "calibrate", "30"]));
     let v: serde_json::Value = serde_json::from_str(&out).expect("json");
     let truth = SensorPreset::TiOpt8241.params();
@@ -136,4 +140,44 @@ fn calibrate_fits_the_sensor_gain() {
     assert!(g_se > 0.0 && g_se < 0.03 * g_true, "gain se {g_se}");
     // The exposure is restored after the calibration.
     assert_eq!(ok(&d.ctl(&["get", "exposure-us"])).trim(), "2000.0");
+
+    // Stored, keyed by model and serial, and loaded by the next sdid.
+    let file = state.path().join("calibration.toml");
+    assert_eq!(v["stored"].as_str(), Some(file.to_str().unwrap()));
+    let text = std::fs::read_to_string(&file).unwrap();
+    assert!(
+        text.contains("gain_dn_per_electron") && text.contains("model"),
+        "{text}"
+    );
+    assert!(d.signal(libc::SIGTERM).success());
+    let mut again = Command::new(bin("sdid"))
+        .args([
+            "--bus-address",
+            &bus.address,
+            "--sink",
+            "y4m",
+            "--y4m-path",
+            "-",
+        ])
+        .args(["--exposure-us", "2000", "--state-dir", state_dir])
+        .env("RUST_LOG", "info")
+        .env_remove("INVOCATION_ID")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("restart sdid");
+    let mut lines = BufReader::new(again.stderr.take().unwrap()).lines();
+    let loaded = lines
+        .by_ref()
+        .map_while(Result::ok)
+        .take_while(|l| !l.contains("serving D-Bus API"))
+        .find(|l| l.contains("calibration loaded"));
+    let _ = again.kill();
+    let _ = again.wait();
+    let loaded = loaded.expect("the restarted sdid did not load the calibration");
+    eprintln!("restarted: {loaded}");
+    assert!(
+        loaded.contains(&format!("gain_dn_per_electron={g}")),
+        "{loaded}"
+    );
 }

@@ -18,11 +18,13 @@ use super::client_fd::{self, recording_label};
 use super::errors::{check_range, SdiError};
 use super::paths::{validate_output_path, OutputKind};
 use crate::backend::{BackendError, CaptureSettings, Limits};
+use crate::calibration_store;
 use crate::frame_loop::{Command, DarkStats};
 use crate::modes::{Colormap, DisplayMap, DisplayRange};
 use crate::recording::{Calibration, Header as RecHeader, RecordingWriter};
 use crate::sink::SinkInfo;
 use crate::stats::Stats;
+use sdi_core::calibration::CalibrationRecord;
 
 /// Largest number of frames one dark-frame or calibration call may average.
 pub const MAX_AVERAGE_FRAMES: u32 = 10_000;
@@ -37,6 +39,8 @@ pub struct CameraInfo {
     pub sink: SinkInfo,
     pub limits: Limits,
     pub sensor: sdi_core::sensor::SensorParams,
+    /// Where calibrations are stored ([`crate::calibration_store`]); None = not stored.
+    pub state_dir: Option<PathBuf>,
 }
 
 /// State changed by clients.
@@ -402,6 +406,24 @@ impl Camera {
             d.insert(k.to_owned(), ov(Value::from(v)));
         }
         d.insert("ptc_points".to_owned(), ov(Value::from(fit.points as u32)));
+        if let Some(dir) = self.info.state_dir.clone() {
+            let record = CalibrationRecord::from_fit(
+                &self.info.sensor.model,
+                &self.info.device,
+                &fit,
+                s.fixed_pattern_sigma_dn,
+                s.frames as usize,
+            );
+            let saved = tokio::task::spawn_blocking(move || calibration_store::save(&dir, record))
+                .await
+                .map_err(|e| SdiError::Failed(e.to_string()))?
+                .map_err(|e| SdiError::Failed(format!("storing the calibration: {e}")))?;
+            tracing::info!(path = %saved.display(), "calibration stored");
+            d.insert(
+                "stored".to_owned(),
+                ov(Value::from(saved.display().to_string())),
+            );
+        }
         Ok(d)
     }
 
