@@ -416,13 +416,21 @@ impl Camera {
             );
             let saved = tokio::task::spawn_blocking(move || calibration_store::save(&dir, record))
                 .await
-                .map_err(|e| SdiError::Failed(e.to_string()))?
-                .map_err(|e| SdiError::Failed(format!("storing the calibration: {e}")))?;
-            tracing::info!(path = %saved.display(), "calibration stored");
-            d.insert(
-                "stored".to_owned(),
-                ov(Value::from(saved.display().to_string())),
-            );
+                .map_err(|e| std::io::Error::other(e.to_string()))
+                .and_then(|r| r);
+            // The fit is in use either way; a store that cannot be written
+            // costs only the reload at the next start.
+            let (key, text) = match saved {
+                Ok(path) => {
+                    tracing::info!(path = %path.display(), "calibration stored");
+                    ("stored", path.display().to_string())
+                }
+                Err(e) => {
+                    tracing::warn!("storing the calibration: {e}");
+                    ("store_error", e.to_string())
+                }
+            };
+            d.insert(key.to_owned(), ov(Value::from(text)));
         }
         Ok(d)
     }
