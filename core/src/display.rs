@@ -7,6 +7,7 @@
 use std::str::FromStr;
 
 use crate::image::Image;
+use crate::mode::{ModeOutput, SeparatedChannels};
 
 /// Fraction of finite pixels whose |x| lies inside the auto range.
 pub const AUTO_PERCENTILE: f64 = 0.995;
@@ -128,12 +129,42 @@ impl DisplayMap {
         }
     }
 
+    /// Writes 3 bytes per pixel for a mode's output: the separated channels
+    /// as colour when the output has them ([`render_channels_rgb8`]), else the
+    /// signed image through the colormap ([`Self::render_rgb8`]).
+    pub fn render_output_rgb8(&self, output: &ModeOutput, out: &mut [u8]) {
+        match &output.channels {
+            Some(ch) => render_channels_rgb8(ch, out),
+            None => self.render_rgb8(&output.signed_dn, out),
+        }
+    }
+
     /// Writes 1 byte per pixel: the grey scale, whatever the colormap.
     pub fn render_grey8(&self, img: &Image<f32>, out: &mut [u8]) {
         let scale = 1.0 / self.max_abs_dn(img);
         for (px, &v) in out.iter_mut().zip(&img.data) {
             *px = grey(normalized(v, scale));
         }
+    }
+}
+
+/// The bipolar colour reconstruction of separated channels (section 5.2):
+/// R = I+, G = 0, B = I-, both on one scale (the robust maximum over both
+/// channels) so their ratio survives; negative and NaN values show as 0.
+pub fn render_channels_rgb8(ch: &SeparatedChannels, out: &mut [u8]) {
+    let max =
+        robust_max_abs(&ch.i_plus_electrons.data).max(robust_max_abs(&ch.i_minus_electrons.data));
+    let scale = 255.0 / max;
+    let to_u8 = |v: f32| (v * scale).clamp(0.0, 255.0).round() as u8;
+    for ((px, &p), &m) in out
+        .chunks_exact_mut(3)
+        .zip(&ch.i_plus_electrons.data)
+        .zip(&ch.i_minus_electrons.data)
+    {
+        // NaN * scale is NaN; clamp keeps NaN, and `as u8` maps it to 0.
+        px[0] = to_u8(p);
+        px[1] = 0;
+        px[2] = to_u8(m);
     }
 }
 
@@ -234,6 +265,24 @@ mod tests {
         let exact = abs[(0.995f64 * 1000.0).ceil() as usize - 1];
         let q = robust_max_abs(&data);
         assert!((q - exact).abs() <= exact * 1e-3, "{q} vs {exact}");
+    }
+
+    #[test]
+    fn channels_render_red_and_blue() {
+        let img = |v: &[f32]| Image {
+            width: v.len(),
+            height: 1,
+            data: v.to_vec(),
+        };
+        let ch = SeparatedChannels {
+            i_plus_electrons: img(&[1000.0, 0.0, -5.0, f32::NAN]),
+            i_minus_electrons: img(&[0.0, 500.0, 0.0, 0.0]),
+        };
+        let mut rgb = [9u8; 12];
+        render_channels_rgb8(&ch, &mut rgb);
+        assert_eq!(&rgb[0..3], &[255, 0, 0]);
+        assert_eq!(&rgb[3..6], &[0, 0, 128]);
+        assert_eq!(&rgb[6..12], &[0; 6]);
     }
 
     #[test]

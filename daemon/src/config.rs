@@ -2,6 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
+use sdi_core::separation::{BilateralParams, LiveMethod};
 use serde::{Deserialize, Serialize};
 
 /// Default configuration file.
@@ -26,6 +27,7 @@ pub struct Config {
     pub display: DisplayConfig,
     pub output: OutputConfig,
     pub replay: ReplayConfig,
+    pub separation: SeparationConfig,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -57,6 +59,67 @@ pub struct ReplayConfig {
     pub looping: bool,
 }
 
+/// The live separation mode's estimator (section 6).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SeparationConfig {
+    /// "m3" (bilateral moments of every frame) or "window" (M1 over the last
+    /// `window_frames` frames; static scenes).
+    pub method: String,
+    pub window_frames: usize,
+    /// M3's spatial and range sigmas.
+    pub sigma_domain_px: f64,
+    pub sigma_range_dn: f64,
+}
+
+impl Default for SeparationConfig {
+    fn default() -> Self {
+        let m3 = sdi_core::mode::DEFAULT_BILATERAL;
+        Self {
+            method: "m3".into(),
+            window_frames: 30,
+            sigma_domain_px: m3.sigma_domain_px,
+            sigma_range_dn: m3.sigma_range_dn,
+        }
+    }
+}
+
+/// Longest sliding window: 2 images of f64 sums per frame held would be huge.
+pub const MAX_WINDOW_FRAMES: usize = 1000;
+
+impl SeparationConfig {
+    /// The estimator these settings select, or why they are invalid.
+    pub fn live_method(&self) -> Result<LiveMethod, String> {
+        match self.method.as_str() {
+            "m3" => {
+                let ok = |v: f64| v.is_finite() && v > 0.0;
+                if !ok(self.sigma_domain_px) || !ok(self.sigma_range_dn) {
+                    return Err(format!(
+                        "separation: sigma_domain_px = {} and sigma_range_dn = {} must be finite and > 0",
+                        self.sigma_domain_px, self.sigma_range_dn
+                    ));
+                }
+                Ok(LiveMethod::Bilateral(BilateralParams::new(
+                    self.sigma_domain_px,
+                    self.sigma_range_dn,
+                )))
+            }
+            "window" if (2..=MAX_WINDOW_FRAMES).contains(&self.window_frames) => {
+                Ok(LiveMethod::SlidingWindow {
+                    frames: self.window_frames,
+                })
+            }
+            "window" => Err(format!(
+                "separation: window_frames = {} must be in 2..={MAX_WINDOW_FRAMES}",
+                self.window_frames
+            )),
+            other => Err(format!(
+                "separation: unknown method '{other}': use m3 or window"
+            )),
+        }
+    }
+}
+
 impl Default for Config {
     fn default() -> Self {
         Self {
@@ -70,6 +133,7 @@ impl Default for Config {
             display: DisplayConfig::default(),
             output: OutputConfig::default(),
             replay: ReplayConfig::default(),
+            separation: SeparationConfig::default(),
         }
     }
 }
@@ -137,5 +201,31 @@ mod tests {
         assert_eq!(c.output.sink, "y4m");
         assert_eq!(c.backend, "sim");
         assert!(toml::from_str::<Config>("nope = 1").is_err());
+    }
+
+    #[test]
+    fn separation_method() {
+        let c = Config::default();
+        assert!(matches!(
+            c.separation.live_method(),
+            Ok(LiveMethod::Bilateral(_))
+        ));
+        let c: Config =
+            toml::from_str("[separation]\nmethod = \"window\"\nwindow_frames = 50\n").unwrap();
+        assert_eq!(
+            c.separation.live_method(),
+            Ok(LiveMethod::SlidingWindow { frames: 50 })
+        );
+        for bad in [
+            "method = \"m1\"",
+            "method = \"window\"\nwindow_frames = 1",
+            "method = \"window\"\nwindow_frames = 100000",
+            "sigma_range_dn = -1.0",
+            "sigma_domain_px = nan",
+        ] {
+            let c: Config = toml::from_str(&format!("[separation]\n{bad}\n")).unwrap();
+            let e = c.separation.live_method().unwrap_err();
+            assert!(e.starts_with("separation:"), "{bad}: {e}");
+        }
     }
 }

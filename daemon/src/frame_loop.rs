@@ -7,15 +7,19 @@ use std::sync::mpsc::{Receiver, TryRecvError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use sdi_core::mode::ModeId;
+use sdi_core::mode::{ModeId, SeparationConfig};
+use sdi_core::separation::LiveMethod;
 use sdi_core::{Frame, Image};
 use tokio::sync::{oneshot, watch};
 
 use crate::backend::{Backend, BackendError, CaptureSettings};
 use crate::modes::{self, DisplayMap, ModeOutput, Pipeline, PipelineConfig};
+use crate::photon_transfer::{PtcJob, Step};
 use crate::recording::{Calibration, RecordingWriter, Summary};
 use crate::sink::output::Output;
 use crate::stats::{Stats, StatsWindow};
+use sdi_core::calibration::PhotonTransferFit;
+use sdi_core::sensor::SkellamMixing;
 
 /// Statistics of a dark-frame capture.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -43,6 +47,9 @@ pub enum Command {
     Configure(CaptureSettings, Reply<Result<(), BackendError>>),
     SetDisplay(DisplayMap),
     CaptureDark(u32, Reply<Result<DarkStats, BackendError>>),
+    /// Photon-transfer calibration with this many frames per level; on
+    /// success the separation mode's H uses the fitted gain and read variance.
+    PhotonTransfer(u32, Reply<Result<PhotonTransferFit, String>>),
     Snapshot(Reply<Option<SnapshotData>>),
     StartRecording(Box<RecordingWriter>, Reply<()>),
     StopRecording(Reply<Option<std::io::Result<Summary>>>),
@@ -72,6 +79,9 @@ pub struct FrameLoop {
     stats_tx: watch::Sender<Stats>,
     calibration_tx: watch::Sender<Calibration>,
     frame_index: u64,
+    /// Estimator and H of the separation mode.
+    separation: SeparationConfig,
+    ptc: Option<(PtcJob, Reply<Result<PhotonTransferFit, String>>)>,
 }
 
 impl FrameLoop {
@@ -83,9 +93,20 @@ impl FrameLoop {
         stats_tx: watch::Sender<Stats>,
         calibration_tx: watch::Sender<Calibration>,
     ) -> Self {
+        let separation = SeparationConfig {
+            h: backend.sensor().skellam(),
+            ..SeparationConfig::default()
+        };
+        let pipeline = modes::build_pipeline(
+            mode,
+            PipelineConfig {
+                separation,
+                ..PipelineConfig::default()
+            },
+        );
         Self {
             backend,
-            pipeline: modes::build_pipeline(mode, PipelineConfig::default()),
+            pipeline,
             mode,
             display,
             output,
@@ -98,7 +119,28 @@ impl FrameLoop {
             stats_tx,
             calibration_tx,
             frame_index: 0,
+            separation,
+            ptc: None,
         }
+    }
+
+    /// Selects the separation mode's estimator (M3 by default).
+    pub fn with_separation(mut self, method: LiveMethod) -> Self {
+        self.separation.method = method;
+        self.rebuild_pipeline();
+        self
+    }
+
+    /// A fresh pipeline for the current mode, with the dark frame and H held.
+    fn rebuild_pipeline(&mut self) {
+        self.pipeline = modes::build_pipeline(
+            self.mode,
+            PipelineConfig {
+                dark_frame_dn: self.dark.as_ref().map(|d| d.1.clone()),
+                separation: self.separation,
+                ..PipelineConfig::default()
+            },
+        );
     }
 
     /// Runs until `Shutdown` or until every command sender is gone; finalizes any recording.
@@ -119,6 +161,8 @@ impl FrameLoop {
             let carrier_hz = self.backend.settings().modulation_hz;
             let illumination = if self.dark_job.is_some() {
                 sdi_core::modulation::Illumination::dark(carrier_hz)
+            } else if self.ptc.is_some() {
+                PtcJob::illumination(carrier_hz)
             } else {
                 modes::illumination(self.mode, self.frame_index, carrier_hz)
             };
@@ -128,6 +172,10 @@ impl FrameLoop {
                     if !stalled {
                         tracing::warn!("backend: {e}; showing no-signal");
                         stalled = true;
+                    }
+                    if let Some((job, reply)) = self.ptc.take() {
+                        let _ = self.backend.configure(&job.base());
+                        let _ = reply.send(Err(e.to_string()));
                     }
                     if let Some(job) = self.dark_job.take() {
                         let _ = job.reply.send(Err(e));
@@ -142,11 +190,13 @@ impl FrameLoop {
             if let Some(dark) = self.backend.take_dark_frame() {
                 self.set_dark(dark.0, dark.1);
             }
-            if let (Some(rec), None) = (&self.recorder, &self.dark_job) {
+            if let (Some(rec), None, None) = (&self.recorder, &self.dark_job, &self.ptc) {
                 rec.push_frame(self.mode.name(), &frame);
             }
             if self.dark_job.is_some() {
                 self.accumulate_dark(&frame);
+            } else if self.ptc.is_some() {
+                self.photon_transfer_step(&frame);
             } else if let Some(out) = self.pipeline.process(&frame) {
                 let out = Arc::new(out.clone());
                 self.output.send(out.clone(), self.display);
@@ -178,16 +228,9 @@ impl FrameLoop {
         match cmd {
             Command::SetMode(mode, reply) => {
                 if mode != self.mode {
-                    let dark = self.dark.as_ref().map(|d| d.1.clone());
-                    self.pipeline = modes::build_pipeline(
-                        mode,
-                        PipelineConfig {
-                            dark_frame_dn: dark,
-                            ..PipelineConfig::default()
-                        },
-                    );
-                    self.backend.set_mode(mode);
                     self.mode = mode;
+                    self.rebuild_pipeline();
+                    self.backend.set_mode(mode);
                     self.frame_index = 0;
                 }
                 let _ = reply.send(());
@@ -205,6 +248,22 @@ impl FrameLoop {
                     sum_sq: vec![0.0; px],
                     reply,
                 });
+            }
+            Command::PhotonTransfer(frames, reply) => {
+                let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
+                let job = PtcJob::new(
+                    self.backend.settings(),
+                    frames,
+                    self.dark.as_ref().map(|d| d.1.clone()),
+                    w,
+                    h,
+                );
+                match self.backend.configure(&job.settings()) {
+                    Ok(()) => self.ptc = Some((job, reply)),
+                    Err(e) => {
+                        let _ = reply.send(Err(e.to_string()));
+                    }
+                }
             }
             Command::Snapshot(reply) => {
                 let _ = reply.send(self.last.clone().map(|output| SnapshotData {
@@ -227,6 +286,47 @@ impl FrameLoop {
             }
             Command::Shutdown => {}
         }
+    }
+
+    fn photon_transfer_step(&mut self, frame: &Frame) {
+        let Some((job, _)) = self.ptc.as_mut() else {
+            return;
+        };
+        match job.push(frame) {
+            Step::Continue => {}
+            Step::NextLevel => {
+                let next = job.settings();
+                if let Err(e) = self.backend.configure(&next) {
+                    self.finish_photon_transfer(Err(e.to_string()));
+                }
+            }
+            Step::Done(r) => self.finish_photon_transfer(r),
+        }
+    }
+
+    /// Restores the capture settings, uses a successful fit for H, replies.
+    fn finish_photon_transfer(&mut self, r: Result<PhotonTransferFit, String>) {
+        let Some((job, reply)) = self.ptc.take() else {
+            return;
+        };
+        let restored = self.backend.configure(&job.base());
+        if let Ok(fit) = &r {
+            self.set_gain(SkellamMixing::new(
+                fit.gain_dn_per_electron,
+                fit.read_variance_dn2.max(0.0),
+            ));
+        }
+        let r = match (r, restored) {
+            (Ok(_), Err(e)) => Err(format!("restoring the capture settings: {e}")),
+            (r, _) => r,
+        };
+        let _ = reply.send(r);
+    }
+
+    /// Uses `h` (from a calibration) in the separation mode from now on.
+    pub fn set_gain(&mut self, h: SkellamMixing) {
+        self.separation.h = h;
+        self.rebuild_pipeline();
     }
 
     fn accumulate_dark(&mut self, frame: &Frame) {

@@ -6,11 +6,13 @@
 
 pub mod backend;
 pub mod bus;
+pub mod calibration_store;
 pub mod config;
 pub mod dbus;
 pub mod frame_loop;
 pub mod light;
 pub mod modes;
+pub mod photon_transfer;
 pub mod recording;
 pub mod sink;
 pub mod snapshot;

@@ -11,6 +11,7 @@ use sdi_daemon::backend::replay::ReplayBackend;
 use sdi_daemon::backend::sim::SimBackend;
 use sdi_daemon::backend::{Backend, CaptureSettings};
 use sdi_daemon::bus::{self, PrivateBus};
+use sdi_daemon::calibration_store;
 use sdi_daemon::config::Config;
 use sdi_daemon::dbus::camera::{Camera, CameraInfo};
 use sdi_daemon::dbus::{BUS_NAME, OBJECT_PATH};
@@ -61,9 +62,14 @@ struct Args {
     /// Output sink: auto, loopback or y4m.
     #[arg(long)]
     sink: Option<String>,
-    /// y4m fallback target: "-" (stdout) or a FIFO path.
+    /// y4m fallback target: "-" (stdout) or a FIFO path [default: stdout if
+    /// it is a pipe, else $XDG_RUNTIME_DIR/sdid-view.y4m].
     #[arg(long)]
     y4m_path: Option<String>,
+    /// Where calibrations are kept [default: $STATE_DIRECTORY, else
+    /// $XDG_STATE_HOME/sdi, else ~/.local/state/sdi].
+    #[arg(long)]
+    state_dir: Option<PathBuf>,
 }
 
 fn apply(args: &Args, c: &mut Config) {
@@ -108,7 +114,12 @@ fn init_logging() {
         }
     }
     registry
-        .with(tracing_subscriber::fmt::layer().with_writer(std::io::stderr))
+        .with(
+            tracing_subscriber::fmt::layer()
+                .with_writer(std::io::stderr)
+                // No colour codes in redirected logs (sdid 2> log.txt).
+                .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr())),
+        )
         .init();
 }
 
@@ -262,6 +273,7 @@ async fn run(args: Args) -> Result<(), String> {
         }
     }
     let display = display_from(&config)?;
+    let separation = config.separation.live_method()?;
     let sensor = backend.sensor().clone();
     let capture: CaptureSettings = backend.settings();
     let sink = build_sink(&config, sensor.width, sensor.height, capture.frame_rate_hz)?;
@@ -272,11 +284,32 @@ async fn run(args: Args) -> Result<(), String> {
         sink: output.info().clone(),
         limits: backend.limits(),
         sensor: sensor.clone(),
+        state_dir: calibration_store::state_dir(args.state_dir.as_deref()),
     };
+    let stored = info.state_dir.as_deref().and_then(|dir| {
+        calibration_store::load(dir, &sensor.model, &info.device)
+            .map_err(|e| tracing::warn!("reading the stored calibration in {}: {e}", dir.display()))
+            .ok()
+            .flatten()
+    });
     let (stats_tx, stats_rx) = watch::channel(Stats::default());
     let (cal_tx, cal_rx) = watch::channel(Calibration::default());
     let (cmd_tx, cmd_rx) = mpsc::channel::<Command>();
-    let frame_loop = FrameLoop::new(backend, mode, display, output, stats_tx, cal_tx);
+    let mut frame_loop = FrameLoop::new(backend, mode, display, output, stats_tx, cal_tx)
+        .with_separation(separation);
+    if let Some(rec) = stored {
+        match rec.skellam() {
+            Ok(h) => {
+                tracing::info!(
+                    gain_dn_per_electron = h.gain_dn_per_electron,
+                    read_variance_dn2 = h.read_variance_dn2,
+                    "calibration loaded"
+                );
+                frame_loop.set_gain(h);
+            }
+            Err(e) => tracing::warn!("stored calibration ignored: {e}"),
+        }
+    }
     let loop_thread = std::thread::Builder::new()
         .name("sdid-frames".into())
         .spawn(move || frame_loop.run(cmd_rx))

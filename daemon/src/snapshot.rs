@@ -1,5 +1,6 @@
 //! Snapshots: the latest processed frame as PNG (rendered as the view stream
-//! shows it) or `.npy` (signed DN, float32, shape (height, width)).
+//! shows it) or `.npy`: signed DN, float32, shape (height, width); in the
+//! separation mode I+ and I- in electrons, float32, shape (2, height, width).
 
 use std::fs::{File, OpenOptions};
 use std::io::{self, BufWriter, Write};
@@ -20,12 +21,18 @@ pub fn write_to(file: File, kind: OutputKind, snap: &SnapshotData) -> io::Result
     let img = &snap.output.signed_dn;
     let mut w = BufWriter::new(file);
     match kind {
-        OutputKind::Npy | OutputKind::Recording => {
-            modes::write_npy_f32(&mut w, &[img.height, img.width], &img.data)?
-        }
+        OutputKind::Npy | OutputKind::Recording => match &snap.output.channels {
+            Some(ch) => {
+                let mut both = Vec::with_capacity(2 * img.data.len());
+                both.extend_from_slice(&ch.i_plus_electrons.data);
+                both.extend_from_slice(&ch.i_minus_electrons.data);
+                modes::write_npy_f32(&mut w, &[2, img.height, img.width], &both)?
+            }
+            None => modes::write_npy_f32(&mut w, &[img.height, img.width], &img.data)?,
+        },
         OutputKind::Png => {
             let mut rgb = vec![0u8; img.width * img.height * 3];
-            snap.display.render_rgb8(img, &mut rgb);
+            snap.display.render_output_rgb8(&snap.output, &mut rgb);
             let png = encode_png(&rgb, img.width as u32, img.height as u32)?;
             w.write_all(&png)?;
         }

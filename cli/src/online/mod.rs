@@ -411,7 +411,9 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
             print_dict(&d, json);
         }
         OnlineCommand::Calibrate { frames } => {
-            let d = with_progress(&cam, frames, "calibrating", json, cam.calibrate(frames)).await?;
+            // Dark frames, then 5 photon-transfer levels of frames + 1 each.
+            let total = frames.saturating_mul(6).saturating_add(5);
+            let d = with_progress(&cam, total, "calibrating", json, cam.calibrate(frames)).await?;
             print_dict(&d, json);
         }
         OnlineCommand::Record {

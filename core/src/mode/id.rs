@@ -22,6 +22,8 @@ pub enum ModeId {
     TemporalGradient,
     /// LS1 and LS2 in alternate frames, subtracted after the ADC (section 5.5 baseline).
     TwoShot,
+    /// Red LS1, blue LS2 as bipolar colour; I+ and I- recovered live (section 6).
+    Separation,
 }
 
 /// A name that is not a mode; carries the valid names for the error message.
@@ -40,7 +42,7 @@ pub struct PhysicalSetup {
 }
 
 impl ModeId {
-    pub const ALL: [ModeId; 8] = [
+    pub const ALL: [ModeId; 9] = [
         ModeId::Raw,
         ModeId::DirectOnly,
         ModeId::BipolarColour,
@@ -49,6 +51,7 @@ impl ModeId {
         ModeId::SpatialGradient,
         ModeId::TemporalGradient,
         ModeId::TwoShot,
+        ModeId::Separation,
     ];
 
     pub fn name(self) -> &'static str {
@@ -61,6 +64,7 @@ impl ModeId {
             ModeId::SpatialGradient => "spatial-gradient",
             ModeId::TemporalGradient => "temporal-gradient",
             ModeId::TwoShot => "two-shot",
+            ModeId::Separation => "separation",
         }
     }
 
@@ -85,7 +89,9 @@ impl ModeId {
                 "white LEDs, linear polarizer crossed with the analyzer",
                 "linear analyzer in front of the lens",
             ),
-            ModeId::BipolarColour => ("red LEDs", "blue LEDs", "IR-cut filter removed"),
+            ModeId::BipolarColour | ModeId::Separation => {
+                ("red LEDs", "blue LEDs", "IR-cut filter removed")
+            }
             ModeId::DepthEdge => (
                 "identical LEDs left of the lens",
                 "identical LEDs right of the lens",

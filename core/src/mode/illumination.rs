@@ -44,6 +44,7 @@ impl ModeId {
             ModeId::Raw
             | ModeId::DirectOnly
             | ModeId::BipolarColour
+            | ModeId::Separation
             | ModeId::DepthEdge
             | ModeId::DepthEdgeVertical
             | ModeId::SpatialGradient => Illumination::snapshot(carrier_hz),
@@ -55,7 +56,7 @@ impl ModeId {
         match self {
             ModeId::Raw => "flat-field",
             ModeId::DirectOnly => "polarization",
-            ModeId::BipolarColour => "colour-chart",
+            ModeId::BipolarColour | ModeId::Separation => "colour-chart",
             ModeId::DepthEdge => "depth-edge",
             ModeId::DepthEdgeVertical => "depth-edge-vertical",
             ModeId::SpatialGradient => "birefringent",

@@ -6,6 +6,7 @@
 //! | --- | --- |
 //! | raw, direct-only, bipolar-colour, depth-edge(-vertical), spatial-gradient, temporal-gradient | copy -> dark subtraction (only when a dark frame is set) -> invalid-pixel handling |
 //! | two-shot | pairing (A = LS1 frame, B = LS2 frame) -> digital subtraction A - B -> invalid-pixel handling |
+//! | separation | as the snapshot modes, plus dark-subtracted frame -> [`crate::separation::LiveSeparator`] (M3, or M1 over a window) -> I+, I- in electrons |
 //!
 //! In the snapshot modes the difference is formed in the pixel, before the
 //! ADC (eq. pixeleff); what differs between them is the optics and the
@@ -13,6 +14,7 @@
 //! mapping is not a pipeline stage: sinks call [`crate::display::DisplayMap`].
 //! After the first frame (or a change of frame size) no stage allocates.
 
+use super::separation::{SeparationConfig, SeparationPipeline};
 use super::snapshot::SnapshotPipeline;
 use super::two_shot::TwoShotPipeline;
 use super::ModeId;
@@ -36,6 +38,8 @@ pub struct PipelineConfig {
     /// Replace saturated pixels by 0 DN instead of keeping their clipped value
     /// (they stay flagged either way).
     pub zero_saturated: bool,
+    /// Estimator and H of the separation mode (ignored by the other modes).
+    pub separation: SeparationConfig,
 }
 
 /// One output image of a mode.
@@ -49,6 +53,18 @@ pub struct ModeOutput {
     pub timestamp_us: u64,
     /// Sensor sequence number of the (last) frame that completed this output.
     pub sequence: u64,
+    /// I+ and I- of the separation mode; None in every other mode (and while
+    /// a sliding window fills).
+    pub channels: Option<SeparatedChannels>,
+}
+
+/// The two latent images recovered by the separation mode (section 6).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SeparatedChannels {
+    /// I+ (LS1), electrons per exposure.
+    pub i_plus_electrons: Image<f32>,
+    /// I- (LS2), electrons per exposure.
+    pub i_minus_electrons: Image<f32>,
 }
 
 impl ModeOutput {
@@ -58,6 +74,7 @@ impl ModeOutput {
             saturated: Image::new(width, height),
             timestamp_us: 0,
             sequence: 0,
+            channels: None,
         }
     }
 
@@ -87,6 +104,7 @@ pub trait Pipeline: Send {
 pub fn build_pipeline(mode: ModeId, config: PipelineConfig) -> Box<dyn Pipeline> {
     match mode {
         ModeId::TwoShot => Box::new(TwoShotPipeline::new(config)),
+        ModeId::Separation => Box::new(SeparationPipeline::new(config)),
         ModeId::Raw
         | ModeId::DirectOnly
         | ModeId::BipolarColour

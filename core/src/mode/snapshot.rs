@@ -25,6 +25,13 @@ impl SnapshotPipeline {
     }
 }
 
+impl SnapshotPipeline {
+    /// The dark frame this pipeline holds, if any.
+    pub fn dark_frame(&self) -> Option<&Image<f32>> {
+        self.config.dark_frame_dn.as_ref()
+    }
+}
+
 impl Pipeline for SnapshotPipeline {
     fn mode(&self) -> ModeId {
         self.mode

@@ -18,11 +18,13 @@ use super::client_fd::{self, recording_label};
 use super::errors::{check_range, SdiError};
 use super::paths::{validate_output_path, OutputKind};
 use crate::backend::{BackendError, CaptureSettings, Limits};
+use crate::calibration_store;
 use crate::frame_loop::{Command, DarkStats};
 use crate::modes::{Colormap, DisplayMap, DisplayRange};
 use crate::recording::{Calibration, Header as RecHeader, RecordingWriter};
 use crate::sink::SinkInfo;
 use crate::stats::Stats;
+use sdi_core::calibration::CalibrationRecord;
 
 /// Largest number of frames one dark-frame or calibration call may average.
 pub const MAX_AVERAGE_FRAMES: u32 = 10_000;
@@ -37,6 +39,8 @@ pub struct CameraInfo {
     pub sink: SinkInfo,
     pub limits: Limits,
     pub sensor: sdi_core::sensor::SensorParams,
+    /// Where calibrations are stored ([`crate::calibration_store`]); None = not stored.
+    pub state_dir: Option<PathBuf>,
 }
 
 /// State changed by clients.
@@ -377,11 +381,58 @@ impl Camera {
         Ok(dark_dict(&s))
     }
 
-    /// Dark calibration: dark frame, read-noise variance (DN^2, eq. skellamvar
-    /// with no light) and fixed-pattern sigma from `frames` >= 2 dark frames.
+    /// Calibration: the dark frame, read-noise variance (DN^2, eq. skellamvar
+    /// with no light) and fixed-pattern sigma from `frames` >= 2 dark frames;
+    /// then photon transfer (LS1 alone at 5 exposures, `frames` frames each):
+    /// gain g = rho eta (DN/electron) and read variance with standard errors,
+    /// which the separation mode's H uses from then on.
     async fn calibrate(&self, frames: u32) -> Result<HashMap<String, OwnedValue>, SdiError> {
         let s = self.dark(frames, 2).await?;
-        Ok(dark_dict(&s))
+        let mut d = dark_dict(&s);
+        let _guard = self.long_op.try_lock().map_err(|_| {
+            SdiError::Busy("a dark-frame capture or calibration is already running".into())
+        })?;
+        let fit = self
+            .ask(|tx| Command::PhotonTransfer(frames, tx))
+            .await?
+            .map_err(|e| SdiError::Failed(format!("photon transfer: {e}")))?;
+        for (k, v) in [
+            ("gain_dn_per_electron", fit.gain_dn_per_electron),
+            ("gain_se", fit.gain_se),
+            ("ptc_read_variance_dn2", fit.read_variance_dn2),
+            ("ptc_read_variance_se_dn2", fit.read_variance_se_dn2),
+            ("reduced_chi2", fit.reduced_chi2),
+        ] {
+            d.insert(k.to_owned(), ov(Value::from(v)));
+        }
+        d.insert("ptc_points".to_owned(), ov(Value::from(fit.points as u32)));
+        if let Some(dir) = self.info.state_dir.clone() {
+            let record = CalibrationRecord::from_fit(
+                &self.info.sensor.model,
+                &self.info.device,
+                &fit,
+                s.fixed_pattern_sigma_dn,
+                s.frames as usize,
+            );
+            let saved = tokio::task::spawn_blocking(move || calibration_store::save(&dir, record))
+                .await
+                .map_err(|e| std::io::Error::other(e.to_string()))
+                .and_then(|r| r);
+            // The fit is in use either way; a store that cannot be written
+            // costs only the reload at the next start.
+            let (key, text) = match saved {
+                Ok(path) => {
+                    tracing::info!(path = %path.display(), "calibration stored");
+                    ("stored", path.display().to_string())
+                }
+                Err(e) => {
+                    tracing::warn!("storing the calibration: {e}");
+                    ("store_error", e.to_string())
+                }
+            };
+            d.insert(key.to_owned(), ov(Value::from(text)));
+        }
+        Ok(d)
     }
 
     /// Starts recording raw sensor frames to a new `.sdirec` file at an absolute path

@@ -94,7 +94,7 @@ impl Sink for LoopbackSink {
         if self.rgb.len() != img.width * img.height * 3 {
             self.rgb.resize(img.width * img.height * 3, 0);
         }
-        display.render_rgb8(img, &mut self.rgb);
+        display.render_output_rgb8(output, &mut self.rgb);
         let c = self.view.config();
         letterbox(
             &self.rgb,

@@ -2,7 +2,7 @@
 //! stream on stdout or into a FIFO, which `ffplay`/`ffmpeg` read directly.
 
 use std::fs::File;
-use std::io::{self, IsTerminal, Write};
+use std::io::{self, Write};
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 
@@ -30,8 +30,8 @@ pub struct Y4mSink {
     header_sent: bool,
 }
 
-/// Where the fallback stream goes by default: stdout when it is a pipe or
-/// file, else a FIFO in the runtime directory.
+/// The FIFO the fallback stream goes into unless stdout is a pipe or "-" was
+/// asked for: in the runtime directory.
 pub fn default_fifo_path() -> PathBuf {
     let dir = std::env::var_os("XDG_RUNTIME_DIR")
         .map(PathBuf::from)
@@ -41,17 +41,17 @@ pub fn default_fifo_path() -> PathBuf {
 }
 
 impl Y4mSink {
-    /// `path`: `None` or "-" picks stdout unless it is a terminal, else the default FIFO.
+    /// `path`: "-" for stdout, or a FIFO path; `None` picks stdout when it is
+    /// a pipe (`sdid | ffplay -`), else the default FIFO ([`choose`]).
     pub fn new(
         path: Option<&Path>,
         width: usize,
         height: usize,
         frame_rate_hz: f64,
     ) -> io::Result<Self> {
-        let target = match path {
-            Some(p) if p != Path::new("-") => fifo(p)?,
-            _ if !io::stdout().is_terminal() => Target::Stdout { broken: false },
-            _ => fifo(&default_fifo_path())?,
+        let target = match choose(path, stdout_is_pipe()) {
+            Choice::Stdout => Target::Stdout { broken: false },
+            Choice::Fifo(p) => fifo(&p)?,
         };
         Ok(Self {
             target,
@@ -164,6 +164,35 @@ impl Y4mSink {
     }
 }
 
+/// Where the stream goes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Choice {
+    Stdout,
+    Fifo(PathBuf),
+}
+
+/// Stdout only when asked ("-") or when it is a pipe; a terminal, a regular
+/// file (`sdid > log.txt`), /dev/null or the journal's socket get the FIFO,
+/// so y4m never ends up in a log.
+pub fn choose(path: Option<&Path>, stdout_is_pipe: bool) -> Choice {
+    match path {
+        Some(p) if p == Path::new("-") => Choice::Stdout,
+        Some(p) => Choice::Fifo(p.to_owned()),
+        None if stdout_is_pipe => Choice::Stdout,
+        None => Choice::Fifo(default_fifo_path()),
+    }
+}
+
+/// True when stdout is a pipe or FIFO.
+fn stdout_is_pipe() -> bool {
+    use std::os::fd::AsFd;
+    io::stdout()
+        .as_fd()
+        .try_clone_to_owned()
+        .and_then(|fd| File::from(fd).metadata())
+        .is_ok_and(|m| m.file_type().is_fifo())
+}
+
 fn fifo(path: &Path) -> io::Result<Target> {
     match std::fs::symlink_metadata(path) {
         Ok(m) if m.file_type().is_fifo() => {}
@@ -206,7 +235,7 @@ impl Sink for Y4mSink {
         if output.signed_dn.width != self.width || output.signed_dn.height != self.height {
             return Ok(());
         }
-        display.render_rgb8(&output.signed_dn, &mut self.rgb);
+        display.render_output_rgb8(output, &mut self.rgb);
         self.pack_frame();
         self.send()
     }
@@ -220,5 +249,19 @@ impl Sink for Y4mSink {
         }
         self.pack_frame();
         self.send()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stdout_only_when_asked_or_a_pipe() {
+        assert_eq!(choose(Some(Path::new("-")), false), Choice::Stdout);
+        assert_eq!(choose(None, true), Choice::Stdout);
+        assert_eq!(choose(None, false), Choice::Fifo(default_fifo_path()));
+        let p = Path::new("/run/x.y4m");
+        assert_eq!(choose(Some(p), true), Choice::Fifo(p.to_owned()));
     }
 }

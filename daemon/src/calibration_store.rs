@@ -1,0 +1,93 @@
+//! Where sdid keeps calibrations between runs: `calibration.toml` (core's
+//! [`CalibrationStore`], keyed by sensor model and serial) in the state
+//! directory: `--state-dir`, else systemd's `$STATE_DIRECTORY`
+//! (/var/lib/sdi), else `$XDG_STATE_HOME/sdi`, else `~/.local/state/sdi`.
+
+use std::io;
+use std::path::{Path, PathBuf};
+
+use sdi_core::calibration::{CalibrationRecord, CalibrationStore};
+
+/// File name inside the state directory.
+pub const FILE_NAME: &str = "calibration.toml";
+
+/// The state directory, from the argument or the environment.
+pub fn state_dir(arg: Option<&Path>) -> Option<PathBuf> {
+    if let Some(p) = arg {
+        return Some(p.to_owned());
+    }
+    let env = |k: &str| {
+        std::env::var_os(k)
+            .filter(|v| !v.is_empty())
+            .map(PathBuf::from)
+    };
+    // systemd may list several directories separated by ':'; the first is ours.
+    if let Some(d) = std::env::var("STATE_DIRECTORY")
+        .ok()
+        .filter(|v| !v.is_empty())
+    {
+        return d.split(':').next().map(PathBuf::from);
+    }
+    env("XDG_STATE_HOME")
+        .or_else(|| env("HOME").map(|h| h.join(".local/state")))
+        .map(|d| d.join("sdi"))
+}
+
+fn read_store(dir: &Path) -> io::Result<CalibrationStore> {
+    match std::fs::read_to_string(dir.join(FILE_NAME)) {
+        Ok(text) => CalibrationStore::from_toml(&text)
+            .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e.to_string())),
+        Err(e) if e.kind() == io::ErrorKind::NotFound => Ok(CalibrationStore::default()),
+        Err(e) => Err(e),
+    }
+}
+
+/// The stored calibration of this sensor, if any.
+pub fn load(dir: &Path, model: &str, serial: &str) -> io::Result<Option<CalibrationRecord>> {
+    Ok(read_store(dir)?.get(model, serial).cloned())
+}
+
+/// Adds or replaces `record` in the store, atomically (temporary file + rename).
+pub fn save(dir: &Path, record: CalibrationRecord) -> io::Result<PathBuf> {
+    std::fs::create_dir_all(dir)?;
+    let mut store = read_store(dir)?;
+    store.upsert(record);
+    let text = store
+        .to_toml()
+        .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e.to_string()))?;
+    let path = dir.join(FILE_NAME);
+    let tmp = dir.join(format!(".{FILE_NAME}.tmp"));
+    std::fs::write(&tmp, text)?;
+    std::fs::File::open(&tmp)?.sync_all()?;
+    std::fs::rename(&tmp, &path)?;
+    Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sdi_core::calibration::PhotonTransferFit;
+
+    #[test]
+    fn save_then_load_by_model_and_serial() {
+        let dir = tempfile::tempdir().unwrap();
+        let fit = PhotonTransferFit {
+            gain_dn_per_electron: 0.052,
+            gain_se: 0.0003,
+            read_variance_dn2: 15.1,
+            read_variance_se_dn2: 0.03,
+            reduced_chi2: 1.0,
+            points: 5,
+        };
+        assert!(load(dir.path(), "m", "s").unwrap().is_none());
+        let rec = CalibrationRecord::from_fit("m", "s", &fit, 4.0, 30);
+        save(dir.path(), rec.clone()).unwrap();
+        save(
+            dir.path(),
+            CalibrationRecord::from_fit("m", "other", &fit, 4.0, 30),
+        )
+        .unwrap();
+        assert_eq!(load(dir.path(), "m", "s").unwrap(), Some(rec));
+        assert_eq!(state_dir(Some(Path::new("/x"))), Some(PathBuf::from("/x")));
+    }
+}

@@ -1,0 +1,91 @@
+//! Where the y4m fallback goes: `sdid > log.txt` must not fill the log with
+//! video (the FIFO in the runtime directory is used), while `sdid | reader`
+//! streams y4m on the pipe.
+
+use std::io::Read;
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use sdi_tests::dbus::{bin, sdictl, Bus};
+use sdi_tests::require_dbus;
+
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn spawn_sdid(bus: &Bus, runtime_dir: &Path, stdout: Stdio) -> Killed {
+    let child = Command::new(bin("sdid"))
+        .args(["--bus-address", &bus.address, "--sink", "y4m"])
+        .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
+        .env("RUST_LOG", "warn")
+        .env("XDG_RUNTIME_DIR", runtime_dir)
+        .env_remove("INVOCATION_ID")
+        .stdout(stdout)
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("spawn sdid");
+    let d = Killed(child);
+    let t0 = Instant::now();
+    while !sdictl(&bus.address, &["get", "mode"]).status.success() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "sdid did not come up"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    d
+}
+
+#[test]
+fn stdout_redirected_to_a_file_gets_no_video() {
+    require_dbus!();
+    let bus = Bus::start();
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("log.txt");
+    let file = std::fs::File::create(&log).unwrap();
+    let _d = spawn_sdid(&bus, dir.path(), Stdio::from(file));
+    let device = sdictl(&bus.address, &["get", "device"]);
+    let fifo = dir.path().join("sdid-view.y4m");
+    let device = String::from_utf8_lossy(&device.stdout).into_owned();
+    assert!(
+        device.trim().ends_with(&format!("-> {}", fifo.display())),
+        "{device}"
+    );
+    // A reader on the FIFO gets the stream ...
+    let mut head = [0u8; 9];
+    std::fs::File::open(&fifo)
+        .unwrap()
+        .read_exact(&mut head)
+        .unwrap();
+    assert_eq!(&head, b"YUV4MPEG2");
+    std::thread::sleep(Duration::from_millis(500));
+    // ... and the log file none of it.
+    let text = std::fs::read(&log).unwrap();
+    assert!(
+        !text.windows(9).any(|w| w == b"YUV4MPEG2") && text.len() < 4096,
+        "{} bytes of stdout, starting {:?}",
+        text.len(),
+        String::from_utf8_lossy(&text[..text.len().min(64)])
+    );
+}
+
+#[test]
+fn stdout_pipe_gets_the_stream() {
+    require_dbus!();
+    let bus = Bus::start();
+    let dir = tempfile::tempdir().unwrap();
+    let mut d = spawn_sdid(&bus, dir.path(), Stdio::piped());
+    let device = sdictl(&bus.address, &["get", "device"]);
+    let device = String::from_utf8_lossy(&device.stdout).into_owned();
+    assert!(device.trim().ends_with("-> stdout"), "{device}");
+    let mut head = [0u8; 9];
+    d.0.stdout.as_mut().unwrap().read_exact(&mut head).unwrap();
+    assert_eq!(&head, b"YUV4MPEG2");
+    assert!(!dir.path().join("sdid-view.y4m").exists());
+}
