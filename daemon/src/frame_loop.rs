@@ -14,6 +14,7 @@ use tokio::sync::{oneshot, watch};
 
 use crate::backend::{Backend, BackendError, CaptureSettings};
 use crate::modes::{self, DisplayMap, ModeOutput, Pipeline, PipelineConfig};
+use crate::monotonic::MonotonicClock;
 use crate::photon_transfer::{PtcJob, Step};
 use crate::recording::{Calibration, RecordingWriter, Summary};
 use crate::sink::output::Output;
@@ -82,6 +83,8 @@ pub struct FrameLoop {
     /// Estimator and H of the separation mode.
     separation: SeparationConfig,
     ptc: Option<(PtcJob, Reply<Result<PhotonTransferFit, String>>)>,
+    /// Keeps output timestamps increasing when the backend restarts its clock.
+    clock: MonotonicClock,
 }
 
 impl FrameLoop {
@@ -121,6 +124,7 @@ impl FrameLoop {
             frame_index: 0,
             separation,
             ptc: None,
+            clock: MonotonicClock::default(),
         }
     }
 
@@ -186,6 +190,8 @@ impl FrameLoop {
                 }
             }
             let t0 = Instant::now();
+            let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
+            frame.timestamp_us = self.clock.map(frame.timestamp_us, period_us);
             self.frame_index += 1;
             if let Some(dark) = self.backend.take_dark_frame() {
                 self.set_dark(dark.0, dark.1);

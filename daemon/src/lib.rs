@@ -12,6 +12,7 @@ pub mod dbus;
 pub mod frame_loop;
 pub mod light;
 pub mod modes;
+pub mod monotonic;
 pub mod photon_transfer;
 pub mod recording;
 pub mod sink;
