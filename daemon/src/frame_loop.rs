@@ -85,6 +85,18 @@ pub struct FrameLoop {
     ptc: Option<(PtcJob, Reply<Result<PhotonTransferFit, String>>)>,
     /// Keeps output timestamps increasing when the backend restarts its clock.
     clock: MonotonicClock,
+    /// Snapshots asked for while the lights were off: answered from the
+    /// first output of two consecutive lit captures.
+    pending_snapshots: Vec<Reply<Option<SnapshotData>>>,
+    /// Consecutive captures with the mode's illumination (not dark).
+    lit_captures: u32,
+}
+
+/// Whether the light sources must be on: someone watches the output (or
+/// the sink cannot tell: v4l2loopback 0.12.x, y4m), a recording runs, or a
+/// snapshot waits. Dark calibration runs dark anyway.
+pub fn lights_needed(watchers: Option<u32>, recording: bool, snapshot_pending: bool) -> bool {
+    watchers != Some(0) || recording || snapshot_pending
 }
 
 impl FrameLoop {
@@ -125,6 +137,8 @@ impl FrameLoop {
             separation,
             ptc: None,
             clock: MonotonicClock::default(),
+            pending_snapshots: Vec::new(),
+            lit_captures: 0,
         }
     }
 
@@ -163,12 +177,19 @@ impl FrameLoop {
                 }
             }
             let carrier_hz = self.backend.settings().modulation_hz;
-            let illumination = if self.dark_job.is_some() {
-                sdi_core::modulation::Illumination::dark(carrier_hz)
-            } else if self.ptc.is_some() {
+            let lit = self.dark_job.is_none()
+                && self.ptc.is_none()
+                && lights_needed(
+                    self.output.watchers(),
+                    self.recorder.is_some(),
+                    !self.pending_snapshots.is_empty(),
+                );
+            let illumination = if self.ptc.is_some() && self.dark_job.is_none() {
                 PtcJob::illumination(carrier_hz)
-            } else {
+            } else if lit {
                 modes::illumination(self.mode, self.frame_index, carrier_hz)
+            } else {
+                sdi_core::modulation::Illumination::dark(carrier_hz)
             };
             match self.backend.capture(&illumination, &mut frame) {
                 Ok(()) => stalled = false,
@@ -184,6 +205,14 @@ impl FrameLoop {
                     if let Some(job) = self.dark_job.take() {
                         let _ = job.reply.send(Err(e));
                     }
+                    self.lit_captures = 0;
+                    for reply in self.pending_snapshots.drain(..) {
+                        let _ = reply.send(self.last.clone().map(|output| SnapshotData {
+                            mode: self.mode,
+                            output,
+                            display: self.display,
+                        }));
+                    }
                     self.output.send_no_signal();
                     std::thread::sleep(Duration::from_millis(200));
                     continue;
@@ -193,6 +222,7 @@ impl FrameLoop {
             let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
             frame.timestamp_us = self.clock.map(frame.timestamp_us, period_us);
             self.frame_index += 1;
+            self.lit_captures = if lit { self.lit_captures + 1 } else { 0 };
             if let Some(dark) = self.backend.take_dark_frame() {
                 self.set_dark(dark.0, dark.1);
             }
@@ -206,6 +236,15 @@ impl FrameLoop {
             } else if let Some(out) = self.pipeline.process(&frame) {
                 let out = Arc::new(out.clone());
                 self.output.send(out.clone(), self.display);
+                if self.lit_captures >= 2 {
+                    for reply in self.pending_snapshots.drain(..) {
+                        let _ = reply.send(Some(SnapshotData {
+                            mode: self.mode,
+                            output: out.clone(),
+                            display: self.display,
+                        }));
+                    }
+                }
                 self.last = Some(out);
             }
             if self.stats.frame(t0.elapsed()) {
@@ -270,6 +309,10 @@ impl FrameLoop {
                         let _ = reply.send(Err(e.to_string()));
                     }
                 }
+            }
+            Command::Snapshot(reply) if self.lit_captures < 2 => {
+                // lights off (nobody watched) or just switched on
+                self.pending_snapshots.push(reply);
             }
             Command::Snapshot(reply) => {
                 let _ = reply.send(self.last.clone().map(|output| SnapshotData {
@@ -397,5 +440,22 @@ impl FrameLoop {
         self.calibration.fixed_pattern_sigma_dn = Some(stats.fixed_pattern_sigma_dn);
         self.calibration_tx.send_replace(self.calibration.clone());
         let _ = job.reply.send(Ok(stats));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::lights_needed;
+
+    #[test]
+    fn lights_only_while_someone_needs_them() {
+        // nobody watches, nothing records or waits: dark
+        assert!(!lights_needed(Some(0), false, false));
+        // a reader, a recording or a pending snapshot each turn them on
+        assert!(lights_needed(Some(1), false, false));
+        assert!(lights_needed(Some(0), true, false));
+        assert!(lights_needed(Some(0), false, true));
+        // the sink cannot tell (v4l2loopback 0.12.x, y4m): on
+        assert!(lights_needed(None, false, false));
     }
 }

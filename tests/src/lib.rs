@@ -5,4 +5,5 @@ pub mod board_emulator;
 pub mod dbus;
 pub mod loopback;
 pub mod process;
+pub mod sim_frames;
 pub mod vm;

@@ -3,10 +3,10 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use v4l2loopback_glue::{GlueError, Input, LoopbackWriter, OutputConfig, Src};
 
@@ -230,38 +230,88 @@ pub enum Pattern {
     SignedDn(Vec<f32>),
 }
 
-/// A writer thread publishing `pattern` at ~`fps` until stopped.
+/// `LoopbackWriter::watchers()` as last seen by the writer thread.
+const WATCHERS_UNKNOWN: u32 = u32::MAX;
+
+/// A writer thread publishing `patterns` in turn at `fps` until stopped,
+/// stamped with CLOCK_MONOTONIC (the clock V4L2 timestamps use) and paced
+/// to deadlines, so a slow frame does not lower the rate.
 pub struct BackgroundWriter {
     stop: Arc<AtomicBool>,
+    watchers: Arc<AtomicU32>,
     handle: Option<JoinHandle<Result<u64, GlueError>>>,
 }
 
+/// Microseconds of CLOCK_MONOTONIC.
+pub fn monotonic_us() -> u64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
+        .map(|t| t.tv_sec() as u64 * 1_000_000 + t.tv_nsec() as u64 / 1000)
+        .unwrap_or(0)
+}
+
 impl BackgroundWriter {
-    /// Opens the writer on this thread (so open errors surface here), then
-    /// moves it to a thread.
-    pub fn start(mut writer: LoopbackWriter, pattern: Pattern) -> Self {
+    /// Takes a writer opened on this thread (so open errors surface here)
+    /// and moves it to a thread.
+    pub fn start(mut writer: LoopbackWriter, patterns: Vec<Pattern>) -> Self {
+        assert!(!patterns.is_empty(), "no frames to write");
         let stop = Arc::new(AtomicBool::new(false));
-        let flag = stop.clone();
+        let watchers = Arc::new(AtomicU32::new(WATCHERS_UNKNOWN));
+        let (flag, seen) = (stop.clone(), watchers.clone());
         let cfg = writer.config();
         let (w, h) = (cfg.width as usize, cfg.height as usize);
         let handle = std::thread::spawn(move || {
             let period = Duration::from_micros(1_000_000 / u64::from(cfg.fps));
-            let mut ts_us = 1_000_000u64;
-            while !flag.load(Ordering::Relaxed) {
-                let input = match &pattern {
+            let mut deadline = Instant::now();
+            for pattern in patterns.iter().cycle() {
+                if flag.load(Ordering::Relaxed) {
+                    break;
+                }
+                let input = match pattern {
                     Pattern::Rgb8(d) => Input::Rgb8(Src::packed(d, w, h, 3)),
                     Pattern::Grey8(d) => Input::Grey8(Src::packed(d, w, h, 1)),
                     Pattern::SignedDn(d) => Input::SignedDn(Src::packed(d, w, h, 1)),
                 };
-                writer.write(input, ts_us)?;
-                ts_us += period.as_micros() as u64;
-                std::thread::sleep(period);
+                writer.write(input, monotonic_us())?;
+                seen.store(
+                    writer.watchers().unwrap_or(WATCHERS_UNKNOWN),
+                    Ordering::Relaxed,
+                );
+                deadline += period;
+                let now = Instant::now();
+                if deadline > now {
+                    std::thread::sleep(deadline - now);
+                } else {
+                    deadline = now; // fell behind: do not burst
+                }
             }
             Ok(writer.frames_written())
         });
         Self {
             stop,
+            watchers,
             handle: Some(handle),
+        }
+    }
+
+    /// The writer's `watchers()` after its latest frame (`None`: the module
+    /// cannot tell).
+    pub fn watchers(&self) -> Option<u32> {
+        match self.watchers.load(Ordering::Relaxed) {
+            WATCHERS_UNKNOWN => None,
+            n => Some(n),
+        }
+    }
+
+    /// Polls [`watchers`](Self::watchers) until it equals `want` or
+    /// `timeout` passes; returns the last value seen.
+    pub fn wait_watchers(&self, want: Option<u32>, timeout: Duration) -> Option<u32> {
+        let t0 = Instant::now();
+        loop {
+            let seen = self.watchers();
+            if seen == want || t0.elapsed() > timeout {
+                return seen;
+            }
+            std::thread::sleep(Duration::from_millis(50));
         }
     }
 
@@ -337,6 +387,8 @@ pub struct Compliance {
     pub failed: u32,
     pub warnings: u32,
     pub failing_tests: Vec<String>,
+    /// v4l2-compliance's `fail: <source>(<line>): <check>` lines: why.
+    pub fail_reasons: Vec<String>,
     pub output: String,
 }
 
@@ -371,12 +423,18 @@ pub fn compliance(dev: &Path) -> Result<Compliance, String> {
         .filter(|l| l.trim_end().ends_with(": FAIL"))
         .map(|l| l.trim().to_owned())
         .collect();
+    let fail_reasons = output
+        .lines()
+        .filter(|l| l.trim_start().starts_with("fail:"))
+        .map(|l| l.trim().to_owned())
+        .collect();
     Ok(Compliance {
         total,
         succeeded: num("Succeeded:"),
         failed: num("Failed:"),
         warnings: num("Warnings:"),
         failing_tests,
+        fail_reasons,
         output,
     })
 }

@@ -5,8 +5,10 @@
 //!   `/sys/devices/virtual/video4linux/*/name`.
 //! * 0.13 / 0.14: control device `/dev/v4l2loopback` with the legacy
 //!   `ADD` ioctl `0x4C80`.
-//! * 0.15+: the control ioctls were renumbered (`_IOW('~', 1, ...)`) and a
-//!   `VERSION` ioctl (`_IOR('~', 0, u32)`) was added.
+//! * 0.15+: the control ioctls were renumbered (`ADD _IOW('~', 1)`,
+//!   `REMOVE _IOW('~', 2)`, `QUERY _IOWR('~', 3)`) and a `VERSION` ioctl
+//!   (`_IOR('~', 0, u32)`) was added; the legacy numbers still work, but with
+//!   the 0.15 struct layout (min/max sizes), so we use the new ones there.
 
 use std::fs::File;
 use std::os::fd::AsFd;
@@ -172,6 +174,124 @@ pub fn find_device(label: &str) -> Result<LoopbackDevice, GlueError> {
         })
 }
 
+/// Opens the control device (0.13+) read-write.
+fn open_control() -> Result<File, GlueError> {
+    File::options()
+        .read(true)
+        .write(true)
+        .open(CONTROL_DEVICE)
+        .map_err(|e| GlueError::Io {
+            op: "open /dev/v4l2loopback",
+            errno: nix::errno::Errno::from_raw(e.raw_os_error().unwrap_or(0)),
+        })
+}
+
+/// The module version reported by the control device's `VERSION` ioctl
+/// (0.15+); `Unsupported` on older modules.
+pub fn control_version() -> Result<ModuleVersion, GlueError> {
+    let ctl = open_control()?;
+    let mut code = 0u32;
+    match sys::ctl_version(ctl.as_fd(), &mut code) {
+        Ok(_) => Ok(ModuleVersion::from_code(code)),
+        Err(nix::errno::Errno::ENOSYS | nix::errno::Errno::ENOTTY) => Err(GlueError::Unsupported {
+            version: "< 0.15".into(),
+            what: "the VERSION ioctl",
+        }),
+        Err(e) => Err(GlueError::from_errno("V4L2LOOPBACK_CTL_VERSION", e)),
+    }
+}
+
+/// What the control device's `QUERY` ioctl reports about one node.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct NodeInfo {
+    pub video_nr: u32,
+    pub label: String,
+    pub max_width: u32,
+    pub max_height: u32,
+    /// false: exclusive_caps (OUTPUT only until a producer streams).
+    pub announce_all_caps: bool,
+    pub max_buffers: i32,
+    pub max_openers: i32,
+}
+
+/// The number N of `/dev/videoN`.
+pub fn video_nr(path: &Path) -> Option<u32> {
+    path.file_name()?
+        .to_str()?
+        .strip_prefix("video")?
+        .parse()
+        .ok()
+}
+
+fn label_of(raw: &[u8; 32]) -> String {
+    let end = raw.iter().position(|&b| b == 0).unwrap_or(raw.len());
+    String::from_utf8_lossy(&raw[..end]).into_owned()
+}
+
+/// `QUERY` of `/dev/video<nr>` through the control device (0.13+).
+pub fn query_device(nr: u32) -> Result<NodeInfo, GlueError> {
+    let version = ModuleVersion::of_loaded_module()?;
+    if !version.has_control_device() {
+        return Err(GlueError::Unsupported {
+            version: version.to_string(),
+            what: "querying devices (no /dev/v4l2loopback)",
+        });
+    }
+    let ctl = open_control()?;
+    if version.has_new_control_ioctls() {
+        let mut cfg = sys::loopback_config_v15 {
+            output_nr: nr as i32,
+            unused: -1,
+            ..Default::default()
+        };
+        sys::ctl_query_v15(ctl.as_fd(), &mut cfg).map_err(err("V4L2LOOPBACK_CTL_QUERY"))?;
+        Ok(NodeInfo {
+            video_nr: cfg.output_nr as u32,
+            label: label_of(&cfg.card_label),
+            max_width: cfg.max_width,
+            max_height: cfg.max_height,
+            announce_all_caps: cfg.announce_all_caps != 0,
+            max_buffers: cfg.max_buffers,
+            max_openers: cfg.max_openers,
+        })
+    } else {
+        let mut cfg = sys::loopback_config_legacy {
+            output_nr: nr as i32,
+            unused: -1,
+            ..Default::default()
+        };
+        sys::ctl_query_legacy(ctl.as_fd(), &mut cfg).map_err(err("V4L2LOOPBACK_CTL_QUERY"))?;
+        Ok(NodeInfo {
+            video_nr: cfg.output_nr as u32,
+            label: label_of(&cfg.card_label),
+            max_width: cfg.max_width as u32,
+            max_height: cfg.max_height as u32,
+            announce_all_caps: cfg.announce_all_caps != 0,
+            max_buffers: cfg.max_buffers,
+            max_openers: cfg.max_openers,
+        })
+    }
+}
+
+/// Removes a node created at run time (0.13+). `Busy` while anyone has it
+/// open (the module refuses, v4l2loopback.c `V4L2LOOPBACK_CTL_REMOVE`).
+pub fn remove_device(dev: &LoopbackDevice) -> Result<(), GlueError> {
+    if !dev.version.has_control_device() {
+        return Err(GlueError::Unsupported {
+            version: dev.version.to_string(),
+            what: "removing devices (no /dev/v4l2loopback)",
+        });
+    }
+    let nr = video_nr(&dev.path).ok_or_else(|| GlueError::InvalidArgument {
+        op: "V4L2LOOPBACK_CTL_REMOVE",
+        detail: format!("{} is not /dev/videoN", dev.path.display()),
+    })?;
+    let ctl = open_control()?;
+    sys::ctl_remove(ctl.as_fd(), nr, dev.version.has_new_control_ioctls())
+        .map_err(err("V4L2LOOPBACK_CTL_REMOVE"))?;
+    Ok(())
+}
+
 /// Parameters of a node to create (0.13+).
 #[derive(Clone, Debug)]
 pub struct CreateOptions {
@@ -183,6 +303,9 @@ pub struct CreateOptions {
     pub max_height: u32,
     /// Requested `/dev/videoN`, or any.
     pub video_nr: Option<u32>,
+    /// Buffers in the node's ring: readers may lag `max_buffers - 1`
+    /// frames before they see a torn one (see `DriverFeatures::buffers`).
+    pub max_buffers: u32,
 }
 
 impl CreateOptions {
@@ -193,6 +316,7 @@ impl CreateOptions {
             max_width: 8192,
             max_height: 8192,
             video_nr: None,
+            max_buffers: 10,
         }
     }
 }
@@ -212,14 +336,7 @@ pub fn create_device(opts: &CreateOptions) -> Result<LoopbackDevice, GlueError> 
             what: "creating devices at run time (no /dev/v4l2loopback); use module parameters",
         });
     }
-    let ctl = File::options()
-        .read(true)
-        .write(true)
-        .open(CONTROL_DEVICE)
-        .map_err(|e| GlueError::Io {
-            op: "open /dev/v4l2loopback",
-            errno: nix::errno::Errno::from_raw(e.raw_os_error().unwrap_or(0)),
-        })?;
+    let ctl = open_control()?;
     let mut label = [0u8; 32];
     let n = opts.label.len().min(31);
     label[..n].copy_from_slice(&opts.label.as_bytes()[..n]);
@@ -232,6 +349,7 @@ pub fn create_device(opts: &CreateOptions) -> Result<LoopbackDevice, GlueError> 
             max_width: opts.max_width,
             max_height: opts.max_height,
             announce_all_caps: i32::from(!opts.exclusive_caps),
+            max_buffers: opts.max_buffers as i32,
             ..Default::default()
         };
         sys::ctl_add_v15(ctl.as_fd(), &cfg)
@@ -243,6 +361,7 @@ pub fn create_device(opts: &CreateOptions) -> Result<LoopbackDevice, GlueError> 
             max_width: opts.max_width as i32,
             max_height: opts.max_height as i32,
             announce_all_caps: i32::from(!opts.exclusive_caps),
+            max_buffers: opts.max_buffers as i32,
             ..Default::default()
         };
         sys::ctl_add_legacy(ctl.as_fd(), &cfg)
@@ -273,5 +392,10 @@ mod tests {
         assert!(ModuleVersion::new(0, 15, 0).has_new_control_ioctls());
         assert!(ModuleVersion::parse("garbage").is_none());
         assert!(modprobe_command("SDI view").contains("card_label=\"SDI view\""));
+        assert_eq!(video_nr(Path::new("/dev/video42")), Some(42));
+        assert_eq!(video_nr(Path::new("/dev/v4l2loopback")), None);
+        let mut raw = [0u8; 32];
+        raw[..7].copy_from_slice(b"SDI cam");
+        assert_eq!(label_of(&raw), "SDI cam");
     }
 }

@@ -11,13 +11,17 @@
 //! let rgb = vec![0u8; 640 * 480 * 3];
 //! view.write_rgb8(&rgb, 1_000_000)?; // sensor timestamp in µs
 //! view.write_no_signal()?; // sensor paused
-//! let _watching: Option<bool> = view.readers_present(); // None on 0.12.x
+//! let _watchers: Option<u32> = view.watchers(); // None on 0.12.x
 //! # Ok(()) }
 //! ```
 //!
-//! * [`find_device`] / [`create_device`]: the node by card label, by module
-//!   version (0.12.x: module parameters only; 0.13/0.14: legacy control
-//!   ioctls; 0.15+: renumbered control ioctls + VERSION).
+//! * [`find_device`] / [`create_device`] / [`query_device`] /
+//!   [`remove_device`]: the node by card label, by module version (0.12.x:
+//!   module parameters only; 0.13/0.14: legacy control ioctls; 0.15+:
+//!   renumbered control ioctls + [`control_version`]).
+//! * [`LoopbackWriter::watchers`]: readers streaming, from the client-usage
+//!   event (0.13+), so the daemon powers the light sources only while
+//!   someone watches.
 //! * [`LoopbackWriter::open`] negotiates [`OutputConfig`] (VIDIOC_S_FMT on the
 //!   output type, VIDIOC_S_PARM), sets `keep_format` and `sustain_framerate`,
 //!   requests mmap buffers (falls back to `write()`), STREAMONs and shows the
@@ -40,7 +44,8 @@ mod writer;
 
 pub use convert::{dn_to_y16, Converter, Src, YuyvPath};
 pub use device::{
-    create_device, find_device, modprobe_command, CreateOptions, LoopbackDevice, ModuleVersion,
+    control_version, create_device, find_device, modprobe_command, query_device, remove_device,
+    video_nr, CreateOptions, LoopbackDevice, ModuleVersion, NodeInfo,
 };
 pub use error::GlueError;
 pub use format::{IoMethod, OutputConfig, PixelFormat, Y16_ZERO_DN};

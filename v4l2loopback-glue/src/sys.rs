@@ -18,6 +18,7 @@ pub const V4L2_FIELD_NONE: u32 = 1;
 pub const V4L2_COLORSPACE_SMPTE170M: u32 = 1;
 pub const V4L2_COLORSPACE_SRGB: u32 = 8;
 pub const V4L2_CAP_TIMEPERFRAME: u32 = 0x1000;
+pub const V4L2_CAP_VIDEO_OUTPUT: u32 = 0x0000_0002;
 pub const V4L2_BUF_FLAG_TIMESTAMP_COPY: u32 = 0x0000_4000;
 pub const V4L2_EVENT_SUB_FL_SEND_INITIAL: u32 = 1;
 pub const V4L2_EVENT_PRIVATE_START: u32 = 0x0800_0000;
@@ -282,7 +283,6 @@ mod raw {
     nix::ioctl_readwrite!(reqbufs, b'V', 8, v4l2_requestbuffers);
     nix::ioctl_readwrite!(querybuf, b'V', 9, v4l2_buffer);
     nix::ioctl_readwrite!(qbuf, b'V', 15, v4l2_buffer);
-    nix::ioctl_readwrite!(dqbuf, b'V', 17, v4l2_buffer);
     nix::ioctl_write_ptr!(streamon, b'V', 18, libc::c_int);
     nix::ioctl_write_ptr!(streamoff, b'V', 19, libc::c_int);
     nix::ioctl_readwrite!(s_parm, b'V', 22, v4l2_streamparm);
@@ -292,8 +292,13 @@ mod raw {
     // v4l2loopback control device, 0.15+: magic '~'.
     nix::ioctl_read!(ctl_version, b'~', 0, u32);
     nix::ioctl_write_ptr!(ctl_add_v15, b'~', 1, loopback_config_v15);
+    // REMOVE passes the device number itself as the argument.
+    nix::ioctl_write_int!(ctl_remove_v15, b'~', 2);
+    nix::ioctl_readwrite!(ctl_query_v15, b'~', 3, loopback_config_v15);
     // 0.13/0.14 ("legacy") use bare numbers that encode no size/direction.
     nix::ioctl_write_ptr_bad!(ctl_add_legacy, 0x4C80, loopback_config_legacy);
+    nix::ioctl_write_int_bad!(ctl_remove_legacy, 0x4C81);
+    nix::ioctl_readwrite_bad!(ctl_query_legacy, 0x4C82, loopback_config_legacy);
 }
 
 /// Generates a safe wrapper around one of the `raw` ioctls.
@@ -322,7 +327,6 @@ safe_ioctl!(s_fmt, raw::s_fmt, mut v4l2_format);
 safe_ioctl!(reqbufs, raw::reqbufs, mut v4l2_requestbuffers);
 safe_ioctl!(querybuf, raw::querybuf, mut v4l2_buffer);
 safe_ioctl!(qbuf, raw::qbuf, mut v4l2_buffer);
-safe_ioctl!(dqbuf, raw::dqbuf, mut v4l2_buffer);
 safe_ioctl!(streamon, raw::streamon, const libc::c_int);
 safe_ioctl!(streamoff, raw::streamoff, const libc::c_int);
 safe_ioctl!(s_parm, raw::s_parm, mut v4l2_streamparm);
@@ -332,6 +336,26 @@ safe_ioctl!(subscribe_event, raw::subscribe_event, const v4l2_event_subscription
 safe_ioctl!(ctl_version, raw::ctl_version, mut u32);
 safe_ioctl!(ctl_add_v15, raw::ctl_add_v15, const loopback_config_v15);
 safe_ioctl!(ctl_add_legacy, raw::ctl_add_legacy, const loopback_config_legacy);
+safe_ioctl!(ctl_query_v15, raw::ctl_query_v15, mut loopback_config_v15);
+safe_ioctl!(
+    ctl_query_legacy,
+    raw::ctl_query_legacy,
+    mut loopback_config_legacy
+);
+
+/// `V4L2LOOPBACK_CTL_REMOVE` (0.15+ numbering when `v15`, else the legacy
+/// `0x4C81`): removes `/dev/video<nr>`; EBUSY while it is open.
+pub fn ctl_remove(fd: BorrowedFd<'_>, nr: u32, v15: bool) -> Result<libc::c_int, Errno> {
+    // SAFETY: the argument is passed by value (the device number), no
+    // memory is shared with the kernel; `fd` is open for the whole call.
+    unsafe {
+        if v15 {
+            raw::ctl_remove_v15(fd.as_raw_fd(), libc::c_ulong::from(nr))
+        } else {
+            raw::ctl_remove_legacy(fd.as_raw_fd(), nr as libc::c_int)
+        }
+    }
+}
 
 /// A read-write shared mapping of one driver buffer, unmapped on drop.
 pub struct Mapping {

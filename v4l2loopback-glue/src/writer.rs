@@ -16,8 +16,13 @@ use crate::format::{IoMethod, OutputConfig, PixelFormat};
 use crate::sys;
 use crate::GlueError;
 
-/// Driver buffers requested for mmap streaming.
-const MMAP_BUFFERS: u32 = 4;
+/// Driver buffers requested for mmap streaming; the writer's request sets
+/// the node's ring, which readers share. v4l2loopback grants at most its
+/// `max_buffers` (default 2, module parameter or
+/// [`crate::CreateOptions::max_buffers`]); see [`DriverFeatures::buffers`].
+/// Not more than 10: OpenCV's V4L2 capture indexes a fixed array of 10
+/// buffers by the index the driver hands out (it failed on a 32-buffer ring).
+const MMAP_BUFFERS: u32 = 10;
 /// Driver name reported by VIDIOC_QUERYCAP.
 const LOOPBACK_DRIVER: &str = "v4l2 loopback";
 
@@ -35,9 +40,20 @@ pub enum Input<'a> {
 }
 
 enum Io {
+    /// Driver buffers, filled round-robin (`next` is the next index).
+    ///
+    /// We do not take the index from VIDIOC_DQBUF: v4l2loopback 0.12.7
+    /// returns the *most recently queued* output buffer there
+    /// (`list_entry(dev->outbufs_list.prev, ...)` in `vidioc_dqbuf`), so a
+    /// writer following DQBUF refills the one buffer readers are copying
+    /// from, every frame after the first pass: torn frames and, with
+    /// ffmpeg's zero-copy capture, the same buffer index handed out while
+    /// still held. Both 0.12.7 and 0.15 accept QBUF of any allocated
+    /// output buffer at any time, and round-robin over `MMAP_BUFFERS`
+    /// leaves the last three frames untouched while readers copy them.
     Mmap {
         maps: Vec<sys::Mapping>,
-        first_pass: usize,
+        next: usize,
     },
     Write {
         frame: Vec<u8>,
@@ -55,6 +71,15 @@ pub struct DriverFeatures {
     pub client_usage_event: bool,
     /// S_PARM accepted our frame interval.
     pub frame_interval: bool,
+    /// Driver buffers in the ring (mmap: granted by REQBUFS; write(): 0).
+    ///
+    /// v4l2loopback hands readers the very buffers the writer fills, with
+    /// no ownership between them: a reader still copying a frame when the
+    /// writer comes round the ring again gets a torn frame. With the
+    /// default `max_buffers=2` that happens as soon as a reader lags one
+    /// frame period (seen under load in the VM); load the module with
+    /// `max_buffers=10` (udev/modprobe.d does) to give readers 9 periods.
+    pub buffers: u32,
 }
 
 /// Writes frames to a v4l2loopback node.
@@ -68,7 +93,7 @@ pub struct LoopbackWriter {
     no_signal: Vec<u8>,
     version: Option<ModuleVersion>,
     features: DriverFeatures,
-    readers: Option<bool>,
+    watchers: Option<u32>,
     frames_written: u64,
 }
 
@@ -168,12 +193,14 @@ impl LoopbackWriter {
             no_signal: Vec::new(),
             version: ModuleVersion::of_loaded_module().ok(),
             features: DriverFeatures::default(),
-            readers: None,
+            watchers: None,
             frames_written: 0,
         };
-        writer.features.keep_format = writer.set_control(sys::CID_KEEP_FORMAT, 1);
         writer.features.sustain_framerate = writer.set_control(sys::CID_SUSTAIN_FRAMERATE, 1);
         writer.negotiate()?;
+        // After S_FMT: v4l2loopback 0.15 answers S_FMT with the node's
+        // current format while keep_format is set (`vidioc_try_fmt_vid`).
+        writer.features.keep_format = writer.set_control(sys::CID_KEEP_FORMAT, 1);
         writer.subscribe_client_usage();
         writer.write_no_signal()?;
         Ok(writer)
@@ -201,7 +228,15 @@ impl LoopbackWriter {
                 pix: pix_format(&cfg),
             },
         };
-        sys::s_fmt(self.file.as_fd(), &mut fmt).map_err(err("VIDIOC_S_FMT"))?;
+        match sys::s_fmt(self.file.as_fd(), &mut fmt) {
+            Ok(_) => {}
+            // exclusive_caps on 0.15: while another producer streams the node
+            // is capture-only and output S_FMT is EINVAL (0.12.7: EBUSY)
+            Err(Errno::EINVAL) if !self.announces_output() => {
+                return Err(GlueError::Busy { op: "VIDIOC_S_FMT" })
+            }
+            Err(e) => return Err(GlueError::from_errno("VIDIOC_S_FMT", e)),
+        }
         let mut got = sys::v4l2_format {
             type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
             ..Default::default()
@@ -242,10 +277,8 @@ impl LoopbackWriter {
             IoMethod::Mmap => match self.map_buffers() {
                 Ok(maps) => {
                     self.io_method = IoMethod::Mmap;
-                    Io::Mmap {
-                        maps,
-                        first_pass: 0,
-                    }
+                    self.features.buffers = maps.len() as u32;
+                    Io::Mmap { maps, next: 0 }
                 }
                 Err(GlueError::DeviceGone { op }) => return Err(GlueError::DeviceGone { op }),
                 Err(_) => self.write_io(),
@@ -261,6 +294,14 @@ impl LoopbackWriter {
         let src = Src::packed(&grey, cfg.width as usize, cfg.height as usize, 1);
         self.conv.grey8(src, &mut self.no_signal)?;
         Ok(())
+    }
+
+    /// Whether the node currently offers the output type (exclusive_caps
+    /// nodes stop doing so while a producer streams).
+    fn announces_output(&self) -> bool {
+        let mut cap = sys::v4l2_capability::default();
+        sys::querycap(self.file.as_fd(), &mut cap).is_ok()
+            && cap.device_caps & sys::V4L2_CAP_VIDEO_OUTPUT != 0
     }
 
     fn write_io(&mut self) -> Io {
@@ -324,14 +365,27 @@ impl LoopbackWriter {
         };
         self.features.client_usage_event = sys::subscribe_event(self.file.as_fd(), &sub).is_ok();
         if self.features.client_usage_event {
-            self.readers = Some(false);
+            self.watchers = Some(0);
         }
     }
 
     /// Whether capture readers are streaming: `None` when the module cannot
     /// tell (v4l2loopback < 0.13 has no client-usage event: "unsupported").
-    /// Drains pending events without blocking.
     pub fn readers_present(&mut self) -> Option<bool> {
+        self.watchers().map(|n| n > 0)
+    }
+
+    /// How many capture readers stream, from the client-usage event
+    /// (`V4L2_EVENT_PRI_CLIENT_USAGE`, v4l2loopback 0.13+); `None` when the
+    /// module has no such event (0.12.x). Drains pending events without
+    /// blocking.
+    ///
+    /// v4l2loopback 0.15 reports `!has_capture_token(dev->stream_tokens)`
+    /// (`client_usage_queue_event`), i.e. 1 while a reader holds the capture
+    /// stream and 0 otherwise, not a true count; and only a STREAMON /
+    /// STREAMOFF of a capture *streaming* reader queues the event, so a
+    /// reader using read() is not seen.
+    pub fn watchers(&mut self) -> Option<u32> {
         if !self.features.client_usage_event {
             return None;
         }
@@ -352,10 +406,12 @@ impl LoopbackWriter {
                 break;
             }
             if ev.type_ == sys::V4L2_EVENT_PRI_CLIENT_USAGE {
-                self.readers = Some(ev.u[0] as u32 > 0);
+                // `struct v4l2_event_client_usage { __u32 count; }` at the
+                // start of the union (little endian).
+                self.watchers = Some(ev.u[0] as u32);
             }
         }
-        self.readers
+        self.watchers
     }
 
     /// Changes the output format. Refused with [`GlueError::FormatLocked`]
@@ -379,6 +435,8 @@ impl LoopbackWriter {
             });
         }
         self.release_buffers();
+        // keep_format would pin the old format (see `open`)
+        self.set_control(sys::CID_KEEP_FORMAT, 0);
         let old = self.config;
         self.config = config;
         self.conv = Converter::new(config.width, config.height, config.format, YuyvPath::Simd);
@@ -388,8 +446,10 @@ impl LoopbackWriter {
             self.conv = Converter::new(old.width, old.height, old.format, YuyvPath::Simd);
             self.release_buffers();
             self.negotiate()?;
+            self.set_control(sys::CID_KEEP_FORMAT, i32::from(self.features.keep_format));
             return Err(e);
         }
+        self.set_control(sys::CID_KEEP_FORMAT, i32::from(self.features.keep_format));
         self.write_no_signal()
     }
 
@@ -429,20 +489,10 @@ impl LoopbackWriter {
             }
         };
         match io {
-            Io::Mmap { maps, first_pass } => {
+            Io::Mmap { maps, next } => {
                 let fd = file.as_fd();
-                let index = if *first_pass < maps.len() {
-                    *first_pass += 1;
-                    *first_pass - 1
-                } else {
-                    let mut buf = sys::v4l2_buffer {
-                        type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
-                        memory: sys::V4L2_MEMORY_MMAP,
-                        ..Default::default()
-                    };
-                    sys::dqbuf(fd, &mut buf).map_err(err("VIDIOC_DQBUF"))?;
-                    buf.index as usize % maps.len()
-                };
+                let index = *next;
+                *next = (index + 1) % maps.len();
                 fill(&mut maps[index].as_mut_slice()[..bytes])?;
                 let mut buf = sys::v4l2_buffer {
                     index: index as u32,

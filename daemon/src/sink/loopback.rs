@@ -117,6 +117,16 @@ impl Sink for LoopbackSink {
         Ok(())
     }
 
+    /// Readers of the view node plus the data node, from v4l2loopback's
+    /// client-usage event; `None` when the module lacks it (0.12.x).
+    fn watchers(&mut self) -> Option<u32> {
+        let view = self.view.watchers()?;
+        match &mut self.data {
+            Some(d) => Some(view + d.watchers()?),
+            None => Some(view),
+        }
+    }
+
     fn write_no_signal(&mut self) -> Result<(), SinkError> {
         self.view.write_no_signal().map_err(glue)?;
         if let Some(d) = &mut self.data {

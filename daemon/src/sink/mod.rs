@@ -35,4 +35,9 @@ pub trait Sink: Send {
     fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError>;
     /// Publishes a "no signal" frame (sensor paused or unplugged).
     fn write_no_signal(&mut self) -> Result<(), SinkError>;
+    /// How many readers watch the output, where the sink can tell
+    /// (v4l2loopback 0.13+); `None`: unknown, assume someone watches.
+    fn watchers(&mut self) -> Option<u32> {
+        None
+    }
 }

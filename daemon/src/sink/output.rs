@@ -1,10 +1,11 @@
 //! The output thread: owns the sink, takes frames from a two-slot queue and
 //! drops (and counts) frames when the reader is slower than the sensor.
 
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{sync_channel, SyncSender, TrySendError};
+use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
+use std::sync::mpsc::{sync_channel, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::thread::JoinHandle;
+use std::time::Duration;
 
 use super::{Sink, SinkInfo};
 use crate::modes::{DisplayMap, ModeOutput};
@@ -19,18 +20,34 @@ pub struct Output {
     tx: Option<SyncSender<Msg>>,
     info: SinkInfo,
     dropped: Arc<AtomicU64>,
+    watchers: Arc<AtomicU32>,
     thread: Option<JoinHandle<()>>,
 }
+
+/// [`Output::watchers`] not known (the sink cannot tell).
+const WATCHERS_UNKNOWN: u32 = u32::MAX;
+/// How often the output thread refreshes the watcher count while idle.
+const WATCHERS_POLL: Duration = Duration::from_millis(100);
 
 impl Output {
     pub fn spawn(mut sink: Box<dyn Sink>) -> std::io::Result<Self> {
         let info = sink.info();
         let (tx, rx) = sync_channel::<Msg>(2);
+        let watchers = Arc::new(AtomicU32::new(WATCHERS_UNKNOWN));
+        let seen = watchers.clone();
         let thread = std::thread::Builder::new()
             .name("sdid-output".into())
             .spawn(move || {
                 let mut failing = false;
-                while let Ok(msg) = rx.recv() {
+                loop {
+                    let msg = rx.recv_timeout(WATCHERS_POLL);
+                    let count = sink.watchers().unwrap_or(WATCHERS_UNKNOWN);
+                    seen.store(count, Ordering::Relaxed);
+                    let msg = match msg {
+                        Ok(msg) => msg,
+                        Err(RecvTimeoutError::Timeout) => continue,
+                        Err(RecvTimeoutError::Disconnected) => break,
+                    };
                     let r = match msg {
                         Msg::Frame(out, display) => sink.write(&out, &display),
                         Msg::NoSignal => sink.write_no_signal(),
@@ -49,6 +66,7 @@ impl Output {
             tx: Some(tx),
             info,
             dropped: Arc::new(AtomicU64::new(0)),
+            watchers,
             thread: Some(thread),
         })
     }
@@ -60,6 +78,16 @@ impl Output {
     /// Frames not shown because the output was busy.
     pub fn dropped(&self) -> u64 {
         self.dropped.load(Ordering::Relaxed)
+    }
+
+    /// Readers watching the output, as the sink last reported (refreshed
+    /// with every frame and at least every 100 ms); `None` when the sink
+    /// cannot tell (y4m, v4l2loopback 0.12.x).
+    pub fn watchers(&self) -> Option<u32> {
+        match self.watchers.load(Ordering::Relaxed) {
+            WATCHERS_UNKNOWN => None,
+            n => Some(n),
+        }
     }
 
     /// Queues a frame; never blocks.
