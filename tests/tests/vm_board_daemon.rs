@@ -13,8 +13,16 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use sdi_tests::board_emulator::BoardEmulator;
-use sdi_tests::dbus::{bin, sdictl, Bus};
+use sdi_tests::dbus::{bin, Bus};
 use sdi_tests::vm;
+
+/// sdid or sdictl: built on the host (the VM's root is read-only) and
+/// named by the environment passed into the VM.
+fn exe(var: &str) -> std::path::PathBuf {
+    std::env::var_os(var)
+        .map(Into::into)
+        .unwrap_or_else(|| panic!("{var} not set (the host side sets it)"))
+}
 
 const SERIAL: &str = "EMU0002";
 const W: usize = 64;
@@ -57,7 +65,7 @@ struct Sdid {
 
 impl Sdid {
     fn start(bus: &Bus, config: &Path) -> Self {
-        let mut child = Command::new(bin("sdid"))
+        let mut child = Command::new(exe("SDID"))
             .args(["--bus-address", &bus.address, "--sink", "y4m"])
             .args(["--y4m-path", "-", "--config"])
             .arg(config)
@@ -85,7 +93,11 @@ impl Sdid {
     }
 
     fn ctl(&self, args: &[&str]) -> std::process::Output {
-        sdictl(&self.address, args)
+        Command::new(exe("SDICTL"))
+            .args(["--bus-address", &self.address])
+            .args(args)
+            .output()
+            .expect("run sdictl")
     }
 
     fn prop(&self, name: &str) -> serde_json::Value {
@@ -179,6 +191,8 @@ fn snapshot_matches(emu: &BoardEmulator, npy: &Path) -> bool {
 #[test]
 fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     if !vm::in_vm() {
+        std::env::set_var("SDID", bin("sdid"));
+        std::env::set_var("SDICTL", bin("sdictl"));
         vm::run_test_in_vm(
             "sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug",
             900,
@@ -220,8 +234,10 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
         state.as_str().unwrap().contains("intg_duty_cycle"),
         "{state}"
     );
+    // ExposureUs is what the board kept: 20/64 of a quad (1/120 s) = 2604 us.
     let exposure = d.prop("exposure-us").as_f64().unwrap();
     eprintln!("ExposureUs after clamp: {exposure}");
+    assert!((exposure - 2604.17).abs() < 0.1, "{exposure}");
     let mut compared = 0;
     for i in 0..5 {
         let snap = tmp.path().join(format!("s{i}.npy"));
@@ -349,4 +365,11 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
         t0.elapsed()
     );
     assert!(status.success(), "{status}");
+    // Leave the gadget plugged in, as the emulator's teardown expects.
+    emu.plug().unwrap();
+    wait_for("re-enumeration", Duration::from_secs(20), || {
+        sdi_daemon::backend::board::board_attached()
+            .ok()
+            .filter(|&a| a)
+    });
 }

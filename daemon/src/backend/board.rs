@@ -95,6 +95,24 @@ fn sensor_for(c: &BoardConfig) -> SensorParams {
     p
 }
 
+/// [`sensor_for`] with the exposure the board kept (intg_duty_cycle as read
+/// back, after any laser-safety clamp).
+fn actual_sensor(board: &Opt8241) -> SensorParams {
+    let mut p = sensor_for(board.config());
+    if let Some(w) = board
+        .init_report()
+        .writes
+        .iter()
+        .rev()
+        .find(|w| w.field.name == "intg_duty_cycle")
+    {
+        let mut kept = board.config().clone();
+        kept.integration_percent = f64::from(w.actual) * 100.0 / 64.0;
+        p.exposure_us = exposure_us_of(&kept);
+    }
+    p
+}
+
 /// Settings of the board backend.
 #[derive(Debug, Clone)]
 pub struct BoardBackendConfig {
@@ -150,7 +168,7 @@ impl BoardBackend {
         }
         tracing::info!(%device, "OPT8241-CDK configured and streaming");
         Ok(Self {
-            sensor: sensor_for(board.config()),
+            sensor: actual_sensor(&board),
             board,
             on_unplug: c.on_unplug,
             mode: c.mode,
@@ -302,20 +320,7 @@ impl Backend for BoardBackend {
             }
             return Err(e);
         }
-        self.sensor = sensor_for(self.board.config());
-        // What the board really does, after read-back.
-        if let Some(w) = self
-            .board
-            .init_report()
-            .writes
-            .iter()
-            .rev()
-            .find(|w| w.field.name == "intg_duty_cycle")
-        {
-            let mut kept = self.board.config().clone();
-            kept.integration_percent = f64::from(w.actual) * 100.0 / 64.0;
-            self.sensor.exposure_us = exposure_us_of(&kept);
-        }
+        self.sensor = actual_sensor(&self.board);
         let clamps = clamp_text(&self.board);
         if !clamps.is_empty() {
             tracing::warn!("the board clamped settings (laser safety): {clamps}");
