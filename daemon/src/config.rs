@@ -12,7 +12,8 @@ pub const DEFAULT_PATH: &str = "/etc/sdi/sdid.toml";
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct Config {
-    /// "sim" or "replay".
+    /// "auto" (the board when one is attached, else the simulator), "sim",
+    /// "replay" or "opt8241".
     pub backend: String,
     /// Sensor preset of the simulator: "ti" or "pmd".
     pub sensor: String,
@@ -28,6 +29,59 @@ pub struct Config {
     pub output: OutputConfig,
     pub replay: ReplayConfig,
     pub separation: SeparationConfig,
+    pub board: BoardSection,
+    pub lights: LightsConfig,
+}
+
+/// `[board]`: the TI OPT8241-CDK.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct BoardSection {
+    /// USB serial number, to choose among several boards.
+    pub serial: Option<String>,
+    /// "no-signal" (default), "simulator" or "exit" (docs/install.md).
+    pub on_unplug: String,
+    /// Region of interest [x, y, width, height]; columns in steps of 16.
+    pub roi: Option<[u32; 4]>,
+}
+
+impl Default for BoardSection {
+    fn default() -> Self {
+        Self {
+            serial: None,
+            on_unplug: "no-signal".into(),
+            roi: None,
+        }
+    }
+}
+
+/// `[lights]`: what drives LS1 and LS2 (docs/hardware.md).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LightsConfig {
+    /// "none", "board", "scpi-tcp", "usbtmc" or "gpio".
+    pub driver: String,
+    /// scpi-tcp: host:port of the function generator (port 5025).
+    pub address: String,
+    /// usbtmc: the device node (/dev/usbtmc0).
+    pub device: PathBuf,
+    /// gpio: the chip and the lines enabling LS1 and LS2.
+    pub gpio_chip: PathBuf,
+    pub ls1_line: u32,
+    pub ls2_line: u32,
+}
+
+impl Default for LightsConfig {
+    fn default() -> Self {
+        Self {
+            driver: "none".into(),
+            address: String::new(),
+            device: PathBuf::from("/dev/usbtmc0"),
+            gpio_chip: PathBuf::from("/dev/gpiochip0"),
+            ls1_line: 0,
+            ls2_line: 1,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -123,7 +177,7 @@ impl SeparationConfig {
 impl Default for Config {
     fn default() -> Self {
         Self {
-            backend: "sim".into(),
+            backend: "auto".into(),
             sensor: "ti".into(),
             mode: "raw".into(),
             exposure_us: None,
@@ -134,6 +188,8 @@ impl Default for Config {
             output: OutputConfig::default(),
             replay: ReplayConfig::default(),
             separation: SeparationConfig::default(),
+            board: BoardSection::default(),
+            lights: LightsConfig::default(),
         }
     }
 }
@@ -199,7 +255,9 @@ mod tests {
             toml::from_str("mode = \"depth-edge\"\n[output]\nsink = \"y4m\"\n").unwrap();
         assert_eq!(c.mode, "depth-edge");
         assert_eq!(c.output.sink, "y4m");
-        assert_eq!(c.backend, "sim");
+        assert_eq!(c.backend, "auto");
+        assert_eq!(c.board.on_unplug, "no-signal");
+        assert_eq!(c.lights.driver, "none");
         assert!(toml::from_str::<Config>("nope = 1").is_err());
     }
 
@@ -227,5 +285,18 @@ mod tests {
             let e = c.separation.live_method().unwrap_err();
             assert!(e.starts_with("separation:"), "{bad}: {e}");
         }
+    }
+
+    #[test]
+    fn board_and_lights_sections() {
+        let c: Config = toml::from_str(
+            "backend = \"opt8241\"\n[board]\nserial = \"EMU0001\"\non_unplug = \"exit\"\nroi = [0, 0, 64, 48]\n[lights]\ndriver = \"scpi-tcp\"\naddress = \"127.0.0.1:5025\"\n",
+        )
+        .unwrap();
+        assert_eq!(c.board.serial.as_deref(), Some("EMU0001"));
+        assert_eq!(c.board.on_unplug, "exit");
+        assert_eq!(c.board.roi, Some([0, 0, 64, 48]));
+        assert_eq!(c.lights.address, "127.0.0.1:5025");
+        assert!(toml::from_str::<Config>("[board]\nunplug = 1").is_err());
     }
 }

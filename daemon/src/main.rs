@@ -7,8 +7,12 @@ use std::sync::mpsc;
 use clap::Parser;
 use sdi_core::mode::ModeId;
 use sdi_core::sensor::SensorPreset;
+use sdi_daemon::backend::board::{self as board_backend, BoardBackend, OnUnplug};
+use sdi_daemon::backend::opt8241::init::Roi;
+use sdi_daemon::backend::opt8241::BoardSelector;
 use sdi_daemon::backend::replay::ReplayBackend;
 use sdi_daemon::backend::sim::SimBackend;
+use sdi_daemon::backend::status::StatusHandle;
 use sdi_daemon::backend::{Backend, CaptureSettings};
 use sdi_daemon::bus::{self, PrivateBus};
 use sdi_daemon::calibration_store;
@@ -38,7 +42,7 @@ struct Args {
     /// Serve on the bus at this address.
     #[arg(long, conflicts_with = "session")]
     bus_address: Option<String>,
-    /// Frame source: sim or replay.
+    /// Frame source: auto (the board if attached, else the simulator), sim, replay or opt8241.
     #[arg(long)]
     backend: Option<String>,
     /// Recording to play (implies --backend replay).
@@ -123,8 +127,74 @@ fn init_logging() {
         .init();
 }
 
-fn build_backend(c: &Config, mode: ModeId) -> Result<Box<dyn Backend>, String> {
+/// What the board backend adds: live status and the on_unplug = "exit" signal.
+#[derive(Default)]
+struct BoardExtras {
+    status: Option<StatusHandle>,
+    exit: Option<std::sync::Arc<tokio::sync::Notify>>,
+}
+
+fn open_board(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), String> {
+    let on_unplug = OnUnplug::from_name(&c.board.on_unplug).ok_or_else(|| {
+        format!(
+            "unknown [board] on_unplug '{}': use {}",
+            c.board.on_unplug,
+            OnUnplug::NAMES.join(", ")
+        )
+    })?;
+    let roi = c.board.roi.map(|[x, y, width, height]| Roi {
+        x,
+        y,
+        width,
+        height,
+    });
+    let mut b = BoardBackend::open(board_backend::BoardBackendConfig {
+        selector: BoardSelector {
+            serial: c.board.serial.clone(),
+            ..BoardSelector::default()
+        },
+        board: board_backend::board_config(roi, c.frame_rate_hz, c.exposure_us, c.modulation_hz),
+        on_unplug,
+        seed: c.seed,
+        mode,
+    })
+    .map_err(|e| e.to_string())?;
+    let extras = BoardExtras {
+        status: Some(b.status()),
+        exit: (on_unplug == OnUnplug::Exit).then(|| b.exit_notify()),
+    };
+    Ok((Box::new(b), extras))
+}
+
+fn build_backend(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), String> {
     match c.backend.as_str() {
+        "opt8241" => open_board(c, mode),
+        "auto" => {
+            let mut sim = c.clone();
+            sim.backend = "sim".into();
+            match board_backend::board_attached() {
+                Ok(true) => match open_board(c, mode) {
+                    Ok(b) => {
+                        tracing::info!("backend auto: an OPT8241-CDK is attached; using it");
+                        Ok(b)
+                    }
+                    Err(e) => {
+                        tracing::warn!("backend auto: a board is attached but cannot be used ({e}); using the simulator");
+                        build_backend(&sim, mode)
+                    }
+                },
+                Ok(false) => {
+                    tracing::info!("backend auto: no OPT8241-CDK (USB IDs of udev/board-ids) attached; using the simulator");
+                    build_backend(&sim, mode)
+                }
+                Err(e) => {
+                    tracing::info!(
+                        "backend auto: cannot look for the board ({e}); using the simulator"
+                    );
+                    build_backend(&sim, mode)
+                }
+            }
+        }
         "sim" => {
             let preset = SensorPreset::from_name(&c.sensor)
                 .ok_or_else(|| format!("unknown sensor preset '{}': use ti or pmd", c.sensor))?;
@@ -132,8 +202,9 @@ fn build_backend(c: &Config, mode: ModeId) -> Result<Box<dyn Backend>, String> {
             p.exposure_us = c.exposure_us.unwrap_or(p.exposure_us);
             p.frame_rate_hz = c.frame_rate_hz.unwrap_or(p.frame_rate_hz);
             p.modulation_hz = c.modulation_hz.unwrap_or(p.modulation_hz);
-            Ok(Box::new(
-                SimBackend::new(p, mode, c.seed).map_err(|e| e.to_string())?,
+            Ok((
+                Box::new(SimBackend::new(p, mode, c.seed).map_err(|e| e.to_string())?),
+                BoardExtras::default(),
             ))
         }
         "replay" => {
@@ -148,9 +219,25 @@ fn build_backend(c: &Config, mode: ModeId) -> Result<Box<dyn Backend>, String> {
                 s.frame_rate_hz = fps;
                 b.configure(&s).map_err(|e| e.to_string())?;
             }
-            Ok(Box::new(b))
+            Ok((Box::new(b), BoardExtras::default()))
         }
-        other => Err(format!("unknown backend '{other}': use sim or replay")),
+        other => Err(format!(
+            "unknown backend '{other}': use {}",
+            sdi_daemon::backend::KINDS.join(", ")
+        )),
+    }
+}
+
+/// Wraps the backend so `[lights]` follow the mode.
+fn with_lights(c: &Config, backend: Box<dyn Backend>) -> Result<Box<dyn Backend>, String> {
+    use sdi_daemon::light::{driven, select};
+    match select::open(&c.lights).map_err(|e| format!("[lights]: {e}"))? {
+        Some(lights) => Ok(Box::new(driven::LitBackend::new(
+            backend,
+            lights,
+            driven::LightSwitch::default(),
+        ))),
+        None => Ok(backend),
     }
 }
 
@@ -256,7 +343,8 @@ async fn run(args: Args) -> Result<(), String> {
     let mut config = Config::load(args.config.as_deref()).map_err(|e| e.to_string())?;
     apply(&args, &mut config);
     let mut mode = ModeId::from_name(&config.mode).map_err(|e| e.to_string())?;
-    let backend = build_backend(&config, mode)?;
+    let (backend, extras) = build_backend(&config, mode)?;
+    let backend = with_lights(&config, backend)?;
     if backend.kind() == "replay" && args.mode.is_none() {
         if let Ok(m) = sdi_daemon::recording::RecordingReader::open(
             config
@@ -285,6 +373,7 @@ async fn run(args: Args) -> Result<(), String> {
         limits: backend.limits(),
         sensor: sensor.clone(),
         state_dir: calibration_store::state_dir(args.state_dir.as_deref()),
+        status: extras.status,
     };
     let stored = info.state_dir.as_deref().and_then(|dir| {
         calibration_store::load(dir, &sensor.model, &info.device)
@@ -368,7 +457,13 @@ async fn run(args: Args) -> Result<(), String> {
         }
     });
 
-    let why = wait_for_signal().await;
+    let why = match extras.exit {
+        Some(exit) => tokio::select! {
+            why = wait_for_signal() => why,
+            _ = exit.notified() => "board unplugged and [board] on_unplug = \"exit\"",
+        },
+        None => wait_for_signal().await,
+    };
     tracing::info!("{why}: shutting down");
     stats_task.abort();
     let _ = conn.release_name(BUS_NAME).await;

@@ -1,10 +1,12 @@
-//! Frame sources behind one trait: the simulator, recordings, and (later)
-//! the real board. A backend delivers sensor frames, paced at its frame rate.
+//! Frame sources behind one trait: the simulator, recordings, and the real
+//! board. A backend delivers sensor frames, paced at its frame rate.
 
+pub mod board;
 pub mod opt8241;
 pub mod pacer;
 pub mod replay;
 pub mod sim;
+pub mod status;
 
 use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
@@ -76,5 +78,5 @@ pub trait Backend: Send {
     }
 }
 
-/// Backends selectable by name.
-pub const KINDS: &[&str] = &["sim", "replay"];
+/// Backends selectable by name ("auto": the board when one is attached, else the simulator).
+pub const KINDS: &[&str] = &["auto", "sim", "replay", "opt8241"];

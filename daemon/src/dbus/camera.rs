@@ -41,6 +41,8 @@ pub struct CameraInfo {
     pub sensor: sdi_core::sensor::SensorParams,
     /// Where calibrations are stored ([`crate::calibration_store`]); None = not stored.
     pub state_dir: Option<PathBuf>,
+    /// Live backend state (the board: unplugged, simulator standing in).
+    pub status: Option<crate::backend::status::StatusHandle>,
 }
 
 /// State changed by clients.
@@ -139,6 +141,17 @@ impl Camera {
         }
     }
 
+    /// `DeviceUnavailable` while the board is unplugged (nothing stands in).
+    fn require_device(&self) -> Result<(), SdiError> {
+        match self.info.status.as_ref().map(|h| h.get()) {
+            Some(st) if !st.available => Err(SdiError::DeviceUnavailable(format!(
+                "{}: {}",
+                st.device, st.detail
+            ))),
+            _ => Ok(()),
+        }
+    }
+
     fn send(&self, cmd: Command) -> Result<(), SdiError> {
         let tx = self
             .commands
@@ -163,6 +176,7 @@ impl Camera {
         emitter: &SignalEmitter<'_>,
         f: impl FnOnce(&mut CaptureSettings),
     ) -> Result<(), SdiError> {
+        self.require_device()?;
         let _guard = self.change_lock.lock().await;
         let mut capture = self.state().capture;
         f(&mut capture);
@@ -208,6 +222,7 @@ impl Camera {
                 "frames = {frames} is out of range: allowed [{min}, {MAX_AVERAGE_FRAMES}]"
             )));
         }
+        self.require_device()?;
         let _guard = self.long_op.try_lock().map_err(|_| {
             SdiError::Busy("a dark-frame capture or calibration is already running".into())
         })?;
@@ -269,6 +284,7 @@ impl Camera {
 
     /// The latest processed frame, waiting up to 2 s for the first one.
     async fn latest_frame(&self) -> Result<crate::frame_loop::SnapshotData, SdiError> {
+        self.require_device()?;
         for _ in 0..20 {
             if let Some(snap) = self.ask(Command::Snapshot).await? {
                 return Ok(snap);
@@ -559,15 +575,24 @@ impl Camera {
         ])
     }
 
-    #[zbus(property(emits_changed_signal = "const"))]
+    /// Backend delivering frames now (with the board: "sim" while the
+    /// simulator stands in for an unplugged board).
+    #[zbus(property(emits_changed_signal = "false"))]
     async fn backend(&self) -> String {
-        self.info.backend.clone()
+        match &self.info.status {
+            Some(h) => h.get().backend,
+            None => self.info.backend.clone(),
+        }
     }
 
     /// Sensor device and output device, "sensor -> output".
-    #[zbus(property(emits_changed_signal = "const"))]
+    #[zbus(property(emits_changed_signal = "false"))]
     async fn device(&self) -> String {
-        format!("{} -> {}", self.info.device, self.info.sink.device)
+        let sensor = match &self.info.status {
+            Some(h) => h.get().device,
+            None => self.info.device.clone(),
+        };
+        format!("{sensor} -> {}", self.info.sink.device)
     }
 
     /// Output pixel format.
@@ -625,11 +650,19 @@ impl Camera {
             .unwrap_or_default()
     }
 
-    /// {frames, fps, latency_us, latency_max_us, dropped_view, dropped_recording}; emitted about once a second.
+    /// {frames, fps, latency_us, latency_max_us, dropped_view, dropped_recording,
+    /// device_available, device_state}; emitted about once a second.
     #[zbus(property)]
     async fn stats(&self) -> HashMap<String, OwnedValue> {
         let s = *self.stats.borrow();
+        let (available, state) = match self.info.status.as_ref().map(|h| h.get()) {
+            Some(st) if !st.available => (false, st.detail),
+            Some(st) => (true, st.detail),
+            None => (true, String::new()),
+        };
         HashMap::from([
+            ("device_available".to_owned(), ov(Value::from(available))),
+            ("device_state".to_owned(), ov(Value::from(state))),
             ("frames".to_owned(), ov(Value::from(s.frames))),
             ("fps".to_owned(), ov(Value::from(s.fps))),
             ("latency_us".to_owned(), ov(Value::from(s.latency_us))),

@@ -7,8 +7,10 @@
 //! that cannot do it says so with a typed error.
 
 pub mod board_output;
+pub mod driven;
 pub mod gpio;
 pub mod scpi;
+pub mod select;
 
 use sdi_core::modulation::{Illumination, SourceDrive};
 
@@ -57,7 +59,12 @@ impl LightDrive {
         }
     }
 
+    /// Checks carrier and duty; a drive with both sources off has none to
+    /// check (temporal gradient's single-transition pattern has no carrier).
     pub fn validate(&self) -> Result<(), LightError> {
+        if self.ls1 == SourceDrive::Off && self.ls2 == SourceDrive::Off {
+            return Ok(());
+        }
         if !(self.carrier_hz.is_finite() && self.carrier_hz > 0.0) {
             return Err(LightError::OutOfRange {
                 name: "carrier_hz",
@@ -147,6 +154,10 @@ mod tests {
         assert_eq!(d.gated(None), d);
         let off = d.gated(Some(false));
         assert_eq!((off.ls1, off.ls2), (SourceDrive::Off, SourceDrive::Off));
+        let mut dark = LightDrive::off(0.0);
+        assert!(dark.validate().is_ok(), "both off needs no carrier");
+        dark.ls1 = SourceDrive::Modulated;
+        assert!(dark.validate().is_err());
         let bad = LightDrive {
             duty: f64::NAN,
             ..d

@@ -242,11 +242,18 @@ impl BoardEmulator {
 impl Drop for BoardEmulator {
     fn drop(&mut self) {
         self.stop.store(true, Ordering::SeqCst);
+        // A reader blocked on ep0 wakes only on an event: if the gadget is
+        // unplugged, plug it in once so that binding delivers one.
+        let bound = fs::read_to_string(self.gadget.join("UDC")).unwrap_or_default();
+        if bound.trim().is_empty() {
+            let _ = self.plug();
+            std::thread::sleep(Duration::from_millis(200));
+        }
         let _ = self.unplug();
-        let _ = Command::new("umount").arg(&self.ffs_mount).status();
         for t in self.threads.drain(..) {
             let _ = t.join();
         }
+        let _ = Command::new("umount").arg(&self.ffs_mount).status();
     }
 }
 

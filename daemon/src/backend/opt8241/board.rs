@@ -142,6 +142,20 @@ impl Opt8241 {
         Ok(())
     }
 
+    /// The configuration in use.
+    pub fn config(&self) -> &BoardConfig {
+        &self.config
+    }
+
+    /// Stops streaming, configures the board anew (read-back and clamps in
+    /// [`Opt8241::init_report`]) and streams again. On an invalid `config`
+    /// nothing changes; on a USB failure the board counts as unplugged.
+    pub fn reconfigure(&mut self, config: BoardConfig) -> Result<(), BoardError> {
+        config.validate()?;
+        self.config = config;
+        self.connect()
+    }
+
     /// Tries to open the board again after an unplug.
     pub fn reconnect(&mut self) -> Result<(), BoardError> {
         self.connect()?;

@@ -1,0 +1,449 @@
+//! The TI OPT8241-CDK as a daemon [`Backend`]: capture settings mapped onto
+//! the board's registers, unplug and replug, and what stands in meanwhile
+//! (`[board] on_unplug`).
+//!
+//! Frames are the decoded raw-quad difference (quad 0 = LS1 - LS2, eq.
+//! pixeleff); the dark frame is subtracted by the mode pipeline, as for the
+//! other backends. While the board is gone, `capture` retries opening it
+//! every [`RECONNECT_INTERVAL`] (a fresh libusb scan, so no udev or libusb
+//! hotplug support is needed) and reports [`BackendError::Unavailable`].
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use sdi_core::mode::ModeId;
+use sdi_core::modulation::Illumination;
+use sdi_core::sensor::{SensorParams, SensorPreset};
+use sdi_core::Frame;
+
+use super::opt8241::init::{PllSettings, Roi};
+use super::opt8241::registers::{safety, SYSTEM_CLOCK_HZ};
+use super::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
+use super::sim::SimBackend;
+use super::status::{DeviceStatus, StatusHandle};
+use super::{Backend, BackendError, CaptureSettings, Limits};
+
+/// How often a missing board is looked for.
+pub const RECONNECT_INTERVAL: Duration = Duration::from_millis(500);
+
+/// What sdid does while the board is unplugged (`[board] on_unplug`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum OnUnplug {
+    /// Keep the output open with a "no signal" frame until the board is back.
+    #[default]
+    NoSignal,
+    /// The simulator stands in until the board is back.
+    Simulator,
+    /// End sdid cleanly (status 0).
+    Exit,
+}
+
+impl OnUnplug {
+    pub const NAMES: &'static [&'static str] = &["no-signal", "simulator", "exit"];
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "no-signal" => Some(Self::NoSignal),
+            "simulator" => Some(Self::Simulator),
+            "exit" => Some(Self::Exit),
+            _ => None,
+        }
+    }
+}
+
+/// Integration time of one quad, microseconds: intg_duty_cycle / 64 of the
+/// quad time 1 / (fps * quads * sub frames) (OPT9221.dml; SDK
+/// `IntegrationTimeParameter`).
+pub fn exposure_us_of(c: &BoardConfig) -> f64 {
+    let quad_us = 1e6 / (c.frame_rate_hz * f64::from(c.quads * c.sub_frames));
+    c.integration_percent / 100.0 * quad_us
+}
+
+/// Inverse of [`exposure_us_of`]: the integration percentage for an exposure.
+pub fn integration_percent_for(exposure_us: f64, c: &BoardConfig) -> f64 {
+    let quad_us = 1e6 / (c.frame_rate_hz * f64::from(c.quads * c.sub_frames));
+    exposure_us / quad_us * 100.0
+}
+
+/// The board's ranges: modulation from its PLL (about 9.4 MHz and up with 4
+/// quads), frame rate up to where pix_cnt_max reaches its laser-safety
+/// minimum, exposure up to the firmware's duty-cycle cap at 1 Hz.
+pub fn board_limits(c: &BoardConfig) -> Limits {
+    let q = f64::from(c.quads);
+    let max_fps =
+        SYSTEM_CLOCK_HZ / (f64::from(safety::PIX_CNT_MAX_MIN) * q * f64::from(c.sub_frames));
+    let lowest_mod =
+        super::opt8241::init::VCO_MIN_HZ / (q * f64::from(super::opt8241::init::MOD_PS_MAX + 1));
+    let highest_mod = super::opt8241::init::VCO_MAX_HZ / q;
+    let cap = f64::from(safety::INTG_DUTY_CYCLE_MAX) / 64.0;
+    Limits {
+        exposure_us: (1.0, cap * 1e6 / (q * f64::from(c.sub_frames))),
+        frame_rate_hz: (1.0, max_fps.floor()),
+        modulation_hz: (lowest_mod, highest_mod),
+    }
+}
+
+/// The OPT8241 preset with the board's geometry and settings.
+fn sensor_for(c: &BoardConfig) -> SensorParams {
+    let mut p = SensorPreset::TiOpt8241.params();
+    p.width = c.roi.width as usize;
+    p.height = c.roi.height as usize;
+    p.frame_rate_hz = c.frame_rate_hz;
+    p.exposure_us = exposure_us_of(c);
+    p.modulation_hz = PllSettings::for_modulation(c.modulation_hz, c.quads)
+        .map_or(c.modulation_hz, |pll| pll.modulation_hz);
+    p
+}
+
+/// [`sensor_for`] with the exposure the board kept (intg_duty_cycle as read
+/// back, after any laser-safety clamp).
+fn actual_sensor(board: &Opt8241) -> SensorParams {
+    let mut p = sensor_for(board.config());
+    if let Some(w) = board
+        .init_report()
+        .writes
+        .iter()
+        .rev()
+        .find(|w| w.field.name == "intg_duty_cycle")
+    {
+        let mut kept = board.config().clone();
+        kept.integration_percent = f64::from(w.actual) * 100.0 / 64.0;
+        p.exposure_us = exposure_us_of(&kept);
+    }
+    p
+}
+
+/// Settings of the board backend.
+#[derive(Debug, Clone)]
+pub struct BoardBackendConfig {
+    pub selector: BoardSelector,
+    pub board: BoardConfig,
+    pub on_unplug: OnUnplug,
+    /// Seed of the stand-in simulator.
+    pub seed: u64,
+    pub mode: ModeId,
+}
+
+pub struct BoardBackend {
+    board: Opt8241,
+    sensor: SensorParams,
+    on_unplug: OnUnplug,
+    mode: ModeId,
+    seed: u64,
+    stand_in: Option<SimBackend>,
+    status: StatusHandle,
+    /// Set when `on_unplug = "exit"` and the board went away.
+    exit: Option<Arc<tokio::sync::Notify>>,
+    next_attempt: Instant,
+    unplugged_at: Option<Instant>,
+}
+
+fn clamp_text(board: &Opt8241) -> String {
+    board
+        .init_report()
+        .clamps
+        .iter()
+        .map(|c| format!("{} {} -> {} ({})", c.field, c.requested, c.actual, c.reason))
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
+fn board_err(e: BoardError) -> BackendError {
+    match e {
+        BoardError::DeviceUnavailable => BackendError::Unavailable(e.to_string()),
+        BoardError::Usb(u) => BackendError::Unavailable(u.to_string()),
+        BoardError::Config(c) => BackendError::OutOfRange(c.to_string()),
+        other => BackendError::Failed(other.to_string()),
+    }
+}
+
+impl BoardBackend {
+    /// Opens and configures the board; fails when it is not attached.
+    pub fn open(c: BoardBackendConfig) -> Result<Self, BackendError> {
+        let board = Opt8241::open(c.selector, c.board.clone()).map_err(board_err)?;
+        let device = describe(&board);
+        let clamps = clamp_text(&board);
+        if !clamps.is_empty() {
+            tracing::warn!("the board clamped settings (laser safety): {clamps}");
+        }
+        tracing::info!(%device, "OPT8241-CDK configured and streaming");
+        Ok(Self {
+            sensor: actual_sensor(&board),
+            board,
+            on_unplug: c.on_unplug,
+            mode: c.mode,
+            seed: c.seed,
+            stand_in: None,
+            status: StatusHandle::new(DeviceStatus {
+                backend: "opt8241".into(),
+                device,
+                available: true,
+                detail: if clamps.is_empty() {
+                    String::new()
+                } else {
+                    format!("clamped: {clamps}")
+                },
+            }),
+            exit: None,
+            next_attempt: Instant::now(),
+            unplugged_at: None,
+        })
+    }
+
+    /// Live state for D-Bus (Backend, Device, Stats).
+    pub fn status(&self) -> StatusHandle {
+        self.status.clone()
+    }
+
+    /// Notified once when the board goes away and `on_unplug = "exit"`.
+    pub fn exit_notify(&mut self) -> Arc<tokio::sync::Notify> {
+        self.exit
+            .get_or_insert_with(|| Arc::new(tokio::sync::Notify::new()))
+            .clone()
+    }
+
+    fn lost(&mut self, why: &str) {
+        if self.unplugged_at.is_none() {
+            tracing::warn!("board lost: {why}; on_unplug = {:?}", self.on_unplug);
+            self.unplugged_at = Some(Instant::now());
+        }
+        match self.on_unplug {
+            OnUnplug::NoSignal | OnUnplug::Exit => self.status.update(|s| {
+                s.available = false;
+                s.detail = format!("DeviceUnavailable: {why}");
+            }),
+            OnUnplug::Simulator => {
+                if self.stand_in.is_none() {
+                    self.seed = self.seed.wrapping_add(1);
+                    match SimBackend::new(self.sensor.clone(), self.mode, self.seed) {
+                        Ok(sim) => {
+                            tracing::info!("the simulator stands in until the board is back");
+                            self.status.update(|s| {
+                                s.backend = "sim".into();
+                                s.device = sim.device();
+                                s.available = true;
+                                s.detail = format!("simulator standing in: {why}");
+                            });
+                            self.stand_in = Some(sim);
+                        }
+                        Err(e) => tracing::error!("cannot start the stand-in simulator: {e}"),
+                    }
+                }
+            }
+        }
+        if self.on_unplug == OnUnplug::Exit {
+            if let Some(n) = &self.exit {
+                n.notify_one();
+            }
+        }
+    }
+
+    /// One reconnection attempt if it is due; true when the board is back.
+    fn try_reconnect(&mut self) -> bool {
+        if Instant::now() < self.next_attempt {
+            return false;
+        }
+        self.next_attempt = Instant::now() + RECONNECT_INTERVAL;
+        match self.board.reconnect() {
+            Ok(()) => {
+                let waited = self.unplugged_at.take().map(|t| t.elapsed());
+                let device = describe(&self.board);
+                tracing::info!(%device, ?waited, "board is back; streaming again");
+                self.stand_in = None;
+                self.status.update(|s| {
+                    s.backend = "opt8241".into();
+                    s.device = device;
+                    s.available = true;
+                    s.detail = String::new();
+                });
+                true
+            }
+            Err(e) => {
+                tracing::debug!("board still missing: {e}");
+                false
+            }
+        }
+    }
+}
+
+fn describe(board: &Opt8241) -> String {
+    match board.serial() {
+        Some(s) => format!("TI OPT8241-CDK (USB 0451:9105, serial {s})"),
+        None => "TI OPT8241-CDK (USB 0451:9105)".into(),
+    }
+}
+
+impl Backend for BoardBackend {
+    fn kind(&self) -> &'static str {
+        "opt8241"
+    }
+
+    fn device(&self) -> String {
+        self.status.get().device
+    }
+
+    fn sensor(&self) -> &SensorParams {
+        &self.sensor
+    }
+
+    fn limits(&self) -> Limits {
+        board_limits(self.board.config())
+    }
+
+    fn settings(&self) -> CaptureSettings {
+        CaptureSettings {
+            exposure_us: self.sensor.exposure_us,
+            frame_rate_hz: self.sensor.frame_rate_hz,
+            modulation_hz: self.sensor.modulation_hz,
+        }
+    }
+
+    /// Writes the settings to the board, reads them back and reports clamps
+    /// (laser safety: the firmware's, never bypassed).
+    fn configure(&mut self, s: &CaptureSettings) -> Result<(), BackendError> {
+        if !self.board.is_connected() {
+            return Err(BackendError::Unavailable(
+                "the board is unplugged; settings can change when it is back".into(),
+            ));
+        }
+        let mut c = self.board.config().clone();
+        c.frame_rate_hz = s.frame_rate_hz;
+        c.modulation_hz = s.modulation_hz;
+        c.integration_percent = integration_percent_for(s.exposure_us, &c);
+        if let Err(e) = c.validate() {
+            return Err(BackendError::OutOfRange(e.to_string()));
+        }
+        if let Err(e) = self.board.reconfigure(c) {
+            let e = board_err(e);
+            if matches!(e, BackendError::Unavailable(_)) {
+                self.lost(&e.to_string());
+            }
+            return Err(e);
+        }
+        self.sensor = actual_sensor(&self.board);
+        let clamps = clamp_text(&self.board);
+        if !clamps.is_empty() {
+            tracing::warn!("the board clamped settings (laser safety): {clamps}");
+        }
+        self.status.update(|st| {
+            st.detail = if clamps.is_empty() {
+                String::new()
+            } else {
+                format!("clamped: {clamps}")
+            }
+        });
+        Ok(())
+    }
+
+    fn set_mode(&mut self, mode: ModeId) {
+        self.mode = mode;
+        if let Some(sim) = self.stand_in.as_mut() {
+            sim.set_mode(mode);
+        }
+    }
+
+    fn capture(
+        &mut self,
+        illumination: &Illumination,
+        frame: &mut Frame,
+    ) -> Result<(), BackendError> {
+        if !self.board.is_connected() && !self.try_reconnect() {
+            if let Some(sim) = self.stand_in.as_mut() {
+                return sim.capture(illumination, frame);
+            }
+            std::thread::sleep(RECONNECT_INTERVAL / 5);
+            return Err(BackendError::Unavailable(
+                "OPT8241-CDK unplugged; waiting for it".into(),
+            ));
+        }
+        match self.board.next_frame(illumination, frame) {
+            Ok(()) => Ok(()),
+            Err(BoardError::DeviceUnavailable) => {
+                self.lost("unplugged");
+                self.next_attempt = Instant::now() + RECONNECT_INTERVAL;
+                Err(BackendError::Unavailable("OPT8241-CDK unplugged".into()))
+            }
+            Err(e) => {
+                let stats = self.board.stats();
+                tracing::debug!(?stats, "board: {e}");
+                Err(board_err(e))
+            }
+        }
+    }
+}
+
+/// The board's configuration for `[board]` settings and the capture overrides.
+pub fn board_config(
+    roi: Option<Roi>,
+    frame_rate_hz: Option<f64>,
+    exposure_us: Option<f64>,
+    modulation_hz: Option<f64>,
+) -> BoardConfig {
+    let mut c = BoardConfig::default();
+    if let Some(r) = roi {
+        c.roi = r;
+    }
+    if let Some(f) = frame_rate_hz {
+        c.frame_rate_hz = f;
+    }
+    if let Some(m) = modulation_hz {
+        c.modulation_hz = m;
+    }
+    if let Some(e) = exposure_us {
+        c.integration_percent = integration_percent_for(e, &c);
+    }
+    c
+}
+
+/// Is a board attached (any ID of `udev/board-ids`)? `Err` says why libusb
+/// could not look.
+pub fn board_attached() -> Result<bool, String> {
+    let ctx = rusb::Context::new().map_err(|e| format!("libusb: {e}"))?;
+    Ok(super::opt8241::usb::board_present(&ctx))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exposure_and_integration_are_inverse() {
+        let c = BoardConfig::default();
+        // 30 Hz, 4 quads: quad time 8333 us; 20 % of it.
+        assert!((exposure_us_of(&c) - 1666.67).abs() < 0.01);
+        let p = integration_percent_for(exposure_us_of(&c), &c);
+        assert!((p - c.integration_percent).abs() < 1e-9);
+    }
+
+    #[test]
+    fn limits_follow_the_safety_minimum_and_the_pll() {
+        let l = board_limits(&BoardConfig::default());
+        // 48 MHz / (60000 * 4) = 200 Hz
+        assert_eq!(l.frame_rate_hz, (1.0, 200.0));
+        // 300 MHz / (4 * 8) = 9.375 MHz: the board cannot go lower with 4 quads
+        assert!((l.modulation_hz.0 - 9.375e6).abs() < 1.0);
+        assert!(l.modulation_hz.0 > 9.3e6 && l.modulation_hz.0 < 9.5e6);
+        // 20/64 of a quad at 1 Hz
+        assert!((l.exposure_us.1 - 78_125.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn on_unplug_names() {
+        for n in OnUnplug::NAMES {
+            assert!(OnUnplug::from_name(n).is_some());
+        }
+        assert_eq!(OnUnplug::from_name("restart"), None);
+        assert_eq!(OnUnplug::default(), OnUnplug::NoSignal);
+    }
+
+    #[test]
+    fn board_config_maps_overrides() {
+        let c = board_config(None, Some(15.0), Some(1000.0), Some(20e6));
+        assert_eq!(c.frame_rate_hz, 15.0);
+        assert_eq!(c.modulation_hz, 20e6);
+        assert!((exposure_us_of(&c) - 1000.0).abs() < 1e-6);
+        let s = sensor_for(&c);
+        assert_eq!((s.width, s.height), (320, 240));
+        assert!((s.modulation_hz - 20e6).abs() / 20e6 < 1e-3);
+    }
+}

@@ -1,0 +1,375 @@
+//! The real `sdid --backend auto` on the board emulator over the kernel's USB
+//! stack (dummy_hcd + configfs + FunctionFS), inside the VM, on a private
+//! dbus-daemon with the y4m output: auto picks the board, frames match what
+//! the emulator streamed, the firmware's clamps are seen, unplug shows
+//! "no signal" and DeviceUnavailable, replug resumes; and `[board] on_unplug`
+//! = "simulator" and "exit" behave as docs/install.md says.
+
+use std::io::{BufRead, BufReader, Read};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use sdi_tests::board_emulator::BoardEmulator;
+use sdi_tests::dbus::{bin, Bus};
+use sdi_tests::vm;
+
+/// sdid or sdictl: built on the host (the VM's root is read-only) and
+/// named by the environment passed into the VM.
+fn exe(var: &str) -> std::path::PathBuf {
+    std::env::var_os(var)
+        .map(Into::into)
+        .unwrap_or_else(|| panic!("{var} not set (the host side sets it)"))
+}
+
+const SERIAL: &str = "EMU0002";
+const W: usize = 64;
+const H: usize = 48;
+
+fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> Duration {
+    let t0 = Instant::now();
+    loop {
+        if f().is_some() {
+            return t0.elapsed();
+        }
+        assert!(t0.elapsed() < timeout, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// What the y4m reader saw, in order: true = a "no signal" frame.
+#[derive(Default)]
+struct Seen {
+    frames: Vec<(Instant, bool)>,
+}
+
+impl Seen {
+    fn since(&self, t: Instant) -> impl Iterator<Item = bool> + '_ {
+        self.frames.iter().filter(move |f| f.0 >= t).map(|f| f.1)
+    }
+}
+
+/// The no-signal frame: grey stripes, luma only 40 and 60 (full range).
+fn is_no_signal(y: &[u8]) -> bool {
+    y.iter().all(|&v| v == 40 || v == 60) && y.contains(&40) && y.contains(&60)
+}
+
+struct Sdid {
+    child: Child,
+    address: String,
+    seen: Arc<Mutex<Seen>>,
+    frames: Arc<AtomicU64>,
+}
+
+impl Sdid {
+    fn start(bus: &Bus, config: &Path) -> Self {
+        let mut child = Command::new(exe("SDID"))
+            .args(["--bus-address", &bus.address, "--sink", "y4m"])
+            .args(["--y4m-path", "-", "--config"])
+            .arg(config)
+            .env("RUST_LOG", "info")
+            .env_remove("INVOCATION_ID")
+            .stdout(Stdio::piped())
+            .stderr(Stdio::inherit())
+            .spawn()
+            .expect("start sdid");
+        let stdout = child.stdout.take().expect("stdout");
+        let seen = Arc::new(Mutex::new(Seen::default()));
+        let frames = Arc::new(AtomicU64::new(0));
+        let (s, n) = (seen.clone(), frames.clone());
+        std::thread::spawn(move || read_y4m(stdout, &s, &n));
+        let d = Self {
+            child,
+            address: bus.address.clone(),
+            seen,
+            frames,
+        };
+        wait_for("sdid on the bus", Duration::from_secs(60), || {
+            d.ctl(&["get", "mode"]).status.success().then_some(())
+        });
+        d
+    }
+
+    fn ctl(&self, args: &[&str]) -> std::process::Output {
+        Command::new(exe("SDICTL"))
+            .args(["--bus-address", &self.address])
+            .args(args)
+            .output()
+            .expect("run sdictl")
+    }
+
+    fn prop(&self, name: &str) -> serde_json::Value {
+        let out = self.ctl(&["--json", "get", name]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+        v.as_object()
+            .and_then(|o| o.values().next().cloned())
+            .unwrap_or(v)
+    }
+
+    fn device_available(&self) -> bool {
+        self.prop("stats")["device_available"]
+            .as_bool()
+            .expect("device_available in Stats")
+    }
+
+    fn snapshot(&self, path: &Path) -> std::process::Output {
+        let _ = std::fs::remove_file(path);
+        self.ctl(&["snapshot", path.to_str().unwrap()])
+    }
+}
+
+impl Drop for Sdid {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn read_y4m(out: impl Read, seen: &Mutex<Seen>, frames: &AtomicU64) {
+    let mut r = BufReader::new(out);
+    let mut header = String::new();
+    if r.read_line(&mut header).is_err() {
+        return;
+    }
+    let dim = |p: char| {
+        header
+            .split_whitespace()
+            .find_map(|t| t.strip_prefix(p).and_then(|v| v.parse::<usize>().ok()))
+            .unwrap_or(0)
+    };
+    let (w, h) = (dim('W'), dim('H'));
+    assert!(header.contains("C444"), "{header}");
+    let mut buf = vec![0u8; w * h * 3];
+    loop {
+        let mut tag = String::new();
+        match r.read_line(&mut tag) {
+            Ok(0) | Err(_) => return,
+            Ok(_) => {}
+        }
+        if r.read_exact(&mut buf).is_err() {
+            return;
+        }
+        let ns = is_no_signal(&buf[..w * h]);
+        seen.lock().unwrap().frames.push((Instant::now(), ns));
+        frames.fetch_add(1, Ordering::SeqCst);
+    }
+}
+
+fn write_config(dir: &Path, name: &str, on_unplug: &str) -> std::path::PathBuf {
+    let p = dir.join(name);
+    std::fs::write(
+        &p,
+        format!(
+            "backend = \"auto\"\nmode = \"raw\"\nframe_rate_hz = 30.0\n\
+             # 60 % of a quad: more than the firmware's 20/64 cap\nexposure_us = 5000.0\n\
+             [board]\nserial = \"{SERIAL}\"\non_unplug = \"{on_unplug}\"\nroi = [0, 0, {W}, {H}]\n"
+        ),
+    )
+    .unwrap();
+    p
+}
+
+/// The snapshot's pixels (all but pixel 0, which carries the frame number)
+/// equal one of the frames the emulator sent.
+fn snapshot_matches(emu: &BoardEmulator, npy: &Path) -> bool {
+    let f = std::fs::File::open(npy).expect("snapshot file");
+    let (shape, data) = sdi_core::npy::read_f32(f).expect("npy");
+    assert_eq!(shape, vec![H, W]);
+    let s = emu.state.lock().unwrap();
+    s.sent
+        .iter()
+        .any(|(_, dn)| dn.len() == data.len() && dn[1..] == data[1..])
+}
+
+#[test]
+fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
+    if !vm::in_vm() {
+        std::env::set_var("SDID", bin("sdid"));
+        std::env::set_var("SDICTL", bin("sdictl"));
+        vm::run_test_in_vm(
+            "sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug",
+            900,
+        );
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let emu = BoardEmulator::start("sdi0", SERIAL).expect("gadget");
+    wait_for("enumeration", Duration::from_secs(20), || {
+        sdi_daemon::backend::board::board_attached()
+            .ok()
+            .filter(|&a| a)
+    });
+    let bus = Bus::start();
+
+    // 1. no-signal (the default): auto picks the board
+    let d = Sdid::start(&bus, &write_config(tmp.path(), "a.toml", "no-signal"));
+    assert_eq!(d.prop("backend"), "opt8241");
+    let device = d.prop("device");
+    assert!(device.as_str().unwrap().contains(SERIAL), "{device}");
+    wait_for("frames on y4m", Duration::from_secs(30), || {
+        (d.frames.load(Ordering::SeqCst) >= 10).then_some(())
+    });
+    // The emulator got the SDK's sequence; sdid never wrote a value the
+    // firmware had to clamp: it clamped the duty cycle itself and says so.
+    {
+        let s = emu.state.lock().unwrap();
+        assert_eq!(s.reg_value(0x5C4C) & 0x3F, 20, "intg_duty_cycle");
+        assert_eq!((s.reg_value(0x5C25) >> 8) & 0xF, 15, "raw quads");
+        assert!(s.reg_value(0x5882) & 0x3F_FFFF >= 60_000, "pix_cnt_max");
+        for w in &s.writes {
+            assert_eq!(w.written, w.kept, "firmware clamp hit: {w:?}");
+        }
+        assert!(s.stalled.is_empty(), "{:?}", s.stalled);
+    }
+    let state = d.prop("stats")["device_state"].clone();
+    eprintln!("device_state: {state}");
+    assert!(
+        state.as_str().unwrap().contains("intg_duty_cycle"),
+        "{state}"
+    );
+    // ExposureUs is what the board kept: 20/64 of a quad (1/120 s) = 2604 us.
+    let exposure = d.prop("exposure-us").as_f64().unwrap();
+    eprintln!("ExposureUs after clamp: {exposure}");
+    assert!((exposure - 2604.17).abs() < 0.1, "{exposure}");
+    let mut compared = 0;
+    for i in 0..5 {
+        let snap = tmp.path().join(format!("s{i}.npy"));
+        let out = d.snapshot(&snap);
+        assert!(out.status.success(), "{out:?}");
+        assert!(
+            snapshot_matches(&emu, &snap),
+            "snapshot {i} differs from every frame sent"
+        );
+        compared += 1;
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    eprintln!("MEASURED: {compared} snapshots equal frames the emulator sent");
+
+    // unplug mid-stream
+    let t_unplug = Instant::now();
+    emu.unplug().unwrap();
+    let detect = wait_for("DeviceUnavailable", Duration::from_secs(20), || {
+        (!d.device_available()).then_some(())
+    });
+    eprintln!("MEASURED: unplug detected after {detect:?}");
+    wait_for("no-signal frames", Duration::from_secs(20), || {
+        (d.seen
+            .lock()
+            .unwrap()
+            .since(t_unplug)
+            .filter(|&ns| ns)
+            .count()
+            >= 3)
+            .then_some(())
+    });
+    let out = d.snapshot(&tmp.path().join("gone.npy"));
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("DeviceUnavailable") || err.contains("unavailable"),
+        "{err}"
+    );
+    let out = d.ctl(&["set", "frame-rate", "20"]);
+    assert!(!out.status.success(), "configure while unplugged: {out:?}");
+    assert_eq!(d.prop("backend"), "opt8241");
+
+    // plug back: frames resume
+    let t_plug = Instant::now();
+    emu.plug().unwrap();
+    let resume = wait_for("board back", Duration::from_secs(30), || {
+        d.device_available().then_some(())
+    });
+    wait_for("frames after replug", Duration::from_secs(30), || {
+        (d.seen
+            .lock()
+            .unwrap()
+            .since(t_plug)
+            .filter(|&ns| !ns)
+            .count()
+            >= 5)
+            .then_some(())
+    });
+    eprintln!(
+        "MEASURED: resumed (device available) {resume:?} after replug, first frames within {:?}",
+        t_plug.elapsed()
+    );
+    let snap = tmp.path().join("back.npy");
+    wait_for("snapshot after replug", Duration::from_secs(10), || {
+        let out = d.snapshot(&snap);
+        (out.status.success() && snapshot_matches(&emu, &snap)).then_some(())
+    });
+    drop(d);
+
+    // 2. on_unplug = "simulator": the simulator stands in, then the board again
+    let d = Sdid::start(&bus, &write_config(tmp.path(), "b.toml", "simulator"));
+    assert_eq!(d.prop("backend"), "opt8241");
+    let t_unplug = Instant::now();
+    emu.unplug().unwrap();
+    let took = wait_for("simulator standing in", Duration::from_secs(20), || {
+        (d.prop("backend") == "sim").then_some(())
+    });
+    eprintln!("MEASURED: simulator stood in after {took:?}");
+    assert!(d.device_available());
+    let t_sim = Instant::now();
+    wait_for("simulated frames", Duration::from_secs(20), || {
+        (d.seen
+            .lock()
+            .unwrap()
+            .since(t_sim)
+            .filter(|&ns| !ns)
+            .count()
+            >= 5)
+            .then_some(())
+    });
+    let n_ns = d.seen.lock().unwrap().since(t_sim).filter(|&ns| ns).count();
+    assert_eq!(n_ns, 0, "no-signal frames while the simulator stands in");
+    eprintln!("(unplug at {:?})", t_unplug.elapsed());
+    let out = d.snapshot(&tmp.path().join("sim.npy"));
+    assert!(out.status.success(), "{out:?}");
+    emu.plug().unwrap();
+    wait_for("board back", Duration::from_secs(30), || {
+        (d.prop("backend") == "opt8241").then_some(())
+    });
+    let snap = tmp.path().join("back2.npy");
+    wait_for(
+        "board frames after the simulator",
+        Duration::from_secs(10),
+        || {
+            let out = d.snapshot(&snap);
+            (out.status.success() && snapshot_matches(&emu, &snap)).then_some(())
+        },
+    );
+    drop(d);
+
+    // 3. on_unplug = "exit": sdid ends cleanly (status 0)
+    let mut d = Sdid::start(&bus, &write_config(tmp.path(), "c.toml", "exit"));
+    assert_eq!(d.prop("backend"), "opt8241");
+    emu.unplug().unwrap();
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(s) = d.child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(30), "sdid did not exit");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    eprintln!(
+        "MEASURED: sdid exited {:?} after unplug: {status}",
+        t0.elapsed()
+    );
+    assert!(status.success(), "{status}");
+    // Leave the gadget plugged in, as the emulator's teardown expects.
+    emu.plug().unwrap();
+    wait_for("re-enumeration", Duration::from_secs(20), || {
+        sdi_daemon::backend::board::board_attached()
+            .ok()
+            .filter(|&a| a)
+    });
+}
