@@ -1,7 +1,12 @@
 //! `sdictl report separation`: every separation estimator over its parameter
 //! range on simulator data with known ground truth; prints a table (method,
-//! parameters, relative RMSE and bias of I+ and I-, time per frame) and writes
-//! the same as an SVG plot of error against run time.
+//! parameters, relative RMSE and bias of I+ and I- per pixel, relative RMSE
+//! per patch on the colour chart, M1's predicted per-pixel floor, time per
+//! frame) and writes the same as an SVG plot of error against run time.
+//!
+//! Relative RMSE per pixel = sqrt(mean over pixels (est - truth)^2) / mean
+//! truth; per patch, the same over the 24 patch means (estimate averaged over
+//! each patch against the truth averaged over it).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -9,11 +14,13 @@ use std::time::Instant;
 use plotters::prelude::*;
 use sdi_core::calibration::DarkCalibration;
 use sdi_core::modulation::Illumination;
+use sdi_core::scene::ColourChart;
 use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::{SensorPreset, SkellamMixing};
 use sdi_core::separation::{
-    auto_segment, bilateral_exact, bilateral_separable, segment_moments, unmix, BilateralParams,
-    Moments, SegmentParams, Separated, SeparationError, UnmixOptions, Welford,
+    auto_segment, bilateral_exact, bilateral_grid, bilateral_separable, pool_moments,
+    segment_moments, unmix, BilateralParams, Moments, PoolParams, SegmentParams, Separated,
+    SeparationError, UnmixOptions, Welford,
 };
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
@@ -61,12 +68,19 @@ pub struct Row {
     pub bias_plus: f64,
     pub rmse_minus: f64,
     pub bias_minus: f64,
+    /// Relative RMSE of the patch means (colour chart only).
+    pub patch_plus: Option<f64>,
+    pub patch_minus: Option<f64>,
+    /// Predicted per-pixel relative RMSE from sampling alone (M1 only).
+    pub floor: Option<(f64, f64)>,
     pub ms_per_frame: f64,
 }
 
 struct Truth {
     plus: Vec<f64>,
     minus: Vec<f64>,
+    /// Patch index of each pixel (colour chart), for per-patch errors.
+    patch: Option<Vec<Option<usize>>>,
 }
 
 /// The subcommand: unknown scenes are usage errors, the rest runtime errors.
@@ -114,9 +128,11 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
         frames.push(frame.clone());
     }
     let e = sim.last_expectation();
+    let chart = (name == "colour-chart").then(|| ColourChart::new(w, ht, 1.0, 1.0));
     let truth = Truth {
         plus: e.i_plus_electrons.data.iter().map(|&v| v as f64).collect(),
         minus: e.i_minus_electrons.data.iter().map(|&v| v as f64).collect(),
+        patch: chart.map(|c| (0..w * ht).map(|i| c.patch_at(i % w, i / w)).collect()),
     };
     let with_read = UnmixOptions::default();
     let no_read = UnmixOptions {
@@ -146,8 +162,22 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
         let m = acc.moments()?;
         let sep = unmix(&m, &h, with_read)?;
         let ms = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
-        rows.push(row("M1", format!("N={n}"), &sep, &truth, ms));
+        let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
+        r.floor = Some(m1_floor(&truth, &h, n));
+        rows.push(r);
         if n == n_max {
+            let t0 = Instant::now();
+            let pooled = pool_moments(&m, PoolParams::default())?;
+            let sep = unmix(&pooled, &h, with_read)?;
+            let extra = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
+            let r = PoolParams::default().radius_px;
+            rows.push(row(
+                "M1 pooled",
+                format!("N={n}, r={r}"),
+                &sep,
+                &truth,
+                ms + extra,
+            ));
             rows.push(row(
                 "M1",
                 format!("N={n}, read:=0"),
@@ -193,7 +223,9 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
             let (sep, ms) = time_single(one, &h, with_read, |f| bilateral_exact(f, p))?;
             rows.push(row("M3 exact", params.clone(), &sep, &truth, ms));
             let (sep, ms) = time_single(one, &h, with_read, |f| bilateral_separable(f, p))?;
-            rows.push(row("M3 separable", params, &sep, &truth, ms));
+            rows.push(row("M3 separable", params.clone(), &sep, &truth, ms));
+            let (sep, ms) = time_single(one, &h, with_read, |f| bilateral_grid(f, p))?;
+            rows.push(row("M3 grid", params, &sep, &truth, ms));
         }
     }
 
@@ -250,9 +282,54 @@ fn rel(est: &Image<f32>, truth: &[f64]) -> (f64, f64) {
     ((se / n).sqrt() / mean_t, b / n / mean_t)
 }
 
+/// Relative RMSE over the patches of the patch means.
+fn rel_patch(est: &Image<f32>, truth: &[f64], patch: &[Option<usize>]) -> Option<f64> {
+    let mut acc: Vec<(f64, f64, f64)> = Vec::new();
+    for (i, p) in patch.iter().enumerate() {
+        if let Some(p) = *p {
+            if acc.len() <= p {
+                acc.resize(p + 1, (0.0, 0.0, 0.0));
+            }
+            acc[p].0 += est.data[i] as f64;
+            acc[p].1 += truth[i];
+            acc[p].2 += 1.0;
+        }
+    }
+    let used: Vec<_> = acc.into_iter().filter(|a| a.2 > 0.0).collect();
+    if used.is_empty() {
+        return None;
+    }
+    let k = used.len() as f64;
+    let se: f64 = used.iter().map(|(e, t, n)| ((e - t) / n).powi(2)).sum();
+    let mt: f64 = used.iter().map(|(_, t, n)| t / n).sum::<f64>() / k;
+    Some((se / k).sqrt() / mt.abs().max(1e-9))
+}
+
+/// M1's per-pixel floor from sampling alone: Var(I+-) = (Var S + Var D) / 4,
+/// Var S = 2 sigma^4 / ((N - 1) g^4) (sample variance), Var D = sigma^2 / (N g^2)
+/// (mean), sigma^2 = g^2 (I+ + I-) + sigma_read^2; RMS over pixels / mean truth.
+fn m1_floor(t: &Truth, h: &SkellamMixing, n: usize) -> (f64, f64) {
+    let g = h.gain_dn_per_electron;
+    let nf = n as f64;
+    let k = t.plus.len().max(1) as f64;
+    let v: f64 = t
+        .plus
+        .iter()
+        .zip(&t.minus)
+        .map(|(p, m)| {
+            let s2 = g * g * (p + m) + h.read_variance_dn2;
+            0.25 * (2.0 * s2 * s2 / ((nf - 1.0) * g.powi(4)) + s2 / (nf * g * g))
+        })
+        .sum();
+    let rms = (v / k).sqrt();
+    let mean = |x: &[f64]| (x.iter().sum::<f64>() / k).abs().max(1e-9);
+    (rms / mean(&t.plus), rms / mean(&t.minus))
+}
+
 fn row(method: &'static str, params: String, sep: &Separated, t: &Truth, ms: f64) -> Row {
     let (rmse_plus, bias_plus) = rel(&sep.i_plus_electrons, &t.plus);
     let (rmse_minus, bias_minus) = rel(&sep.i_minus_electrons, &t.minus);
+    let patch = |e: &Image<f32>, tr: &[f64]| t.patch.as_ref().and_then(|p| rel_patch(e, tr, p));
     Row {
         method,
         params,
@@ -260,41 +337,105 @@ fn row(method: &'static str, params: String, sep: &Separated, t: &Truth, ms: f64
         bias_plus,
         rmse_minus,
         bias_minus,
+        patch_plus: patch(&sep.i_plus_electrons, &t.plus),
+        patch_minus: patch(&sep.i_minus_electrons, &t.minus),
+        floor: None,
         ms_per_frame: ms,
     }
 }
 
 fn print_table(scene: &str, w: usize, h: usize, rows: &[Row]) {
     println!("separation report: scene {scene}, {w}x{h}, TI preset, dark-frame subtracted");
+    println!("relative RMSE per pixel (rmse), per patch mean (patch), M1's sampling floor per pixel (floor)");
     println!(
-        "{:<13} {:<22} {:>10} {:>10} {:>10} {:>10} {:>12}",
-        "method", "params", "rmse I+", "bias I+", "rmse I-", "bias I-", "ms/frame"
+        "{:<13} {:<22} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>15} {:>10}",
+        "method",
+        "params",
+        "rmse I+",
+        "bias I+",
+        "rmse I-",
+        "bias I-",
+        "patch I+",
+        "patch I-",
+        "floor I+/I-",
+        "ms/frame"
     );
+    let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.2}%", 100.0 * v));
     for r in rows {
+        let floor = r.floor.map_or("-".to_string(), |(a, b)| {
+            format!("{:.2}/{:.2}%", 100.0 * a, 100.0 * b)
+        });
         println!(
-            "{:<13} {:<22} {:>9.2}% {:>+9.2}% {:>9.2}% {:>+9.2}% {:>12.3}",
+            "{:<13} {:<22} {:>8.2}% {:>+8.2}% {:>8.2}% {:>+8.2}% {:>9} {:>9} {:>15} {:>10.3}",
             r.method,
             r.params,
             100.0 * r.rmse_plus,
             100.0 * r.bias_plus,
             100.0 * r.rmse_minus,
             100.0 * r.bias_minus,
+            pct(r.patch_plus),
+            pct(r.patch_minus),
+            floor,
             r.ms_per_frame
         );
     }
+    println!("{}", ordering(rows));
+}
+
+/// The paper's ordering M1 < M2 < M3: best M1 (largest N, plain), best M2
+/// auto, best M3 (any variant), compared on the sum of the I+ and I- errors,
+/// per patch when available, else per pixel.
+pub fn ordering(rows: &[Row]) -> String {
+    let err = |r: &Row| match (r.patch_plus, r.patch_minus) {
+        (Some(a), Some(b)) => a + b,
+        _ => r.rmse_plus + r.rmse_minus,
+    };
+    let best = |pred: &dyn Fn(&Row) -> bool| {
+        rows.iter()
+            .filter(|r| pred(r))
+            .map(err)
+            .fold(f64::INFINITY, f64::min)
+    };
+    let m1 = rows
+        .iter()
+        .rfind(|r| r.method == "M1" && !r.params.contains(','))
+        .map_or(f64::INFINITY, err);
+    let m2 = best(&|r| r.method == "M2 auto");
+    let m3 = best(&|r| r.method.starts_with("M3"));
+    let basis = if rows.iter().any(|r| r.patch_plus.is_some()) {
+        "per patch"
+    } else {
+        "per pixel"
+    };
+    format!(
+        "ordering ({basis}, I+ + I- error): M1 {:.2}% < M2 auto {:.2}% < M3 {:.2}%: {}",
+        100.0 * m1,
+        100.0 * m2,
+        100.0 * m3,
+        if m1 < m2 && m2 < m3 {
+            "holds"
+        } else {
+            "does NOT hold"
+        }
+    )
 }
 
 fn write_tsv(path: &Path, rows: &[Row]) -> Result<(), ReportError> {
-    let mut s = String::from("method\tparams\trel_rmse_plus\trel_bias_plus\trel_rmse_minus\trel_bias_minus\tms_per_frame\n");
+    let mut s = String::from("method\tparams\trel_rmse_plus\trel_bias_plus\trel_rmse_minus\trel_bias_minus\tpatch_rmse_plus\tpatch_rmse_minus\tfloor_plus\tfloor_minus\tms_per_frame\n");
+    let opt = |v: Option<f64>| v.map_or("NA".to_string(), |v| format!("{v:.6}"));
     for r in rows {
         s += &format!(
-            "{}\t{}\t{:.6}\t{:.6}\t{:.6}\t{:.6}\t{:.4}\n",
+            "{}\t{}\t{:.6}\t{:.6}\t{:.6}\t{:.6}\t{}\t{}\t{}\t{}\t{:.4}\n",
             r.method,
             r.params,
             r.rmse_plus,
             r.bias_plus,
             r.rmse_minus,
             r.bias_minus,
+            opt(r.patch_plus),
+            opt(r.patch_minus),
+            opt(r.floor.map(|f| f.0)),
+            opt(r.floor.map(|f| f.1)),
             r.ms_per_frame
         );
     }
@@ -332,13 +473,15 @@ fn plot(path: &Path, scene: &str, rows: &[Row]) -> Result<(), ReportError> {
         .y_desc("relative RMSE, mean of I+ and I-")
         .draw()
         .map_err(pe)?;
-    let series: [(&str, &str, RGBColor); 6] = [
+    let series: [(&str, &str, RGBColor); 8] = [
         ("M1", "", BLUE),
         ("M1", "read:=0", RGBColor(120, 120, 255)),
         ("M1", "non-neg", RGBColor(0, 160, 160)),
+        ("M1 pooled", "r=", RGBColor(0, 0, 90)),
         ("M2 auto", "", GREEN),
         ("M3 exact", "", RED),
         ("M3 separable", "", RGBColor(230, 130, 0)),
+        ("M3 grid", "", RGBColor(160, 0, 160)),
     ];
     for (method, tag, colour) in series {
         let pts: Vec<(f64, f64)> = rows

@@ -12,8 +12,11 @@
 //!   the separable [`bilateral_separable`]: bilateral-weighted statistics of one frame.
 //! - Beyond the paper, [`pool_moments`]: M1 followed by edge-aware pooling of
 //!   the per-pixel moments.
+//! - Beyond the paper, [`skellam_ml_pixel`]: per-pixel Skellam maximum
+//!   likelihood (scaled Bessel functions), non-negative by construction.
 //! - [`LiveSeparator`]: per-frame separation for the daemon.
 
+mod bessel;
 mod bilateral;
 mod bilateral_grid;
 mod error;
@@ -22,9 +25,11 @@ mod live;
 mod moments;
 mod pooling;
 mod segments;
+mod skellam_ml;
 mod unmix;
 mod welford;
 
+pub use bessel::ln_bessel_i_scaled;
 pub use bilateral::{bilateral_exact, bilateral_separable, BilateralParams};
 pub use bilateral_grid::{bilateral_grid, BilateralGrid, MAX_LEVELS};
 pub use error::SeparationError;
@@ -32,6 +37,10 @@ pub use live::{LiveMethod, LiveSeparator};
 pub use moments::Moments;
 pub use pooling::{pool_moments, PoolParams};
 pub use segments::{auto_segment, segment_moments, SegmentParams, Segmentation, IGNORE_LABEL};
+pub use skellam_ml::{
+    skellam_log_likelihood, skellam_ml_counts, skellam_ml_pixel, MlMethod, SkellamFit,
+    COUNTS_READ_NOISE_ELECTRONS,
+};
 pub use unmix::{unmix, Separated, UnmixOptions};
 pub use welford::{SlidingWelford, Welford};
 
