@@ -72,7 +72,7 @@ impl SimFrames {
     /// bytes each must arrive as (converted independently of the writer).
     pub fn patterns(&self, format: PixelFormat) -> (Vec<Pattern>, Vec<Vec<u8>>) {
         let (w, h) = (self.width, self.height);
-        let mut conv = Converter::new(w as u32, h as u32, format, YuyvPath::Simd);
+        let mut conv = Converter::new(w as u32, h as u32, format, YuyvPath::fastest());
         let mut inputs = Vec::new();
         let mut expected = Vec::new();
         for img in &self.frames {

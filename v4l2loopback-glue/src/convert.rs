@@ -65,6 +65,19 @@ pub enum YuyvPath {
     Simd,
 }
 
+impl YuyvPath {
+    /// The faster one on this CPU (measured at 640x480, `loopback_tool
+    /// convert`): yuvutils 0.135 ms vs the loop 0.697 ms with AVX2, but
+    /// 10.1 ms vs 2.9 ms in the TCG VM's SSE4.2-only CPU.
+    pub fn fastest() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            return Self::Simd;
+        }
+        Self::Scalar
+    }
+}
+
 /// Converts into one output geometry; owns the scratch planes.
 pub struct Converter {
     width: usize,

@@ -147,7 +147,7 @@ impl LoopbackWriter {
     /// starts streaming and shows the "no signal" card, so readers can start
     /// at once.
     pub fn open(path: impl AsRef<Path>, config: OutputConfig) -> Result<Self, GlueError> {
-        Self::open_with(path, config, YuyvPath::Simd)
+        Self::open_with(path, config, YuyvPath::fastest())
     }
 
     /// [`open`](Self::open) with an explicit RGB->YUYV implementation.
@@ -439,11 +439,16 @@ impl LoopbackWriter {
         self.set_control(sys::CID_KEEP_FORMAT, 0);
         let old = self.config;
         self.config = config;
-        self.conv = Converter::new(config.width, config.height, config.format, YuyvPath::Simd);
+        self.conv = Converter::new(
+            config.width,
+            config.height,
+            config.format,
+            YuyvPath::fastest(),
+        );
         if let Err(e) = self.negotiate() {
             // back to the old geometry so the writer stays usable
             self.config = old;
-            self.conv = Converter::new(old.width, old.height, old.format, YuyvPath::Simd);
+            self.conv = Converter::new(old.width, old.height, old.format, YuyvPath::fastest());
             self.release_buffers();
             self.negotiate()?;
             self.set_control(sys::CID_KEEP_FORMAT, i32::from(self.features.keep_format));
