@@ -45,7 +45,11 @@ pub type Reply<T> = oneshot::Sender<T>;
 /// Requests to the frame loop.
 pub enum Command {
     SetMode(ModeId, Reply<()>),
-    Configure(CaptureSettings, Reply<Result<(), BackendError>>),
+    /// Applies settings; replies with what the backend kept (a board may clamp).
+    Configure(
+        CaptureSettings,
+        Reply<Result<CaptureSettings, BackendError>>,
+    ),
     SetDisplay(DisplayMap),
     CaptureDark(u32, Reply<Result<DarkStats, BackendError>>),
     /// Photon-transfer calibration with this many frames per level; on
@@ -281,7 +285,11 @@ impl FrameLoop {
                 let _ = reply.send(());
             }
             Command::Configure(settings, reply) => {
-                let _ = reply.send(self.backend.configure(&settings));
+                let applied = self
+                    .backend
+                    .configure(&settings)
+                    .map(|()| self.backend.settings());
+                let _ = reply.send(applied);
             }
             Command::SetDisplay(d) => self.display = d,
             Command::CaptureDark(n, reply) => {

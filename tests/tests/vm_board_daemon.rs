@@ -238,6 +238,15 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     let exposure = d.prop("exposure-us").as_f64().unwrap();
     eprintln!("ExposureUs after clamp: {exposure}");
     assert!((exposure - 2604.17).abs() < 0.1, "{exposure}");
+    // A faster frame rate shortens the quad (1/240 s at 60 Hz): the board
+    // clamps the same exposure to 20/64 of it, and ExposureUs follows.
+    let out = d.ctl(&["set", "frame-rate", "60"]);
+    assert!(out.status.success(), "{out:?}");
+    let exposure = d.prop("exposure-us").as_f64().unwrap();
+    eprintln!("ExposureUs after clamp at 60 Hz: {exposure}");
+    assert!((exposure - 1302.08).abs() < 0.1, "{exposure}");
+    let out = d.ctl(&["set", "frame-rate", "30"]);
+    assert!(out.status.success(), "{out:?}");
     let mut compared = 0;
     for i in 0..5 {
         let snap = tmp.path().join(format!("s{i}.npy"));

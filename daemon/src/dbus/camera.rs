@@ -189,12 +189,12 @@ impl Camera {
             )));
         }
         let result = self.ask(|tx| Command::Configure(capture, tx)).await?;
-        result.map_err(|e| match e {
+        let applied = result.map_err(|e| match e {
             BackendError::OutOfRange(m) => SdiError::OutOfRange(m),
             BackendError::Unavailable(m) => SdiError::DeviceUnavailable(m),
             other => SdiError::Failed(other.to_string()),
         })?;
-        self.update(|s| s.capture = capture);
+        self.update(|s| s.capture = applied);
         let _ = self.exposure_us_changed(emitter).await;
         let _ = self.frame_rate_changed(emitter).await;
         let _ = self.modulation_hz_changed(emitter).await;
