@@ -41,3 +41,15 @@ pub fn must(cmd: &mut Command) -> Output {
     assert!(out.status.success(), "{cmd:?} failed ({})", out.status);
     out
 }
+
+/// Asserts that a finished command succeeded (its stderr in the message)
+/// and returns its stdout as text.
+pub fn stdout_of(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "status {:?}: {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}

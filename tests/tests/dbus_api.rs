@@ -5,17 +5,8 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use sdi_tests::dbus::{Bus, Daemon};
+use sdi_tests::process::stdout_of;
 use sdi_tests::require_dbus;
-
-fn ok(out: &std::process::Output) -> String {
-    assert!(
-        out.status.success(),
-        "status {:?}: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 #[test]
 fn set_mode_round_trip_and_signals() {
@@ -34,12 +25,12 @@ fn set_mode_round_trip_and_signals() {
         .spawn()
         .expect("gdbus monitor");
     std::thread::sleep(Duration::from_millis(500));
-    ok(&d.ctl(&["set-mode", "depth-edge"]));
-    assert_eq!(ok(&d.ctl(&["get", "mode"])).trim(), "depth-edge");
-    let setup = ok(&d.ctl(&["get", "setup"]));
+    stdout_of(&d.ctl(&["set-mode", "depth-edge"]));
+    assert_eq!(stdout_of(&d.ctl(&["get", "mode"])).trim(), "depth-edge");
+    let setup = stdout_of(&d.ctl(&["get", "setup"]));
     assert!(setup.contains("left of the lens"), "{setup}");
-    ok(&d.ctl(&["set", "exposure-us", "1500"]));
-    assert_eq!(ok(&d.ctl(&["get", "exposure-us"])).trim(), "1500.0");
+    stdout_of(&d.ctl(&["set", "exposure-us", "1500"]));
+    assert_eq!(stdout_of(&d.ctl(&["get", "exposure-us"])).trim(), "1500.0");
     std::thread::sleep(Duration::from_millis(1500));
     let _ = monitor.kill();
     let out = monitor.wait_with_output().expect("monitor output");
@@ -58,8 +49,8 @@ fn snapshot_files_are_correct() {
     let dir = tempfile::tempdir().unwrap();
     let npy = dir.path().join("snap.npy");
     let png = dir.path().join("snap.png");
-    ok(&d.ctl(&["snapshot", npy.to_str().unwrap()]));
-    ok(&d.ctl(&["snapshot", png.to_str().unwrap()]));
+    stdout_of(&d.ctl(&["snapshot", npy.to_str().unwrap()]));
+    stdout_of(&d.ctl(&["snapshot", png.to_str().unwrap()]));
     let bytes = std::fs::read(&npy).unwrap();
     assert_eq!(&bytes[..6], b"\x93NUMPY");
     let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
@@ -108,7 +99,7 @@ fn introspection_matches_checked_in_xml() {
         ])
         .output()
         .unwrap();
-    let text = ok(&out);
+    let text = stdout_of(&out);
     // gdbus prints ('<xml>',) (or ("<xml>",) when the text holds a quote)
     // with escaped newlines and quotes.
     let xml = text

@@ -16,6 +16,7 @@ use std::process::{Command, Output, Stdio};
 
 use sdi_daemon::recording::{Record, RecordingReader};
 use sdi_tests::dbus::{Bus, Daemon};
+use sdi_tests::process::stdout_of;
 use sdi_tests::require_dbus;
 use zbus::zvariant::Fd;
 
@@ -81,16 +82,6 @@ impl Drop for Hidden {
     }
 }
 
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "status {:?}: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
 fn failed_with(out: &Output, code: i32, error: &str) {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(code), "{stderr}");
@@ -138,8 +129,8 @@ fn snapshot_and_record_into_a_directory_the_daemon_cannot_see() {
     // ... through a descriptor (the default) it writes there.
     let npy = hidden.path("snap.npy");
     let png = hidden.path("snap.png");
-    assert_eq!(ok(&d.ctl(&["snapshot", &npy])).trim(), npy);
-    ok(&d.ctl(&["snapshot", &png]));
+    assert_eq!(stdout_of(&d.ctl(&["snapshot", &npy])).trim(), npy);
+    stdout_of(&d.ctl(&["snapshot", &png]));
     let (header, data_len) = npy_shape_and_len(Path::new(&npy));
     assert!(header.contains("'shape': (240, 320)"), "{header}");
     assert_eq!(data_len, 240 * 320 * 4);
@@ -156,15 +147,15 @@ fn snapshot_and_record_into_a_directory_the_daemon_cannot_see() {
         .args(["--bus-address", &bus.address, "snapshot", "rel.npy"])
         .output()
         .unwrap();
-    ok(&rel);
+    stdout_of(&rel);
 
     // Recording: the Recording property shows the caller's label; replay
     // reads every frame.
     let rec = hidden.path("run.sdirec");
-    ok(&d.ctl(&["record", &rec]));
-    assert_eq!(ok(&d.ctl(&["get", "recording"])).trim(), rec);
+    stdout_of(&d.ctl(&["record", &rec]));
+    assert_eq!(stdout_of(&d.ctl(&["get", "recording"])).trim(), rec);
     std::thread::sleep(std::time::Duration::from_millis(700));
-    let stop = ok(&d.ctl(&["--json", "stop"]));
+    let stop = stdout_of(&d.ctl(&["--json", "stop"]));
     let summary: serde_json::Value = serde_json::from_str(stop.trim()).unwrap();
     assert_eq!(summary["path"], rec.as_str());
     let frames = summary["frames"].as_u64().unwrap();
@@ -199,11 +190,11 @@ fn sdictl_leaves_nothing_behind_on_errors() {
     let bus = Bus::start();
     let d = Daemon::start(&bus, &[]);
     let first = hidden.path("first.sdirec");
-    ok(&d.ctl(&["record", &first]));
+    stdout_of(&d.ctl(&["record", &first]));
     // Busy: the second recording's file must not appear.
     let second = d.ctl(&["record", &hidden.path("second.sdirec")]);
     failed_with(&second, 4, "org.sdi.Error.Busy");
-    ok(&d.ctl(&["stop"]));
+    stdout_of(&d.ctl(&["stop"]));
     // Existing file: untouched.
     fs::write(hidden.out.join("mine.npy"), b"keep").unwrap();
     failed_with(&d.ctl(&["snapshot", &hidden.path("mine.npy")]), 2, "exists");
@@ -323,7 +314,7 @@ fn bad_descriptors_get_typed_errors() {
     });
     let (header, len) = npy_shape_and_len(&dir.path().join("good.npy"));
     assert!(header.contains("'<f4'") && len > 0);
-    assert_eq!(ok(&d.ctl(&["get", "recording"])).trim(), "");
+    assert_eq!(stdout_of(&d.ctl(&["get", "recording"])).trim(), "");
 }
 
 /// Under systemd (INVOCATION_ID set) the daemon's /tmp is private: a path
@@ -340,6 +331,6 @@ fn service_refuses_paths_into_its_private_tmp() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("PrivateTmp"));
     assert!(!by_path.exists());
     let by_fd = dir.path().join("by-fd.npy");
-    ok(&d.ctl(&["snapshot", by_fd.to_str().unwrap()]));
+    stdout_of(&d.ctl(&["snapshot", by_fd.to_str().unwrap()]));
     assert!(by_fd.is_file());
 }

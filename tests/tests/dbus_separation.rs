@@ -11,17 +11,8 @@ use sdi_core::modulation::Illumination;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_tests::dbus::{bin, stats, Bus, Daemon};
+use sdi_tests::process::stdout_of;
 use sdi_tests::require_dbus;
-
-fn ok(out: &std::process::Output) -> String {
-    assert!(
-        out.status.success(),
-        "status {:?}: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 /// Shape and float32 data of an .npy file.
 fn read_npy(path: &std::path::Path) -> (String, Vec<f32>) {
@@ -65,10 +56,10 @@ fn separation_mode_recovers_both_channels_live() {
     .unwrap();
     let d = Daemon::start(&bus, &["--config", cfg.to_str().unwrap()]);
     // Measurement procedure (section 4): dark frame first, then the mode.
-    ok(&d.ctl(&["dark-frame", "20"]));
-    ok(&d.ctl(&["set-mode", "separation"]));
-    assert_eq!(ok(&d.ctl(&["get", "mode"])).trim(), "separation");
-    let setup = ok(&d.ctl(&["get", "setup"]));
+    stdout_of(&d.ctl(&["dark-frame", "20"]));
+    stdout_of(&d.ctl(&["set-mode", "separation"]));
+    assert_eq!(stdout_of(&d.ctl(&["get", "mode"])).trim(), "separation");
+    let setup = stdout_of(&d.ctl(&["get", "setup"]));
     assert!(
         setup.contains("red LEDs") && setup.contains("blue LEDs"),
         "{setup}"
@@ -77,8 +68,8 @@ fn separation_mode_recovers_both_channels_live() {
     std::thread::sleep(Duration::from_millis(5000));
     let npy = dir.path().join("sep.npy");
     let png = dir.path().join("sep.png");
-    ok(&d.ctl(&["snapshot", npy.to_str().unwrap()]));
-    ok(&d.ctl(&["snapshot", png.to_str().unwrap()]));
+    stdout_of(&d.ctl(&["snapshot", npy.to_str().unwrap()]));
+    stdout_of(&d.ctl(&["snapshot", png.to_str().unwrap()]));
     let (header, data) = read_npy(&npy);
     assert!(header.contains("'shape': (2, 240, 320)"), "{header}");
     let (i_plus, i_minus) = data.split_at(240 * 320);
@@ -122,7 +113,7 @@ fn calibrate_fits_the_sensor_gain() {
     let state = tempfile::tempdir().unwrap();
     let state_dir = state.path().to_str().unwrap();
     let mut d = Daemon::start(&bus, &["--state-dir", state_dir]);
-    let out = ok(&d.ctl(&["--json", "calibrate", "30"]));
+    let out = stdout_of(&d.ctl(&["--json", "calibrate", "30"]));
     let v: serde_json::Value = serde_json::from_str(&out).expect("json");
     let truth = SensorPreset::TiOpt8241.params();
     let (g_true, r_true) = (truth.gain_dn_per_electron(), truth.read_variance_dn2());
@@ -139,7 +130,7 @@ fn calibrate_fits_the_sensor_gain() {
     assert!((g / g_true - 1.0).abs() < 0.03, "gain {g} vs {g_true}");
     assert!(g_se > 0.0 && g_se < 0.03 * g_true, "gain se {g_se}");
     // The exposure is restored after the calibration.
-    assert_eq!(ok(&d.ctl(&["get", "exposure-us"])).trim(), "2000.0");
+    assert_eq!(stdout_of(&d.ctl(&["get", "exposure-us"])).trim(), "2000.0");
 
     // Stored, keyed by model and serial, and loaded by the next sdid.
     let file = state.path().join("calibration.toml");

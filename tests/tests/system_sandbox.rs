@@ -12,17 +12,8 @@ use std::process::Output;
 
 use sdi_tests::dbus::{Bus, Daemon};
 use sdi_tests::process::repo_root;
+use sdi_tests::process::stdout_of;
 use sdi_tests::require_dbus;
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "status {:?}: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 fn failed(out: &Output, needle: &str) {
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -59,19 +50,19 @@ fn sdid_serves_inside_the_unit_sandbox() {
         ],
         &["--mode", "depth-edge"],
     );
-    assert_eq!(ok(&d.ctl(&["get", "mode"])).trim(), "depth-edge");
+    assert_eq!(stdout_of(&d.ctl(&["get", "mode"])).trim(), "depth-edge");
 
     // Descriptors: into the caller's /tmp, which the daemon cannot see.
     let snap = user_tmp.path().join("snap.png");
-    ok(&d.ctl(&["snapshot", snap.to_str().unwrap()]));
+    stdout_of(&d.ctl(&["snapshot", snap.to_str().unwrap()]));
     assert!(image::open(&snap).is_ok());
     let rec = user_tmp.path().join("run.sdirec");
-    ok(&d.ctl(&["record", rec.to_str().unwrap(), "--seconds", "0.5"]));
+    stdout_of(&d.ctl(&["record", rec.to_str().unwrap(), "--seconds", "0.5"]));
     assert!(std::fs::metadata(&rec).unwrap().len() > 0);
 
     // Paths: below /var/lib/sdi (the StateDirectory) the daemon writes ...
-    ok(&d.ctl(&["snapshot", "--by-path", "/var/lib/sdi/state.npy"]));
-    ok(&d.ctl(&[
+    stdout_of(&d.ctl(&["snapshot", "--by-path", "/var/lib/sdi/state.npy"]));
+    stdout_of(&d.ctl(&[
         "record",
         "--by-path",
         "/var/lib/sdi/state.sdirec",
@@ -93,5 +84,5 @@ fn sdid_serves_inside_the_unit_sandbox() {
     );
     assert!(!Path::new(&outside).exists() && !in_tmp.exists());
     // Still serving.
-    ok(&d.ctl(&["set-mode", "raw"]));
+    stdout_of(&d.ctl(&["set-mode", "raw"]));
 }

@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 
 use sdi_tests::dbus::Bus;
 use sdi_tests::loopback;
+use sdi_tests::process::stdout_of;
 use sdi_tests::vm;
 
 const NODE: u32 = 40;
@@ -35,16 +36,6 @@ fn ctl(address: &str, args: &[&str]) -> Output {
         .args(args)
         .output()
         .expect("run sdictl")
-}
-
-fn ok(o: Output) -> String {
-    assert!(
-        o.status.success(),
-        "status {:?}: {}",
-        o.status,
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8_lossy(&o.stdout).into_owned()
 }
 
 struct Killed(Child);
@@ -160,14 +151,14 @@ fn in_vm_checks() {
         "sdid never served D-Bus with {} capture-ready",
         dev.display()
     );
-    let device = ok(ctl(&bus.address, &["get", "device"]));
+    let device = stdout_of(&ctl(&bus.address, &["get", "device"]));
     eprintln!(
         "ok: sdid up after {:.1} s, device {}",
         t0.elapsed().as_secs_f64(),
         device.trim()
     );
     let listed: serde_json::Value =
-        serde_json::from_str(&ok(ctl(&bus.address, &["--json", "modes"]))).expect("json");
+        serde_json::from_str(&stdout_of(&ctl(&bus.address, &["--json", "modes"]))).expect("json");
     let modes: Vec<String> = listed["modes"]
         .as_array()
         .expect("modes array")
@@ -192,7 +183,7 @@ fn in_vm_checks() {
     for mode in &modes {
         let before = count();
         let t_switch = Instant::now();
-        ok(ctl(&bus.address, &["set-mode", mode]));
+        stdout_of(&ctl(&bus.address, &["set-mode", mode]));
         // The reader must keep getting frames. The first few after the switch
         // may still be the old mode's (output queue, driver buffers, ffmpeg);
         // the simulator also builds the new mode's scene, slow under TCG.
@@ -232,14 +223,14 @@ fn in_vm_checks() {
     }
 
     // Snapshots through sdictl, in the separation mode (two channels).
-    ok(ctl(&bus.address, &["set-mode", "separation"]));
+    stdout_of(&ctl(&bus.address, &["set-mode", "separation"]));
     std::thread::sleep(Duration::from_millis(1000));
     let png = tmp.join("snap.png");
     let npy = tmp.join("snap.npy");
     let _ = std::fs::remove_file(&png);
     let _ = std::fs::remove_file(&npy);
-    ok(ctl(&bus.address, &["snapshot", png.to_str().unwrap()]));
-    ok(ctl(&bus.address, &["snapshot", npy.to_str().unwrap()]));
+    stdout_of(&ctl(&bus.address, &["snapshot", png.to_str().unwrap()]));
+    stdout_of(&ctl(&bus.address, &["snapshot", npy.to_str().unwrap()]));
     let png_bytes = std::fs::read(&png).unwrap();
     assert_eq!(&png_bytes[1..4], b"PNG");
     let npy_bytes = std::fs::read(&npy).unwrap();
@@ -300,7 +291,7 @@ fn in_vm_checks() {
         backwards.is_empty(),
         "timestamps went backwards:\n{backwards:#?}"
     );
-    let stats = ok(ctl(&bus.address, &["--json", "get", "stats"]));
+    let stats = stdout_of(&ctl(&bus.address, &["--json", "get", "stats"]));
     eprintln!("sdid stats: {}", stats.trim());
     assert!(sdid.0.try_wait().unwrap().is_none(), "sdid died");
 }
