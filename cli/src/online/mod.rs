@@ -57,7 +57,8 @@ pub enum OnlineCommand {
         #[arg(default_value_t = 32)]
         frames: u32,
     },
-    /// Dark calibration: dark frame, read-noise variance, fixed-pattern sigma.
+    /// Calibrate: dark frame, read noise and fixed pattern, then photon transfer
+    /// (gain and read variance from LS1 at 5 exposures; stored, used for separation).
     Calibrate {
         #[arg(default_value_t = 64)]
         frames: u32,
