@@ -15,6 +15,15 @@ mount --make-rprivate /
 mount -t tmpfs -o mode=0755 sdi-var-lib /var/lib
 mkdir /var/lib/sdi
 mount --bind "$state" /var/lib/sdi
+# An installed sdid lives in /usr/bin; a test's may sit in a checkout under
+# /tmp or /root, which the sandbox hides: run a copy from /var/lib instead.
+if [ -f "$1" ]; then
+    mkdir /var/lib/.sdi-sandbox-bin
+    cp "$1" /var/lib/.sdi-sandbox-bin/
+    prog=/var/lib/.sdi-sandbox-bin/$(basename "$1")
+    shift
+    set -- "$prog" "$@"
+fi
 mount -t tmpfs -o mode=1777 sdi-tmp /tmp
 mount -t tmpfs -o mode=1777 sdi-var-tmp /var/tmp
 for d in /home /root /run/user; do

@@ -77,12 +77,13 @@ fn sdid_serves_inside_the_unit_sandbox() {
         &d.ctl(&["snapshot", "--by-path", in_tmp.to_str().unwrap()]),
         "PrivateTmp",
     );
-    let outside = repo_root().join("target").join("sdi-sandbox-probe.npy");
+    // (/etc, not the checkout: a checkout may itself sit under /tmp.)
+    let outside = Path::new("/etc/sdi-sandbox-probe.npy");
     failed(
         &d.ctl(&["snapshot", "--by-path", outside.to_str().unwrap()]),
         "Read-only file system",
     );
-    assert!(!Path::new(&outside).exists() && !in_tmp.exists());
+    assert!(!outside.exists() && !in_tmp.exists());
     // Still serving.
     stdout_of(&d.ctl(&["set-mode", "raw"]));
 }
