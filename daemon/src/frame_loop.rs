@@ -210,13 +210,7 @@ impl FrameLoop {
                         let _ = job.reply.send(Err(e));
                     }
                     self.lit_captures = 0;
-                    for reply in self.pending_snapshots.drain(..) {
-                        let _ = reply.send(self.last.clone().map(|output| SnapshotData {
-                            mode: self.mode,
-                            output,
-                            display: self.display,
-                        }));
-                    }
+                    self.answer_pending_snapshots();
                     self.output.send_no_signal();
                     std::thread::sleep(Duration::from_millis(200));
                     continue;
@@ -240,16 +234,10 @@ impl FrameLoop {
             } else if let Some(out) = self.pipeline.process(&frame) {
                 let out = Arc::new(out.clone());
                 self.output.send(out.clone(), self.display);
-                if self.lit_captures >= 2 {
-                    for reply in self.pending_snapshots.drain(..) {
-                        let _ = reply.send(Some(SnapshotData {
-                            mode: self.mode,
-                            output: out.clone(),
-                            display: self.display,
-                        }));
-                    }
-                }
                 self.last = Some(out);
+                if self.lit_captures >= 2 {
+                    self.answer_pending_snapshots();
+                }
             }
             if self.stats.frame(t0.elapsed()) {
                 let mut s = self.stats.current;
@@ -261,6 +249,22 @@ impl FrameLoop {
                 });
                 self.stats_tx.send_replace(s);
             }
+        }
+    }
+
+    /// The latest output, with the mode and display it was made for.
+    fn snapshot(&self) -> Option<SnapshotData> {
+        self.last.clone().map(|output| SnapshotData {
+            mode: self.mode,
+            output,
+            display: self.display,
+        })
+    }
+
+    /// Answers every snapshot waiting for lit frames with the latest output.
+    fn answer_pending_snapshots(&mut self) {
+        for reply in std::mem::take(&mut self.pending_snapshots) {
+            let _ = reply.send(self.snapshot());
         }
     }
 
@@ -323,11 +327,7 @@ impl FrameLoop {
                 self.pending_snapshots.push(reply);
             }
             Command::Snapshot(reply) => {
-                let _ = reply.send(self.last.clone().map(|output| SnapshotData {
-                    mode: self.mode,
-                    output,
-                    display: self.display,
-                }));
+                let _ = reply.send(self.snapshot());
             }
             Command::StartRecording(rec, reply) => {
                 if let Some((frames, dn)) = &self.dark {
