@@ -1,7 +1,7 @@
 //! A dense row-major 2-D image: the one container every stage passes along.
 
 /// Row-major image of `width * height` samples.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Image<T> {
     pub width: usize,
     pub height: usize,

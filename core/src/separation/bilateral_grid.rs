@@ -32,7 +32,7 @@
 //! Gaussian's (sum w)^2 / sum w^2 scaled by the fraction of the window the
 //! range weights keep, and never more than the frame's usable pixels.
 
-use super::{input_flags, usable, BilateralParams, Moments, SeparationError};
+use super::{input_flags, usable, BilateralParams, LocalMoments, Moments, SeparationError};
 use crate::frame::Frame;
 
 /// Largest number of range levels over a frame's value range.
@@ -66,7 +66,7 @@ pub struct BilateralGrid {
     scratch_hi: Vec<i32>,
     a: Vec<Node>,
     b: Vec<Node>,
-    out: Moments,
+    out: LocalMoments,
 }
 
 impl Default for BilateralGrid {
@@ -85,18 +85,13 @@ impl BilateralGrid {
             scratch_hi: Vec::new(),
             a: Vec::new(),
             b: Vec::new(),
-            out: Moments::new(0, 0),
+            out: LocalMoments::default(),
         }
     }
 
     /// The moments of the last [`Self::compute`].
-    pub fn moments(&self) -> &Moments {
+    pub fn moments(&self) -> &LocalMoments {
         &self.out
-    }
-
-    /// Gives up the output (the buffers are dropped).
-    pub fn into_moments(self) -> Moments {
-        self.out
     }
 
     /// M3 of `frame` (see module docs).
@@ -104,15 +99,13 @@ impl BilateralGrid {
         &mut self,
         frame: &Frame,
         params: BilateralParams,
-    ) -> Result<&Moments, SeparationError> {
+    ) -> Result<&LocalMoments, SeparationError> {
         params.validate()?;
         if frame.dn.is_empty() || !frame.dn.same_size(&frame.saturated) {
             return Err(SeparationError::Empty);
         }
         let (w, h) = (frame.width(), frame.height());
-        if self.out.width() != w || self.out.height() != h {
-            self.out = Moments::new(w, h);
-        }
+        self.out.ensure_size(w, h);
         self.out.flags.data.fill(0);
 
         let (mut vmin, mut vmax) = (f32::INFINITY, f32::NEG_INFINITY);
@@ -127,7 +120,7 @@ impl BilateralGrid {
         }
         if vmin > vmax {
             for i in 0..w * h {
-                self.out.set_insufficient(i);
+                self.out.set_insufficient(i, 0.0);
                 self.out.flags.data[i] |= input_flags(frame, i);
             }
             return Ok(&self.out);
@@ -386,7 +379,7 @@ impl BilateralGrid {
                 let i = y * w + x;
                 self.out.flags.data[i] |= input_flags(frame, i);
                 if !usable(frame, i) {
-                    self.out.set_insufficient(i);
+                    self.out.set_insufficient(i, 0.0);
                     continue;
                 }
                 let v = frame.dn.data[i];
@@ -417,7 +410,7 @@ impl BilateralGrid {
                 let s2 = wr * (q[2] + 2.0 * delta * q[1] + delta * delta * q[0])
                     + wr1 * (q1[2] + 2.0 * delta1 * q1[1] + delta1 * delta1 * q1[0]);
                 if !(s0 > 0.0 && s0.is_finite()) {
-                    self.out.set_insufficient(i);
+                    self.out.set_insufficient(i, 0.0);
                     continue;
                 }
                 let m = s1 / s0;
@@ -429,13 +422,13 @@ impl BilateralGrid {
                     0.5 * ((1.0 - f) * (1.0 - f) + f * f + f * (1.0 - f))
                 };
                 let n_eff = ((s0 / (cell_area * self_range)).min(1.0) * n_full).min(usable_px);
-                if n_eff < 1.5 {
-                    self.out.set_insufficient(i);
-                    self.out.samples.data[i] = n_eff as f64;
+                if !(n_eff >= 2.0 && var.is_finite()) {
+                    self.out.set_insufficient(i, n_eff);
                     continue;
                 }
-                self.out
-                    .set_from_central(i, n_eff as f64, (v + m) as f64, var as f64, 0.0, None);
+                self.out.mean_dn.data[i] = v + m;
+                self.out.variance_dn2.data[i] = var;
+                self.out.samples.data[i] = n_eff;
             }
         }
     }
@@ -476,6 +469,5 @@ fn dilate(lo: &mut [i32], hi: &mut [i32], gx: usize, gy: usize) {
 /// One-shot M3 on a bilateral grid (see [`BilateralGrid`] to reuse buffers).
 pub fn bilateral_grid(frame: &Frame, params: BilateralParams) -> Result<Moments, SeparationError> {
     let mut grid = BilateralGrid::new();
-    grid.compute(frame, params)?;
-    Ok(grid.into_moments())
+    Ok(grid.compute(frame, params)?.to_moments())
 }

@@ -2,21 +2,23 @@
 //! channels out (M3 on every frame, or M1 over a sliding window).
 
 use super::{
-    bilateral_separable, unmix, BilateralGrid, BilateralParams, Separated, SeparationError,
-    SlidingWelford, UnmixOptions,
+    unmix_into, unmix_local_into, BilateralGrid, BilateralParams, SeparableBilateral, Separated,
+    SeparationError, SlidingWelford, UnmixOptions,
 };
 use crate::frame::Frame;
 use crate::sensor::SkellamMixing;
 
-/// From this sigma_domain on the bilateral grid beats the separable M3.
-const GRID_FROM_SIGMA_PX: f64 = 2.0;
+/// From this sigma_domain on the bilateral grid (O(1) per pixel) beats the
+/// separable M3 (O(sigma) per pixel): about 16 ms each at 640x480 on one
+/// core (`cargo run --release -p sdi-core --example m3_crossover`).
+const GRID_FROM_SIGMA_PX: f64 = 8.0;
 
 /// Which estimator the live separator runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum LiveMethod {
     /// Fast M3 on every frame (one-frame latency, moving scenes): the
-    /// bilateral grid from sigma_domain 2 px up, the separable variant below
-    /// (faster there; see `cargo bench -p sdi-core --bench m3_vs_opencv`).
+    /// separable variant, or the bilateral grid from sigma_domain 8 px up
+    /// (see `cargo bench -p sdi-core --bench m3_vs_opencv`).
     Bilateral(BilateralParams),
     /// M1 over the last `frames` frames (static scenes, best accuracy).
     SlidingWindow { frames: usize },
@@ -30,7 +32,9 @@ pub struct LiveSeparator {
     options: UnmixOptions,
     window: Option<SlidingWelford>,
     grid: BilateralGrid,
-    last: Option<Separated>,
+    separable: SeparableBilateral,
+    out: Separated,
+    has_output: bool,
 }
 
 impl LiveSeparator {
@@ -41,27 +45,28 @@ impl LiveSeparator {
             options,
             window: None,
             grid: BilateralGrid::new(),
-            last: None,
+            separable: SeparableBilateral::new(),
+            out: Separated::default(),
+            has_output: false,
         }
     }
 
     /// Feeds one frame. Returns the separated channels, or `Ok(None)` while a
     /// sliding window holds fewer than two frames.
     pub fn process(&mut self, frame: &Frame) -> Result<Option<&Separated>, SeparationError> {
-        let windowed;
-        let moments = match self.method {
+        let (h, options, out) = (&self.h, self.options, &mut self.out);
+        match self.method {
             LiveMethod::Bilateral(p) if p.sigma_domain_px >= GRID_FROM_SIGMA_PX => {
-                self.grid.compute(frame, p)?
+                unmix_local_into(self.grid.compute(frame, p)?, h, options, out)?;
             }
             LiveMethod::Bilateral(p) => {
-                windowed = bilateral_separable(frame, p)?;
-                &windowed
+                unmix_local_into(self.separable.compute(frame, p)?, h, options, out)?;
             }
             LiveMethod::SlidingWindow { frames } => {
-                let (w, h) = (frame.width(), frame.height());
-                let stale = self.window.as_ref().is_none_or(|s| s.size() != (w, h));
+                let (w, ht) = (frame.width(), frame.height());
+                let stale = self.window.as_ref().is_none_or(|s| s.size() != (w, ht));
                 if stale {
-                    self.window = Some(SlidingWelford::new(w, h, frames)?);
+                    self.window = Some(SlidingWelford::new(w, ht, frames)?);
                 }
                 let Some(window) = self.window.as_mut() else {
                     return Ok(None);
@@ -70,16 +75,15 @@ impl LiveSeparator {
                 if window.len() < 2 {
                     return Ok(None);
                 }
-                windowed = window.moments()?;
-                &windowed
+                unmix_into(&window.moments()?, h, options, out)?;
             }
-        };
-        self.last = Some(unmix(moments, &self.h, self.options)?);
-        Ok(self.last.as_ref())
+        }
+        self.has_output = true;
+        Ok(Some(&self.out))
     }
 
     /// The most recent output.
     pub fn last(&self) -> Option<&Separated> {
-        self.last.as_ref()
+        self.has_output.then_some(&self.out)
     }
 }

@@ -9,7 +9,8 @@
 //! - M2 [`segment_moments`]: statistics over segments of one frame; [`auto_segment`]
 //!   finds the segments.
 //! - M3 [`bilateral_exact`], the fast [`BilateralGrid`] (O(1) per pixel) and
-//!   the separable [`bilateral_separable`]: bilateral-weighted statistics of one frame.
+//!   [`SeparableBilateral`] (O(r) per pixel, vectorized): bilateral-weighted
+//!   statistics of one frame; the fast ones give the light [`LocalMoments`].
 //! - Beyond the paper, [`pool_moments`]: M1 followed by edge-aware pooling of
 //!   the per-pixel moments.
 //! - Beyond the paper, [`skellam_ml_pixel`]: per-pixel Skellam maximum
@@ -19,9 +20,12 @@
 mod bessel;
 mod bilateral;
 mod bilateral_grid;
+mod bilateral_separable;
 mod error;
+mod fast_exp;
 pub mod flags;
 mod live;
+mod local_moments;
 mod moments;
 mod pooling;
 mod segments;
@@ -30,18 +34,20 @@ mod unmix;
 mod welford;
 
 pub use bessel::ln_bessel_i_scaled;
-pub use bilateral::{bilateral_exact, bilateral_separable, BilateralParams};
+pub use bilateral::{bilateral_exact, BilateralParams};
 pub use bilateral_grid::{bilateral_grid, BilateralGrid, MAX_LEVELS};
+pub use bilateral_separable::{bilateral_separable, SeparableBilateral};
 pub use error::SeparationError;
 pub use live::{LiveMethod, LiveSeparator};
-pub use moments::Moments;
+pub use local_moments::LocalMoments;
+pub use moments::{MomentSource, Moments, PixelStats};
 pub use pooling::{pool_moments, PoolParams};
 pub use segments::{auto_segment, segment_moments, SegmentParams, Segmentation, IGNORE_LABEL};
 pub use skellam_ml::{
     skellam_log_likelihood, skellam_ml_counts, skellam_ml_pixel, MlMethod, SkellamFit,
     COUNTS_READ_NOISE_ELECTRONS,
 };
-pub use unmix::{unmix, Separated, UnmixOptions};
+pub use unmix::{unmix, unmix_into, unmix_local_into, Separated, UnmixOptions};
 pub use welford::{SlidingWelford, Welford};
 
 /// True when the sample at `i` of `frame` may enter the statistics.

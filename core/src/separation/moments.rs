@@ -82,3 +82,43 @@ impl Moments {
         self.flags.data[i] |= super::flags::INSUFFICIENT;
     }
 }
+
+/// One pixel's statistics as [`super::unmix`] needs them, DN.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PixelStats {
+    pub mean_dn: f64,
+    pub variance_dn2: f64,
+    pub mean_var_dn2: f64,
+    pub variance_var_dn4: f64,
+    pub mean_variance_cov_dn3: f64,
+}
+
+/// Per-pixel statistics from any estimator ([`Moments`], [`super::LocalMoments`]).
+pub trait MomentSource {
+    /// (width, height).
+    fn size(&self) -> (usize, usize);
+    fn flags(&self) -> &Image<u8>;
+    /// Pixel `i`'s statistics; meaningful where INSUFFICIENT is not flagged.
+    fn pixel(&self, i: usize) -> PixelStats;
+}
+
+impl MomentSource for Moments {
+    fn size(&self) -> (usize, usize) {
+        (self.width(), self.height())
+    }
+
+    fn flags(&self) -> &Image<u8> {
+        &self.flags
+    }
+
+    #[inline]
+    fn pixel(&self, i: usize) -> PixelStats {
+        PixelStats {
+            mean_dn: self.mean_dn.data[i],
+            variance_dn2: self.variance_dn2.data[i],
+            mean_var_dn2: self.mean_var_dn2.data[i],
+            variance_var_dn4: self.variance_var_dn4.data[i],
+            mean_variance_cov_dn3: self.mean_variance_cov_dn3.data[i],
+        }
+    }
+}

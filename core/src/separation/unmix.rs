@@ -1,7 +1,7 @@
 //! H^-1 applied per pixel (section 6), with standard errors, clamping and an
 //! optional projection onto I+, I- >= 0.
 
-use super::{flags, Moments, SeparationError};
+use super::{flags, LocalMoments, MomentSource, SeparationError};
 use crate::image::Image;
 use crate::sensor::SkellamMixing;
 
@@ -24,7 +24,7 @@ impl Default for UnmixOptions {
 }
 
 /// The two recovered latent images, electrons, with one-sigma standard errors.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Default)]
 pub struct Separated {
     pub i_plus_electrons: Image<f32>,
     pub i_minus_electrons: Image<f32>,
@@ -34,6 +34,20 @@ pub struct Separated {
     pub flags: Image<u8>,
 }
 
+impl Separated {
+    fn ensure_size(&mut self, width: usize, height: usize) {
+        if self.flags.width != width || self.flags.height != height {
+            *self = Self {
+                i_plus_electrons: Image::new(width, height),
+                i_minus_electrons: Image::new(width, height),
+                i_plus_se_electrons: Image::new(width, height),
+                i_minus_se_electrons: Image::new(width, height),
+                flags: Image::new(width, height),
+            };
+        }
+    }
+}
+
 /// (I+, I-) = H^-1 (mu, sigma^2 - sigma_read^2) for every pixel (section 6).
 ///
 /// Written as half-sum and half-difference, S = (sigma^2 - sigma_read^2)/g^2 and
@@ -41,40 +55,50 @@ pub struct Separated {
 /// Var(I+-) = (Var S + Var D +- 2 Cov(S, D)) / 4 from the moments' sampling
 /// (co)variances. A variance below sigma_read^2 is clamped to it and flagged.
 pub fn unmix(
-    moments: &Moments,
+    moments: &impl MomentSource,
     h: &SkellamMixing,
     options: UnmixOptions,
 ) -> Result<Separated, SeparationError> {
+    let mut out = Separated::default();
+    unmix_into(moments, h, options, &mut out)?;
+    Ok(out)
+}
+
+/// [`unmix`] into `out`, reusing its buffers (a live pipeline allocates
+/// nothing after the first frame).
+pub fn unmix_into(
+    moments: &impl MomentSource,
+    h: &SkellamMixing,
+    options: UnmixOptions,
+    out: &mut Separated,
+) -> Result<(), SeparationError> {
     let g = h.gain_dn_per_electron;
     SeparationError::check("gain_dn_per_electron", g, g > 0.0, "> 0")?;
     let r = h.read_variance_dn2;
     SeparationError::check("read_variance_dn2", r, r >= 0.0, ">= 0")?;
     let read = if options.subtract_read_noise { r } else { 0.0 };
-    let (w, ht) = (moments.width(), moments.height());
-    let mut out = Separated {
-        i_plus_electrons: Image::new(w, ht),
-        i_minus_electrons: Image::new(w, ht),
-        i_plus_se_electrons: Image::new(w, ht),
-        i_minus_se_electrons: Image::new(w, ht),
-        flags: moments.flags.clone(),
-    };
+    let (w, ht) = moments.size();
+    out.ensure_size(w, ht);
+    out.flags.data.copy_from_slice(&moments.flags().data);
     let g2 = g * g;
     for i in 0..w * ht {
         let mut f = out.flags.data[i];
         if f & flags::INSUFFICIENT != 0 {
+            out.i_plus_electrons.data[i] = 0.0;
+            out.i_minus_electrons.data[i] = 0.0;
             out.i_plus_se_electrons.data[i] = f32::INFINITY;
             out.i_minus_se_electrons.data[i] = f32::INFINITY;
             continue;
         }
-        let mean = moments.mean_dn.data[i];
-        let mut excess = moments.variance_dn2.data[i] - read;
+        let px = moments.pixel(i);
+        let mean = px.mean_dn;
+        let mut excess = px.variance_dn2 - read;
         if excess < 0.0 {
             excess = 0.0;
             f |= flags::VARIANCE_CLAMPED;
         }
-        let var_mean = moments.mean_var_dn2.data[i];
-        let var_var = moments.variance_var_dn4.data[i];
-        let cov = moments.mean_variance_cov_dn3.data[i];
+        let (var_mean, var_var) = (px.mean_var_dn2, px.variance_var_dn4);
+        let cov = px.mean_variance_cov_dn3;
         let sum = excess / g2;
         let diff = mean / g;
         let var_sum = var_var / (g2 * g2);
@@ -94,7 +118,79 @@ pub fn unmix(
         out.i_minus_se_electrons.data[i] = se_m as f32;
         out.flags.data[i] = f;
     }
-    Ok(out)
+    Ok(())
+}
+
+/// [`unmix_into`] for the fast M3 output: the same equations with
+/// Cov(S, D) = 0 and Gaussian sampling variances (see [`LocalMoments`]),
+/// in f32 loops that vectorize; the rare pixels needing the non-negative
+/// projection are redone in f64. Scales are factored out so a tiny gain
+/// (det H ~ 2 g^3) overflows only what f32 cannot hold anyway.
+pub fn unmix_local_into(
+    moments: &LocalMoments,
+    h: &SkellamMixing,
+    options: UnmixOptions,
+    out: &mut Separated,
+) -> Result<(), SeparationError> {
+    let g = h.gain_dn_per_electron;
+    SeparationError::check("gain_dn_per_electron", g, g > 0.0, "> 0")?;
+    let r = h.read_variance_dn2;
+    SeparationError::check("read_variance_dn2", r, r >= 0.0, ">= 0")?;
+    let read = if options.subtract_read_noise {
+        r as f32
+    } else {
+        0.0
+    };
+    let (w, ht) = moments.size();
+    out.ensure_size(w, ht);
+    let (inv_g, inv_g2) = ((1.0 / g) as f32, (1.0 / (g * g)) as f32);
+    let (half_inv_g2, g2) = ((0.5 / (g * g)) as f32, (g * g) as f32);
+    let (mean, var, n) = (
+        &moments.mean_dn.data,
+        &moments.variance_dn2.data,
+        &moments.samples.data,
+    );
+    let fl_in = &moments.flags.data;
+    let (plus, minus) = (
+        &mut out.i_plus_electrons.data,
+        &mut out.i_minus_electrons.data,
+    );
+    let (se_plus, se_minus) = (
+        &mut out.i_plus_se_electrons.data,
+        &mut out.i_minus_se_electrons.data,
+    );
+    let fl = &mut out.flags.data;
+    let mut negative = false;
+    for i in 0..w * ht {
+        let insufficient = fl_in[i] & flags::INSUFFICIENT != 0;
+        let excess = var[i] - read;
+        let clamped = excess < 0.0 && !insufficient;
+        let excess = excess.max(0.0);
+        let (sum, diff) = (excess * inv_g2, mean[i] * inv_g);
+        let (p, m) = (0.5 * (sum + diff), 0.5 * (sum - diff));
+        // Var S = Var(var) / g^4, Var D = Var(mean) / g^2:
+        // SE = sqrt(Var S + Var D) / 2 = sqrt(Var(var) + g^2 Var(mean)) / (2 g^2).
+        let (v, nn) = (var[i], n[i]);
+        let se = (2.0 * v * v / (nn - 1.0) + g2 * v / nn).max(0.0).sqrt() * half_inv_g2;
+        plus[i] = if insufficient { 0.0 } else { p };
+        minus[i] = if insufficient { 0.0 } else { m };
+        se_plus[i] = if insufficient { f32::INFINITY } else { se };
+        se_minus[i] = se_plus[i];
+        fl[i] = fl_in[i] | if clamped { flags::VARIANCE_CLAMPED } else { 0 };
+        negative |= !insufficient && (p < 0.0 || m < 0.0);
+    }
+    if options.nonnegative && negative {
+        for i in 0..w * ht {
+            if fl[i] & flags::INSUFFICIENT == 0 && (plus[i] < 0.0 || minus[i] < 0.0) {
+                let px = moments.pixel(i);
+                let excess = (px.variance_dn2 - read as f64).max(0.0);
+                let (p, m) = project(g, px.mean_dn, excess, px.mean_var_dn2, px.variance_var_dn4);
+                (plus[i], minus[i]) = (p as f32, m as f32);
+                fl[i] |= flags::PROJECTED;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Minimizes (mu - g(p - m))^2 / Var mu + (v - g^2 (p + m))^2 / Var v over the
@@ -116,5 +212,51 @@ fn project(g: f64, mean: f64, excess: f64, var_mean: f64, var_var: f64) -> (f64,
         (plus, 0.0)
     } else {
         (0.0, minus)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The vectorized path for [`LocalMoments`] against the general one.
+    #[test]
+    fn local_path_matches_the_general_one() {
+        let (w, h) = (29, 7);
+        let mut m = LocalMoments::new(w, h);
+        for i in 0..w * h {
+            m.mean_dn.data[i] = ((i * 37) % 201) as f32 - 100.0;
+            m.variance_dn2.data[i] = ((i * 53) % 97) as f32 * 3.0;
+            m.samples.data[i] = 1.0 + (i % 40) as f32;
+            if m.samples.data[i] < 2.0 || i % 17 == 0 {
+                m.flags.data[i] = flags::INSUFFICIENT;
+                m.mean_dn.data[i] = 0.0;
+                m.variance_dn2.data[i] = 0.0;
+            }
+        }
+        for gain in [0.052, 1e-6, 30.0] {
+            for nonnegative in [false, true] {
+                let mix = SkellamMixing::new(gain, 15.0);
+                let options = UnmixOptions {
+                    subtract_read_noise: true,
+                    nonnegative,
+                };
+                let want = unmix(&m.to_moments(), &mix, options).expect("general");
+                let mut got = Separated::default();
+                unmix_local_into(&m, &mix, options, &mut got).expect("local");
+                assert_eq!(got.flags, want.flags, "gain {gain}");
+                let close = |a: &Image<f32>, b: &Image<f32>, what: &str| {
+                    for i in 0..w * h {
+                        let (x, y) = (a.data[i], b.data[i]);
+                        let ok = x == y || (x - y).abs() <= 1e-4 * x.abs().max(y.abs());
+                        assert!(ok, "{what} at {i}, gain {gain}: {x} vs {y}");
+                    }
+                };
+                close(&got.i_plus_electrons, &want.i_plus_electrons, "I+");
+                close(&got.i_minus_electrons, &want.i_minus_electrons, "I-");
+                close(&got.i_plus_se_electrons, &want.i_plus_se_electrons, "SE+");
+                close(&got.i_minus_se_electrons, &want.i_minus_se_electrons, "SE-");
+            }
+        }
     }
 }

@@ -1,0 +1,426 @@
+//! Fast M3, separable approximation, O(r) per pixel: a horizontal pass
+//! gathers weighted moments along rows, a vertical pass combines them with
+//! the range weight between column neighbours, i.e. the 2-D range weight
+//! w_r(I(x+dx, y+dy) - I(x, y)) is replaced by
+//! w_r(I(x+dx, y+dy) - I(x, y+dy)) w_r(I(x, y+dy) - I(x, y)).
+//!
+//! Moments are kept about each pixel's own value (shifted when combined), so
+//! f32 is enough. Each pair's range weight is evaluated once for both of its
+//! pixels, in both passes; horizontal moments live in a ring of 2r+1 rows
+//! that stays in cache; pixels are processed in blocks of [`LANES`] whose
+//! accumulators stay in registers over all taps. The loops are branch-free
+//! and compiled for AVX2 and SSE4.1 with run-time selection, since the
+//! daemon is not built for one CPU.
+//! Saturated and non-finite pixels get zero weight and are flagged.
+
+use multiversion::multiversion;
+
+use super::fast_exp::{exp_neg, madd};
+use super::{flags, BilateralParams, LocalMoments, SeparationError};
+use crate::frame::Frame;
+
+/// Lanes per block: accumulators stay in registers across all taps.
+const LANES: usize = 32;
+const HLANES: usize = 32;
+
+/// Reusable separable M3: keeps its buffers between frames.
+#[derive(Debug, Clone, Default)]
+pub struct SeparableBilateral {
+    /// The frame, rows padded by r zeros each side, 0 where unusable; and
+    /// 1/0 usability (0 in the padding), same layout.
+    value: Vec<f32>,
+    valid: Vec<f32>,
+    /// Horizontal moments of 2r+1 rows: per row m0 | m1 | m2 | mb (sum w,
+    /// sum w d, sum w d^2, sum w^2 with d = I' - I).
+    ring: Vec<f32>,
+    /// The vertical pass's sums for one row: s0 | s1 | s2 | q.
+    sums: Vec<f32>,
+    /// Pair weights along the current row: r rows of (w + r), entry p of
+    /// row dx - 1 for the pixels at padded columns p and p + dx.
+    row_pairs: Vec<f32>,
+    /// Pair weights down the columns: r x (2r+1) rows of w, entry x of
+    /// [dy - 1][y mod (2r+1)] for the pixels (x, y) and (x, y + dy); then a
+    /// row of zeros.
+    column_pairs: Vec<f32>,
+    out: LocalMoments,
+}
+
+impl SeparableBilateral {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The result of the last [`Self::compute`].
+    pub fn moments(&self) -> &LocalMoments {
+        &self.out
+    }
+
+    /// M3 of `frame` (see module docs).
+    pub fn compute(
+        &mut self,
+        frame: &Frame,
+        params: BilateralParams,
+    ) -> Result<&LocalMoments, SeparationError> {
+        self.compute_with(frame, params, run)
+    }
+
+    fn compute_with(
+        &mut self,
+        frame: &Frame,
+        params: BilateralParams,
+        run: fn(&mut Kernel),
+    ) -> Result<&LocalMoments, SeparationError> {
+        params.validate()?;
+        if frame.dn.is_empty() || !frame.dn.same_size(&frame.saturated) {
+            return Err(SeparationError::Empty);
+        }
+        let (w, h) = (frame.width(), frame.height());
+        let r = params.radius();
+        let stride = w + 2 * r;
+        let slots = (2 * r + 1).min(h);
+        self.out.ensure_size(w, h);
+        self.value.resize(stride * h, 0.0);
+        self.valid.resize(stride * h, 0.0);
+        self.ring.resize(slots * 4 * w, 0.0);
+        self.sums.resize(4 * w, 0.0);
+        self.row_pairs.resize(r * (w + r), 0.0);
+        // Plus one row of zeros: the pair weights beyond the frame.
+        self.column_pairs.resize((r * slots + 1) * w, 0.0);
+        let domain: Vec<f32> = params.domain_weights().iter().map(|&v| v as f32).collect();
+        // Finite even when sigma_range underflows, so d = 0 always gives weight 1.
+        let k = (0.5 / (params.sigma_range_dn * params.sigma_range_dn)).min(1e30) as f32;
+        let mut kernel = Kernel {
+            w,
+            h,
+            r,
+            slots,
+            k,
+            domain: &domain,
+            frame,
+            value: &mut self.value,
+            valid: &mut self.valid,
+            ring: &mut self.ring,
+            sums: &mut self.sums,
+            row_pairs: &mut self.row_pairs,
+            column_pairs: &mut self.column_pairs,
+            out: &mut self.out,
+        };
+        run(&mut kernel);
+        Ok(&self.out)
+    }
+}
+
+/// One frame's inputs and buffers for [`run`].
+struct Kernel<'a> {
+    w: usize,
+    h: usize,
+    r: usize,
+    slots: usize,
+    /// 1 / (2 sigma_range^2).
+    k: f32,
+    /// Domain weights for offsets 0..=r.
+    domain: &'a [f32],
+    frame: &'a Frame,
+    value: &'a mut [f32],
+    valid: &'a mut [f32],
+    ring: &'a mut [f32],
+    sums: &'a mut [f32],
+    row_pairs: &'a mut [f32],
+    column_pairs: &'a mut [f32],
+    out: &'a mut LocalMoments,
+}
+
+/// The whole frame: padded input, then row by row the horizontal pass
+/// (r rows ahead) and the vertical pass.
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn run(kn: &mut Kernel) {
+    const FMA: bool = multiversion::target::target_cfg_f!(target_feature = "fma");
+    run_with::<FMA>(kn);
+}
+
+#[inline(always)]
+fn run_with<const FMA: bool>(kn: &mut Kernel) {
+    prepare(kn);
+    let (h, r) = (kn.h, kn.r);
+    let mut next = 0;
+    let mut taps = Vec::with_capacity(2 * r);
+    for y in 0..h {
+        while next <= (y + r).min(h - 1) {
+            horizontal::<FMA>(kn, next);
+            next += 1;
+        }
+        column_taps::<FMA>(kn, y, &mut taps);
+        vertical::<FMA>(kn, y, &taps);
+    }
+}
+
+/// Padded value and usability rows, and the input flags.
+#[inline(always)]
+fn prepare(kn: &mut Kernel) {
+    let (w, r) = (kn.w, kn.r);
+    let stride = w + 2 * r;
+    for y in 0..kn.h {
+        let dn = &kn.frame.dn.data[y * w..][..w];
+        let sat = &kn.frame.saturated.data[y * w..][..w];
+        let fl = &mut kn.out.flags.data[y * w..][..w];
+        let v = &mut kn.value[y * stride..][..stride];
+        let ok = &mut kn.valid[y * stride..][..stride];
+        v[..r].fill(0.0);
+        v[r + w..].fill(0.0);
+        ok[..r].fill(0.0);
+        ok[r + w..].fill(0.0);
+        let (v, ok) = (&mut v[r..r + w], &mut ok[r..r + w]);
+        for x in 0..w {
+            let finite = dn[x].is_finite();
+            let unsaturated = sat[x] == 0;
+            let good = finite && unsaturated;
+            v[x] = if good { dn[x] } else { 0.0 };
+            ok[x] = if good { 1.0 } else { 0.0 };
+            fl[x] = if unsaturated { 0 } else { flags::SATURATED }
+                | if finite { 0 } else { flags::NONFINITE };
+        }
+    }
+}
+
+/// Row moments of row `y` into its ring slot: each pair's range weight is
+/// evaluated once, then every pixel gathers its 2r+1 taps block by block.
+#[inline(always)]
+fn horizontal<const FMA: bool>(kn: &mut Kernel, y: usize) {
+    let (w, r, k) = (kn.w, kn.r, kn.k);
+    let stride = w + 2 * r;
+    let v = &kn.value[y * stride..][..stride];
+    let ok = &kn.valid[y * stride..][..stride];
+    for dx in 1..=r {
+        let wd = kn.domain[dx];
+        let e = &mut kn.row_pairs[(dx - 1) * (w + r)..][..w + r];
+        let (here, there) = (&v[..w + r], &v[dx..][..w + r]);
+        let (ok_here, ok_there) = (&ok[..w + r], &ok[dx..][..w + r]);
+        // Zero unless both pixels are usable: an unusable pixel gets zero
+        // moments, so the vertical pass needs no mask.
+        let pair = |p: usize| {
+            let d = there[p] - here[p];
+            wd * exp_neg::<FMA>(d * d * k) * (ok_here[p] * ok_there[p])
+        };
+        // Blocks of independent lanes, so several exps are in flight at once.
+        let mut p0 = 0;
+        while p0 + LANES <= w + r {
+            for (l, e) in e[p0..][..LANES].iter_mut().enumerate() {
+                *e = pair(p0 + l);
+            }
+            p0 += LANES;
+        }
+        for (p, e) in e.iter_mut().enumerate().skip(p0) {
+            *e = pair(p);
+        }
+    }
+    let s = y % kn.slots;
+    let mut x0 = 0;
+    while x0 + HLANES <= w {
+        horizontal_block::<HLANES, FMA>(kn, y, s, x0);
+        x0 += HLANES;
+    }
+    for x in x0..w {
+        horizontal_block::<1, FMA>(kn, y, s, x);
+    }
+}
+
+#[inline(always)]
+fn horizontal_block<const N: usize, const FMA: bool>(
+    kn: &mut Kernel,
+    y: usize,
+    slot: usize,
+    x0: usize,
+) {
+    let (w, r) = (kn.w, kn.r);
+    let stride = w + 2 * r;
+    let v = &kn.value[y * stride..][..stride];
+    let ok = &kn.valid[y * stride..][..stride];
+    let p0 = r + x0;
+    let (vc, okc) = (&v[p0..][..N], &ok[p0..][..N]);
+    let mut a0 = [0.0f32; N];
+    let mut a1 = [0.0f32; N];
+    let mut a2 = [0.0f32; N];
+    let mut ab = [0.0f32; N];
+    a0.copy_from_slice(okc);
+    ab.copy_from_slice(okc);
+    for dx in 1..=r {
+        let pairs = &kn.row_pairs[(dx - 1) * (w + r)..][..w + r];
+        // Forward neighbour p + dx (pair at p) and backward p - dx (pair at p - dx).
+        let (fwd, bwd) = (&pairs[p0..][..N], &pairs[p0 - dx..][..N]);
+        let (vf, vb) = (&v[p0 + dx..][..N], &v[p0 - dx..][..N]);
+        for l in 0..N {
+            let (df, db) = (vf[l] - vc[l], vb[l] - vc[l]);
+            let (wf, wb) = (fwd[l], bwd[l]);
+            let (wdf, wdb) = (wf * df, wb * db);
+            a0[l] += wf + wb;
+            a1[l] += wdf + wdb;
+            a2[l] = madd::<FMA>(wdf, df, madd::<FMA>(wdb, db, a2[l]));
+            ab[l] = madd::<FMA>(wf, wf, madd::<FMA>(wb, wb, ab[l]));
+        }
+    }
+    let row = &mut kn.ring[slot * 4 * w..][..4 * w];
+    row[x0..][..N].copy_from_slice(&a0);
+    row[w + x0..][..N].copy_from_slice(&a1);
+    row[2 * w + x0..][..N].copy_from_slice(&a2);
+    row[3 * w + x0..][..N].copy_from_slice(&ab);
+}
+
+/// One column neighbour row of an output row, as offsets into the buffers:
+/// its padded value row, its ring moments and its pair weights with the
+/// output row (a row of zeros beyond the frame's top or bottom).
+#[derive(Debug, Clone, Copy, Default)]
+struct Tap {
+    value: usize,
+    moments: usize,
+    pairs: usize,
+}
+
+/// Output row `y`'s neighbours at each dy, above and below; and the pair
+/// weights with the rows below (those above were stored on their turn).
+#[inline(always)]
+fn column_taps<const FMA: bool>(kn: &mut Kernel, y: usize, taps: &mut Vec<[Tap; 2]>) {
+    let (w, h, r, k, slots) = (kn.w, kn.h, kn.r, kn.k, kn.slots);
+    let stride = w + 2 * r;
+    let zeros = r * slots * w;
+    let vc = &kn.value[y * stride + r..][..w];
+    taps.clear();
+    for dy in 1..=r {
+        let pairs = |lower: usize| ((dy - 1) * slots + lower % slots) * w;
+        let tap = |yy: usize, pairs: usize| Tap {
+            value: yy * stride + r,
+            moments: (yy % slots) * 4 * w,
+            pairs,
+        };
+        let above = y
+            .checked_sub(dy)
+            .map_or(tap(y, zeros), |yy| tap(yy, pairs(yy)));
+        let below = if y + dy < h {
+            let vn = &kn.value[(y + dy) * stride + r..][..w];
+            let e = &mut kn.column_pairs[pairs(y)..][..w];
+            let wd = kn.domain[dy];
+            for x in 0..w {
+                let d = vn[x] - vc[x];
+                e[x] = wd * exp_neg::<FMA>(d * d * k);
+            }
+            tap(y + dy, pairs(y))
+        } else {
+            tap(y, zeros)
+        };
+        taps.push([above, below]);
+    }
+}
+
+/// Output row `y`: column neighbours' row moments shifted to each pixel's
+/// value and weighted, then mean, variance and effective sample count.
+/// Row-wide loops (the accumulators, 4 rows, stay in L1).
+#[inline(always)]
+fn vertical<const FMA: bool>(kn: &mut Kernel, y: usize, taps: &[[Tap; 2]]) {
+    let (w, r, slots) = (kn.w, kn.r, kn.slots);
+    let stride = w + 2 * r;
+    let vc = &kn.value[y * stride + r..][..w];
+    let (s0, rest) = kn.sums.split_at_mut(w);
+    let (s1, rest) = rest.split_at_mut(w);
+    let (s2, q) = rest.split_at_mut(w);
+    let (s0, s1, s2, q) = (&mut s0[..w], &mut s1[..w], &mut s2[..w], &mut q[..w]);
+    // Centre: weight 1 for a usable pixel (an unusable one has zero moments).
+    let c = &kn.ring[(y % slots) * 4 * w..][..4 * w];
+    s0.copy_from_slice(&c[..w]);
+    s1.copy_from_slice(&c[w..2 * w]);
+    s2.copy_from_slice(&c[2 * w..3 * w]);
+    q.copy_from_slice(&c[3 * w..]);
+    let row = |tap: &Tap| {
+        let m = &kn.ring[tap.moments..][..4 * w];
+        (
+            &kn.value[tap.value..][..w],
+            &kn.column_pairs[tap.pairs..][..w],
+            [&m[..w], &m[w..2 * w], &m[2 * w..3 * w], &m[3 * w..]],
+        )
+    };
+    for [above, below] in taps {
+        let (va, pa, [a0, a1, a2, ab]) = row(above);
+        let (vb, pb, [b0, b1, b2, bb]) = row(below);
+        for x in 0..w {
+            // Moments about I' moved to I: m1 + d m0 and m2 + d (2 m1 + d m0).
+            let (da, db) = (va[x] - vc[x], vb[x] - vc[x]);
+            let (ta, tb) = (madd::<FMA>(da, a0[x], a1[x]), madd::<FMA>(db, b0[x], b1[x]));
+            let ua = madd::<FMA>(da, ta + a1[x], a2[x]);
+            let ub = madd::<FMA>(db, tb + b1[x], b2[x]);
+            let (wa, wb) = (pa[x], pb[x]);
+            s0[x] = madd::<FMA>(wa, a0[x], madd::<FMA>(wb, b0[x], s0[x]));
+            s1[x] = madd::<FMA>(wa, ta, madd::<FMA>(wb, tb, s1[x]));
+            s2[x] = madd::<FMA>(wa, ua, madd::<FMA>(wb, ub, s2[x]));
+            q[x] = madd::<FMA>(wa * wa, ab[x], madd::<FMA>(wb * wb, bb[x], q[x]));
+        }
+    }
+    let ok = &kn.valid[y * stride + r..][..w];
+    let out = &mut *kn.out;
+    let mean = &mut out.mean_dn.data[y * w..][..w];
+    let var = &mut out.variance_dn2.data[y * w..][..w];
+    let samples = &mut out.samples.data[y * w..][..w];
+    let fl = &mut out.flags.data[y * w..][..w];
+    for x in 0..w {
+        let inv = 1.0 / s0[x];
+        let m = s1[x] * inv;
+        let v = s2[x] * inv - m * m;
+        let n = if q[x] > 0.0 {
+            s0[x] * s0[x] / q[x]
+        } else {
+            0.0
+        };
+        // Fewer than two effective samples (or an unusable pixel): no variance.
+        let good = ok[x] > 0.0 && s0[x] > 0.0 && n >= 2.0 && v.is_finite();
+        mean[x] = if good { vc[x] + m } else { 0.0 };
+        var[x] = if good { v.max(0.0) } else { 0.0 };
+        samples[x] = n;
+        fl[x] |= if good { 0 } else { flags::INSUFFICIENT };
+    }
+}
+
+/// One-shot separable M3 (see [`SeparableBilateral`] to reuse buffers), as
+/// full [`super::Moments`].
+pub fn bilateral_separable(
+    frame: &Frame,
+    params: BilateralParams,
+) -> Result<super::Moments, SeparationError> {
+    let mut m3 = SeparableBilateral::new();
+    Ok(m3.compute(frame, params)?.to_moments())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The build's baseline code (no FMA, no AVX) against what this CPU
+    /// runs, so both sides of the run-time selection are tested here.
+    #[test]
+    fn baseline_and_dispatched_code_agree() {
+        let (w, h) = (37, 23);
+        let mut f = Frame::new(w, h);
+        for i in 0..w * h {
+            f.dn.data[i] = ((i * 7919) % 1013) as f32 * 0.37 + ((i % w) / 9) as f32 * 150.0;
+        }
+        f.dn.data[5] = f32::NAN;
+        f.dn.data[40] = f32::INFINITY;
+        f.saturated.data[100] = 1;
+        let p = BilateralParams::new(1.5, 40.0);
+        let mut fast = SeparableBilateral::new();
+        let mut base = SeparableBilateral::new();
+        let a = fast.compute(&f, p).expect("dispatched").clone();
+        let b = base
+            .compute_with(&f, p, run_with::<false>)
+            .expect("baseline");
+        assert_eq!(a.flags, b.flags);
+        for i in 0..w * h {
+            let (ma, mb) = (a.mean_dn.data[i], b.mean_dn.data[i]);
+            let (va, vb) = (a.variance_dn2.data[i], b.variance_dn2.data[i]);
+            assert!(
+                (ma - mb).abs() <= 1e-3 * (1.0 + mb.abs()),
+                "mean {i}: {ma} vs {mb}"
+            );
+            assert!(
+                (va - vb).abs() <= 1e-3 * (1.0 + vb.abs()),
+                "variance {i}: {va} vs {vb}"
+            );
+        }
+    }
+}
