@@ -637,7 +637,7 @@ fn segments_of_one_and_two_pixels() {
 fn table_tiny_images() {
     let h = ti_h();
     let mut s = Sampler::new(h, 6);
-    for (w, ht) in [(1, 1), (64, 1), (1, 64)] {
+    for (w, ht) in [(1, 1), (2, 1), (64, 1), (1, 64)] {
         let t = flat(w, ht, 1000.0, 500.0);
         let mut scene = Scene::new(&mut s, &t, 4);
         for sr in [scene.sigma_range_dn, 1e9] {
@@ -646,8 +646,12 @@ fn table_tiny_images() {
                 let m = est(&scene).unwrap();
                 check(name, &m, &h);
                 // A lone pixel has no neighbours: no single-frame variance.
+                // Two pixels (under M3's weights fewer than two effective
+                // samples) may go either way: both are defined results.
                 let insufficient = m.flags.data.iter().any(|f| f & flags::INSUFFICIENT != 0);
-                assert_eq!(insufficient, !multi && w * ht == 1, "{name} {w}x{ht}");
+                if w * ht != 2 || multi {
+                    assert_eq!(insufficient, !multi && w * ht == 1, "{name} {w}x{ht}");
+                }
             }
         }
         let m = bilateral_grid(&scene.frames[0], BilateralParams::new(0.5, 30.0)).unwrap();

@@ -102,17 +102,22 @@ proptest! {
     }
 
     #[test]
-    fn difference_matches_mean_unless_projected(f in frame(), h in h()) {
-        let m = bilateral_exact(&f, BilateralParams::new(1.5, 500.0)).unwrap();
-        let sep = unmix(&m, &h, UnmixOptions::default()).unwrap();
+    fn difference_matches_mean_unless_projected(fs in frames(2..4), h in h()) {
+        let (f, p) = (&fs[0], BilateralParams::new(1.5, 500.0));
+        let labels = Image::filled(f.width(), f.height(), 0);
+        let welford = welford(&fs).unwrap();
+        let pooled = pool_moments(&welford, PoolParams::default()).unwrap();
         let g = h.gain_dn_per_electron;
-        for i in 0..f.dn.len() {
-            if sep.flags.data[i] & (flags::INSUFFICIENT | flags::PROJECTED) == 0 {
-                let d = (sep.i_plus_electrons.data[i] - sep.i_minus_electrons.data[i]) as f64;
-                let want = m.mean_dn.data[i] / g;
-                // Outputs are f32: the difference is resolved to ~1e-6 of the larger channel.
-                let scale = (sep.i_plus_electrons.data[i].abs().max(sep.i_minus_electrons.data[i].abs()) as f64).max(want.abs()).max(1.0);
-                prop_assert!((d - want).abs() <= 1e-5 * scale, "{d} vs {want}");
+        for m in [bilateral_exact(f, p).unwrap(), bilateral_separable(f, p).unwrap(), bilateral_grid(f, p).unwrap(), segment_moments(f, &labels, None).unwrap(), welford, pooled] {
+            let sep = unmix(&m, &h, UnmixOptions::default()).unwrap();
+            for i in 0..f.dn.len() {
+                if sep.flags.data[i] & (flags::INSUFFICIENT | flags::PROJECTED) == 0 {
+                    let d = (sep.i_plus_electrons.data[i] - sep.i_minus_electrons.data[i]) as f64;
+                    let want = m.mean_dn.data[i] / g;
+                    // Outputs are f32: the difference is resolved to ~1e-6 of the larger channel.
+                    let scale = (sep.i_plus_electrons.data[i].abs().max(sep.i_minus_electrons.data[i].abs()) as f64).max(want.abs()).max(1.0);
+                    prop_assert!((d - want).abs() <= 1e-5 * scale, "{d} vs {want}");
+                }
             }
         }
     }
