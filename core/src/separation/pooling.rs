@@ -42,7 +42,9 @@ pub fn pool_moments(m: &Moments, params: PoolParams) -> Result<Moments, Separati
     if w * h == 0 {
         return Err(SeparationError::Empty);
     }
-    let r = params.radius_px;
+    // A window wider than the image covers the same pixels as one exactly as
+    // wide; clamping keeps `x + r + 1` from overflowing (radius usize::MAX).
+    let r = params.radius_px.min(w.max(h));
     let t2 = t * t;
     let ok = |i: usize| m.flags.data[i] & flags::INSUFFICIENT == 0;
     let mut out = m.clone();

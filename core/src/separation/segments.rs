@@ -155,6 +155,14 @@ pub fn auto_segment(frame: &Frame, params: SegmentParams) -> Result<Segmentation
     }
     let t = params.tolerance_sigmas;
     SeparationError::check("tolerance_sigmas", t, t > 0.0, "> 0")?;
+    // Radii beyond the image cover the same pixels as max(w, h); clamping
+    // keeps `2 r + 1` and `x + r + 1` from overflowing (radius usize::MAX).
+    let reach = w.max(h);
+    let params = SegmentParams {
+        smooth_radius_px: params.smooth_radius_px.min(reach),
+        variance_radius_px: params.variance_radius_px.min(reach),
+        ..params
+    };
     let smooth = box_mean(frame, params.smooth_radius_px);
     let side = 2 * params.smooth_radius_px + 1;
     let box_n = (side.min(w) * side.min(h)) as f64;

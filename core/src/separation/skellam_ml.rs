@@ -45,7 +45,8 @@ pub const COUNTS_READ_NOISE_ELECTRONS: f64 = 0.5;
 
 /// ML of (I+, I-) from one pixel's samples in DN (non-finite samples are
 /// skipped). Errors: no finite sample, or a single one in the projected
-/// regime (a variance needs two), or an invalid H.
+/// regime (a variance needs two), an invalid H, or (counts regime) a
+/// sample whose electron count does not fit an i64.
 pub fn skellam_ml_pixel(
     samples_dn: &[f64],
     h: &SkellamMixing,
@@ -64,7 +65,20 @@ pub fn skellam_ml_pixel(
         if n == 0 {
             return Err(SeparationError::TooFewFrames { needed: 1, got: 0 });
         }
-        let k: Vec<i64> = xs.iter().map(|&d| (d / g).round() as i64).collect();
+        let mut k = Vec::with_capacity(n);
+        for &d in &xs {
+            let c = (d / g).round();
+            // `as i64` would saturate silently: a count beyond i64 (a sample
+            // over a tiny gain) is refused instead of being clipped.
+            if c.abs() >= i64::MAX as f64 {
+                return Err(SeparationError::Parameter {
+                    name: "sample_dn / gain_dn_per_electron",
+                    value: c,
+                    allowed: "an electron count within i64",
+                });
+            }
+            k.push(c as i64);
+        }
         let (p, m) = skellam_ml_counts(&k);
         return Ok(SkellamFit {
             i_plus_electrons: p,
@@ -150,7 +164,8 @@ pub fn skellam_ml_counts(k: &[i64]) -> (f64, f64) {
     let boundary = if mean >= 0.0 {
         poisson_log_likelihood(k, d)
     } else {
-        let neg: Vec<i64> = k.iter().map(|&v| -v).collect();
+        // Saturating: -i64::MIN would overflow (it becomes i64::MAX, one count off).
+        let neg: Vec<i64> = k.iter().map(|&v| v.saturating_neg()).collect();
         poisson_log_likelihood(&neg, d)
     };
     // Interior: golden section over s in (d, s_hi].
