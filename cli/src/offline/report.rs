@@ -18,8 +18,8 @@ use sdi_core::scene::ColourChart;
 use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::{SensorPreset, SkellamMixing};
 use sdi_core::separation::{
-    auto_segment, bilateral_exact, bilateral_grid, bilateral_separable, pool_moments,
-    segment_moments, unmix, BilateralParams, Moments, PoolParams, SegmentParams, Separated,
+    auto_segment, bilateral_exact, pool_moments, segment_moments, unmix, unmix_local_into,
+    BilateralGrid, BilateralParams, PoolParams, SegmentParams, SeparableBilateral, Separated,
     SeparationError, UnmixOptions, Welford,
 };
 use sdi_core::simulator::{SimConfig, Simulator};
@@ -220,12 +220,30 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
         for k in [2.0, 4.0] {
             let p = BilateralParams::new(sd, k * noise_dn);
             let params = format!("sd={sd} sr={k}sigma");
-            let (sep, ms) = time_single(one, &h, with_read, |f| bilateral_exact(f, p))?;
+            let (sep, ms) = median_of_3(|| Ok(unmix(&bilateral_exact(one, p)?, &h, with_read)?))?;
             rows.push(row("M3 exact", params.clone(), &sep, &truth, ms));
-            let (sep, ms) = time_single(one, &h, with_read, |f| bilateral_separable(f, p))?;
-            rows.push(row("M3 separable", params.clone(), &sep, &truth, ms));
-            let (sep, ms) = time_single(one, &h, with_read, |f| bilateral_grid(f, p))?;
-            rows.push(row("M3 grid", params, &sep, &truth, ms));
+            // The fast variants as the daemon runs them: buffers kept, f32 unmix.
+            let mut out = Separated::default();
+            let mut separable = SeparableBilateral::new();
+            let ((), ms) = median_of_3(|| {
+                Ok(unmix_local_into(
+                    separable.compute(one, p)?,
+                    &h,
+                    with_read,
+                    &mut out,
+                )?)
+            })?;
+            rows.push(row("M3 separable", params.clone(), &out, &truth, ms));
+            let mut grid = BilateralGrid::new();
+            let ((), ms) = median_of_3(|| {
+                Ok(unmix_local_into(
+                    grid.compute(one, p)?,
+                    &h,
+                    with_read,
+                    &mut out,
+                )?)
+            })?;
+            rows.push(row("M3 grid", params, &out, &truth, ms));
         }
     }
 
@@ -242,24 +260,21 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
     Ok(rows)
 }
 
-fn time_single(
-    frame: &Frame,
-    h: &SkellamMixing,
-    options: UnmixOptions,
-    estimator: impl Fn(&Frame) -> Result<Moments, SeparationError>,
-) -> Result<(Separated, f64), ReportError> {
-    // Median of a few runs: the machine is shared.
+/// The last result of three runs and their median wall time, ms (the
+/// machine is shared).
+fn median_of_3<T>(
+    mut run: impl FnMut() -> Result<T, ReportError>,
+) -> Result<(T, f64), ReportError> {
     let mut times = Vec::new();
     let mut last = None;
     for _ in 0..3 {
         let t0 = Instant::now();
-        let sep = unmix(&estimator(frame)?, h, options)?;
+        last = Some(run()?);
         times.push(t0.elapsed().as_secs_f64() * 1e3);
-        last = Some(sep);
     }
     times.sort_by(f64::total_cmp);
-    let sep = last.ok_or(ReportError::Plot("no run".into()))?;
-    Ok((sep, times[1]))
+    let result = last.ok_or(ReportError::Plot("no run".into()))?;
+    Ok((result, times[1]))
 }
 
 /// Typical per-pixel noise of one frame, DN: sqrt(g^2 mean(I+ + I-) + read).

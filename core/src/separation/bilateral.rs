@@ -52,8 +52,14 @@ impl BilateralParams {
         Ok(())
     }
 
-    pub(crate) fn domain_weights(&self) -> Vec<f64> {
-        let r = self.radius();
+    /// The radius used on a `width x height` frame: taps beyond the frame
+    /// contribute nothing, so capping there changes no result.
+    pub(crate) fn radius_on(&self, width: usize, height: usize) -> usize {
+        self.radius().min(width.max(height))
+    }
+
+    /// Domain weights for offsets 0..=r.
+    pub(crate) fn domain_weights(&self, r: usize) -> Vec<f64> {
         let k = 0.5 / (self.sigma_domain_px * self.sigma_domain_px);
         (0..=r).map(|d| (-((d * d) as f64) * k).exp()).collect()
     }
@@ -104,8 +110,9 @@ pub fn bilateral_exact(frame: &Frame, params: BilateralParams) -> Result<Moments
     params.validate()?;
     check_frame(frame)?;
     let (w, h) = (frame.width(), frame.height());
-    let r = params.radius() as isize;
-    let wd = params.domain_weights();
+    let r = params.radius_on(w, h);
+    let wd = params.domain_weights(r);
+    let r = r as isize;
     let inv = 0.5 / (params.sigma_range_dn * params.sigma_range_dn);
     let mut out = Moments::new(w, h);
     for y in 0..h as isize {

@@ -75,7 +75,7 @@ impl SeparableBilateral {
             return Err(SeparationError::Empty);
         }
         let (w, h) = (frame.width(), frame.height());
-        let r = params.radius();
+        let r = params.radius_on(w, h);
         let stride = w + 2 * r;
         let slots = (2 * r + 1).min(h);
         self.out.ensure_size(w, h);
@@ -86,7 +86,7 @@ impl SeparableBilateral {
         self.row_pairs.resize(r * (w + r), 0.0);
         // Plus one row of zeros: the pair weights beyond the frame.
         self.column_pairs.resize((r * slots + 1) * w, 0.0);
-        let domain: Vec<f32> = params.domain_weights().iter().map(|&v| v as f32).collect();
+        let domain: Vec<f32> = params.domain_weights(r).iter().map(|&v| v as f32).collect();
         // Finite even when sigma_range underflows, so d = 0 always gives weight 1.
         let k = (0.5 / (params.sigma_range_dn * params.sigma_range_dn)).min(1e30) as f32;
         let mut kernel = Kernel {

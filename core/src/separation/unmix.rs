@@ -72,10 +72,7 @@ pub fn unmix_into(
     options: UnmixOptions,
     out: &mut Separated,
 ) -> Result<(), SeparationError> {
-    let g = h.gain_dn_per_electron;
-    SeparationError::check("gain_dn_per_electron", g, g > 0.0, "> 0")?;
-    let r = h.read_variance_dn2;
-    SeparationError::check("read_variance_dn2", r, r >= 0.0, ">= 0")?;
+    let (g, r) = check_mixing(h)?;
     let read = if options.subtract_read_noise { r } else { 0.0 };
     let (w, ht) = moments.size();
     out.ensure_size(w, ht);
@@ -121,6 +118,17 @@ pub fn unmix_into(
     Ok(())
 }
 
+/// Gain and read variance of `h`, refused when g^2 is not a normal f64
+/// (g below about 1e-154: g^2 would underflow and H^-1 give inf - inf).
+fn check_mixing(h: &SkellamMixing) -> Result<(f64, f64), SeparationError> {
+    let g = h.gain_dn_per_electron;
+    let ok = g > 0.0 && (g * g).is_normal() && g.is_finite();
+    SeparationError::check("gain_dn_per_electron", g, ok, "> 1e-154 and finite")?;
+    let r = h.read_variance_dn2;
+    SeparationError::check("read_variance_dn2", r, r >= 0.0, ">= 0")?;
+    Ok((g, r))
+}
+
 /// [`unmix_into`] for the fast M3 output: the same equations with
 /// Cov(S, D) = 0 and Gaussian sampling variances (see [`LocalMoments`]),
 /// in f32 loops that vectorize; the rare pixels needing the non-negative
@@ -132,10 +140,12 @@ pub fn unmix_local_into(
     options: UnmixOptions,
     out: &mut Separated,
 ) -> Result<(), SeparationError> {
-    let g = h.gain_dn_per_electron;
-    SeparationError::check("gain_dn_per_electron", g, g > 0.0, "> 0")?;
-    let r = h.read_variance_dn2;
-    SeparationError::check("read_variance_dn2", r, r >= 0.0, ">= 0")?;
+    let (g, r) = check_mixing(h)?;
+    let (inv_g, inv_g2) = ((1.0 / g) as f32, (1.0 / (g * g)) as f32);
+    if !(inv_g2.is_normal() && (g * g) as f32 > 0.0) {
+        // Outside f32's range (g below ~1e-19 or above ~1e19): the f64 path.
+        return unmix_into(moments, h, options, out);
+    }
     let read = if options.subtract_read_noise {
         r as f32
     } else {
@@ -143,7 +153,6 @@ pub fn unmix_local_into(
     };
     let (w, ht) = moments.size();
     out.ensure_size(w, ht);
-    let (inv_g, inv_g2) = ((1.0 / g) as f32, (1.0 / (g * g)) as f32);
     let (half_inv_g2, g2) = ((0.5 / (g * g)) as f32, (g * g) as f32);
     let (mean, var, n) = (
         &moments.mean_dn.data,
@@ -234,7 +243,7 @@ mod tests {
                 m.variance_dn2.data[i] = 0.0;
             }
         }
-        for gain in [0.052, 1e-6, 30.0] {
+        for gain in [0.052, 1e-6, 30.0, 1e-25] {
             for nonnegative in [false, true] {
                 let mix = SkellamMixing::new(gain, 15.0);
                 let options = UnmixOptions {
