@@ -15,7 +15,7 @@
 
 use multiversion::multiversion;
 
-use super::fast_exp::{exp_neg, madd};
+use super::fast_exp::{exp2_neg, madd};
 use super::{flags, BilateralParams, LocalMoments, SeparationError};
 use crate::frame::Frame;
 
@@ -86,9 +86,16 @@ impl SeparableBilateral {
         self.row_pairs.resize(r * (w + r), 0.0);
         // Plus one row of zeros: the pair weights beyond the frame.
         self.column_pairs.resize((r * slots + 1) * w, 0.0);
-        let domain: Vec<f32> = params.domain_weights(r).iter().map(|&v| v as f32).collect();
-        // Finite even when sigma_range underflows, so d = 0 always gives weight 1.
-        let k = (0.5 / (params.sigma_range_dn * params.sigma_range_dn)).min(1e30) as f32;
+        // Weights as powers of two: w_d w_r = 2^-(dist^2 k_d + d^2 k), with
+        // -log2 w_d per offset and k = log2(e) / (2 sigma_range^2), finite even
+        // when sigma_range underflows, so d = 0 always gives w_r = 1.
+        let domain: Vec<f32> = params
+            .domain_weights(r)
+            .iter()
+            .map(|&v| (-v.log2()) as f32)
+            .collect();
+        let k = (std::f64::consts::LOG2_E * 0.5 / (params.sigma_range_dn * params.sigma_range_dn))
+            .min(1e30) as f32;
         let mut kernel = Kernel {
             w,
             h,
@@ -116,9 +123,9 @@ struct Kernel<'a> {
     h: usize,
     r: usize,
     slots: usize,
-    /// 1 / (2 sigma_range^2).
+    /// log2(e) / (2 sigma_range^2).
     k: f32,
-    /// Domain weights for offsets 0..=r.
+    /// -log2 of the domain weights for offsets 0..=r.
     domain: &'a [f32],
     frame: &'a Frame,
     value: &'a mut [f32],
@@ -191,7 +198,7 @@ fn horizontal<const FMA: bool>(kn: &mut Kernel, y: usize) {
     let v = &kn.value[y * stride..][..stride];
     let ok = &kn.valid[y * stride..][..stride];
     for dx in 1..=r {
-        let wd = kn.domain[dx];
+        let kd = kn.domain[dx];
         let e = &mut kn.row_pairs[(dx - 1) * (w + r)..][..w + r];
         let (here, there) = (&v[..w + r], &v[dx..][..w + r]);
         let (ok_here, ok_there) = (&ok[..w + r], &ok[dx..][..w + r]);
@@ -199,7 +206,7 @@ fn horizontal<const FMA: bool>(kn: &mut Kernel, y: usize) {
         // moments, so the vertical pass needs no mask.
         let pair = |p: usize| {
             let d = there[p] - here[p];
-            wd * exp_neg::<FMA>(d * d * k) * (ok_here[p] * ok_there[p])
+            exp2_neg::<FMA>(madd::<FMA>(d * d, k, kd)) * (ok_here[p] * ok_there[p])
         };
         // Blocks of independent lanes, so several exps are in flight at once.
         let mut p0 = 0;
@@ -297,10 +304,10 @@ fn column_taps<const FMA: bool>(kn: &mut Kernel, y: usize, taps: &mut Vec<[Tap; 
         let below = if y + dy < h {
             let vn = &kn.value[(y + dy) * stride + r..][..w];
             let e = &mut kn.column_pairs[pairs(y)..][..w];
-            let wd = kn.domain[dy];
+            let kd = kn.domain[dy];
             for x in 0..w {
                 let d = vn[x] - vc[x];
-                e[x] = wd * exp_neg::<FMA>(d * d * k);
+                e[x] = exp2_neg::<FMA>(madd::<FMA>(d * d, k, kd));
             }
             tap(y + dy, pairs(y))
         } else {

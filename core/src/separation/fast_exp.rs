@@ -23,9 +23,16 @@ pub(crate) fn madd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
 }
 
 /// exp(-t) for t >= 0 (see module docs).
+#[cfg(test)]
 #[inline(always)]
 pub(crate) fn exp_neg<const FMA: bool>(t: f32) -> f32 {
-    let y = t * std::f32::consts::LOG2_E;
+    exp2_neg::<FMA>(t * std::f32::consts::LOG2_E)
+}
+
+/// 2^-y for y >= 0 (see module docs): callers fold their scale factors
+/// into y, so one fused multiply-add feeds it.
+#[inline(always)]
+pub(crate) fn exp2_neg<const FMA: bool>(y: f32) -> f32 {
     // `<` form: compiles to one min instruction, NaN goes to the cap.
     let y = if y < 126.0 { y } else { 126.0 };
     let big = y + ROUND_MAGIC;
