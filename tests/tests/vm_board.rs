@@ -8,7 +8,7 @@ use sdi_core::Frame;
 use sdi_daemon::backend::opt8241::init::Roi;
 use sdi_daemon::backend::opt8241::protocol::RegisterBus;
 use sdi_daemon::backend::opt8241::registers::field;
-use sdi_daemon::backend::opt8241::usb::{open_board, UsbTransport};
+use sdi_daemon::backend::opt8241::usb::{open_board, UsbError, UsbTransport, UVC_SWITCH_TIMEOUT};
 use sdi_daemon::backend::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::vm;
@@ -155,4 +155,37 @@ fn opt8241_backend_against_usb_emulator() {
         .expect("frame after replug");
     assert!(matches_sent(&emu, &frame));
     assert_eq!(board.stats().reconnects, 1);
+}
+
+/// A UVC-mode board whose firmware does not come back after the switch
+/// request: opening it ends in the typed timeout error, after about
+/// `UVC_SWITCH_TIMEOUT`, not in a hang.
+#[test]
+fn uvc_switch_that_never_comes_back_is_a_typed_timeout() {
+    if !vm::in_vm() {
+        vm::run_test_in_vm("uvc_switch_that_never_comes_back_is_a_typed_timeout", 600);
+        return;
+    }
+    let emu = BoardEmulator::start_uvc("stuck", "EMU0004").expect("gadget");
+    emu.ignore_uvc_switch
+        .store(true, std::sync::atomic::Ordering::SeqCst);
+    wait_for("enumeration in UVC mode", Duration::from_secs(20), || {
+        sdi_daemon::backend::board::board_attached()
+            .ok()
+            .filter(|&a| a)
+    });
+    let t0 = Instant::now();
+    let err = Opt8241::open(BoardSelector::default(), BoardConfig::default())
+        .err()
+        .expect("opening must fail");
+    let took = t0.elapsed();
+    eprintln!("MEASURED: switch timeout after {took:?}: {err}");
+    assert!(
+        matches!(err, BoardError::Usb(UsbError::UvcSwitchTimeout { .. })),
+        "{err:?}"
+    );
+    assert!(took >= UVC_SWITCH_TIMEOUT && took < UVC_SWITCH_TIMEOUT + Duration::from_secs(10));
+    let s = emu.state.lock().unwrap();
+    assert_eq!(s.uvc_requests.len(), 1, "{:?}", s.uvc_requests);
+    assert!(s.switched_to_bulk.is_none());
 }
