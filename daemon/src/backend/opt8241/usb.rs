@@ -282,8 +282,8 @@ pub fn switch_to_bulk(device: &Device<Context>) -> Result<(ControlRequest, Strin
         },
     })?;
     // uvcvideo holds the VideoControl interface of a real board: detach it
-    // for the request (it comes back with the device in bulk mode only if
-    // the firmware fails to switch).
+    // for the request (libusb re-attaches it on release if the board is
+    // still there, i.e. did not switch).
     let _ = handle.set_auto_detach_kernel_driver(true);
     handle
         .claim_interface(interface)
