@@ -36,9 +36,9 @@ pub const HOTPLUG_FALLBACK_INTERVAL: Duration = Duration::from_secs(5);
 /// What brought the board back, counted over the backend's life.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct ReconnectCounts {
-    /// Attempts started by a libusb hotplug arrival.
+    /// Reconnections started by a libusb hotplug arrival.
     pub by_hotplug: u64,
-    /// Attempts started by the periodic bus scan.
+    /// Reconnections started by the periodic bus scan.
     pub by_poll: u64,
 }
 
@@ -451,6 +451,11 @@ impl Backend for BoardBackend {
         match self.board.next_frame(illumination, frame) {
             Ok(()) => Ok(()),
             Err(BoardError::DeviceUnavailable) => {
+                // Events from before the loss (e.g. the re-enumeration of a
+                // UVC -> bulk switch) say nothing about the board coming back.
+                if let Some(h) = &self.hotplug {
+                    h.drain();
+                }
                 self.lost("unplugged");
                 self.next_attempt = Instant::now() + self.poll_interval();
                 Err(BackendError::Unavailable("OPT8241-CDK unplugged".into()))
