@@ -136,6 +136,56 @@ fn unit_exposure_score_is_at_most_2_5() {
     fs::remove_dir_all(&dir).unwrap();
 }
 
+/// The shipped SCPI-over-TCP drop-in (`udev/systemd/sdid.service.d/`),
+/// merged with the unit as systemd does: it still verifies, opens IP
+/// sockets and an allow list, keeps the other families closed, and the
+/// exposure stays within the goal.
+#[test]
+fn scpi_network_drop_in_opens_ip_only() {
+    if !have_systemd_analyze() {
+        return;
+    }
+    let dir = scratch("dropin");
+    let unit = generated_unit(&dir);
+    let dropins = dir.join("sdid.service.d");
+    fs::create_dir_all(&dropins).unwrap();
+    fs::copy(
+        repo_root().join("udev/systemd/sdid.service.d/scpi-network.conf"),
+        dropins.join("scpi-network.conf"),
+    )
+    .unwrap();
+    let out = run(Command::new("systemd-analyze")
+        .args(["verify", "--man=no"])
+        .arg(&unit));
+    assert!(out.status.success(), "systemd-analyze verify failed");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.trim().is_empty(), "verify complains:\n{stderr}");
+    let out = must(
+        Command::new("systemd-analyze")
+            .args(["security", "--offline=true", "--no-pager"])
+            .arg(&unit),
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    let line = |key: &str| {
+        text.lines()
+            .find(|l| l.contains(key))
+            .unwrap_or_else(|| panic!("no {key} in:\n{text}"))
+            .to_owned()
+    };
+    assert!(line("RestrictAddressFamilies=~AF_(INET|INET6)").starts_with('✗'));
+    assert!(line("RestrictAddressFamilies=~AF_PACKET").starts_with('✓'));
+    assert!(line("IPAddressDeny=").contains("allow list"), "{text}");
+    let score: f64 = text
+        .lines()
+        .find_map(|l| l.split("Overall exposure level for sdid.service:").nth(1))
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .expect("no overall exposure level in the output");
+    println!("systemd-analyze security with the SCPI drop-in: exposure {score}");
+    assert!(score <= MAX_EXPOSURE, "exposure {score} > {MAX_EXPOSURE}");
+    fs::remove_dir_all(&dir).unwrap();
+}
+
 fn ini_value(text: &str, key: &str) -> Option<String> {
     text.lines()
         .find_map(|l| l.strip_prefix(&format!("{key}=")))

@@ -5,9 +5,11 @@
 //! group would see; unplugging the gadget is seen as a remove event.
 
 use std::fs;
+use std::io::{BufRead, BufReader};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use sdi_tests::process::{must as run, repo_root, Reaped};
@@ -173,13 +175,7 @@ fn board_hotplug_tags_device_for_systemd_and_group() {
         ("9106", Some("uvc")),
         ("9107", None),
     ] {
-        let monitor = udevadm()
-            .args(["monitor", "--udev", "--subsystem-match=usb/usb_device"])
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("spawn udevadm monitor");
-        let mut monitor = Reaped(monitor);
-        std::thread::sleep(Duration::from_millis(500));
+        let mut monitor = Monitor::start();
 
         let dev = plug("0451", product);
         let props = properties(&dev);
@@ -224,8 +220,7 @@ fn board_hotplug_tags_device_for_systemd_and_group() {
             node.display()
         );
         std::thread::sleep(Duration::from_millis(300));
-        let _ = monitor.0.kill();
-        let out = monitor.0.wait_with_output_ref();
+        let out = monitor.stop();
         let devpath = dev
             .strip_prefix("/sys")
             .unwrap()
@@ -244,19 +239,63 @@ fn board_hotplug_tags_device_for_systemd_and_group() {
     }
 }
 
-/// Reads what a killed child wrote to its piped stdout.
-trait OutputOfKilled {
-    fn wait_with_output_ref(&mut self) -> String;
+/// `udevadm monitor` for USB devices, its output collected as it comes.
+struct Monitor {
+    child: Reaped,
+    out: Arc<Mutex<String>>,
+    reader: Option<std::thread::JoinHandle<()>>,
 }
 
-impl OutputOfKilled for Child {
-    fn wait_with_output_ref(&mut self) -> String {
-        use std::io::Read;
-        let _ = self.wait();
-        let mut s = String::new();
-        if let Some(mut out) = self.stdout.take() {
-            let _ = out.read_to_string(&mut s);
+impl Monitor {
+    /// Starts the monitor and returns once it is subscribed: it has printed
+    /// a synthetic change event of the root hub (a fixed wait was not
+    /// always enough under TCG, and the add event went unseen).
+    fn start() -> Self {
+        let mut child = udevadm()
+            .args(["monitor", "--udev", "--subsystem-match=usb/usb_device"])
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("spawn udevadm monitor");
+        let stdout = child.stdout.take().expect("monitor stdout");
+        let out = Arc::new(Mutex::new(String::new()));
+        let sink = out.clone();
+        let reader = std::thread::spawn(move || {
+            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+                let mut s = sink.lock().unwrap();
+                s.push_str(&line);
+                s.push('\n');
+            }
+        });
+        let m = Self {
+            child: Reaped(child),
+            out,
+            reader: Some(reader),
+        };
+        let mut last_trigger: Option<Instant> = None;
+        wait_until("udevadm monitor to subscribe", || {
+            if last_trigger.is_none_or(|t| t.elapsed() > Duration::from_secs(1)) {
+                let _ = udevadm()
+                    .args(["trigger", "--action=change", "/sys/bus/usb/devices/usb1"])
+                    .status();
+                last_trigger = Some(Instant::now());
+            }
+            m.out
+                .lock()
+                .unwrap()
+                .lines()
+                .any(|l| l.contains(" change "))
+        });
+        m
+    }
+
+    /// Ends the monitor; everything it printed.
+    fn stop(&mut self) -> String {
+        let _ = self.child.0.kill();
+        let _ = self.child.0.wait();
+        if let Some(r) = self.reader.take() {
+            let _ = r.join();
         }
-        s
+        let out = self.out.lock().unwrap().clone();
+        out
     }
 }

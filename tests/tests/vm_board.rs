@@ -3,13 +3,18 @@
 
 use std::time::{Duration, Instant};
 
+use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
 use sdi_core::Frame;
+use sdi_daemon::backend::board::{
+    board_config, BoardBackend, BoardBackendConfig, OnUnplug, ReconnectCounts,
+};
 use sdi_daemon::backend::opt8241::init::Roi;
 use sdi_daemon::backend::opt8241::protocol::RegisterBus;
 use sdi_daemon::backend::opt8241::registers::field;
-use sdi_daemon::backend::opt8241::usb::{open_board, UsbTransport};
+use sdi_daemon::backend::opt8241::usb::{open_board, UsbError, UsbTransport, UVC_SWITCH_TIMEOUT};
 use sdi_daemon::backend::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
+use sdi_daemon::backend::{Backend, BackendError};
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::vm;
 
@@ -155,4 +160,159 @@ fn opt8241_backend_against_usb_emulator() {
         .expect("frame after replug");
     assert!(matches_sent(&emu, &frame));
     assert_eq!(board.stats().reconnects, 1);
+}
+
+/// A UVC-mode board whose firmware does not come back after the switch
+/// request: opening it ends in the typed timeout error, after about
+/// `UVC_SWITCH_TIMEOUT`, not in a hang.
+#[test]
+fn uvc_switch_that_never_comes_back_is_a_typed_timeout() {
+    if !vm::in_vm() {
+        vm::run_test_in_vm("uvc_switch_that_never_comes_back_is_a_typed_timeout", 600);
+        return;
+    }
+    let emu = BoardEmulator::start_uvc("stuck", "EMU0004").expect("gadget");
+    emu.ignore_uvc_switch
+        .store(true, std::sync::atomic::Ordering::SeqCst);
+    wait_for("enumeration in UVC mode", Duration::from_secs(20), || {
+        sdi_daemon::backend::board::board_attached()
+            .ok()
+            .filter(|&a| a)
+    });
+    let t0 = Instant::now();
+    let err = Opt8241::open(BoardSelector::default(), BoardConfig::default())
+        .err()
+        .expect("opening must fail");
+    let took = t0.elapsed();
+    eprintln!("MEASURED: switch timeout after {took:?}: {err}");
+    assert!(
+        matches!(err, BoardError::Usb(UsbError::UvcSwitchTimeout { .. })),
+        "{err:?}"
+    );
+    assert!(took >= UVC_SWITCH_TIMEOUT && took < UVC_SWITCH_TIMEOUT + Duration::from_secs(10));
+    let s = emu.state.lock().unwrap();
+    assert_eq!(s.uvc_requests.len(), 1, "{:?}", s.uvc_requests);
+    assert!(s.switched_to_bulk.is_none());
+}
+
+/// Unplugs and replugs the emulator under a running `BoardBackend`; returns
+/// how the backend found the board again, the hotplug events libusb
+/// delivered, and the time from replug to the first frame.
+fn backend_replug(name: &str, serial: &str) -> (ReconnectCounts, Option<u64>, Duration) {
+    let emu = BoardEmulator::start(name, serial).expect("gadget");
+    wait_for("enumeration", Duration::from_secs(20), || {
+        sdi_daemon::backend::board::board_attached()
+            .ok()
+            .filter(|&a| a)
+    });
+    let mut backend = BoardBackend::open(BoardBackendConfig {
+        selector: BoardSelector {
+            serial: Some(serial.into()),
+            ..BoardSelector::default()
+        },
+        board: board_config(
+            Some(Roi {
+                x: 0,
+                y: 0,
+                width: 64,
+                height: 48,
+            }),
+            Some(30.0),
+            None,
+            None,
+        ),
+        on_unplug: OnUnplug::NoSignal,
+        seed: 1,
+        mode: ModeId::Raw,
+    })
+    .expect("open the board backend");
+    let ill = Illumination::snapshot(12e6);
+    let mut frame = Frame::new(1, 1);
+    for i in 0..3 {
+        backend
+            .capture(&ill, &mut frame)
+            .unwrap_or_else(|e| panic!("frame {i}: {e}"));
+    }
+    emu.unplug().unwrap();
+    wait_for("Unavailable", Duration::from_secs(20), || {
+        matches!(
+            backend.capture(&ill, &mut frame),
+            Err(BackendError::Unavailable(_))
+        )
+        .then_some(())
+    });
+    // Let a hotplug "left" event (if any) arrive, as between a real unplug
+    // and replug.
+    for _ in 0..10 {
+        let _ = backend.capture(&ill, &mut frame);
+    }
+    let t_plug = Instant::now();
+    emu.plug().unwrap();
+    wait_for("frames after replug", Duration::from_secs(30), || {
+        backend.capture(&ill, &mut frame).ok()
+    });
+    let back = t_plug.elapsed();
+    assert!(matches_sent(&emu, &frame));
+    (backend.reconnects(), backend.hotplug_events(), back)
+}
+
+/// Without udevd (the VM's default, like the sdid VM tests) Debian's libusb
+/// registers the hotplug callback but delivers no events: the bus scan
+/// brings the board back.
+#[test]
+fn backend_replug_without_udevd_is_found_by_the_bus_scan() {
+    if !vm::in_vm() {
+        vm::run_test_in_vm("backend_replug_without_udevd_is_found_by_the_bus_scan", 600);
+        return;
+    }
+    let (reconnects, events, back) = backend_replug("noudev", "EMU0005");
+    eprintln!(
+        "MEASURED: without udevd: hotplug events {events:?}, reconnects {reconnects:?}, \
+         first frame {back:?} after replug"
+    );
+    assert_eq!(
+        events.unwrap_or(0),
+        0,
+        "libusb delivered events without udevd"
+    );
+    assert_eq!(
+        reconnects,
+        ReconnectCounts {
+            by_hotplug: 0,
+            by_poll: 1
+        }
+    );
+}
+
+/// With systemd-udevd running in the guest, libusb delivers the hotplug
+/// events and the arrival (not the scan) brings the board back.
+#[test]
+fn backend_replug_with_udevd_is_found_by_a_hotplug_event() {
+    if !vm::in_vm() {
+        vm::run_test_in_vm("backend_replug_with_udevd_is_found_by_a_hotplug_event", 600);
+        return;
+    }
+    let run = |cmd: &str, args: &[&str]| {
+        let st = std::process::Command::new(cmd)
+            .args(args)
+            .status()
+            .unwrap_or_else(|e| panic!("{cmd}: {e}"));
+        assert!(st.success(), "{cmd} {args:?}: {st}");
+    };
+    run("/lib/systemd/systemd-udevd", &["--daemon"]);
+    run("udevadm", &["trigger", "--action=add"]);
+    run("udevadm", &["settle", "--timeout=120"]);
+    let (reconnects, events, back) = backend_replug("udev", "EMU0006");
+    eprintln!(
+        "MEASURED: with udevd: hotplug events {events:?}, reconnects {reconnects:?}, \
+         first frame {back:?} after replug"
+    );
+    assert!(events.is_some_and(|n| n >= 2), "left + arrived: {events:?}");
+    assert_eq!(
+        reconnects,
+        ReconnectCounts {
+            by_hotplug: 1,
+            by_poll: 0
+        }
+    );
 }

@@ -163,13 +163,23 @@ fn read_y4m(out: impl Read, seen: &Mutex<Seen>, frames: &AtomicU64) {
 }
 
 fn write_config(dir: &Path, name: &str, on_unplug: &str) -> std::path::PathBuf {
+    write_config_for(dir, name, "auto", SERIAL, on_unplug)
+}
+
+fn write_config_for(
+    dir: &Path,
+    name: &str,
+    backend: &str,
+    serial: &str,
+    on_unplug: &str,
+) -> std::path::PathBuf {
     let p = dir.join(name);
     std::fs::write(
         &p,
         format!(
-            "backend = \"auto\"\nmode = \"raw\"\nframe_rate_hz = 30.0\n\
+            "backend = \"{backend}\"\nmode = \"raw\"\nframe_rate_hz = 30.0\n\
              # 60 % of a quad: more than the firmware's 20/64 cap\nexposure_us = 5000.0\n\
-             [board]\nserial = \"{SERIAL}\"\non_unplug = \"{on_unplug}\"\nroi = [0, 0, {W}, {H}]\n"
+             [board]\nserial = \"{serial}\"\non_unplug = \"{on_unplug}\"\nroi = [0, 0, {W}, {H}]\n"
         ),
     )
     .unwrap();
@@ -381,4 +391,84 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
             .ok()
             .filter(|&a| a)
     });
+}
+
+/// A board that enumerates in UVC mode (0451:9106): `sdid --backend
+/// opt8241` sends the extension-unit request, the emulator re-enumerates as
+/// 0451:9105, and sdid configures it and streams its frames.
+#[test]
+fn sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams() {
+    if !vm::in_vm() {
+        std::env::set_var("SDID", bin("sdid"));
+        std::env::set_var("SDICTL", bin("sdictl"));
+        vm::run_test_in_vm(
+            "sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
+            600,
+        );
+        return;
+    }
+    const UVC_SERIAL: &str = "EMU0003";
+    let tmp = tempfile::tempdir().unwrap();
+    let emu = BoardEmulator::start_uvc("sdiuvc", UVC_SERIAL).expect("gadget");
+    wait_for("enumeration in UVC mode", Duration::from_secs(20), || {
+        use rusb::UsbContext;
+        let ctx = rusb::Context::new().ok()?;
+        let devices = ctx.devices().ok()?;
+        devices
+            .iter()
+            .any(|d| {
+                d.device_descriptor()
+                    .is_ok_and(|x| (x.vendor_id(), x.product_id()) == (0x0451, 0x9106))
+            })
+            .then_some(())
+    });
+    let bus = Bus::start();
+    let t_start = Instant::now();
+    let d = Sdid::start(
+        &bus,
+        &write_config_for(tmp.path(), "uvc.toml", "opt8241", UVC_SERIAL, "no-signal"),
+    );
+    assert_eq!(d.prop("backend"), "opt8241");
+    let device = d.prop("device");
+    assert!(device.as_str().unwrap().contains(UVC_SERIAL), "{device}");
+    {
+        let s = emu.state.lock().unwrap();
+        // One SET_CUR (class, interface, OUT) of control 6 with one data
+        // byte; FunctionFS shows wIndex as the function's interface number.
+        assert_eq!(s.uvc_requests, vec![(0x21, 0x01, 0x0600, 0, vec![0])]);
+        let switched = s
+            .switched_to_bulk
+            .expect("the emulator switched to bulk mode");
+        eprintln!(
+            "MEASURED: emulator back as 0451:9105 {:?} after sdid started",
+            switched.duration_since(t_start)
+        );
+        assert!(s.stalled.is_empty(), "{:?}", s.stalled);
+    }
+    wait_for("frames on y4m", Duration::from_secs(30), || {
+        (d.seen
+            .lock()
+            .unwrap()
+            .frames
+            .iter()
+            .filter(|f| !f.1)
+            .count()
+            >= 10)
+            .then_some(())
+    });
+    eprintln!(
+        "MEASURED: 10 board frames {:?} after sdid started on a UVC-mode board",
+        t_start.elapsed()
+    );
+    let snap = tmp.path().join("uvc.npy");
+    wait_for(
+        "a snapshot of a frame the emulator sent",
+        Duration::from_secs(10),
+        || {
+            let out = d.snapshot(&snap);
+            (out.status.success() && snapshot_matches(&emu, &snap)).then_some(())
+        },
+    );
+    assert!(d.device_available());
+    drop(d);
 }

@@ -4,9 +4,12 @@
 //!
 //! Frames are the decoded raw-quad difference (quad 0 = LS1 - LS2, eq.
 //! pixeleff); the dark frame is subtracted by the mode pipeline, as for the
-//! other backends. While the board is gone, `capture` retries opening it
-//! every [`RECONNECT_INTERVAL`] (a fresh libusb scan, so no udev or libusb
-//! hotplug support is needed) and reports [`BackendError::Unavailable`].
+//! other backends. While the board is gone, `capture` reports
+//! [`BackendError::Unavailable`] and opens the board again as soon as a
+//! libusb hotplug event says it is back ([`HotplugWatch`]), and in any case
+//! on a bus scan every [`RECONNECT_INTERVAL`] (every
+//! [`HOTPLUG_FALLBACK_INTERVAL`] once hotplug events have been seen): a
+//! fresh libusb scan works without udev, where libusb delivers no events.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -16,6 +19,7 @@ use sdi_core::modulation::Illumination;
 use sdi_core::sensor::{SensorParams, SensorPreset};
 use sdi_core::Frame;
 
+use super::opt8241::hotplug::HotplugWatch;
 use super::opt8241::init::{PllSettings, Roi};
 use super::opt8241::registers::{safety, SYSTEM_CLOCK_HZ};
 use super::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
@@ -23,8 +27,20 @@ use super::sim::SimBackend;
 use super::status::{DeviceStatus, StatusHandle};
 use super::{Backend, BackendError, CaptureSettings, Limits};
 
-/// How often a missing board is looked for.
+/// How often a missing board is looked for by a bus scan.
 pub const RECONNECT_INTERVAL: Duration = Duration::from_millis(500);
+/// The bus-scan interval once libusb has delivered hotplug events: the
+/// events do the work, the scan is a safety net.
+pub const HOTPLUG_FALLBACK_INTERVAL: Duration = Duration::from_secs(5);
+
+/// What brought the board back, counted over the backend's life.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReconnectCounts {
+    /// Reconnections started by a libusb hotplug arrival.
+    pub by_hotplug: u64,
+    /// Reconnections started by the periodic bus scan.
+    pub by_poll: u64,
+}
 
 /// What sdid does while the board is unplugged (`[board] on_unplug`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -136,6 +152,11 @@ pub struct BoardBackend {
     exit: Option<Arc<tokio::sync::Notify>>,
     next_attempt: Instant,
     unplugged_at: Option<Instant>,
+    /// None when libusb has no hotplug support (or registering failed).
+    hotplug: Option<HotplugWatch>,
+    /// A hotplug arrival not yet acted on.
+    arrival_pending: bool,
+    reconnects: ReconnectCounts,
 }
 
 fn clamp_text(board: &Opt8241) -> String {
@@ -167,6 +188,31 @@ impl BoardBackend {
             tracing::warn!("the board clamped settings (laser safety): {clamps}");
         }
         tracing::info!(%device, "OPT8241-CDK configured and streaming");
+        let hotplug = match HotplugWatch::start() {
+            Ok(Some(h)) => {
+                tracing::info!(
+                    "unplug/replug: libusb hotplug events, and a bus scan every {:?} \
+                     ({:?} once events arrive; without udevd libusb delivers none)",
+                    RECONNECT_INTERVAL,
+                    HOTPLUG_FALLBACK_INTERVAL
+                );
+                Some(h)
+            }
+            Ok(None) => {
+                tracing::info!(
+                    "unplug/replug: libusb has no hotplug support; a bus scan every {:?}",
+                    RECONNECT_INTERVAL
+                );
+                None
+            }
+            Err(e) => {
+                tracing::warn!(
+                    "unplug/replug: libusb hotplug registration failed ({e}); a bus scan every {:?}",
+                    RECONNECT_INTERVAL
+                );
+                None
+            }
+        };
         Ok(Self {
             sensor: actual_sensor(&board),
             board,
@@ -187,7 +233,30 @@ impl BoardBackend {
             exit: None,
             next_attempt: Instant::now(),
             unplugged_at: None,
+            hotplug,
+            arrival_pending: false,
+            reconnects: ReconnectCounts::default(),
         })
+    }
+
+    /// Board hotplug events libusb delivered so far; `None` without a
+    /// hotplug registration.
+    pub fn hotplug_events(&self) -> Option<u64> {
+        self.hotplug.as_ref().map(HotplugWatch::events_seen)
+    }
+
+    /// Successful reconnections, by what started them.
+    pub fn reconnects(&self) -> ReconnectCounts {
+        self.reconnects
+    }
+
+    /// The bus-scan interval now: slow once hotplug events are known to
+    /// arrive.
+    fn poll_interval(&self) -> Duration {
+        match self.hotplug_events() {
+            Some(n) if n > 0 => HOTPLUG_FALLBACK_INTERVAL,
+            _ => RECONNECT_INTERVAL,
+        }
     }
 
     /// Live state for D-Bus (Backend, Device, Stats).
@@ -238,17 +307,36 @@ impl BoardBackend {
         }
     }
 
-    /// One reconnection attempt if it is due; true when the board is back.
+    /// One reconnection attempt if a hotplug arrival came or a scan is
+    /// due; true when the board is back.
     fn try_reconnect(&mut self) -> bool {
-        if Instant::now() < self.next_attempt {
+        if let Some(h) = &self.hotplug {
+            self.arrival_pending |= h.drain().arrived;
+        }
+        let by_hotplug = std::mem::take(&mut self.arrival_pending);
+        if !by_hotplug && Instant::now() < self.next_attempt {
             return false;
         }
-        self.next_attempt = Instant::now() + RECONNECT_INTERVAL;
+        // After an arrival the device may not be ready at once: scan again
+        // soon rather than after the slow fallback interval.
+        self.next_attempt = Instant::now()
+            + if by_hotplug {
+                RECONNECT_INTERVAL
+            } else {
+                self.poll_interval()
+            };
         match self.board.reconnect() {
             Ok(()) => {
                 let waited = self.unplugged_at.take().map(|t| t.elapsed());
                 let device = describe(&self.board);
-                tracing::info!(%device, ?waited, "board is back; streaming again");
+                let trigger = if by_hotplug {
+                    self.reconnects.by_hotplug += 1;
+                    "libusb hotplug event"
+                } else {
+                    self.reconnects.by_poll += 1;
+                    "bus scan"
+                };
+                tracing::info!(%device, ?waited, trigger, "board is back; streaming again");
                 self.stand_in = None;
                 self.status.update(|s| {
                     s.backend = "opt8241".into();
@@ -351,7 +439,11 @@ impl Backend for BoardBackend {
             if let Some(sim) = self.stand_in.as_mut() {
                 return sim.capture(illumination, frame);
             }
-            std::thread::sleep(RECONNECT_INTERVAL / 5);
+            // Wake early on a hotplug arrival.
+            match &self.hotplug {
+                Some(h) => self.arrival_pending |= h.wait_arrival(RECONNECT_INTERVAL / 5),
+                None => std::thread::sleep(RECONNECT_INTERVAL / 5),
+            }
             return Err(BackendError::Unavailable(
                 "OPT8241-CDK unplugged; waiting for it".into(),
             ));
@@ -359,8 +451,13 @@ impl Backend for BoardBackend {
         match self.board.next_frame(illumination, frame) {
             Ok(()) => Ok(()),
             Err(BoardError::DeviceUnavailable) => {
+                // Events from before the loss (e.g. the re-enumeration of a
+                // UVC -> bulk switch) say nothing about the board coming back.
+                if let Some(h) = &self.hotplug {
+                    h.drain();
+                }
                 self.lost("unplugged");
-                self.next_attempt = Instant::now() + RECONNECT_INTERVAL;
+                self.next_attempt = Instant::now() + self.poll_interval();
                 Err(BackendError::Unavailable("OPT8241-CDK unplugged".into()))
             }
             Err(e) => {

@@ -51,3 +51,27 @@ pub fn strings(interface_name: &str) -> Vec<u8> {
     out.extend_from_slice(&body);
     out
 }
+
+/// UVC mode (0451:9106): interface 0 is a VideoControl interface (class
+/// 0x0E, subclass 0x01) with its status interrupt endpoint. FunctionFS
+/// refuses class-specific (CS_INTERFACE) descriptors, so the VC header and
+/// the extension unit descriptor are absent; the class requests still
+/// reach the function (interface recipient).
+pub fn uvc_descriptors() -> Vec<u8> {
+    let vc = [9, 4, 0, 0, 1, 0x0E, 0x01, 0, 1];
+    // ENDPOINT, IN, interrupt, 16 bytes, bInterval 8
+    let status = |interval: u8| [7u8, 5, 0x81, 3, 16, 0, interval];
+    let mut body = Vec::new();
+    body.extend_from_slice(&2u32.to_le_bytes()); // fs_count
+    body.extend_from_slice(&2u32.to_le_bytes()); // hs_count
+    body.extend_from_slice(&vc);
+    body.extend_from_slice(&status(8));
+    body.extend_from_slice(&vc);
+    body.extend_from_slice(&status(4));
+    let mut out = Vec::new();
+    out.extend_from_slice(&DESCRIPTORS_MAGIC_V2.to_le_bytes());
+    out.extend_from_slice(&((12 + body.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&(HAS_FS_DESC | HAS_HS_DESC | ALL_CTRL_RECIP).to_le_bytes());
+    out.extend_from_slice(&body);
+    out
+}

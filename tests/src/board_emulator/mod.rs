@@ -2,6 +2,11 @@
 //! (0451:9105) with a FunctionFS function, bound to dummy_hcd's UDC, so the
 //! backend reaches it through libusb exactly as it reaches the board.
 //!
+//! [`BoardEmulator::start_uvc`] first presents the board in UVC mode
+//! (0451:9106, a VideoControl interface 0); the UVC SET_CUR of extension
+//! unit 3, control 6 makes it re-enumerate as the bulk-mode board, as the
+//! FX2 firmware does (`uvc.c`, `RENUMERATE_UNCOND`).
+//!
 //! The emulator keeps a register file with the firmware's laser-safety masks,
 //! answers the vendor requests (0x08/0x09 registers, 0x1A version, 0x30
 //! revision, 0x32 serial) and, while tg_dis = 0, streams simulator frames in
@@ -20,7 +25,7 @@ use std::process::Command;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use sdi_core::modulation::Illumination;
 use sdi_core::scene::SceneSpec;
@@ -47,6 +52,11 @@ pub struct BoardState {
     pub sent: Vec<(u8, Vec<f32>)>,
     /// Unknown requests seen (they were stalled).
     pub stalled: Vec<(u8, u8, u16, u16)>,
+    /// UVC class requests received in UVC mode: (bmRequestType, bRequest,
+    /// wValue, wIndex as FunctionFS passes it, data).
+    pub uvc_requests: Vec<(u8, u8, u16, u16, Vec<u8>)>,
+    /// When the gadget came back as 0451:9105 after the switch.
+    pub switched_to_bulk: Option<Instant>,
 }
 
 fn field(reg: u32, msb: u32, lsb: u32) -> u32 {
@@ -115,16 +125,32 @@ pub fn encode_raw_quads(dn: &[f32], quads: usize) -> (Vec<u8>, Vec<f32>) {
     (out, kept)
 }
 
+/// What the emulator threads share.
+struct Inner {
+    name: String,
+    serial: String,
+    gadget: PathBuf,
+    state: Arc<Mutex<BoardState>>,
+    stop: Arc<AtomicBool>,
+    shift_next_frame: Arc<AtomicU32>,
+    ignore_uvc_switch: Arc<AtomicBool>,
+    mounts: Mutex<Vec<PathBuf>>,
+    threads: Mutex<Vec<JoinHandle<()>>>,
+    /// ep0 of the UVC function after the switch: closing it while the
+    /// gadget is bound would unbind the gadget, so it stays open until drop.
+    parked: Mutex<Vec<File>>,
+}
+
 /// A running emulated board.
 pub struct BoardEmulator {
     pub name: String,
-    gadget: PathBuf,
-    ffs_mount: PathBuf,
     pub state: Arc<Mutex<BoardState>>,
-    stop: Arc<AtomicBool>,
     /// Rotate the next frame by this many bytes (misalignment injection).
     pub shift_next_frame: Arc<AtomicU32>,
-    threads: Vec<JoinHandle<()>>,
+    /// In UVC mode: record the switch request but stay in UVC mode (a board
+    /// whose firmware does not come back).
+    pub ignore_uvc_switch: Arc<AtomicBool>,
+    inner: Arc<Inner>,
 }
 
 fn write_attr(path: impl AsRef<Path>, value: &str) -> std::io::Result<()> {
@@ -161,99 +187,193 @@ pub fn udc_name() -> std::io::Result<String> {
         .ok_or_else(|| std::io::Error::other("no UDC (is dummy_hcd loaded?)"))
 }
 
+impl Inner {
+    fn config(&self) -> PathBuf {
+        self.gadget.join("configs/c.1")
+    }
+
+    fn plug(&self) -> std::io::Result<()> {
+        write_attr(self.gadget.join("UDC"), &udc_name()?)
+    }
+
+    fn unplug(&self) -> std::io::Result<()> {
+        write_attr(self.gadget.join("UDC"), "\n")
+    }
+
+    fn spawn(&self, f: impl FnOnce() + Send + 'static) {
+        let t = std::thread::spawn(f);
+        self.threads.lock().unwrap().push(t);
+    }
+
+    /// A FunctionFS function linked into the configuration, its
+    /// descriptors written; returns its ep0.
+    fn add_function(&self, instance: &str, descs: &[u8], strings: &[u8]) -> std::io::Result<File> {
+        let function = self.gadget.join(format!("functions/ffs.{instance}"));
+        fs::create_dir_all(&function)?;
+        let link = self.config().join(format!("ffs.{instance}"));
+        if !link.exists() {
+            std::os::unix::fs::symlink(&function, &link)?;
+        }
+        let mount = PathBuf::from(format!("/dev/ffs-{instance}"));
+        fs::create_dir_all(&mount)?;
+        run(
+            "mount",
+            &["-t", "functionfs", instance, &mount.to_string_lossy()],
+        )?;
+        let mut ep0 = OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(mount.join("ep0"))?;
+        ep0.write_all(descs)?;
+        ep0.write_all(strings)?;
+        self.mounts.lock().unwrap().push(mount);
+        Ok(ep0)
+    }
+
+    /// The bulk-mode function: registers over vendor requests, frames on ep1.
+    fn add_bulk_function(&self) -> std::io::Result<()> {
+        let ep0 = self.add_function(
+            &self.name,
+            &descriptors::descriptors(),
+            &descriptors::strings("OPT8241 bulk"),
+        )?;
+        let ep1 = PathBuf::from(format!("/dev/ffs-{}", self.name)).join("ep1");
+        let (state, stop, serial) = (self.state.clone(), self.stop.clone(), self.serial.clone());
+        self.spawn(move || control_loop(ep0, &state, &stop, &serial));
+        let (state, stop, shift) = (
+            self.state.clone(),
+            self.stop.clone(),
+            self.shift_next_frame.clone(),
+        );
+        self.spawn(move || stream_loop(&ep1, &state, &stop, &shift));
+        Ok(())
+    }
+
+    /// The UVC-mode function: a VideoControl interface that only knows the
+    /// extension-unit request switching to bulk mode.
+    fn add_uvc_function(self: &Arc<Self>) -> std::io::Result<()> {
+        let ep0 = self.add_function(
+            &format!("{}uvc", self.name),
+            &descriptors::uvc_descriptors(),
+            &descriptors::strings("OPT8241 UVC"),
+        )?;
+        let inner = self.clone();
+        self.spawn(move || uvc_control_loop(ep0, &inner));
+        Ok(())
+    }
+
+    /// What the firmware does on XU control 6: drop off the bus and come
+    /// back as 0451:9105 with the bulk-mode interface.
+    fn switch_to_bulk(&self) -> std::io::Result<()> {
+        self.unplug()?;
+        fs::remove_file(self.config().join(format!("ffs.{}uvc", self.name)))?;
+        write_attr(self.gadget.join("idProduct"), "0x9105")?;
+        self.add_bulk_function()?;
+        self.plug()?;
+        self.state.lock().unwrap().switched_to_bulk = Some(Instant::now());
+        Ok(())
+    }
+}
+
 impl BoardEmulator {
-    /// Creates the gadget, starts the FunctionFS threads and plugs it in.
+    /// Creates the gadget in bulk mode (0451:9105), starts the FunctionFS
+    /// threads and plugs it in.
     pub fn start(name: &str, serial: &str) -> std::io::Result<Self> {
+        Self::start_in(name, serial, false)
+    }
+
+    /// Like [`BoardEmulator::start`], but the board first enumerates in UVC
+    /// mode (0451:9106) until the host switches it.
+    pub fn start_uvc(name: &str, serial: &str) -> std::io::Result<Self> {
+        Self::start_in(name, serial, true)
+    }
+
+    fn start_in(name: &str, serial: &str, uvc: bool) -> std::io::Result<Self> {
         prepare_kernel()?;
         let gadget = Path::new(GADGET_ROOT).join(name);
         fs::create_dir_all(&gadget)?;
         write_attr(gadget.join("idVendor"), "0x0451")?;
-        write_attr(gadget.join("idProduct"), "0x9105")?;
+        write_attr(
+            gadget.join("idProduct"),
+            if uvc { "0x9106" } else { "0x9105" },
+        )?;
         write_attr(gadget.join("bcdUSB"), "0x0200")?;
         let strings = gadget.join("strings/0x409");
         fs::create_dir_all(&strings)?;
         write_attr(strings.join("serialnumber"), serial)?;
         write_attr(strings.join("manufacturer"), "SDI test")?;
         write_attr(strings.join("product"), "OPT8241-CDK emulator")?;
-        let config = gadget.join("configs/c.1");
-        fs::create_dir_all(&config)?;
-        let function = gadget.join(format!("functions/ffs.{name}"));
-        fs::create_dir_all(&function)?;
-        let link = config.join(format!("ffs.{name}"));
-        if !link.exists() {
-            std::os::unix::fs::symlink(&function, &link)?;
-        }
-        let ffs_mount = PathBuf::from(format!("/dev/ffs-{name}"));
-        fs::create_dir_all(&ffs_mount)?;
-        run(
-            "mount",
-            &["-t", "functionfs", name, &ffs_mount.to_string_lossy()],
-        )?;
-        let mut ep0 = OpenOptions::new()
-            .read(true)
-            .write(true)
-            .open(ffs_mount.join("ep0"))?;
-        ep0.write_all(&descriptors::descriptors())?;
-        ep0.write_all(&descriptors::strings("OPT8241 bulk"))?;
-        let mut emu = Self {
+        fs::create_dir_all(gadget.join("configs/c.1"))?;
+        let inner = Arc::new(Inner {
             name: name.into(),
+            serial: serial.into(),
             gadget,
-            ffs_mount,
             state: Arc::new(Mutex::new(BoardState::default())),
             stop: Arc::new(AtomicBool::new(false)),
             shift_next_frame: Arc::new(AtomicU32::new(0)),
-            threads: Vec::new(),
-        };
+            ignore_uvc_switch: Arc::new(AtomicBool::new(false)),
+            mounts: Mutex::new(Vec::new()),
+            threads: Mutex::new(Vec::new()),
+            parked: Mutex::new(Vec::new()),
+        });
         {
-            let mut s = emu.state.lock().unwrap();
+            let mut s = inner.state.lock().unwrap();
             s.registers.insert(0x5880, 1); // tg_dis
             s.registers.insert(0x5883, 0x44);
             s.registers.insert(0x581F, 239 << 16);
             s.registers.insert(0x5821, 19 << 3);
         }
-        let (state, stop, serial) = (emu.state.clone(), emu.stop.clone(), serial.to_string());
-        emu.threads.push(std::thread::spawn(move || {
-            control_loop(ep0, &state, &stop, &serial)
-        }));
-        let ep1 = emu.ffs_mount.join("ep1");
-        let (state, stop, shift) = (
-            emu.state.clone(),
-            emu.stop.clone(),
-            emu.shift_next_frame.clone(),
-        );
-        emu.threads.push(std::thread::spawn(move || {
-            stream_loop(&ep1, &state, &stop, &shift)
-        }));
+        if uvc {
+            inner.add_uvc_function()?;
+        } else {
+            inner.add_bulk_function()?;
+        }
+        let emu = Self {
+            name: name.into(),
+            state: inner.state.clone(),
+            shift_next_frame: inner.shift_next_frame.clone(),
+            ignore_uvc_switch: inner.ignore_uvc_switch.clone(),
+            inner,
+        };
         emu.plug()?;
         Ok(emu)
     }
 
     /// Binds the gadget to the UDC: the host sees a new device.
     pub fn plug(&self) -> std::io::Result<()> {
-        write_attr(self.gadget.join("UDC"), &udc_name()?)
+        self.inner.plug()
     }
 
     /// Unbinds the gadget: the host sees the device vanish.
     pub fn unplug(&self) -> std::io::Result<()> {
-        write_attr(self.gadget.join("UDC"), "\n")
+        self.inner.unplug()
     }
 }
 
 impl Drop for BoardEmulator {
     fn drop(&mut self) {
-        self.stop.store(true, Ordering::SeqCst);
+        self.inner.stop.store(true, Ordering::SeqCst);
         // A reader blocked on ep0 wakes only on an event: if the gadget is
         // unplugged, plug it in once so that binding delivers one.
-        let bound = fs::read_to_string(self.gadget.join("UDC")).unwrap_or_default();
+        let bound = fs::read_to_string(self.inner.gadget.join("UDC")).unwrap_or_default();
         if bound.trim().is_empty() {
             let _ = self.plug();
             std::thread::sleep(Duration::from_millis(200));
         }
         let _ = self.unplug();
-        for t in self.threads.drain(..) {
-            let _ = t.join();
+        loop {
+            let threads = std::mem::take(&mut *self.inner.threads.lock().unwrap());
+            if threads.is_empty() {
+                break;
+            }
+            for t in threads {
+                let _ = t.join();
+            }
         }
-        let _ = Command::new("umount").arg(&self.ffs_mount).status();
+        self.inner.parked.lock().unwrap().clear();
+        for m in self.inner.mounts.lock().unwrap().iter() {
+            let _ = Command::new("umount").arg(m).status();
+        }
     }
 }
 
@@ -285,6 +405,67 @@ fn control_loop(mut ep0: File, state: &Mutex<BoardState>, stop: &AtomicBool, ser
             let _ = handle_setup(
                 &mut ep0, state, serial, rt, req, address, length, value, index,
             );
+        }
+    }
+}
+
+/// UVC class request SET_CUR.
+const UVC_SET_CUR: u8 = 0x01;
+
+/// ep0 of the UVC-mode function. FunctionFS hands a class request to the
+/// interface with wIndex replaced by the function's interface number, so the
+/// extension unit id (wIndex high byte on the wire) is not visible here; the
+/// control selector (wValue high byte) is.
+fn uvc_control_loop(mut ep0: File, inner: &Arc<Inner>) {
+    let mut buf = [0u8; EVENT_BYTES * 4];
+    while !inner.stop.load(Ordering::SeqCst) {
+        let n = match ep0.read(&mut buf) {
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(_) => {
+                std::thread::sleep(Duration::from_millis(20));
+                continue;
+            }
+        };
+        for ev in buf[..n].chunks_exact(EVENT_BYTES) {
+            if ev[8] != EV_SETUP {
+                continue;
+            }
+            let (rt, req) = (ev[0], ev[1]);
+            let value = u16::from_le_bytes([ev[2], ev[3]]);
+            let index = u16::from_le_bytes([ev[4], ev[5]]);
+            let length = u16::from_le_bytes([ev[6], ev[7]]) as usize;
+            if rt == 0x21 && req == UVC_SET_CUR {
+                let mut data = vec![0u8; length];
+                let _ = ep0.read(&mut data);
+                inner
+                    .state
+                    .lock()
+                    .unwrap()
+                    .uvc_requests
+                    .push((rt, req, value, index, data));
+                if value >> 8 == 6 && !inner.ignore_uvc_switch.load(Ordering::SeqCst) {
+                    // The firmware re-enumerates right after the request.
+                    std::thread::sleep(Duration::from_millis(50));
+                    if let Err(e) = inner.switch_to_bulk() {
+                        eprintln!("emulator: switch to bulk mode failed: {e}");
+                    }
+                    inner.parked.lock().unwrap().push(ep0);
+                    return;
+                }
+            } else {
+                inner
+                    .state
+                    .lock()
+                    .unwrap()
+                    .stalled
+                    .push((rt, req, value, index));
+                if rt & 0x80 != 0 {
+                    let _ = ep0.read(&mut [0u8; 0]);
+                } else {
+                    let _ = ep0.write(&[]);
+                }
+            }
         }
     }
 }

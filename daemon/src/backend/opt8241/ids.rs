@@ -7,7 +7,8 @@
 pub const VENDOR_ID: u16 = 0x0451;
 /// Vendor-specific bulk mode: registers over vendor requests, frames on bulk IN.
 pub const PRODUCT_ID_BULK: u16 = 0x9105;
-/// UVC mode (registers through UVC extension unit 3); not driven by sdid.
+/// UVC mode (registers through UVC extension unit 3); sdid switches it to
+/// bulk mode (`usb::switch_and_wait`).
 pub const PRODUCT_ID_UVC: u16 = 0x9106;
 /// Interface carrying the bulk IN endpoint in bulk mode.
 pub const INTERFACE: u8 = 0;

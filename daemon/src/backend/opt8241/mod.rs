@@ -4,11 +4,13 @@
 //! [`protocol`] (vendor control requests over a [`protocol::Transport`]) ->
 //! [`init`] (the SDK's configuration order and safety limits); [`frame`]
 //! (raw quads -> difference frame, alignment); [`usb`] (libusb transport,
-//! discovery, bulk stream); [`board`] ties them into the backend.
+//! discovery, UVC -> bulk switch, bulk stream); [`hotplug`] (libusb hotplug
+//! events); [`board`] ties them into the backend.
 //! Sources of every register and request: `docs/hardware.md`.
 
 pub mod board;
 pub mod frame;
+pub mod hotplug;
 pub mod ids;
 pub mod init;
 pub mod protocol;

@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
 use std::sync::Arc;
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use rusb::{Context, Device, DeviceHandle, Direction, TransferType, UsbContext};
 
@@ -35,8 +35,14 @@ pub enum UsbError {
     },
     #[error("{} boards attached ({}): choose one by serial number", serials.len(), serials.join(", "))]
     Ambiguous { serials: Vec<String> },
-    #[error("the board is in UVC mode (USB 0451:9106); sdid drives the vendor bulk mode 0451:9105 — switch it with TI's tools (UVC extension unit 3, selector 6) and replug")]
-    UvcMode,
+    #[error("{count} boards in UVC mode (USB 0451:9106) attached: choose one by serial number")]
+    AmbiguousUvc { count: usize },
+    #[error(
+        "could not switch the board from UVC mode (0451:9106) to bulk mode (0451:9105): {error}"
+    )]
+    UvcSwitch { error: String },
+    #[error("the board was told to leave UVC mode (0451:9106) but no bulk-mode board (0451:9105) appeared within {waited_ms} ms (switch request: {request}); replug it")]
+    UvcSwitchTimeout { waited_ms: u128, request: String },
     #[error("permission denied opening the board: install sdid's udev rules (udev/board-ids) or run sdid as root")]
     Access,
     #[error("interface {interface} has no bulk IN endpoint")]
@@ -136,13 +142,22 @@ pub fn board_present(context: &Context) -> bool {
     })
 }
 
-/// Finds the board the selector names.
-pub fn find_board(context: &Context, sel: &BoardSelector) -> Result<Device<Context>, UsbError> {
+/// A board found on the bus, in either mode.
+pub enum Found {
+    /// Vendor bulk mode (0451:9105): ready to open.
+    Bulk(Device<Context>),
+    /// UVC mode (0451:9106): to be switched with [`switch_to_bulk`] first.
+    Uvc(Device<Context>),
+}
+
+/// Finds the board the selector names: in bulk mode if there is one, else
+/// in UVC mode (the same serial number, if the selector names one).
+pub fn find_board(context: &Context, sel: &BoardSelector) -> Result<Found, UsbError> {
     let list = context
         .devices()
         .map_err(|e| usb_err("listing devices", e))?;
     let mut matches = Vec::new();
-    let mut uvc = false;
+    let mut uvc = Vec::new();
     for d in list.iter() {
         let Ok(desc) = d.device_descriptor() else {
             continue;
@@ -152,34 +167,184 @@ pub fn find_board(context: &Context, sel: &BoardSelector) -> Result<Device<Conte
         }
         if desc.product_id() == sel.product_id {
             matches.push(d);
-        } else if desc.product_id() == ids::PRODUCT_ID_UVC {
-            uvc = true;
+        } else if sel.product_id == ids::PRODUCT_ID_BULK && desc.product_id() == ids::PRODUCT_ID_UVC
+        {
+            uvc.push(d);
         }
     }
-    let not_found = || {
-        if uvc {
-            UsbError::UvcMode
-        } else {
-            UsbError::NotFound {
-                vid: sel.vendor_id,
-                pid: sel.product_id,
-                serial: sel.serial.clone(),
-            }
-        }
+    let not_found = || UsbError::NotFound {
+        vid: sel.vendor_id,
+        pid: sel.product_id,
+        serial: sel.serial.clone(),
+    };
+    let by_serial = |list: Vec<Device<Context>>, want: &str| {
+        list.into_iter()
+            .find(|d| serial_of(d).as_deref() == Some(want))
     };
     match (&sel.serial, matches.len()) {
-        (_, 0) => Err(not_found()),
-        (None, 1) => Ok(matches.remove(0)),
-        (None, _) => Err(UsbError::Ambiguous {
+        (None, 1) => Ok(Found::Bulk(matches.remove(0))),
+        (None, n) if n > 1 => Err(UsbError::Ambiguous {
             serials: matches
                 .iter()
                 .map(|d| serial_of(d).unwrap_or_else(|| "?".into()))
                 .collect(),
         }),
-        (Some(want), _) => matches
-            .into_iter()
-            .find(|d| serial_of(d).as_deref() == Some(want.as_str()))
+        (None, _) => match uvc.len() {
+            0 => Err(not_found()),
+            1 => Ok(Found::Uvc(uvc.remove(0))),
+            count => Err(UsbError::AmbiguousUvc { count }),
+        },
+        (Some(want), _) => by_serial(matches, want)
+            .map(Found::Bulk)
+            .or_else(|| by_serial(uvc, want).map(Found::Uvc))
             .ok_or_else(not_found),
+    }
+}
+
+/// UVC extension unit of the board's FX2 firmware (SDK
+/// `TI3DToF/VoxelXUProgrammer.h`, `_XU_ID = 3`).
+pub const UVC_XU_ID: u8 = 3;
+/// Its control "reboot to firmware mode": the firmware re-enumerates as the
+/// bulk-mode device (SDK `CONTROL_REBOOT_FW_MODE = 6`; FW `uvc.c`, case 6,
+/// `RENUMERATE_UNCOND`).
+pub const XU_CONTROL_REBOOT_FW_MODE: u8 = 6;
+/// UVC class request SET_CUR (UVC 1.1, table A-8).
+pub const UVC_SET_CUR: u8 = 0x01;
+/// How long the board may take to come back in bulk mode after the switch
+/// (the SDK waits a fixed 10 s, `TintinEEPROMDownloader::_configureForDownload`).
+pub const UVC_SWITCH_TIMEOUT: Duration = Duration::from_secs(15);
+/// Interval of the bus scans while waiting for the bulk-mode board.
+const UVC_SWITCH_POLL: Duration = Duration::from_millis(100);
+
+/// One control request, as sent on the wire.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ControlRequest {
+    pub request_type: u8,
+    pub request: u8,
+    pub value: u16,
+    pub index: u16,
+    pub data: Vec<u8>,
+}
+
+impl std::fmt::Display for ControlRequest {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "bmRequestType {:#04x} bRequest {:#04x} wValue {:#06x} wIndex {:#06x} data {:02x?}",
+            self.request_type, self.request, self.value, self.index, self.data
+        )
+    }
+}
+
+/// SET_CUR of extension unit 3, control 6, to the VideoControl interface:
+/// class request, recipient interface, wValue = control << 8, wIndex =
+/// unit << 8 | interface, one data byte (its value is ignored by the
+/// firmware; the SDK sends one byte, `VoxelXUProgrammer::reset`).
+pub fn uvc_switch_request(video_control_interface: u8) -> ControlRequest {
+    ControlRequest {
+        request_type: rusb::request_type(
+            Direction::Out,
+            rusb::RequestType::Class,
+            rusb::Recipient::Interface,
+        ),
+        request: UVC_SET_CUR,
+        value: u16::from(XU_CONTROL_REBOOT_FW_MODE) << 8,
+        index: (u16::from(UVC_XU_ID) << 8) | u16::from(video_control_interface),
+        data: vec![0],
+    }
+}
+
+/// The VideoControl interface (class 0x0E, subclass 0x01) of a UVC-mode
+/// board; interface 0 when the descriptors do not say (FW `uvc.c`:
+/// "Interface number is 0 for the XU").
+pub fn video_control_interface(device: &Device<Context>) -> u8 {
+    device
+        .active_config_descriptor()
+        .ok()
+        .and_then(|c| {
+            c.interfaces()
+                .flat_map(|i| i.descriptors())
+                .find(|d| d.class_code() == 0x0E && d.sub_class_code() == 0x01)
+                .map(|d| d.interface_number())
+        })
+        .unwrap_or(0)
+}
+
+/// Tells a UVC-mode board to re-enumerate in bulk mode. Returns the request
+/// sent and what the transfer returned: the firmware drops off the bus while
+/// answering, so an error here does not mean the switch failed.
+pub fn switch_to_bulk(device: &Device<Context>) -> Result<(ControlRequest, String), UsbError> {
+    let interface = video_control_interface(device);
+    let handle = device.open().map_err(|e| match e {
+        rusb::Error::Access => UsbError::Access,
+        other => UsbError::UvcSwitch {
+            error: format!("opening the UVC-mode board: {other}"),
+        },
+    })?;
+    // uvcvideo holds the VideoControl interface of a real board: detach it
+    // for the request (libusb re-attaches it on release if the board is
+    // still there, i.e. did not switch).
+    let _ = handle.set_auto_detach_kernel_driver(true);
+    handle
+        .claim_interface(interface)
+        .map_err(|e| UsbError::UvcSwitch {
+            error: format!("claiming the VideoControl interface {interface}: {e}"),
+        })?;
+    let req = uvc_switch_request(interface);
+    let outcome = match handle.write_control(
+        req.request_type,
+        req.request,
+        req.value,
+        req.index,
+        &req.data,
+        Duration::from_secs(1),
+    ) {
+        Ok(n) => format!("sent, {n} byte(s)"),
+        Err(rusb::Error::Pipe) => {
+            return Err(UsbError::UvcSwitch {
+                error: format!("the board stalled the request ({req})"),
+            })
+        }
+        Err(e) => format!("sent, transfer ended with: {e}"),
+    };
+    let _ = handle.release_interface(interface);
+    drop(handle);
+    Ok((req, outcome))
+}
+
+/// Switches a UVC-mode board and waits (at most [`UVC_SWITCH_TIMEOUT`]) for
+/// it to come back in bulk mode; returns the bulk-mode device, found with a
+/// fresh libusb context (and by the same serial number when it has one).
+pub fn switch_and_wait(
+    device: &Device<Context>,
+    sel: &BoardSelector,
+) -> Result<Device<Context>, UsbError> {
+    let serial = sel.serial.clone().or_else(|| serial_of(device));
+    tracing::info!(
+        serial = serial.as_deref().unwrap_or("?"),
+        "the OPT8241-CDK is in UVC mode (0451:9106); switching it to bulk mode (0451:9105)"
+    );
+    let t0 = Instant::now();
+    let (req, outcome) = switch_to_bulk(device)?;
+    tracing::info!(request = %req, %outcome, "UVC -> bulk switch requested; waiting for re-enumeration");
+    let want = BoardSelector {
+        serial,
+        ..sel.clone()
+    };
+    loop {
+        std::thread::sleep(UVC_SWITCH_POLL);
+        if let Ok(ctx) = Context::new() {
+            if let Ok(Found::Bulk(d)) = find_board(&ctx, &want) {
+                tracing::info!(took = ?t0.elapsed(), "the board is back in bulk mode");
+                return Ok(d);
+            }
+        }
+        if t0.elapsed() >= UVC_SWITCH_TIMEOUT {
+            return Err(UsbError::UvcSwitchTimeout {
+                waited_ms: t0.elapsed().as_millis(),
+                request: format!("{req}; {outcome}"),
+            });
+        }
     }
 }
 
@@ -190,9 +355,13 @@ pub struct OpenBoard {
     pub serial: Option<String>,
 }
 
-/// Opens the board, claims its interface and finds its endpoint.
+/// Opens the board, claims its interface and finds its endpoint. A board
+/// in UVC mode is switched to bulk mode first ([`switch_and_wait`]).
 pub fn open_board(context: &Context, sel: &BoardSelector) -> Result<OpenBoard, UsbError> {
-    let device = find_board(context, sel)?;
+    let device = match find_board(context, sel)? {
+        Found::Bulk(d) => d,
+        Found::Uvc(d) => switch_and_wait(&d, sel)?,
+    };
     let endpoint = find_bulk_in(&device, ids::INTERFACE)?;
     let handle = device.open().map_err(|e| usb_err("opening", e))?;
     // Not supported on every platform; harmless when no kernel driver is bound.
@@ -362,5 +531,22 @@ fn read_loop(
         if tx.send(event).is_err() {
             return;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn uvc_switch_request_is_set_cur_of_xu3_control6() {
+        let r = uvc_switch_request(0);
+        // class, interface recipient, host to device
+        assert_eq!(r.request_type, 0x21);
+        assert_eq!(r.request, 0x01);
+        assert_eq!(r.value, 0x0600);
+        assert_eq!(r.index, 0x0300);
+        assert_eq!(r.data.len(), 1);
+        assert_eq!(uvc_switch_request(2).index, 0x0302);
     }
 }
