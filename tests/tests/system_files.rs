@@ -125,12 +125,7 @@ fn unit_exposure_score_is_at_most_2_5() {
             .arg(&unit),
     );
     let text = String::from_utf8_lossy(&out.stdout);
-    let score: f64 = text
-        .lines()
-        .find_map(|l| l.split("Overall exposure level for sdid.service:").nth(1))
-        .and_then(|rest| rest.split_whitespace().next())
-        .and_then(|s| s.parse().ok())
-        .expect("no overall exposure level in the output");
+    let score = exposure_score(&text);
     println!("systemd-analyze security: exposure {score}");
     assert!(score <= MAX_EXPOSURE, "exposure {score} > {MAX_EXPOSURE}");
     fs::remove_dir_all(&dir).unwrap();
@@ -175,15 +170,19 @@ fn scpi_network_drop_in_opens_ip_only() {
     assert!(line("RestrictAddressFamilies=~AF_(INET|INET6)").starts_with('✗'));
     assert!(line("RestrictAddressFamilies=~AF_PACKET").starts_with('✓'));
     assert!(line("IPAddressDeny=").contains("allow list"), "{text}");
-    let score: f64 = text
-        .lines()
-        .find_map(|l| l.split("Overall exposure level for sdid.service:").nth(1))
-        .and_then(|rest| rest.split_whitespace().next())
-        .and_then(|s| s.parse().ok())
-        .expect("no overall exposure level in the output");
+    let score = exposure_score(&text);
     println!("systemd-analyze security with the SCPI drop-in: exposure {score}");
     assert!(score <= MAX_EXPOSURE, "exposure {score} > {MAX_EXPOSURE}");
     fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The overall exposure level `systemd-analyze security` printed for sdid.
+fn exposure_score(text: &str) -> f64 {
+    text.lines()
+        .find_map(|l| l.split("Overall exposure level for sdid.service:").nth(1))
+        .and_then(|rest| rest.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .expect("no overall exposure level in the output")
 }
 
 fn ini_value(text: &str, key: &str) -> Option<String> {

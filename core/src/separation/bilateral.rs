@@ -76,7 +76,9 @@ fn range_weight(d: f64, inv_two_s2: f64) -> f64 {
     }
 }
 
-fn check_frame(frame: &Frame) -> Result<(), SeparationError> {
+/// Valid parameters and a non-empty frame: what every M3 variant checks first.
+pub(crate) fn check_input(frame: &Frame, params: &BilateralParams) -> Result<(), SeparationError> {
+    params.validate()?;
     if frame.dn.is_empty() || !frame.dn.same_size(&frame.saturated) {
         return Err(SeparationError::Empty);
     }
@@ -107,8 +109,7 @@ fn flag_input(frame: &Frame, out: &mut Moments, i: usize) {
 /// M3 exactly as in the paper, f64, with the window clipped at the borders.
 /// Samples behind each pixel: effective number (sum w)^2 / sum w^2.
 pub fn bilateral_exact(frame: &Frame, params: BilateralParams) -> Result<Moments, SeparationError> {
-    params.validate()?;
-    check_frame(frame)?;
+    check_input(frame, &params)?;
     let (w, h) = (frame.width(), frame.height());
     let r = params.radius_on(w, h);
     let wd = params.domain_weights(r);

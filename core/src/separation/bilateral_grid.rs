@@ -32,6 +32,7 @@
 //! Gaussian's (sum w)^2 / sum w^2 scaled by the fraction of the window the
 //! range weights keep, and never more than the frame's usable pixels.
 
+use super::bilateral::check_input;
 use super::{input_flags, usable, BilateralParams, LocalMoments, Moments, SeparationError};
 use crate::frame::Frame;
 
@@ -100,10 +101,7 @@ impl BilateralGrid {
         frame: &Frame,
         params: BilateralParams,
     ) -> Result<&LocalMoments, SeparationError> {
-        params.validate()?;
-        if frame.dn.is_empty() || !frame.dn.same_size(&frame.saturated) {
-            return Err(SeparationError::Empty);
-        }
+        check_input(frame, &params)?;
         let (w, h) = (frame.width(), frame.height());
         self.out.ensure_size(w, h);
         self.out.flags.data.fill(0);

@@ -15,6 +15,7 @@
 
 use multiversion::multiversion;
 
+use super::bilateral::check_input;
 use super::fast_exp::{exp2_neg, madd};
 use super::{flags, BilateralParams, LocalMoments, SeparationError};
 use crate::frame::Frame;
@@ -70,10 +71,7 @@ impl SeparableBilateral {
         params: BilateralParams,
         run: fn(&mut Kernel),
     ) -> Result<&LocalMoments, SeparationError> {
-        params.validate()?;
-        if frame.dn.is_empty() || !frame.dn.same_size(&frame.saturated) {
-            return Err(SeparationError::Empty);
-        }
+        check_input(frame, &params)?;
         let (w, h) = (frame.width(), frame.height());
         let r = params.radius_on(w, h);
         let stride = w + 2 * r;

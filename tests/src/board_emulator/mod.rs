@@ -380,27 +380,50 @@ impl Drop for BoardEmulator {
 const EVENT_BYTES: usize = 12;
 const EV_SETUP: u8 = 4;
 
-fn control_loop(mut ep0: File, state: &Mutex<BoardState>, stop: &AtomicBool, serial: &str) {
+/// One control request from a FunctionFS SETUP event.
+struct Setup {
+    rt: u8,
+    req: u8,
+    value: u16,
+    index: u16,
+    length: usize,
+}
+
+/// The SETUP events of one read of ep0 (empty after an interrupted or
+/// failed read, e.g. EL2HLT/ESHUTDOWN while unbound: then after a pause).
+fn next_setups(ep0: &mut File) -> Vec<Setup> {
     let mut buf = [0u8; EVENT_BYTES * 4];
+    let n = match ep0.read(&mut buf) {
+        Ok(n) => n,
+        Err(e) if e.kind() == std::io::ErrorKind::Interrupted => 0,
+        Err(_) => {
+            std::thread::sleep(Duration::from_millis(20));
+            0
+        }
+    };
+    buf[..n]
+        .chunks_exact(EVENT_BYTES)
+        .filter(|ev| ev[8] == EV_SETUP)
+        .map(|ev| Setup {
+            rt: ev[0],
+            req: ev[1],
+            value: u16::from_le_bytes([ev[2], ev[3]]),
+            index: u16::from_le_bytes([ev[4], ev[5]]),
+            length: u16::from_le_bytes([ev[6], ev[7]]) as usize,
+        })
+        .collect()
+}
+
+fn control_loop(mut ep0: File, state: &Mutex<BoardState>, stop: &AtomicBool, serial: &str) {
     while !stop.load(Ordering::SeqCst) {
-        let n = match ep0.read(&mut buf) {
-            Ok(n) => n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(_) => {
-                // EL2HLT/ESHUTDOWN while unbound: wait and try again.
-                std::thread::sleep(Duration::from_millis(20));
-                continue;
-            }
-        };
-        for ev in buf[..n].chunks_exact(EVENT_BYTES) {
-            if ev[8] != EV_SETUP {
-                continue;
-            }
-            let rt = ev[0];
-            let req = ev[1];
-            let value = u16::from_le_bytes([ev[2], ev[3]]);
-            let index = u16::from_le_bytes([ev[4], ev[5]]);
-            let length = u16::from_le_bytes([ev[6], ev[7]]) as usize;
+        for Setup {
+            rt,
+            req,
+            value,
+            index,
+            length,
+        } in next_setups(&mut ep0)
+        {
             let address = ((value & 0xFF) << 8) | (index & 0xFF);
             let _ = handle_setup(
                 &mut ep0, state, serial, rt, req, address, length, value, index,
@@ -417,24 +440,15 @@ const UVC_SET_CUR: u8 = 0x01;
 /// extension unit id (wIndex high byte on the wire) is not visible here; the
 /// control selector (wValue high byte) is.
 fn uvc_control_loop(mut ep0: File, inner: &Arc<Inner>) {
-    let mut buf = [0u8; EVENT_BYTES * 4];
     while !inner.stop.load(Ordering::SeqCst) {
-        let n = match ep0.read(&mut buf) {
-            Ok(n) => n,
-            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
-            Err(_) => {
-                std::thread::sleep(Duration::from_millis(20));
-                continue;
-            }
-        };
-        for ev in buf[..n].chunks_exact(EVENT_BYTES) {
-            if ev[8] != EV_SETUP {
-                continue;
-            }
-            let (rt, req) = (ev[0], ev[1]);
-            let value = u16::from_le_bytes([ev[2], ev[3]]);
-            let index = u16::from_le_bytes([ev[4], ev[5]]);
-            let length = u16::from_le_bytes([ev[6], ev[7]]) as usize;
+        for Setup {
+            rt,
+            req,
+            value,
+            index,
+            length,
+        } in next_setups(&mut ep0)
+        {
             if rt == 0x21 && req == UVC_SET_CUR {
                 let mut data = vec![0u8; length];
                 let _ = ep0.read(&mut data);
