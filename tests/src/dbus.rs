@@ -99,28 +99,7 @@ impl Daemon {
     /// Like [`Daemon::start`], with sdid run by `wrapper` (a program and its
     /// arguments, which must exec sdid in the same process, e.g. `unshare`).
     pub fn start_wrapped(bus: &Bus, wrapper: &[&str], extra: &[&str]) -> Self {
-        let mut cmd = match wrapper.split_first() {
-            Some((program, args)) => {
-                let mut c = Command::new(program);
-                c.args(args).arg(bin("sdid"));
-                c
-            }
-            None => Command::new(bin("sdid")),
-        };
-        let child = cmd
-            .args([
-                "--bus-address",
-                &bus.address,
-                "--sink",
-                "y4m",
-                "--y4m-path",
-                "-",
-            ])
-            .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
-            .args(extra)
-            .env("RUST_LOG", "warn")
-            // Not a systemd service, even when the tests run inside one.
-            .env_remove("INVOCATION_ID")
+        let child = Self::command(bus, wrapper, extra)
             .stdout(Stdio::null())
             .stderr(Stdio::inherit())
             .spawn()
@@ -131,6 +110,33 @@ impl Daemon {
         };
         d.wait_ready();
         d
+    }
+
+    /// The command [`Daemon::start_wrapped`] runs, for a test that needs to
+    /// spawn it itself (e.g. with stderr piped).
+    pub fn command(bus: &Bus, wrapper: &[&str], extra: &[&str]) -> Command {
+        let mut cmd = match wrapper.split_first() {
+            Some((program, args)) => {
+                let mut c = Command::new(program);
+                c.args(args).arg(bin("sdid"));
+                c
+            }
+            None => Command::new(bin("sdid")),
+        };
+        cmd.args([
+            "--bus-address",
+            &bus.address,
+            "--sink",
+            "y4m",
+            "--y4m-path",
+            "-",
+        ])
+        .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
+        .args(extra)
+        .env("RUST_LOG", "warn")
+        // Not a systemd service, even when the tests run inside one.
+        .env_remove("INVOCATION_ID");
+        cmd
     }
 
     fn wait_ready(&self) {

@@ -3,14 +3,14 @@
 //! compared with the simulator's ground truth.
 
 use std::io::{BufRead, BufReader};
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::Duration;
 
 use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
-use sdi_tests::dbus::{bin, stats, Bus, Daemon};
+use sdi_tests::dbus::{stats, Bus, Daemon};
 use sdi_tests::process::stdout_of;
 use sdi_tests::require_dbus;
 
@@ -141,18 +141,8 @@ fn calibrate_fits_the_sensor_gain() {
         "{text}"
     );
     assert!(d.signal(libc::SIGTERM).success());
-    let mut again = Command::new(bin("sdid"))
-        .args([
-            "--bus-address",
-            &bus.address,
-            "--sink",
-            "y4m",
-            "--y4m-path",
-            "-",
-        ])
-        .args(["--exposure-us", "2000", "--state-dir", state_dir])
+    let mut again = Daemon::command(&bus, &[], &["--state-dir", state_dir])
         .env("RUST_LOG", "info")
-        .env_remove("INVOCATION_ID")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()

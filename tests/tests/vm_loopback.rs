@@ -126,6 +126,24 @@ fn check_round_trip(
     eprintln!("ok: {format} via {io:?}: {reads} reader(s), {frames} frames written");
 }
 
+/// ffmpeg reading `node` until killed, frames discarded.
+fn ffmpeg_reader(node: &str) -> Vec<&str> {
+    vec![
+        "ffmpeg",
+        "-hide_banner",
+        "-loglevel",
+        "error",
+        "-nostdin",
+        "-f",
+        "v4l2",
+        "-i",
+        node,
+        "-f",
+        "null",
+        "-",
+    ]
+}
+
 /// A capture reader that streams until killed.
 fn spawn_reader(args: &[&str]) -> Child {
     Command::new(args[0])
@@ -153,22 +171,9 @@ fn check_watchers(bg: &BackgroundWriter, version: ModuleVersion, node: &str) {
         return;
     }
     assert_eq!(wait(Some(0)), Some(0), "nobody watches yet");
-    let readers: [&[&str]; 2] = [
-        &[
-            "ffmpeg",
-            "-hide_banner",
-            "-loglevel",
-            "error",
-            "-nostdin",
-            "-f",
-            "v4l2",
-            "-i",
-            node,
-            "-f",
-            "null",
-            "-",
-        ],
-        &[
+    let readers: [Vec<&str>; 2] = [
+        ffmpeg_reader(node),
+        vec![
             "v4l2-ctl",
             "-d",
             node,
@@ -176,7 +181,7 @@ fn check_watchers(bg: &BackgroundWriter, version: ModuleVersion, node: &str) {
             "--stream-count=100000",
         ],
     ];
-    for argv in readers {
+    for argv in &readers {
         let reader = spawn_reader(argv);
         let seen = wait(Some(1));
         stop(reader);
@@ -416,20 +421,7 @@ fn check_daemon_output(version: ModuleVersion) {
         return;
     }
     assert_eq!(wait(Some(0)), Some(0), "daemon output: nobody watches");
-    let reader = spawn_reader(&[
-        "ffmpeg",
-        "-hide_banner",
-        "-loglevel",
-        "error",
-        "-nostdin",
-        "-f",
-        "v4l2",
-        "-i",
-        "/dev/video24",
-        "-f",
-        "null",
-        "-",
-    ]);
+    let reader = spawn_reader(&ffmpeg_reader("/dev/video24"));
     let seen = wait(Some(1));
     stop(reader);
     assert_eq!(seen, Some(1), "daemon output: ffmpeg watching");
