@@ -198,15 +198,24 @@ fn snapshot_matches(emu: &BoardEmulator, npy: &Path) -> bool {
         .any(|(_, dn)| dn.len() == data.len() && dn[1..] == data[1..])
 }
 
+/// On the host: builds sdid and sdictl, runs test `name` inside the VM
+/// (at most `timeout_s`) and returns true; inside the VM returns false.
+fn rerun_in_vm(name: &str, timeout_s: u32) -> bool {
+    if vm::in_vm() {
+        return false;
+    }
+    std::env::set_var("SDID", bin("sdid"));
+    std::env::set_var("SDICTL", bin("sdictl"));
+    vm::run_test_in_vm(name, timeout_s);
+    true
+}
+
 #[test]
 fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
-    if !vm::in_vm() {
-        std::env::set_var("SDID", bin("sdid"));
-        std::env::set_var("SDICTL", bin("sdictl"));
-        vm::run_test_in_vm(
-            "sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug",
-            900,
-        );
+    if rerun_in_vm(
+        "sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug",
+        900,
+    ) {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -398,13 +407,10 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
 /// 0451:9105, and sdid configures it and streams its frames.
 #[test]
 fn sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams() {
-    if !vm::in_vm() {
-        std::env::set_var("SDID", bin("sdid"));
-        std::env::set_var("SDICTL", bin("sdictl"));
-        vm::run_test_in_vm(
-            "sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
-            600,
-        );
+    if rerun_in_vm(
+        "sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
+        600,
+    ) {
         return;
     }
     const UVC_SERIAL: &str = "EMU0003";
