@@ -12,7 +12,8 @@ pub struct Frame {
     pub saturated: Image<u8>,
     /// Start of the exposure, microseconds on the sensor's clock.
     pub timestamp_us: u64,
-    /// Frame counter as issued by the sensor.
+    /// Frame counter: as issued by the sensor, renumbered by sdid (one per
+    /// capture since start, never reset; see `FrameMark` in the daemon).
     pub sequence: u64,
 }
 

@@ -14,7 +14,7 @@ use tokio::sync::{oneshot, watch};
 
 use crate::backend::{Backend, BackendError, CaptureSettings};
 use crate::modes::{self, DisplayMap, ModeOutput, Pipeline, PipelineConfig};
-use crate::monotonic::MonotonicClock;
+use crate::monotonic::{monotonic_now_us, MonotonicClock};
 use crate::photon_transfer::{PtcJob, Step};
 use crate::recording::{Calibration, RecordingWriter, Summary};
 use crate::sink::output::Output;
@@ -42,15 +42,41 @@ pub struct SnapshotData {
 
 pub type Reply<T> = oneshot::Sender<T>;
 
+/// The first frame produced under a new setting: every published output with
+/// `sequence >= self.sequence` (and timestamp `>= self.timestamp_us`) was
+/// captured under it, every one before under the old setting.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FrameMark {
+    /// sdid's frame sequence number (one per capture, never reset).
+    pub sequence: u64,
+    /// Capture timestamp, microseconds: the V4L2 buffer timestamp readers see.
+    /// 0 when the source delivers no frames (the mark is then the next one).
+    pub timestamp_us: u64,
+}
+
+/// A reply waiting for the first output under a new setting.
+struct PendingMark {
+    reply: Reply<FrameMark>,
+    /// Set at the first capture after the setting was applied.
+    captured: Option<FrameMark>,
+}
+
 /// Requests to the frame loop.
+///
+/// Every command that changes the picture (`SetMode`, `Configure`,
+/// `SetDisplay`) applies between two captures and answers with the
+/// [`FrameMark`] of the first frame under the new setting, once that frame's
+/// output has been handed to the sinks (or at once, while the source is stalled).
 pub enum Command {
-    SetMode(ModeId, Reply<()>),
-    /// Applies settings; replies with what the backend kept (a board may clamp).
+    SetMode(ModeId, Reply<FrameMark>),
+    /// Applies settings; replies with what the backend kept (a board may
+    /// clamp), then with the first frame captured with them.
     Configure(
         CaptureSettings,
         Reply<Result<CaptureSettings, BackendError>>,
+        Reply<FrameMark>,
     ),
-    SetDisplay(DisplayMap),
+    SetDisplay(DisplayMap, Reply<FrameMark>),
     CaptureDark(u32, Reply<Result<DarkStats, BackendError>>),
     /// Photon-transfer calibration with this many frames per level; on
     /// success the separation mode's H uses the fitted gain and read variance.
@@ -83,7 +109,6 @@ pub struct FrameLoop {
     stats: StatsWindow,
     stats_tx: watch::Sender<Stats>,
     calibration_tx: watch::Sender<Calibration>,
-    frame_index: u64,
     /// Estimator and H of the separation mode.
     separation: SeparationConfig,
     ptc: Option<(PtcJob, Reply<Result<PhotonTransferFit, String>>)>,
@@ -94,6 +119,10 @@ pub struct FrameLoop {
     pending_snapshots: Vec<Reply<Option<SnapshotData>>>,
     /// Consecutive captures with the mode's illumination (not dark).
     lit_captures: u32,
+    /// Sequence number of the last capture (the first is 1).
+    sequence: u64,
+    /// Setting changes waiting for their first published frame.
+    pending_marks: Vec<PendingMark>,
 }
 
 /// Whether the light sources must be on: someone watches the output (or
@@ -137,12 +166,13 @@ impl FrameLoop {
             stats: StatsWindow::new(),
             stats_tx,
             calibration_tx,
-            frame_index: 0,
             separation,
             ptc: None,
             clock: MonotonicClock::default(),
             pending_snapshots: Vec::new(),
             lit_captures: 0,
+            sequence: 0,
+            pending_marks: Vec::new(),
         }
     }
 
@@ -191,7 +221,8 @@ impl FrameLoop {
             let illumination = if self.ptc.is_some() && self.dark_job.is_none() {
                 PtcJob::illumination(carrier_hz)
             } else if lit {
-                modes::illumination(self.mode, self.frame_index, carrier_hz)
+                // Numbered as the frame will be: the two-shot pipeline pairs by it.
+                modes::illumination(self.mode, self.sequence + 1, carrier_hz)
             } else {
                 sdi_core::modulation::Illumination::dark(carrier_hz)
             };
@@ -211,6 +242,7 @@ impl FrameLoop {
                     }
                     self.lit_captures = 0;
                     self.answer_pending_snapshots();
+                    self.answer_marks_while_stalled();
                     self.output.send_no_signal();
                     std::thread::sleep(Duration::from_millis(200));
                     continue;
@@ -218,8 +250,12 @@ impl FrameLoop {
             }
             let t0 = Instant::now();
             let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
-            frame.timestamp_us = self.clock.map(frame.timestamp_us, period_us);
-            self.frame_index += 1;
+            frame.timestamp_us = self
+                .clock
+                .map(frame.timestamp_us, period_us, monotonic_now_us());
+            self.sequence = self.next_sequence(frame.sequence);
+            frame.sequence = self.sequence;
+            self.mark_capture(&frame);
             self.lit_captures = if lit { self.lit_captures + 1 } else { 0 };
             if let Some(dark) = self.backend.take_dark_frame() {
                 self.set_dark(dark.0, dark.1);
@@ -229,12 +265,16 @@ impl FrameLoop {
             }
             if self.dark_job.is_some() {
                 self.accumulate_dark(&frame);
+                self.answer_marks(u64::MAX);
             } else if self.ptc.is_some() {
                 self.photon_transfer_step(&frame);
+                self.answer_marks(u64::MAX);
             } else if let Some(out) = self.pipeline.process(&frame) {
                 let out = Arc::new(out.clone());
                 self.output.send(out.clone(), self.display);
+                let published = out.sequence;
                 self.last = Some(out);
+                self.answer_marks(published);
                 if self.lit_captures >= 2 {
                     self.answer_pending_snapshots();
                 }
@@ -261,6 +301,65 @@ impl FrameLoop {
         })
     }
 
+    /// sdid's number for the frame just captured: one more than the last,
+    /// except that a replayed frame keeps its recorded parity (two-shot A/B).
+    fn next_sequence(&self, backend_sequence: u64) -> u64 {
+        let next = self.sequence + 1;
+        if self.backend.replays() {
+            next + ((next ^ backend_sequence) & 1)
+        } else {
+            next
+        }
+    }
+
+    /// Notes the first capture under each pending setting change.
+    fn mark_capture(&mut self, frame: &Frame) {
+        for p in self
+            .pending_marks
+            .iter_mut()
+            .filter(|p| p.captured.is_none())
+        {
+            p.captured = Some(FrameMark {
+                sequence: frame.sequence,
+                timestamp_us: frame.timestamp_us,
+            });
+        }
+    }
+
+    /// Answers the setting changes whose first frame is in an output up to
+    /// sequence `published` (`u64::MAX`: captured, and no output follows,
+    /// as during a dark-frame or calibration job).
+    fn answer_marks(&mut self, published: u64) {
+        let (done, waiting): (Vec<_>, Vec<_>) = std::mem::take(&mut self.pending_marks)
+            .into_iter()
+            .partition(|p| p.captured.is_some_and(|m| m.sequence <= published));
+        self.pending_marks = waiting;
+        for p in done {
+            if let Some(mark) = p.captured {
+                let _ = p.reply.send(mark);
+            }
+        }
+    }
+
+    /// While the source delivers nothing, setting changes return at once with
+    /// the sequence number the next frame will carry.
+    fn answer_marks_while_stalled(&mut self) {
+        let next = FrameMark {
+            sequence: self.sequence + 1,
+            timestamp_us: 0,
+        };
+        for p in std::mem::take(&mut self.pending_marks) {
+            let _ = p.reply.send(p.captured.unwrap_or(next));
+        }
+    }
+
+    fn await_first_frame(&mut self, reply: Reply<FrameMark>) {
+        self.pending_marks.push(PendingMark {
+            reply,
+            captured: None,
+        });
+    }
+
     /// Answers every snapshot waiting for lit frames with the latest output.
     fn answer_pending_snapshots(&mut self) {
         for reply in std::mem::take(&mut self.pending_snapshots) {
@@ -284,18 +383,21 @@ impl FrameLoop {
                     self.mode = mode;
                     self.rebuild_pipeline();
                     self.backend.set_mode(mode);
-                    self.frame_index = 0;
                 }
-                let _ = reply.send(());
+                self.await_first_frame(reply);
             }
-            Command::Configure(settings, reply) => {
+            Command::Configure(settings, reply, first) => {
                 let applied = self
                     .backend
                     .configure(&settings)
                     .map(|()| self.backend.settings());
                 let _ = reply.send(applied);
+                self.await_first_frame(first);
             }
-            Command::SetDisplay(d) => self.display = d,
+            Command::SetDisplay(d, reply) => {
+                self.display = d;
+                self.await_first_frame(reply);
+            }
             Command::CaptureDark(n, reply) => {
                 let px = self.backend.sensor().width * self.backend.sensor().height;
                 self.dark_job = Some(DarkJob {

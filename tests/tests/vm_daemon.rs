@@ -4,9 +4,12 @@
 //! keeps growing across the switches), logs no error and exits cleanly on
 //! `q`; the picture changes with the mode (each mode's mean thumbnail differs
 //! from the previous mode's by more than the frame-to-frame noise within a
-//! mode); snapshots through sdictl work inside the VM.
+//! mode); the setting-change contract holds frame by frame: `set-mode`
+//! returns the capture timestamp of the mode's first frame, and every frame
+//! the reader gets with an earlier buffer timestamp shows the old mode, every
+//! later one the new (docs/dbus.md); snapshots through sdictl work inside the VM.
 
-use std::io::{Read, Write};
+use std::io::{BufRead, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::{Arc, Mutex};
@@ -49,12 +52,30 @@ impl Drop for Killed {
 
 /// Thumbnails read so far, shared with the reader thread.
 type Thumbs = Arc<Mutex<Vec<Vec<u8>>>>;
+/// Buffer timestamps (us) of the frames read, in order: the k-th belongs to
+/// the k-th thumbnail. And every other line ffmpeg logged.
+type Stamps = Arc<Mutex<(Vec<u64>, String)>>;
 
-fn start_ffmpeg(dev: &Path) -> (Child, Thumbs, std::thread::JoinHandle<()>) {
+/// ffmpeg reading `dev` with the driver's buffer timestamps kept (`-copyts`;
+/// v4l2loopback passes sdid's capture timestamps through) and shown per
+/// frame by `showinfo`, each frame scaled to a thumbnail on stdout.
+fn start_ffmpeg(dev: &Path) -> (Child, Thumbs, Stamps, [std::thread::JoinHandle<()>; 2]) {
     let mut child = Command::new("ffmpeg")
-        .args(["-hide_banner", "-loglevel", "warning", "-f", "v4l2", "-i"])
+        .args([
+            "-hide_banner",
+            "-loglevel",
+            "info",
+            "-nostats",
+            "-copyts",
+            "-f",
+            "v4l2",
+            "-i",
+        ])
         .arg(dev)
-        .args(["-vf", &format!("scale={THUMB_W}:{THUMB_H}:flags=area")])
+        .args([
+            "-vf",
+            &format!("showinfo,scale={THUMB_W}:{THUMB_H}:flags=area"),
+        ])
         // One output frame per frame read: no duplicates to fill timestamp gaps.
         .args(["-fps_mode", "passthrough"])
         .args(["-pix_fmt", "rgb24", "-f", "rawvideo", "pipe:1"])
@@ -64,7 +85,9 @@ fn start_ffmpeg(dev: &Path) -> (Child, Thumbs, std::thread::JoinHandle<()>) {
         .spawn()
         .expect("spawn ffmpeg");
     let mut stdout = child.stdout.take().expect("ffmpeg stdout");
+    let stderr = child.stderr.take().expect("ffmpeg stderr");
     let thumbs: Thumbs = Arc::default();
+    let stamps: Stamps = Arc::default();
     let sink = thumbs.clone();
     let reader = std::thread::spawn(move || {
         let mut buf = vec![0u8; THUMB_BYTES];
@@ -72,7 +95,32 @@ fn start_ffmpeg(dev: &Path) -> (Child, Thumbs, std::thread::JoinHandle<()>) {
             sink.lock().expect("thumbs").push(buf.clone());
         }
     });
-    (child, thumbs, reader)
+    let log = stamps.clone();
+    let logger = std::thread::spawn(move || {
+        for line in std::io::BufReader::new(stderr)
+            .lines()
+            .map_while(Result::ok)
+        {
+            let mut l = log.lock().expect("stamps");
+            match showinfo_pts(&line) {
+                Some(pts) => l.0.push(pts),
+                None => {
+                    l.1.push_str(&line);
+                    l.1.push('\n');
+                }
+            }
+        }
+    });
+    (child, thumbs, stamps, [reader, logger])
+}
+
+/// The pts of a showinfo frame line (`[Parsed_showinfo_0 @ ..] n: 3 pts: 1234 ...`).
+fn showinfo_pts(line: &str) -> Option<u64> {
+    if !line.contains("Parsed_showinfo") {
+        return None;
+    }
+    let rest = line.split(" pts:").nth(1)?;
+    rest.split_whitespace().next()?.parse().ok()
 }
 
 /// Waits until `count()` reaches `target`; panics (ffmpeg stalled) after `limit`.
@@ -100,6 +148,11 @@ fn mean(frames: &[Vec<u8>]) -> Vec<f64> {
     m
 }
 
+/// One thumbnail as numbers.
+fn one(frame: &[u8]) -> Vec<f64> {
+    frame.iter().map(|&b| f64::from(b)).collect()
+}
+
 /// Mean absolute difference per byte.
 fn distance(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| (x - y).abs()).sum::<f64>() / a.len() as f64
@@ -107,7 +160,7 @@ fn distance(a: &[f64], b: &[f64]) -> f64 {
 
 struct ModeRun {
     mode: String,
-    frames: usize,
+    frames: Vec<Vec<u8>>,
     /// Distance between the means of the two halves of this mode's frames.
     within: f64,
     mean: Vec<f64>,
@@ -169,7 +222,7 @@ fn in_vm_checks() {
         assert!(modes.iter().any(|x| x == m), "{m} not in {modes:?}");
     }
 
-    let (mut ffmpeg, thumbs, reader) = start_ffmpeg(&dev);
+    let (mut ffmpeg, thumbs, stamps, readers) = start_ffmpeg(&dev);
     let count = || thumbs.lock().expect("thumbs").len();
     let t0 = Instant::now();
     while count() < 5 {
@@ -179,32 +232,90 @@ fn in_vm_checks() {
         );
         std::thread::sleep(Duration::from_millis(100));
     }
-    let mut runs: Vec<ModeRun> = Vec::new();
+    // (mode, announced first timestamp)
+    let mut switches: Vec<(String, u64)> = Vec::new();
     for mode in &modes {
         let before = count();
         let t_switch = Instant::now();
-        stdout_of(&ctl(&bus.address, &["set-mode", mode]));
-        // The reader must keep getting frames. The first few after the switch
-        // may still be the old mode's (output queue, driver buffers, ffmpeg);
-        // the simulator also builds the new mode's scene, slow under TCG.
-        wait_for(&count, before + 8, Duration::from_secs(90), mode);
-        let resumed_s = t_switch.elapsed().as_secs_f64();
-        let start = count();
-        wait_for(&count, start + 12, Duration::from_secs(60), mode);
-        let end = count();
-        let frames: Vec<Vec<u8>> = thumbs.lock().expect("thumbs")[start..end].to_vec();
-        let half = frames.len() / 2;
-        let run = ModeRun {
-            mode: mode.clone(),
-            frames: frames.len(),
-            within: distance(&mean(&frames[..half]), &mean(&frames[half..])),
-            mean: mean(&frames),
-        };
+        let answer: serde_json::Value = serde_json::from_str(&stdout_of(&ctl(
+            &bus.address,
+            &["--json", "set-mode", mode],
+        )))
+        .expect("set-mode json");
+        let first_us = answer["first_timestamp_us"]
+            .as_u64()
+            .unwrap_or_else(|| panic!("no first_timestamp_us in {answer}"));
+        let returned_s = t_switch.elapsed().as_secs_f64();
+        if let Some((prev, t)) = switches.last() {
+            assert!(
+                first_us > *t,
+                "{mode} announced {first_us} us, not after {prev}'s {t} us"
+            );
+        }
+        switches.push((mode.clone(), first_us));
+        // The reader must keep getting frames; which of them are the new
+        // mode's is told by the announced timestamp, not by waiting.
+        wait_for(&count, before + 20, Duration::from_secs(120), mode);
         eprintln!(
-            "mode {:<20} 8 frames {resumed_s:.1} s after set-mode, then {} compared (total {end}), within-mode distance {:.2}",
-            run.mode, run.frames, run.within
+            "mode {mode:<20} set-mode returned after {returned_s:.1} s: first frame at {first_us} us; 20 frames read {:.1} s after set-mode",
+            t_switch.elapsed().as_secs_f64()
         );
-        runs.push(run);
+    }
+    // Pair every thumbnail with its buffer timestamp.
+    let frames: Vec<(u64, Vec<u8>)> = {
+        let t = thumbs.lock().expect("thumbs");
+        let s = stamps.lock().expect("stamps");
+        s.0.iter().copied().zip(t.iter().cloned()).collect()
+    };
+    // Equal timestamps are one frame repeated (the driver's
+    // sustain_framerate, e.g. in two-shot at half the sensor rate); a
+    // timestamp never goes back, not even from the "no signal" card sdid
+    // shows before its first frame (both are on CLOCK_MONOTONIC).
+    let backwards: Vec<(usize, u64, u64)> = frames
+        .windows(2)
+        .enumerate()
+        .filter(|(_, w)| w[1].0 < w[0].0)
+        .map(|(i, w)| (i, w[0].0, w[1].0))
+        .collect();
+    assert!(
+        backwards.is_empty(),
+        "buffer timestamps went back (index, t, next t): {backwards:?}; {} frames",
+        frames.len()
+    );
+    let repeats = frames.windows(2).filter(|w| w[1].0 == w[0].0).count();
+    eprintln!(
+        "{} frames read, {repeats} of them repeats of the previous one",
+        frames.len()
+    );
+    let segment = |k: usize| -> Vec<Vec<u8>> {
+        let lo = switches[k].1;
+        let hi = switches.get(k + 1).map_or(u64::MAX, |s| s.1);
+        frames
+            .iter()
+            .filter(|f| f.0 >= lo && f.0 < hi)
+            .map(|f| f.1.clone())
+            .collect()
+    };
+    let mut runs: Vec<ModeRun> = Vec::new();
+    for (k, (mode, _)) in switches.iter().enumerate() {
+        let frames = segment(k);
+        assert!(frames.len() >= 8, "only {} frames of {mode}", frames.len());
+        let half = frames.len() / 2;
+        runs.push(ModeRun {
+            mode: mode.clone(),
+            frames,
+            within: 0.0,
+            mean: Vec::new(),
+        });
+        let run = runs.last_mut().expect("pushed");
+        run.within = distance(&mean(&run.frames[..half]), &mean(&run.frames[half..]));
+        run.mean = mean(&run.frames);
+        eprintln!(
+            "mode {:<20} {} frames from its announced timestamp to the next, within-mode distance {:.2}",
+            run.mode,
+            run.frames.len(),
+            run.within
+        );
     }
     for pair in runs.windows(2) {
         let (a, b) = (&pair[0], &pair[1]);
@@ -220,11 +331,32 @@ fn in_vm_checks() {
             a.mode,
             b.mode
         );
+        // The contract, frame by frame: every frame before the announced
+        // timestamp is nearer the old mode's mean, every one from it on
+        // nearer the new mode's.
+        for (i, f) in a.frames.iter().enumerate() {
+            let f = one(f);
+            let (d_a, d_b) = (distance(&f, &a.mean), distance(&f, &b.mean));
+            assert!(
+                d_a < d_b,
+                "frame {i} of {} (before {}'s announced first frame) looks like {}: {d_a:.2} vs {d_b:.2}",
+                a.mode, b.mode, b.mode
+            );
+        }
+        for (i, f) in b.frames.iter().enumerate() {
+            let f = one(f);
+            let (d_a, d_b) = (distance(&f, &a.mean), distance(&f, &b.mean));
+            assert!(
+                d_b < d_a,
+                "frame {i} of {} (from its announced first frame on) looks like {}: {d_b:.2} vs {d_a:.2}",
+                b.mode, a.mode
+            );
+        }
     }
 
     // Snapshots through sdictl, in the separation mode (two channels).
+    // set-mode returns once the mode's first frame is out: no wait needed.
     stdout_of(&ctl(&bus.address, &["set-mode", "separation"]));
-    std::thread::sleep(Duration::from_millis(1000));
     let png = tmp.join("snap.png");
     let npy = tmp.join("snap.npy");
     let _ = std::fs::remove_file(&png);
@@ -260,11 +392,10 @@ fn in_vm_checks() {
         );
         std::thread::sleep(Duration::from_millis(100));
     };
-    let _ = reader.join();
-    let mut log = String::new();
-    if let Some(mut e) = ffmpeg.stderr.take() {
-        let _ = e.read_to_string(&mut log);
+    for r in readers {
+        let _ = r.join();
     }
+    let log = stamps.lock().expect("stamps").1.clone();
     eprintln!(
         "ffmpeg: {status}, {total} frames over {} modes; log:\n{log}",
         modes.len()

@@ -356,9 +356,14 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
             }
         }
         OnlineCommand::SetMode { mode } => {
-            cam.set_mode(&mode).await?;
+            let (sequence, timestamp_us) = cam.set_mode(&mode).await?;
             if json {
-                println!("{}", json!({"mode": mode}));
+                println!(
+                    "{}",
+                    json!({"mode": mode, "first_sequence": sequence, "first_timestamp_us": timestamp_us})
+                );
+            } else {
+                println!("{mode} from frame {sequence} (timestamp {timestamp_us} us)");
             }
         }
         OnlineCommand::Get { property } => {
@@ -383,7 +388,7 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
         }
         OnlineCommand::Set { property, value } => {
             let name = property_name(&property);
-            match name.as_str() {
+            let (sequence, timestamp_us) = match name.as_str() {
                 "Mode" => cam.set_mode(&value).await?,
                 "ExposureUs" => cam.set_exposure_us(parse_f64(&name, &value)?).await?,
                 "FrameRate" | "FrameRateHz" => cam.set_frame_rate(parse_f64(&name, &value)?).await?,
@@ -395,9 +400,14 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                         "'{property}' cannot be set; settable: mode, exposure-us, frame-rate, modulation-hz, colormap, range"
                     )))
                 }
-            }
+            };
             if json {
-                println!("{}", json!({ name: value }));
+                println!(
+                    "{}",
+                    json!({ name: value, "first_sequence": sequence, "first_timestamp_us": timestamp_us })
+                );
+            } else {
+                println!("{name} = {value} from frame {sequence} (timestamp {timestamp_us} us)");
             }
         }
         OnlineCommand::DarkFrame { frames } => {

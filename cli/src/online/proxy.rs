@@ -11,12 +11,18 @@ use zbus::zvariant::{Fd, OwnedValue};
     default_path = "/org/sdi/Camera0"
 )]
 pub trait Camera1 {
-    fn set_mode(&self, mode: &str) -> zbus::Result<()>;
-    fn set_exposure_us(&self, exposure_us: f64) -> zbus::Result<()>;
-    fn set_frame_rate(&self, frame_rate_hz: f64) -> zbus::Result<()>;
-    fn set_modulation_hz(&self, modulation_hz: f64) -> zbus::Result<()>;
-    fn set_colormap(&self, colormap: &str) -> zbus::Result<()>;
-    fn set_range(&self, max_abs_dn: f64) -> zbus::Result<()>;
+    /// Returns (sequence, timestamp_us) of the first frame under the new setting.
+    fn set_mode(&self, mode: &str) -> zbus::Result<(u64, u64)>;
+    /// Returns (sequence, timestamp_us) of the first frame under the new setting.
+    fn set_exposure_us(&self, exposure_us: f64) -> zbus::Result<(u64, u64)>;
+    /// Returns (sequence, timestamp_us) of the first frame under the new setting.
+    fn set_frame_rate(&self, frame_rate_hz: f64) -> zbus::Result<(u64, u64)>;
+    /// Returns (sequence, timestamp_us) of the first frame under the new setting.
+    fn set_modulation_hz(&self, modulation_hz: f64) -> zbus::Result<(u64, u64)>;
+    /// Returns (sequence, timestamp_us) of the first frame under the new setting.
+    fn set_colormap(&self, colormap: &str) -> zbus::Result<(u64, u64)>;
+    /// Returns (sequence, timestamp_us) of the first frame under the new setting.
+    fn set_range(&self, max_abs_dn: f64) -> zbus::Result<(u64, u64)>;
     fn capture_dark_frame(&self, frames: u32) -> zbus::Result<HashMap<String, OwnedValue>>;
     fn calibrate(&self, frames: u32) -> zbus::Result<HashMap<String, OwnedValue>>;
     fn start_recording(&self, path: &str) -> zbus::Result<()>;

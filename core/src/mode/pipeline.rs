@@ -51,7 +51,7 @@ pub struct ModeOutput {
     pub saturated: Image<u8>,
     /// Start of the (first) exposure that produced this output, microseconds.
     pub timestamp_us: u64,
-    /// Sensor sequence number of the (last) frame that completed this output.
+    /// Sequence number of the (last) frame that completed this output.
     pub sequence: u64,
     /// I+ and I- of the separation mode; None in every other mode (and while
     /// a sliding window fills).

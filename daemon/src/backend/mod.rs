@@ -72,6 +72,11 @@ pub trait Backend: Send {
         illumination: &Illumination,
         frame: &mut Frame,
     ) -> Result<(), BackendError>;
+    /// True when frames come from a recording: their sequence numbers, not
+    /// the illumination asked for, tell which two-shot frame is A and which B.
+    fn replays(&self) -> bool {
+        false
+    }
     /// A dark frame that came with the source (a recording's), handed over once.
     fn take_dark_frame(&mut self) -> Option<(u32, Image<f32>)> {
         None

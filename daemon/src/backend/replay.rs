@@ -116,6 +116,10 @@ impl Backend for ReplayBackend {
         Ok(())
     }
 
+    fn replays(&self) -> bool {
+        true
+    }
+
     fn take_dark_frame(&mut self) -> Option<(u32, Image<f32>)> {
         self.dark.take()
     }

@@ -19,7 +19,7 @@ use super::errors::{check_range, SdiError};
 use super::paths::{validate_output_path, OutputKind};
 use crate::backend::{BackendError, CaptureSettings, Limits};
 use crate::calibration_store;
-use crate::frame_loop::{Command, DarkStats};
+use crate::frame_loop::{Command, DarkStats, FrameMark};
 use crate::modes::{Colormap, DisplayMap, DisplayRange};
 use crate::recording::{Calibration, Header as RecHeader, RecordingWriter};
 use crate::sink::SinkInfo;
@@ -171,11 +171,19 @@ impl Camera {
             .map_err(|_| SdiError::DeviceUnavailable("the frame loop has stopped".into()))
     }
 
+    /// Waits for the frame loop's answer to a setting change.
+    async fn first_frame(rx: oneshot::Receiver<FrameMark>) -> Result<(u64, u64), SdiError> {
+        let m = rx
+            .await
+            .map_err(|_| SdiError::DeviceUnavailable("the frame loop has stopped".into()))?;
+        Ok((m.sequence, m.timestamp_us))
+    }
+
     async fn configure(
         &self,
         emitter: &SignalEmitter<'_>,
         f: impl FnOnce(&mut CaptureSettings),
-    ) -> Result<(), SdiError> {
+    ) -> Result<(u64, u64), SdiError> {
         self.require_device()?;
         let _guard = self.change_lock.lock().await;
         let mut capture = self.state().capture;
@@ -188,7 +196,10 @@ impl Camera {
                 capture.exposure_us, capture.frame_rate_hz, l.exposure_us.0
             )));
         }
-        let result = self.ask(|tx| Command::Configure(capture, tx)).await?;
+        let (first_tx, first_rx) = oneshot::channel();
+        let result = self
+            .ask(|tx| Command::Configure(capture, tx, first_tx))
+            .await?;
         let applied = result.map_err(|e| match e {
             BackendError::OutOfRange(m) => SdiError::OutOfRange(m),
             BackendError::Unavailable(m) => SdiError::DeviceUnavailable(m),
@@ -198,22 +209,23 @@ impl Camera {
         let _ = self.exposure_us_changed(emitter).await;
         let _ = self.frame_rate_changed(emitter).await;
         let _ = self.modulation_hz_changed(emitter).await;
-        Ok(())
+        Self::first_frame(first_rx).await
     }
 
     async fn set_display(
         &self,
         emitter: &SignalEmitter<'_>,
         f: impl FnOnce(&mut DisplayMap),
-    ) -> Result<(), SdiError> {
+    ) -> Result<(u64, u64), SdiError> {
         let _guard = self.change_lock.lock().await;
         let mut d = self.state().display;
         f(&mut d);
-        self.send(Command::SetDisplay(d))?;
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::SetDisplay(d, tx))?;
         self.update(|s| s.display = d);
         let _ = self.colormap_changed(emitter).await;
         let _ = self.range_changed(emitter).await;
-        Ok(())
+        Self::first_frame(rx).await
     }
 
     async fn dark(&self, frames: u32, min: u32) -> Result<DarkStats, SdiError> {
@@ -297,15 +309,19 @@ impl Camera {
 
 #[interface(name = "org.sdi.Camera1")]
 impl Camera {
-    /// Switches the mode; takes effect from the next frame, the output stays open.
+    /// Switches the mode; the output stays open. Returns once the first
+    /// frame of the new mode has been published, with its sequence number and
+    /// capture timestamp (us): every frame from it on is of the new mode,
+    /// every frame before of the old (docs/dbus.md, "Setting changes").
+    #[zbus(out_args("sequence", "timestamp_us"))]
     async fn set_mode(
         &self,
         mode: &str,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
-    ) -> Result<(), SdiError> {
+    ) -> Result<(u64, u64), SdiError> {
         let m = ModeId::from_name(mode).map_err(|_| SdiError::invalid_mode(mode))?;
         let _guard = self.change_lock.lock().await;
-        self.ask(|tx| Command::SetMode(m, tx)).await?;
+        let first = self.ask(|tx| Command::SetMode(m, tx)).await?;
         let changed = self.state().mode != m;
         self.update(|s| s.mode = m);
         if changed {
@@ -313,48 +329,52 @@ impl Camera {
             let _ = self.mode_changed(&emitter).await;
             let _ = self.setup_changed(&emitter).await;
         }
-        Ok(())
+        Ok((first.sequence, first.timestamp_us))
     }
 
     /// Exposure per frame, microseconds; at most the frame period.
+    #[zbus(out_args("sequence", "timestamp_us"))]
     async fn set_exposure_us(
         &self,
         exposure_us: f64,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
-    ) -> Result<(), SdiError> {
+    ) -> Result<(u64, u64), SdiError> {
         let (lo, hi) = self.info.limits.exposure_us;
         let v = check_range("ExposureUs", exposure_us, lo, hi, "us")?;
         self.configure(&emitter, |c| c.exposure_us = v).await
     }
 
     /// Frame rate, Hz.
+    #[zbus(out_args("sequence", "timestamp_us"))]
     async fn set_frame_rate(
         &self,
         frame_rate_hz: f64,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
-    ) -> Result<(), SdiError> {
+    ) -> Result<(u64, u64), SdiError> {
         let (lo, hi) = self.info.limits.frame_rate_hz;
         let v = check_range("FrameRate", frame_rate_hz, lo, hi, "Hz")?;
         self.configure(&emitter, |c| c.frame_rate_hz = v).await
     }
 
     /// Modulation (carrier) frequency, Hz.
+    #[zbus(out_args("sequence", "timestamp_us"))]
     async fn set_modulation_hz(
         &self,
         modulation_hz: f64,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
-    ) -> Result<(), SdiError> {
+    ) -> Result<(u64, u64), SdiError> {
         let (lo, hi) = self.info.limits.modulation_hz;
         let v = check_range("ModulationHz", modulation_hz, lo, hi, "Hz")?;
         self.configure(&emitter, |c| c.modulation_hz = v).await
     }
 
     /// Colour map of the view stream and PNG snapshots: "diverging" or "grey".
+    #[zbus(out_args("sequence", "timestamp_us"))]
     async fn set_colormap(
         &self,
         colormap: &str,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
-    ) -> Result<(), SdiError> {
+    ) -> Result<(u64, u64), SdiError> {
         let c = match colormap {
             "diverging" => Colormap::Diverging,
             "grey" | "gray" => Colormap::Grey,
@@ -369,11 +389,12 @@ impl Camera {
     }
 
     /// Display range: |DN| mapped to full scale; 0 = symmetric auto range per frame.
+    #[zbus(out_args("sequence", "timestamp_us"))]
     async fn set_range(
         &self,
         max_abs_dn: f64,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
-    ) -> Result<(), SdiError> {
+    ) -> Result<(u64, u64), SdiError> {
         let v = check_range("Range", max_abs_dn, 0.0, MAX_RANGE_DN, "DN")?;
         self.set_display(&emitter, |d| {
             d.range = if v == 0.0 {

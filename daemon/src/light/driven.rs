@@ -127,6 +127,10 @@ impl Backend for LitBackend {
         self.inner.capture(illumination, frame)
     }
 
+    fn replays(&self) -> bool {
+        self.inner.replays()
+    }
+
     fn take_dark_frame(&mut self) -> Option<(u32, Image<f32>)> {
         self.inner.take_dark_frame()
     }
