@@ -78,14 +78,15 @@ async fn flood_of_calls_keeps_frame_rate() {
     for i in 0..1000usize {
         let p = proxy.clone();
         calls.push(tokio::spawn(async move {
-            let r: zbus::Result<()> = match i % 4 {
+            // A setting change answers (sequence, timestamp_us) of its first frame.
+            let r: zbus::Result<(u64, u64)> = match i % 4 {
                 0 => p.call("SetMode", &(modes[i / 4 % 4],)).await,
                 1 => p.call("SetExposureUs", &(f64::NAN,)).await,
                 2 => p.call("SetFrameRate", &(-1.0f64,)).await,
                 _ => p.call("SetColormap", &("grey",)).await,
             };
             match r {
-                Ok(()) => "ok".to_owned(),
+                Ok(_) => "ok".to_owned(),
                 Err(zbus::Error::MethodError(name, _, _)) => name.as_str().to_owned(),
                 Err(e) => format!("other: {e}"),
             }

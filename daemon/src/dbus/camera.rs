@@ -185,7 +185,7 @@ impl Camera {
         f: impl FnOnce(&mut CaptureSettings),
     ) -> Result<(u64, u64), SdiError> {
         self.require_device()?;
-        let _guard = self.change_lock.lock().await;
+        let guard = self.change_lock.lock().await;
         let mut capture = self.state().capture;
         f(&mut capture);
         let l = self.info.limits;
@@ -206,6 +206,8 @@ impl Camera {
             other => SdiError::Failed(other.to_string()),
         })?;
         self.update(|s| s.capture = applied);
+        // Other changes may go ahead while this one waits for its frame.
+        drop(guard);
         let _ = self.exposure_us_changed(emitter).await;
         let _ = self.frame_rate_changed(emitter).await;
         let _ = self.modulation_hz_changed(emitter).await;
@@ -217,12 +219,13 @@ impl Camera {
         emitter: &SignalEmitter<'_>,
         f: impl FnOnce(&mut DisplayMap),
     ) -> Result<(u64, u64), SdiError> {
-        let _guard = self.change_lock.lock().await;
+        let guard = self.change_lock.lock().await;
         let mut d = self.state().display;
         f(&mut d);
         let (tx, rx) = oneshot::channel();
         self.send(Command::SetDisplay(d, tx))?;
         self.update(|s| s.display = d);
+        drop(guard);
         let _ = self.colormap_changed(emitter).await;
         let _ = self.range_changed(emitter).await;
         Self::first_frame(rx).await
@@ -320,16 +323,19 @@ impl Camera {
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
     ) -> Result<(u64, u64), SdiError> {
         let m = ModeId::from_name(mode).map_err(|_| SdiError::invalid_mode(mode))?;
-        let _guard = self.change_lock.lock().await;
-        let first = self.ask(|tx| Command::SetMode(m, tx)).await?;
+        let guard = self.change_lock.lock().await;
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::SetMode(m, tx))?;
         let changed = self.state().mode != m;
         self.update(|s| s.mode = m);
+        // Other changes may go ahead while this one waits for its frame.
+        drop(guard);
         if changed {
             tracing::info!(mode = m.name(), "mode changed");
             let _ = self.mode_changed(&emitter).await;
             let _ = self.setup_changed(&emitter).await;
         }
-        Ok((first.sequence, first.timestamp_us))
+        Self::first_frame(rx).await
     }
 
     /// Exposure per frame, microseconds; at most the frame period.
