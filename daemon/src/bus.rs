@@ -1,32 +1,9 @@
 //! Which bus to serve on, including a private session bus when none exists.
 
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 
-/// Where `sdid --session` writes the address of a private bus it started,
-/// so `sdictl --session` finds it.
-pub fn private_bus_file() -> PathBuf {
-    let dir = std::env::var_os("XDG_RUNTIME_DIR")
-        .map(PathBuf::from)
-        .filter(|d| d.is_dir())
-        .unwrap_or_else(|| PathBuf::from("/tmp"));
-    dir.join(format!("sdid-session-bus-{}", nix::unistd::getuid()))
-}
-
-/// The session bus address from the environment or `$XDG_RUNTIME_DIR/bus`.
-pub fn session_address() -> Option<String> {
-    if let Some(a) = std::env::var("DBUS_SESSION_BUS_ADDRESS")
-        .ok()
-        .filter(|a| !a.is_empty())
-    {
-        return Some(a);
-    }
-    let rt = std::env::var_os("XDG_RUNTIME_DIR")?;
-    let sock = PathBuf::from(rt).join("bus");
-    sock.exists()
-        .then(|| format!("unix:path={}", sock.display()))
-}
+pub use sdi_api::bus::{private_bus_file, session_address};
 
 /// A `dbus-daemon --session` this process started; killed on drop.
 pub struct PrivateBus {

@@ -53,23 +53,34 @@ impl OnlineError {
     }
 }
 
+/// The daemon's own errors, by variant (the contract in `sdi_api`).
+impl From<sdi_api::SdiError> for OnlineError {
+    fn from(e: sdi_api::SdiError) -> Self {
+        use sdi_api::SdiError as E;
+        let name = zbus::DBusError::name(&e).to_string();
+        let text = |m: String| format!("{name}: {m}");
+        match e {
+            E::ZBus(z) => OnlineError::from(z),
+            E::InvalidMode(m) | E::OutOfRange(m) | E::InvalidPath(m) | E::InvalidFd(m) => {
+                OnlineError::Invalid(text(m))
+            }
+            E::Busy(m) => OnlineError::Busy(text(m)),
+            E::DeviceUnavailable(m) => OnlineError::Device(text(m)),
+            E::NotRecording(m) | E::NoFrame(m) => OnlineError::Nothing(text(m)),
+            E::Failed(m) => OnlineError::Failed(text(m)),
+        }
+    }
+}
+
+/// Transport and standard D-Bus errors.
 impl From<zbus::Error> for OnlineError {
     fn from(e: zbus::Error) -> Self {
         match &e {
             zbus::Error::MethodError(name, msg, _) => {
                 let msg = format!("{}: {}", name.as_str(), msg.as_deref().unwrap_or(""));
                 match name.as_str() {
-                    "org.sdi.Error.InvalidMode"
-                    | "org.sdi.Error.OutOfRange"
-                    | "org.sdi.Error.InvalidPath"
-                    | "org.sdi.Error.InvalidFd"
-                    | "org.freedesktop.DBus.Error.InvalidArgs"
+                    "org.freedesktop.DBus.Error.InvalidArgs"
                     | "org.freedesktop.DBus.Error.UnknownProperty" => OnlineError::Invalid(msg),
-                    "org.sdi.Error.Busy" => OnlineError::Busy(msg),
-                    "org.sdi.Error.DeviceUnavailable" => OnlineError::Device(msg),
-                    "org.sdi.Error.NotRecording" | "org.sdi.Error.NoFrame" => {
-                        OnlineError::Nothing(msg)
-                    }
                     "org.freedesktop.DBus.Error.AccessDenied" => OnlineError::Failed(format!(
                         "{msg} (only members of the group sdi may control the camera: sudo usermod -aG sdi $USER, then log in again)"
                     )),

@@ -3,7 +3,6 @@
 mod errors;
 mod export;
 mod new_file;
-mod proxy;
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -18,7 +17,7 @@ use zbus::zvariant::OwnedValue;
 
 pub use errors::OnlineError;
 use new_file::NewFile;
-use proxy::Camera1Proxy;
+use sdi_api::{Camera1Proxy, SdiError};
 use zbus::zvariant::Fd;
 
 /// How to reach the daemon; global flags.
@@ -121,11 +120,7 @@ fn bus_address(bus: &BusArgs) -> Option<String> {
     if !bus.session {
         return None;
     }
-    sdi_daemon::bus::session_address().or_else(|| {
-        std::fs::read_to_string(sdi_daemon::bus::private_bus_file())
-            .ok()
-            .map(|s| s.trim().to_owned())
-    })
+    sdi_api::bus::session_or_private_address()
 }
 
 async fn connect(bus: &BusArgs) -> Result<Camera1Proxy<'static>, OnlineError> {
@@ -185,6 +180,20 @@ fn to_json(v: &OwnedValue) -> Json {
 
 fn dict_json(d: &HashMap<String, OwnedValue>) -> Json {
     Json::Object(d.iter().map(|(k, v)| (k.clone(), to_json(v))).collect())
+}
+
+/// A typed `a{sv}` reply as the dictionary it is on the wire, so it prints
+/// by its D-Bus keys without a second list of its fields here.
+fn wire_dict<T: serde::Serialize + zbus::zvariant::Type>(
+    reply: &T,
+) -> Result<HashMap<String, OwnedValue>, OnlineError> {
+    let ctxt = zbus::zvariant::serialized::Context::new_dbus(zbus::zvariant::LE, 0);
+    let bytes = zbus::zvariant::to_bytes(ctxt, reply)
+        .map_err(|e| OnlineError::Failed(format!("encoding the reply: {e}")))?;
+    let (dict, _) = bytes
+        .deserialize::<HashMap<String, OwnedValue>>()
+        .map_err(|e| OnlineError::Failed(format!("decoding the reply: {e}")))?;
+    Ok(dict)
 }
 
 async fn all_properties(
@@ -282,7 +291,7 @@ async fn with_progress<T>(
     frames: u32,
     msg: &str,
     json: bool,
-    call: impl std::future::Future<Output = zbus::Result<T>>,
+    call: impl std::future::Future<Output = Result<T, SdiError>>,
 ) -> Result<T, OnlineError> {
     let fps = cam.frame_rate().await.unwrap_or(30.0).max(0.1);
     let pb = bar(frames as u64, msg, json);
@@ -419,13 +428,13 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                 cam.capture_dark_frame(frames),
             )
             .await?;
-            print_dict(&d, json);
+            print_dict(&wire_dict(&d)?, json);
         }
         OnlineCommand::Calibrate { frames } => {
             // Dark frames, then 5 photon-transfer levels of frames + 1 each.
             let total = frames.saturating_mul(6).saturating_add(5);
             let d = with_progress(&cam, total, "calibrating", json, cam.calibrate(frames)).await?;
-            print_dict(&d, json);
+            print_dict(&wire_dict(&d)?, json);
         }
         OnlineCommand::Record {
             path,
@@ -462,13 +471,13 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                     }
                     pb.finish_and_clear();
                     let d = cam.stop_recording().await?;
-                    print_dict(&d, json);
+                    print_dict(&wire_dict(&d)?, json);
                 }
             }
         }
         OnlineCommand::Stop => {
             let d = cam.stop_recording().await?;
-            print_dict(&d, json);
+            print_dict(&wire_dict(&d)?, json);
         }
         OnlineCommand::Snapshot { path, by_path } => {
             let path = absolute(&path)?;
@@ -497,18 +506,16 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
             }
             while let Some(change) = stream.next().await {
                 let s = change.get().await?;
-                let d = dict_json(&s);
                 if json {
-                    println!("{d}");
+                    println!("{}", dict_json(&wire_dict(&s)?));
                 } else {
-                    let g = |k: &str| d.get(k).and_then(Json::as_f64).unwrap_or(0.0);
                     println!(
                         "{:>10} {:>8.2} {:>12.0} {:>12.0} {:>8}",
-                        g("frames"),
-                        g("fps"),
-                        g("latency_us"),
-                        g("latency_max_us"),
-                        g("dropped_view") + g("dropped_recording")
+                        s.frames,
+                        s.fps,
+                        s.latency_us,
+                        s.latency_max_us,
+                        s.dropped_view + s.dropped_recording
                     );
                 }
                 n += 1;

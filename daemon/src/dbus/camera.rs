@@ -11,11 +11,11 @@ use sdi_core::mode::ModeId;
 use tokio::sync::{oneshot, watch};
 use zbus::message::Header;
 use zbus::object_server::SignalEmitter;
-use zbus::zvariant::{OwnedValue, Value};
 use zbus::{interface, Connection};
 
 use super::client_fd::{self, recording_label};
-use super::errors::{check_range, SdiError};
+use super::errors::{check_range, invalid_mode, SdiError};
+use sdi_api::{CalibrationReply, DarkFrameReply, RecordingReply};
 use super::paths::{validate_output_path, OutputKind};
 use crate::backend::{BackendError, CaptureSettings, Limits};
 use crate::calibration_store;
@@ -73,23 +73,15 @@ fn colormap_name(c: Colormap) -> &'static str {
     }
 }
 
-fn ov(v: Value<'_>) -> OwnedValue {
-    v.try_to_owned().unwrap_or_else(|_| OwnedValue::from(0u8))
-}
-
-fn dark_dict(s: &DarkStats) -> HashMap<String, OwnedValue> {
-    HashMap::from([
-        ("frames".to_owned(), ov(Value::from(s.frames))),
-        ("mean_dn".to_owned(), ov(Value::from(s.mean_dn))),
-        (
-            "read_noise_variance_dn2".to_owned(),
-            ov(Value::from(s.read_noise_variance_dn2)),
-        ),
-        (
-            "fixed_pattern_sigma_dn".to_owned(),
-            ov(Value::from(s.fixed_pattern_sigma_dn)),
-        ),
-    ])
+impl From<&DarkStats> for DarkFrameReply {
+    fn from(s: &DarkStats) -> Self {
+        Self {
+            frames: s.frames,
+            mean_dn: s.mean_dn,
+            read_noise_variance_dn2: s.read_noise_variance_dn2,
+            fixed_pattern_sigma_dn: s.fixed_pattern_sigma_dn,
+        }
+    }
 }
 
 async fn caller_uid(conn: &Connection, hdr: &Header<'_>) -> Option<u32> {
@@ -322,7 +314,7 @@ impl Camera {
         mode: &str,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
     ) -> Result<(u64, u64), SdiError> {
-        let m = ModeId::from_name(mode).map_err(|_| SdiError::invalid_mode(mode))?;
+        let m = ModeId::from_name(mode).map_err(|_| invalid_mode(mode))?;
         let guard = self.change_lock.lock().await;
         let (tx, rx) = oneshot::channel();
         self.send(Command::SetMode(m, tx))?;
@@ -416,12 +408,9 @@ impl Camera {
 
     /// Averages `frames` frames with both sources off into the dark frame the
     /// pipelines subtract; returns its statistics.
-    async fn capture_dark_frame(
-        &self,
-        frames: u32,
-    ) -> Result<HashMap<String, OwnedValue>, SdiError> {
+    async fn capture_dark_frame(&self, frames: u32) -> Result<DarkFrameReply, SdiError> {
         let s = self.dark(frames, 1).await?;
-        Ok(dark_dict(&s))
+        Ok(DarkFrameReply::from(&s))
     }
 
     /// Calibration: the dark frame, read-noise variance (DN^2, eq. skellamvar
@@ -429,9 +418,8 @@ impl Camera {
     /// then photon transfer (LS1 alone at 5 exposures, `frames` frames each):
     /// gain g = rho eta (DN/electron) and read variance with standard errors,
     /// which the separation mode's H uses from then on.
-    async fn calibrate(&self, frames: u32) -> Result<HashMap<String, OwnedValue>, SdiError> {
+    async fn calibrate(&self, frames: u32) -> Result<CalibrationReply, SdiError> {
         let s = self.dark(frames, 2).await?;
-        let mut d = dark_dict(&s);
         let _guard = self.long_op.try_lock().map_err(|_| {
             SdiError::Busy("a dark-frame capture or calibration is already running".into())
         })?;
@@ -439,16 +427,20 @@ impl Camera {
             .ask(|tx| Command::PhotonTransfer(frames, tx))
             .await?
             .map_err(|e| SdiError::Failed(format!("photon transfer: {e}")))?;
-        for (k, v) in [
-            ("gain_dn_per_electron", fit.gain_dn_per_electron),
-            ("gain_se", fit.gain_se),
-            ("ptc_read_variance_dn2", fit.read_variance_dn2),
-            ("ptc_read_variance_se_dn2", fit.read_variance_se_dn2),
-            ("reduced_chi2", fit.reduced_chi2),
-        ] {
-            d.insert(k.to_owned(), ov(Value::from(v)));
-        }
-        d.insert("ptc_points".to_owned(), ov(Value::from(fit.points as u32)));
+        let mut reply = CalibrationReply {
+            frames: s.frames,
+            mean_dn: s.mean_dn,
+            read_noise_variance_dn2: s.read_noise_variance_dn2,
+            fixed_pattern_sigma_dn: s.fixed_pattern_sigma_dn,
+            gain_dn_per_electron: fit.gain_dn_per_electron,
+            gain_se: fit.gain_se,
+            ptc_read_variance_dn2: fit.read_variance_dn2,
+            ptc_read_variance_se_dn2: fit.read_variance_se_dn2,
+            reduced_chi2: fit.reduced_chi2,
+            ptc_points: u32::try_from(fit.points).unwrap_or(u32::MAX),
+            stored: None,
+            store_error: None,
+        };
         if let Some(dir) = self.info.state_dir.clone() {
             let record = CalibrationRecord::from_fit(
                 &self.info.sensor.model,
@@ -463,19 +455,18 @@ impl Camera {
                 .and_then(|r| r);
             // The fit is in use either way; a store that cannot be written
             // costs only the reload at the next start.
-            let (key, text) = match saved {
+            match saved {
                 Ok(path) => {
                     tracing::info!(path = %path.display(), "calibration stored");
-                    ("stored", path.display().to_string())
+                    reply.stored = Some(path.display().to_string());
                 }
                 Err(e) => {
                     tracing::warn!("storing the calibration: {e}");
-                    ("store_error", e.to_string())
+                    reply.store_error = Some(e.to_string());
                 }
-            };
-            d.insert(key.to_owned(), ov(Value::from(text)));
+            }
         }
-        Ok(d)
+        Ok(reply)
     }
 
     /// Starts recording raw sensor frames to a new `.sdirec` file at an absolute path
@@ -520,7 +511,7 @@ impl Camera {
     async fn stop_recording(
         &self,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
-    ) -> Result<HashMap<String, OwnedValue>, SdiError> {
+    ) -> Result<RecordingReply, SdiError> {
         let _guard = self.change_lock.lock().await;
         let Some(path) = self.state().recording else {
             return Err(SdiError::NotRecording("no recording in progress".into()));
@@ -532,14 +523,11 @@ impl Camera {
             .ok_or_else(|| SdiError::NotRecording("no recording in progress".into()))?
             .map_err(|e| SdiError::Failed(format!("finishing {}: {e}", path.display())))?;
         tracing::info!(path = %path.display(), frames = summary.frames, dropped = summary.dropped, "recording stopped");
-        Ok(HashMap::from([
-            (
-                "path".to_owned(),
-                ov(Value::from(path.display().to_string())),
-            ),
-            ("frames".to_owned(), ov(Value::from(summary.frames))),
-            ("dropped".to_owned(), ov(Value::from(summary.dropped))),
-        ]))
+        Ok(RecordingReply {
+            path: path.display().to_string(),
+            frames: summary.frames,
+            dropped: summary.dropped,
+        })
     }
 
     /// Writes the latest processed frame to a new file: `.png` (as displayed)
@@ -680,28 +668,21 @@ impl Camera {
     /// {frames, fps, latency_us, latency_max_us, dropped_view, dropped_recording,
     /// device_available, device_state}; emitted about once a second.
     #[zbus(property)]
-    async fn stats(&self) -> HashMap<String, OwnedValue> {
+    async fn stats(&self) -> sdi_api::Stats {
         let s = *self.stats.borrow();
-        let (available, state) = match self.info.status.as_ref().map(|h| h.get()) {
-            Some(st) if !st.available => (false, st.detail),
-            Some(st) => (true, st.detail),
+        let (device_available, device_state) = match self.info.status.as_ref().map(|h| h.get()) {
+            Some(st) => (st.available, st.detail),
             None => (true, String::new()),
         };
-        HashMap::from([
-            ("device_available".to_owned(), ov(Value::from(available))),
-            ("device_state".to_owned(), ov(Value::from(state))),
-            ("frames".to_owned(), ov(Value::from(s.frames))),
-            ("fps".to_owned(), ov(Value::from(s.fps))),
-            ("latency_us".to_owned(), ov(Value::from(s.latency_us))),
-            (
-                "latency_max_us".to_owned(),
-                ov(Value::from(s.latency_max_us)),
-            ),
-            ("dropped_view".to_owned(), ov(Value::from(s.dropped_view))),
-            (
-                "dropped_recording".to_owned(),
-                ov(Value::from(s.dropped_recording)),
-            ),
-        ])
+        sdi_api::Stats {
+            frames: s.frames,
+            fps: s.fps,
+            latency_us: s.latency_us,
+            latency_max_us: s.latency_max_us,
+            dropped_view: s.dropped_view,
+            dropped_recording: s.dropped_recording,
+            device_available,
+            device_state,
+        }
     }
 }

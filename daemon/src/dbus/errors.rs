@@ -1,50 +1,15 @@
-//! Typed D-Bus errors, `org.sdi.Error.*`.
+//! The interface's errors are `sdi_api::SdiError` (`org.sdi.Error.*`), the
+//! one definition shared with clients; this module adds what needs the daemon.
 
 use sdi_core::mode::ModeId;
 
-/// Every error the `org.sdi.Camera1` interface returns.
-#[derive(Debug, zbus::DBusError)]
-#[zbus(prefix = "org.sdi.Error")]
-pub enum SdiError {
-    #[zbus(error)]
-    ZBus(zbus::Error),
-    /// Unknown mode name; the message lists the valid modes.
-    InvalidMode(String),
-    /// A number outside its allowed range (the message gives the range).
-    OutOfRange(String),
-    /// The sensor or output device is gone.
-    DeviceUnavailable(String),
-    /// Another long operation (dark frame, calibration, recording) is running.
-    Busy(String),
-    /// A path that is empty, relative, of the wrong type, or not writable by the caller.
-    InvalidPath(String),
-    /// A passed file descriptor that is not an empty regular file open for writing.
-    InvalidFd(String),
-    /// StopRecording without a recording.
-    NotRecording(String),
-    /// Snapshot before the first frame.
-    NoFrame(String),
-    /// Anything else (I/O while writing a file, ...).
-    Failed(String),
-}
+pub use sdi_api::error::{check_range, SdiError};
 
-impl SdiError {
-    pub fn invalid_mode(given: &str) -> Self {
-        SdiError::InvalidMode(format!(
-            "unknown mode '{}'; valid modes: {}",
-            given.escape_debug(),
-            ModeId::names().join(", ")
-        ))
-    }
-}
-
-/// Checks that `value` is a finite number in `[lo, hi]`.
-pub fn check_range(name: &str, value: f64, lo: f64, hi: f64, unit: &str) -> Result<f64, SdiError> {
-    if value.is_finite() && value >= lo && value <= hi {
-        Ok(value)
-    } else {
-        Err(SdiError::OutOfRange(format!(
-            "{name} = {value} {unit} is out of range: allowed [{lo}, {hi}] {unit}"
-        )))
-    }
+/// `InvalidMode` for an unknown mode name, listing the valid ones.
+pub fn invalid_mode(given: &str) -> SdiError {
+    SdiError::InvalidMode(format!(
+        "unknown mode '{}'; valid modes: {}",
+        given.escape_debug(),
+        ModeId::names().join(", ")
+    ))
 }

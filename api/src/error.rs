@@ -1,0 +1,40 @@
+//! Every error `org.sdi.Camera1` returns, `org.sdi.Error.*`: the daemon
+//! returns these variants, the proxy decodes them back into them.
+
+/// The interface's errors; the message says what was wrong and what is allowed.
+#[derive(Debug, zbus::DBusError)]
+#[zbus(prefix = "org.sdi.Error")]
+pub enum SdiError {
+    /// Transport and standard D-Bus errors (no daemon, access denied, ...).
+    #[zbus(error)]
+    ZBus(zbus::Error),
+    /// Unknown mode name; the message lists the valid modes.
+    InvalidMode(String),
+    /// A number outside its allowed range (the message gives the range).
+    OutOfRange(String),
+    /// The sensor or output device is gone.
+    DeviceUnavailable(String),
+    /// Another long operation (dark frame, calibration, recording) is running.
+    Busy(String),
+    /// A path that is empty, relative, of the wrong type, or not writable by the caller.
+    InvalidPath(String),
+    /// A passed file descriptor that is not an empty regular file open for writing.
+    InvalidFd(String),
+    /// StopRecording without a recording.
+    NotRecording(String),
+    /// Snapshot before the first frame.
+    NoFrame(String),
+    /// Anything else (I/O while writing a file, ...).
+    Failed(String),
+}
+
+/// Checks that `value` is a finite number in `[lo, hi]`.
+pub fn check_range(name: &str, value: f64, lo: f64, hi: f64, unit: &str) -> Result<f64, SdiError> {
+    if value.is_finite() && value >= lo && value <= hi {
+        Ok(value)
+    } else {
+        Err(SdiError::OutOfRange(format!(
+            "{name} = {value} {unit} is out of range: allowed [{lo}, {hi}] {unit}"
+        )))
+    }
+}

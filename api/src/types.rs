@@ -1,0 +1,74 @@
+//! Typed replies and properties. Each is an `a{sv}` dictionary on the wire
+//! (zvariant's `SerializeDict`), so clients in any language read them by
+//! key, and fields can be added without breaking old clients.
+
+use zbus::zvariant::{DeserializeDict, OwnedValue, SerializeDict, Type, Value};
+
+/// The `Stats` property, emitted about once a second.
+#[derive(
+    Debug, Clone, Default, PartialEq, SerializeDict, DeserializeDict, Type, Value, OwnedValue,
+)]
+#[zvariant(signature = "a{sv}")]
+pub struct Stats {
+    /// Frames captured since start.
+    pub frames: u64,
+    /// Frames per second over the last window.
+    pub fps: f64,
+    /// Mean capture-to-output processing time over the last window, microseconds.
+    pub latency_us: f64,
+    /// Worst processing time over the last window, microseconds.
+    pub latency_max_us: f64,
+    /// Frames the view output skipped (reader too slow).
+    pub dropped_view: u64,
+    /// Frames the recorder could not queue.
+    pub dropped_recording: u64,
+    /// False while the board is unplugged and nothing stands in.
+    pub device_available: bool,
+    /// The backend's own words on its state ("" when it has none).
+    pub device_state: String,
+}
+
+/// `CaptureDarkFrame`'s reply: statistics of the averaged dark frames.
+#[derive(Debug, Clone, Default, PartialEq, SerializeDict, DeserializeDict, Type)]
+#[zvariant(signature = "a{sv}")]
+pub struct DarkFrameReply {
+    pub frames: u32,
+    pub mean_dn: f64,
+    /// Mean per-pixel temporal variance, DN^2: the read noise (eq. skellamvar with no light).
+    pub read_noise_variance_dn2: f64,
+    /// Spatial standard deviation of the dark frame, DN.
+    pub fixed_pattern_sigma_dn: f64,
+}
+
+/// `Calibrate`'s reply: the dark statistics, then the photon-transfer fit
+/// sigma^2 = g |mu| + sigma_read^2 with standard errors, and where the fit
+/// was stored (or why it could not be).
+#[derive(Debug, Clone, Default, PartialEq, SerializeDict, DeserializeDict, Type)]
+#[zvariant(signature = "a{sv}")]
+pub struct CalibrationReply {
+    pub frames: u32,
+    pub mean_dn: f64,
+    pub read_noise_variance_dn2: f64,
+    pub fixed_pattern_sigma_dn: f64,
+    /// Gain g = rho eta, DN per electron.
+    pub gain_dn_per_electron: f64,
+    pub gain_se: f64,
+    pub ptc_read_variance_dn2: f64,
+    pub ptc_read_variance_se_dn2: f64,
+    pub reduced_chi2: f64,
+    pub ptc_points: u32,
+    /// Path of the stored calibration.
+    pub stored: Option<String>,
+    /// Why the calibration could not be stored (it is in use all the same).
+    pub store_error: Option<String>,
+}
+
+/// `StopRecording`'s reply.
+#[derive(Debug, Clone, Default, PartialEq, SerializeDict, DeserializeDict, Type)]
+#[zvariant(signature = "a{sv}")]
+pub struct RecordingReply {
+    /// The Recording label (path) of the recording that ended.
+    pub path: String,
+    pub frames: u64,
+    pub dropped: u64,
+}
