@@ -284,6 +284,7 @@ impl FrameLoop {
                     self.mode = mode;
                     self.rebuild_pipeline();
                     self.backend.set_mode(mode);
+                    self.output.set_mode(mode);
                     self.frame_index = 0;
                 }
                 let _ = reply.send(());
