@@ -24,7 +24,6 @@ use sdi_daemon::modes::{Colormap, DisplayMap, DisplayRange};
 use sdi_daemon::recording::Calibration;
 use sdi_daemon::sink::loopback::LoopbackSink;
 use sdi_daemon::sink::output::Output;
-use sdi_daemon::sink::pipewire::{PipewireSink, VIEW_NODE};
 use sdi_daemon::sink::y4m::Y4mSink;
 use sdi_daemon::sink::Sink;
 use sdi_daemon::stats::Stats;
@@ -243,6 +242,27 @@ fn with_lights(c: &Config, backend: Box<dyn Backend>) -> Result<Box<dyn Backend>
     }
 }
 
+#[cfg(feature = "pipewire")]
+fn open_pipewire(
+    width: usize,
+    height: usize,
+    fps: f64,
+    mode: ModeId,
+) -> Result<Box<dyn Sink>, String> {
+    use sdi_daemon::sink::pipewire::{PipewireSink, VIEW_NODE};
+    let s = PipewireSink::open(width, height, fps, mode).map_err(|e| e.to_string())?;
+    tracing::info!(
+        device = %s.info().device,
+        "publishing as a PipeWire camera: e.g. gst-launch-1.0 pipewiresrc target-object={VIEW_NODE} ! videoconvert ! autovideosink"
+    );
+    Ok(Box::new(s))
+}
+
+#[cfg(not(feature = "pipewire"))]
+fn open_pipewire(_: usize, _: usize, _: f64, _: ModeId) -> Result<Box<dyn Sink>, String> {
+    Err("sdid was built without the PipeWire sink (cargo feature \"pipewire\")".into())
+}
+
 /// The output sink, and for `auto` why it was chosen (shown in the log and
 /// in `sdictl status`'s Device).
 fn build_sink(
@@ -287,19 +307,15 @@ fn build_sink(
         }
     }
     if auto || kind == "pipewire" {
-        match PipewireSink::open(width, height, fps, mode) {
+        match open_pipewire(width, height, fps, mode) {
             Ok(s) => {
-                tracing::info!(
-                    device = %s.info().device,
-                    "publishing as a PipeWire camera: e.g. gst-launch-1.0 pipewiresrc target-object={VIEW_NODE} ! videoconvert ! autovideosink"
-                );
                 let why = auto.then(|| format!("auto: {}; PipeWire reachable", passed.join("; ")));
-                return Ok((Box::new(s), why));
+                return Ok((s, why));
             }
-            Err(e) if !auto => return Err(e.to_string()),
+            Err(e) if !auto => return Err(e),
             Err(e) => {
                 tracing::info!("PipeWire sink unavailable ({e}); falling back to a y4m stream");
-                passed.push(format!("{e}"));
+                passed.push(e);
             }
         }
     }

@@ -5,6 +5,7 @@
 
 pub mod loopback;
 pub mod output;
+#[cfg(feature = "pipewire")]
 pub mod pipewire;
 pub mod y4m;
 
