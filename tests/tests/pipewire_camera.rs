@@ -276,3 +276,42 @@ fn sink_auto_prefers_pipewire_then_y4m() {
         "{device}"
     );
 }
+
+#[test]
+fn no_signal_card_while_the_source_stops() {
+    require_pipewire!();
+    let s = Session::start();
+    let rec = s.dir.path().join("short.sdirec");
+    let rec = rec.to_string_lossy().into_owned();
+    {
+        let d = Sdid::start(&s, &["--sink", "pipewire"]);
+        d.ctl(&["record", &rec, "--seconds", "1"]);
+    }
+    // The recording played once (no --loop): then the source has stopped and
+    // sdid shows the "no signal" card, about 5 times a second.
+    let d = Sdid::start(&s, &["--sink", "pipewire", "--replay", &rec]);
+    wait_for("the replay to end", TIMEOUT, || {
+        d.log.text().contains("showing no-signal").then_some(())
+    });
+    let rgb_bytes = VIEW_W * VIEW_H * 3;
+    let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", 5, TIMEOUT);
+    assert_eq!(rgb.len(), 5 * rgb_bytes);
+    let card: Vec<u8> = v4l2loopback_glue::no_signal_grey(VIEW_W, VIEW_H)
+        .iter()
+        .flat_map(|&g| [g, g, g])
+        .collect();
+    // A checkerboard of 40 and 72 with a bar of 200 across the middle.
+    assert_eq!(&card[..3], &[40, 40, 40]);
+    assert_eq!(&card[(VIEW_H / 2 * VIEW_W) * 3..][..3], &[200, 200, 200]);
+    for (i, frame) in rgb.chunks_exact(rgb_bytes).enumerate() {
+        assert!(
+            frame == card.as_slice(),
+            "frame {i} is not the no-signal card"
+        );
+    }
+    let crc = frame_crcs(&card, rgb_bytes);
+    assert!(d.log.published().iter().any(
+        |p| p.get("crc32") == crc.first() && p.get("format").map(String::as_str) == Some("RGB")
+    ));
+    eprintln!("ok: 5 RGB frames of {VIEW} are the no-signal card while the replay has ended");
+}
