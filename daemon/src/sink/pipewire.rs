@@ -12,7 +12,7 @@
 
 use std::cell::RefCell;
 use std::rc::Rc;
-use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
 use std::sync::{mpsc, Arc, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::Duration;
@@ -139,8 +139,6 @@ struct Shared {
     woken: AtomicBool,
     /// Set by the loop when the PipeWire connection is lost.
     broken: AtomicBool,
-    /// Frames replaced in a slot before the loop took them.
-    overwritten: AtomicU32,
 }
 
 enum Msg {
@@ -157,7 +155,7 @@ struct Spec {
     view_height: u32,
     data_width: u32,
     data_height: u32,
-    fps: u32,
+    frame_rate_hz: u32,
     mode: &'static str,
 }
 
@@ -197,24 +195,23 @@ impl PipewireSink {
     pub fn open(
         sensor_width: usize,
         sensor_height: usize,
-        fps: f64,
+        frame_rate_hz: f64,
         mode: ModeId,
     ) -> Result<Self, SinkError> {
-        let fps = fps.round().clamp(1.0, 240.0) as u32;
-        let view = OutputConfig::view(fps);
+        let frame_rate_hz = frame_rate_hz.round().clamp(1.0, 240.0) as u32;
+        let view = OutputConfig::view(frame_rate_hz);
         let shared = Arc::new(Shared {
             view: Port::new(),
             data: Port::new(),
             woken: AtomicBool::new(false),
             broken: AtomicBool::new(false),
-            overwritten: AtomicU32::new(0),
         });
         let spec = Spec {
             view_width: view.width,
             view_height: view.height,
             data_width: sensor_width as u32,
             data_height: sensor_height as u32,
-            fps,
+            frame_rate_hz,
             mode: mode.name(),
         };
         let (tx, rx) = pw::channel::channel::<Msg>();
@@ -296,13 +293,12 @@ impl PipewireSink {
         self.mode.map_or("", ModeId::name)
     }
 
-    /// Puts `fill`'s bytes into `port`'s slot (when a reader streams it) and
-    /// returns whether anything was queued.
+    /// Puts `fill`'s bytes into `port`'s slot (when a reader streams it),
+    /// replacing a frame the loop has not taken yet; true if queued.
     fn offer(
         port: &Port,
         mode: &'static str,
         fill: impl FnOnce(Wire, &mut Vec<u8>) -> bool,
-        overwritten: &AtomicU32,
     ) -> bool {
         let Some(wire) = port.wire() else {
             return false;
@@ -315,7 +311,6 @@ impl PipewireSink {
         let mut slot = port.slot();
         if let Some(old) = slot.pending.replace(Pending { bytes, wire, mode }) {
             slot.spare = old.bytes;
-            overwritten.fetch_add(1, Ordering::Relaxed);
         }
         true
     }
@@ -361,29 +356,19 @@ impl Sink for PipewireSink {
             display.render_output_rgb8(output, &mut self.rgb);
             super::loopback::letterbox(&self.rgb, img.width, img.height, &mut self.scaled, vw, vh);
             let (scaled, yuyv, rgb24) = (&self.scaled, &mut self.yuyv, &mut self.rgb24);
-            queued |= Self::offer(
-                &self.shared.view,
-                mode,
-                |wire, bytes| {
-                    bytes.resize(vw * vh * wire.bytes_per_pixel(), 0);
-                    let conv = if wire == Wire::Rgb { rgb24 } else { yuyv };
-                    conv.rgb8(Src::packed(scaled, vw, vh, 3), bytes).is_ok()
-                },
-                &self.shared.overwritten,
-            );
+            queued |= Self::offer(&self.shared.view, mode, |wire, bytes| {
+                bytes.resize(vw * vh * wire.bytes_per_pixel(), 0);
+                let conv = if wire == Wire::Rgb { rgb24 } else { yuyv };
+                conv.rgb8(Src::packed(scaled, vw, vh, 3), bytes).is_ok()
+            });
         }
         if img.width == self.data_width && img.height == self.data_height {
             let (w, h, y16) = (self.data_width, self.data_height, &mut self.y16);
-            queued |= Self::offer(
-                &self.shared.data,
-                mode,
-                |_, bytes| {
-                    bytes.resize(w * h * 2, 0);
-                    y16.signed_dn(Src::packed(&img.data, w, h, 1), bytes)
-                        .is_ok()
-                },
-                &self.shared.overwritten,
-            );
+            queued |= Self::offer(&self.shared.data, mode, |_, bytes| {
+                bytes.resize(w * h * 2, 0);
+                y16.signed_dn(Src::packed(&img.data, w, h, 1), bytes)
+                    .is_ok()
+            });
         }
         if queued {
             self.wake()?;
@@ -396,27 +381,17 @@ impl Sink for PipewireSink {
         let (vw, vh) = (self.view.width as usize, self.view.height as usize);
         let card = &self.no_signal_view;
         let (yuyv, rgb24) = (&mut self.yuyv, &mut self.rgb24);
-        let mut queued = Self::offer(
-            &self.shared.view,
-            mode,
-            |wire, bytes| {
-                bytes.resize(vw * vh * wire.bytes_per_pixel(), 0);
-                let conv = if wire == Wire::Rgb { rgb24 } else { yuyv };
-                conv.grey8(Src::packed(card, vw, vh, 1), bytes).is_ok()
-            },
-            &self.shared.overwritten,
-        );
+        let mut queued = Self::offer(&self.shared.view, mode, |wire, bytes| {
+            bytes.resize(vw * vh * wire.bytes_per_pixel(), 0);
+            let conv = if wire == Wire::Rgb { rgb24 } else { yuyv };
+            conv.grey8(Src::packed(card, vw, vh, 1), bytes).is_ok()
+        });
         let data_card = &self.no_signal_data;
-        queued |= Self::offer(
-            &self.shared.data,
-            mode,
-            |_, bytes| {
-                bytes.clear();
-                bytes.extend_from_slice(data_card);
-                true
-            },
-            &self.shared.overwritten,
-        );
+        queued |= Self::offer(&self.shared.data, mode, |_, bytes| {
+            bytes.clear();
+            bytes.extend_from_slice(data_card);
+            true
+        });
         if queued {
             self.wake()?;
         }
@@ -457,7 +432,12 @@ fn pod_bytes(object: Object) -> Result<Vec<u8>, String> {
 }
 
 /// The EnumFormat a stream offers: raw video in `wires` at one size and rate.
-fn enum_format(wires: &[Wire], width: u32, height: u32, fps: u32) -> Result<Vec<u8>, String> {
+fn enum_format(
+    wires: &[Wire],
+    width: u32,
+    height: u32,
+    frame_rate_hz: u32,
+) -> Result<Vec<u8>, String> {
     use spa::param::format::{FormatProperties, MediaSubtype, MediaType};
     let ids: Vec<Id> = wires.iter().map(|w| Id(w.spa().as_raw())).collect();
     let format = match ids.as_slice() {
@@ -484,7 +464,10 @@ fn enum_format(wires: &[Wire], width: u32, height: u32, fps: u32) -> Result<Vec<
         spa::pod::property!(
             FormatProperties::VideoFramerate,
             Fraction,
-            Fraction { num: fps, denom: 1 }
+            Fraction {
+                num: frame_rate_hz,
+                denom: 1
+            }
         ),
     ))
 }
@@ -549,7 +532,7 @@ fn publish(stream: &pw::stream::Stream, port: &Port, state: &mut StreamState) {
     let Some(frame) = port.slot().pending.take() else {
         return;
     };
-    let frame = scopeguard(frame, port);
+    let frame = Returned(frame, port);
     if state.wire != Some(frame.0.wire) {
         return;
     }
@@ -617,10 +600,6 @@ fn publish(stream: &pw::stream::Stream, port: &Port, state: &mut StreamState) {
 
 /// Returns the frame's allocation to the slot when dropped.
 struct Returned<'a>(Pending, &'a Port);
-
-fn scopeguard(frame: Pending, port: &Port) -> Returned<'_> {
-    Returned(frame, port)
-}
 
 impl Drop for Returned<'_> {
     fn drop(&mut self) {
@@ -713,7 +692,7 @@ fn serve(
             wires: &[Wire::Yuyv, Wire::Rgb],
             width: spec.view_width,
             height: spec.view_height,
-            fps: spec.fps,
+            frame_rate_hz: spec.frame_rate_hz,
         },
         |s| &s.view,
     )?;
@@ -727,7 +706,7 @@ fn serve(
             wires: &[Wire::Y16],
             width: spec.data_width,
             height: spec.data_height,
-            fps: spec.fps,
+            frame_rate_hz: spec.frame_rate_hz,
         },
         |s| &s.data,
     )?;
@@ -784,7 +763,7 @@ struct StreamSpec {
     wires: &'static [Wire],
     width: u32,
     height: u32,
-    fps: u32,
+    frame_rate_hz: u32,
 }
 
 struct MadeStream {
@@ -890,7 +869,7 @@ fn make_stream(
         .process(move |stream, _| publish(stream, port_of(&s3), &mut st3.borrow_mut()))
         .register()
         .map_err(err)?;
-    let format = enum_format(spec.wires, spec.width, spec.height, spec.fps)?;
+    let format = enum_format(spec.wires, spec.width, spec.height, spec.frame_rate_hz)?;
     let pod = Pod::from_bytes(&format).ok_or("PipeWire: invalid format pod")?;
     stream
         .connect(
