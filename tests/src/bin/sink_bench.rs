@@ -79,6 +79,62 @@ impl Run {
     }
 }
 
+/// No sink: the colormap rendering and the 640x480 letterbox both sinks
+/// (the y4m sink without the letterbox) start with, for reference.
+struct RenderOnly {
+    rgb: Vec<u8>,
+    scaled: Vec<u8>,
+}
+
+impl Sink for RenderOnly {
+    fn info(&self) -> sdi_daemon::sink::SinkInfo {
+        sdi_daemon::sink::SinkInfo {
+            kind: "render-only",
+            device: String::new(),
+            format: "RGB3".into(),
+            width: WIDTH as u32,
+            height: HEIGHT as u32,
+        }
+    }
+
+    fn write(
+        &mut self,
+        output: &ModeOutput,
+        display: &DisplayMap,
+    ) -> Result<(), sdi_daemon::sink::SinkError> {
+        display.render_output_rgb8(output, &mut self.rgb);
+        sdi_daemon::sink::loopback::letterbox(
+            &self.rgb,
+            WIDTH,
+            HEIGHT,
+            &mut self.scaled,
+            WIDTH,
+            HEIGHT,
+        );
+        Ok(())
+    }
+
+    fn write_no_signal(&mut self) -> Result<(), sdi_daemon::sink::SinkError> {
+        Ok(())
+    }
+}
+
+fn bench_render(frames: usize, rate_hz: f64) -> Run {
+    let mut sink = RenderOnly {
+        rgb: vec![0; WIDTH * HEIGHT * 3],
+        scaled: vec![0; WIDTH * HEIGHT * 3],
+    };
+    let (wall_s, cpu) = drive(&mut sink, frames, rate_hz);
+    Run {
+        name: "render only (colormap + letterbox)".into(),
+        wall_s,
+        cpu_s: cpu,
+        written: frames,
+        published: frames as u64,
+        reader_cpu_s: 0.0,
+    }
+}
+
 /// Writes `frames` frames at `rate_hz` into `sink`; CPU of this process.
 fn drive(sink: &mut dyn Sink, frames: usize, rate_hz: f64) -> (f64, f64) {
     let display = DisplayMap {
@@ -202,6 +258,7 @@ fn main() {
         bench_pipewire(&s, "video/x-raw,format=YUY2", frames, rate_hz),
         bench_pipewire(&s, "video/x-raw,format=RGB", frames, rate_hz),
         bench_pipewire(&s, "", frames, rate_hz),
+        bench_render(frames, rate_hz),
     ];
     for r in &runs {
         r.print();
