@@ -7,7 +7,7 @@
 //! fakesink`, `cat FIFO > /dev/null`). The figure is this process's CPU time
 //! (the writing thread plus, for PipeWire, its loop thread) divided by the
 //! frames the sink published. The readers' CPU (reaped children) is printed
-//! beside it; `cat` may splice the FIFO to /dev/null almost for free.
+//! beside it.
 //!
 //! `cargo run --release -p sdi-tests --bin sink_bench -- [FRAMES] [RATE_HZ]`
 
