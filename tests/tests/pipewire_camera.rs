@@ -145,7 +145,7 @@ fn check_published(
     gaps_ms.sort_by(f64::total_cmp);
     let median = gaps_ms[gaps_ms.len() / 2];
     assert!(
-        (15.0..=70.0).contains(&median),
+        (15.0..=100.0).contains(&median),
         "{stream}: median frame interval {median:.1} ms at 30 fps"
     );
     eprintln!(
@@ -221,11 +221,14 @@ fn pipewire_camera_node_frames_mode_switch_and_restart() {
     wait_for("the node to go away with sdid", TIMEOUT, || {
         s.node(VIEW).is_none().then_some(())
     });
-    let d = Sdid::start(&s, &["--sink", "pipewire", "--mode", "two-shot"]);
+    let d = Sdid::start(&s, &["--sink", "pipewire", "--mode", "bipolar-colour"]);
     let view = wait_node(&s, VIEW);
-    assert_eq!(prop(&view, "node.description"), "SDI camera (two-shot)");
+    assert_eq!(
+        prop(&view, "node.description"),
+        "SDI camera (bipolar-colour)"
+    );
     let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", 30, TIMEOUT);
-    check_published(&d, &rgb, rgb_bytes, VIEW, "RGB", "two-shot");
+    check_published(&d, &rgb, rgb_bytes, VIEW, "RGB", "bipolar-colour");
 }
 
 #[test]
