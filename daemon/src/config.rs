@@ -96,7 +96,8 @@ pub struct DisplayConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OutputConfig {
-    /// "auto" (loopback if present, else y4m), "loopback" or "y4m".
+    /// "auto" (loopback if present, else PipeWire if reachable, else y4m),
+    /// "loopback", "pipewire" or "y4m".
     pub sink: String,
     /// Card label of the view loopback device.
     pub label: String,
@@ -255,6 +256,8 @@ mod tests {
             toml::from_str("mode = \"depth-edge\"\n[output]\nsink = \"y4m\"\n").unwrap();
         assert_eq!(c.mode, "depth-edge");
         assert_eq!(c.output.sink, "y4m");
+        let c: Config = toml::from_str("[output]\nsink = \"pipewire\"\n").unwrap();
+        assert_eq!(c.output.sink, "pipewire");
         assert_eq!(c.backend, "auto");
         assert_eq!(c.board.on_unplug, "no-signal");
         assert_eq!(c.lights.driver, "none");

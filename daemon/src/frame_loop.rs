@@ -383,6 +383,7 @@ impl FrameLoop {
                     self.mode = mode;
                     self.rebuild_pipeline();
                     self.backend.set_mode(mode);
+                    self.output.set_mode(mode);
                 }
                 self.await_first_frame(reply);
             }

@@ -63,7 +63,8 @@ struct Args {
     exposure_us: Option<f64>,
     #[arg(long)]
     modulation_hz: Option<f64>,
-    /// Output sink: auto, loopback or y4m.
+    /// Output sink: auto (v4l2loopback, else PipeWire, else y4m), loopback,
+    /// pipewire or y4m.
     #[arg(long)]
     sink: Option<String>,
     /// y4m fallback target: "-" (stdout) or a FIFO path [default: stdout if
@@ -241,24 +242,82 @@ fn with_lights(c: &Config, backend: Box<dyn Backend>) -> Result<Box<dyn Backend>
     }
 }
 
-fn build_sink(c: &Config, width: usize, height: usize, fps: f64) -> Result<Box<dyn Sink>, String> {
-    match c.output.sink.as_str() {
-        "auto" | "loopback" => {
-            match LoopbackSink::open(&c.output.label, &c.output.data_label, width, height, fps) {
-                Ok(s) => {
-                    tracing::info!(device = %s.info().device, "publishing on v4l2loopback");
-                    return Ok(Box::new(s));
-                }
-                Err(e) if c.output.sink == "loopback" => return Err(e.to_string()),
-                Err(e) => tracing::warn!(
-                    "{e}\nNo usable v4l2loopback device labelled \"{}\". To publish a camera: sudo apt install v4l2loopback-dkms && sudo {}\nFalling back to a y4m stream.",
+#[cfg(feature = "pipewire")]
+fn open_pipewire(
+    width: usize,
+    height: usize,
+    fps: f64,
+    mode: ModeId,
+) -> Result<Box<dyn Sink>, String> {
+    use sdi_daemon::sink::pipewire::{PipewireSink, VIEW_NODE};
+    let s = PipewireSink::open(width, height, fps, mode).map_err(|e| e.to_string())?;
+    tracing::info!(
+        device = %s.info().device,
+        "publishing as a PipeWire camera: e.g. gst-launch-1.0 pipewiresrc target-object={VIEW_NODE} ! videoconvert ! autovideosink"
+    );
+    Ok(Box::new(s))
+}
+
+#[cfg(not(feature = "pipewire"))]
+fn open_pipewire(_: usize, _: usize, _: f64, _: ModeId) -> Result<Box<dyn Sink>, String> {
+    Err("sdid was built without the PipeWire sink (cargo feature \"pipewire\")".into())
+}
+
+/// The output sink, and for `auto` why it was chosen (shown in the log and
+/// in `sdictl status`'s Device).
+fn build_sink(
+    c: &Config,
+    width: usize,
+    height: usize,
+    fps: f64,
+    mode: ModeId,
+) -> Result<(Box<dyn Sink>, Option<String>), String> {
+    let kind = c.output.sink.as_str();
+    let auto = kind == "auto";
+    if !matches!(kind, "auto" | "loopback" | "pipewire" | "y4m") {
+        return Err(format!(
+            "unknown sink '{kind}': use auto, loopback, pipewire or y4m"
+        ));
+    }
+    let mut passed = Vec::new();
+    if auto || kind == "loopback" {
+        match LoopbackSink::open(&c.output.label, &c.output.data_label, width, height, fps) {
+            Ok(s) => {
+                tracing::info!(device = %s.info().device, "publishing on v4l2loopback");
+                let why = auto.then(|| {
+                    format!(
+                        "auto: v4l2loopback device labelled \"{}\" found",
+                        c.output.label
+                    )
+                });
+                return Ok((Box::new(s), why));
+            }
+            Err(e) if !auto => return Err(e.to_string()),
+            Err(e) => {
+                tracing::warn!(
+                    "{e}\nNo usable v4l2loopback device labelled \"{}\". To publish a V4L2 camera: sudo apt install v4l2loopback-dkms && sudo {}\nTrying PipeWire, then a y4m stream.",
                     c.output.label,
                     v4l2loopback_glue::modprobe_command(&c.output.label)
-                ),
+                );
+                passed.push(format!(
+                    "no v4l2loopback device labelled \"{}\"",
+                    c.output.label
+                ));
             }
         }
-        "y4m" => {}
-        other => return Err(format!("unknown sink '{other}': use auto, loopback or y4m")),
+    }
+    if auto || kind == "pipewire" {
+        match open_pipewire(width, height, fps, mode) {
+            Ok(s) => {
+                let why = auto.then(|| format!("auto: {}; PipeWire reachable", passed.join("; ")));
+                return Ok((s, why));
+            }
+            Err(e) if !auto => return Err(e),
+            Err(e) => {
+                tracing::info!("PipeWire sink unavailable ({e}); falling back to a y4m stream");
+                passed.push(e);
+            }
+        }
     }
     let path = (!c.output.y4m_path.is_empty()).then(|| PathBuf::from(&c.output.y4m_path));
     let sink = Y4mSink::new(path.as_deref(), width, height, fps)
@@ -270,7 +329,10 @@ fn build_sink(c: &Config, width: usize, height: usize, fps: f64) -> Result<Box<d
         tracing::info!("streaming y4m into the FIFO {loc}: watch with `ffplay {loc}`");
         eprintln!("sdid: view the stream with: ffplay {loc}");
     }
-    Ok(Box::new(sink))
+    Ok((
+        Box::new(sink),
+        auto.then(|| format!("auto: {}", passed.join("; "))),
+    ))
 }
 
 fn display_from(c: &Config) -> Result<DisplayMap, String> {
@@ -364,12 +426,24 @@ async fn run(args: Args) -> Result<(), String> {
     let separation = config.separation.live_method()?;
     let sensor = backend.sensor().clone();
     let capture: CaptureSettings = backend.settings();
-    let sink = build_sink(&config, sensor.width, sensor.height, capture.frame_rate_hz)?;
-    let output = Output::spawn(sink).map_err(|e| e.to_string())?;
+    let (sink, why) = build_sink(
+        &config,
+        sensor.width,
+        sensor.height,
+        capture.frame_rate_hz,
+        mode,
+    )?;
+    let mut output = Output::spawn(sink).map_err(|e| e.to_string())?;
+    output.set_mode(mode);
+    let mut sink_info = output.info().clone();
+    if let Some(why) = why {
+        tracing::info!(sink = sink_info.kind, "sink {why}");
+        sink_info.device = format!("{} [{why}]", sink_info.device);
+    }
     let info = CameraInfo {
         backend: backend.kind().into(),
         device: backend.device(),
-        sink: output.info().clone(),
+        sink: sink_info,
         limits: backend.limits(),
         sensor: sensor.clone(),
         state_dir: calibration_store::state_dir(args.state_dir.as_deref()),

@@ -4,6 +4,7 @@ pub mod bench;
 pub mod board_emulator;
 pub mod dbus;
 pub mod loopback;
+pub mod pipewire;
 pub mod process;
 pub mod sim_frames;
 pub mod vm;

@@ -49,4 +49,4 @@ pub use device::{
 };
 pub use error::GlueError;
 pub use format::{IoMethod, OutputConfig, PixelFormat, Y16_ZERO_DN};
-pub use writer::{DriverFeatures, Input, LoopbackWriter};
+pub use writer::{no_signal_grey, DriverFeatures, Input, LoopbackWriter};

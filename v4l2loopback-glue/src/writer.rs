@@ -125,7 +125,8 @@ fn describe(fmt: &sys::v4l2_pix_format) -> String {
 
 /// The "no signal" card: 32-pixel checkerboard of two dark greys with a
 /// bright horizontal bar through the middle.
-fn no_signal_grey(width: usize, height: usize) -> Vec<u8> {
+/// The "no signal" card in 8-bit grey: a checkerboard with a bright bar.
+pub fn no_signal_grey(width: usize, height: usize) -> Vec<u8> {
     let mut img = vec![0u8; width * height];
     for (y, row) in img.chunks_exact_mut(width).enumerate() {
         let bar = y >= height * 7 / 16 && y < height * 9 / 16;

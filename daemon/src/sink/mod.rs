@@ -1,12 +1,15 @@
-//! Where processed frames go: a v4l2loopback device, or the y4m fallback.
+//! Where processed frames go: a v4l2loopback device, PipeWire nodes, or the
+//! y4m fallback.
 //! Sinks run on their own thread ([`output`]) so a slow reader never stalls
 //! the frame loop.
 
 pub mod loopback;
 pub mod output;
+#[cfg(feature = "pipewire")]
+pub mod pipewire;
 pub mod y4m;
 
-use crate::modes::{DisplayMap, ModeOutput};
+use crate::modes::{DisplayMap, ModeId, ModeOutput};
 
 /// What a sink publishes, for the D-Bus properties.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -40,4 +43,6 @@ pub trait Sink: Send {
     fn watchers(&mut self) -> Option<u32> {
         None
     }
+    /// The mode of the frames that follow (e.g. for a node description).
+    fn set_mode(&mut self, _mode: ModeId) {}
 }

@@ -8,10 +8,10 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use super::{Sink, SinkInfo};
-use crate::modes::{DisplayMap, ModeOutput};
+use crate::modes::{DisplayMap, ModeId, ModeOutput};
 
 enum Msg {
-    Frame(Arc<ModeOutput>, DisplayMap),
+    Frame(Arc<ModeOutput>, DisplayMap, Option<ModeId>),
     NoSignal,
 }
 
@@ -21,6 +21,8 @@ pub struct Output {
     info: SinkInfo,
     dropped: Arc<AtomicU64>,
     watchers: Arc<AtomicU32>,
+    /// Mode of the frames sent from now on ([`Output::set_mode`]).
+    mode: Option<ModeId>,
     thread: Option<JoinHandle<()>>,
 }
 
@@ -49,7 +51,12 @@ impl Output {
                         Err(RecvTimeoutError::Disconnected) => break,
                     };
                     let r = match msg {
-                        Msg::Frame(out, display) => sink.write(&out, &display),
+                        Msg::Frame(out, display, mode) => {
+                            if let Some(m) = mode {
+                                sink.set_mode(m);
+                            }
+                            sink.write(&out, &display)
+                        }
                         Msg::NoSignal => sink.write_no_signal(),
                     };
                     match r {
@@ -67,6 +74,7 @@ impl Output {
             info,
             dropped: Arc::new(AtomicU64::new(0)),
             watchers,
+            mode: None,
             thread: Some(thread),
         })
     }
@@ -90,9 +98,14 @@ impl Output {
         }
     }
 
+    /// Tags the frames sent from now on with `mode`.
+    pub fn set_mode(&mut self, mode: ModeId) {
+        self.mode = Some(mode);
+    }
+
     /// Queues a frame; never blocks.
     pub fn send(&self, out: Arc<ModeOutput>, display: DisplayMap) {
-        self.try_send(Msg::Frame(out, display));
+        self.try_send(Msg::Frame(out, display, self.mode));
     }
 
     pub fn send_no_signal(&self) {

@@ -1,0 +1,266 @@
+//! CPU per frame of the PipeWire sink against the y4m sink, side by side in
+//! one run on the host, at a 640x480 sensor size. (The v4l2loopback sink
+//! needs the module, i.e. the VM: `loopback_tool bench` there.)
+//!
+//! Each sink gets the same synthetic frames, paced at `--rate` Hz, with one
+//! reader attached in another process (`gst-launch-1.0 pipewiresrc !
+//! fakesink`, `cat FIFO > /dev/null`). The figure is this process's CPU time
+//! (the writing thread plus, for PipeWire, its loop thread) divided by the
+//! frames the sink published. The readers' CPU (reaped children) is printed
+//! beside it.
+//!
+//! `cargo run --release -p sdi-tests --bin sink_bench -- [FRAMES] [RATE_HZ]`
+
+use std::fs::File;
+use std::os::unix::fs::OpenOptionsExt;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use nix::sys::resource::{getrusage, UsageWho};
+use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
+use sdi_core::mode::ModeOutput;
+use sdi_daemon::sink::pipewire::{PipewireSink, VIEW_NODE};
+use sdi_daemon::sink::y4m::Y4mSink;
+use sdi_daemon::sink::Sink;
+use sdi_tests::pipewire::{missing_tools, wait_for, Session};
+use sdi_tests::process::Reaped;
+
+const WIDTH: usize = 640;
+const HEIGHT: usize = 480;
+
+fn cpu_s(who: UsageWho) -> f64 {
+    getrusage(who).map_or(0.0, |u| {
+        let t = |tv: nix::sys::time::TimeVal| tv.tv_sec() as f64 + tv.tv_usec() as f64 * 1e-6;
+        t(u.user_time()) + t(u.system_time())
+    })
+}
+
+/// Frame `k`: a moving ramp of signed DN.
+fn fill(out: &mut ModeOutput, k: usize) {
+    for (i, v) in out.signed_dn.data.iter_mut().enumerate() {
+        let (x, y) = (i % WIDTH, i / WIDTH);
+        *v = ((x + 3 * y + 5 * k) % 2001) as f32 - 1000.0;
+    }
+    out.sequence = k as u64;
+    out.timestamp_us = k as u64 * 16_667;
+}
+
+struct Run {
+    name: String,
+    wall_s: f64,
+    cpu_s: f64,
+    written: usize,
+    published: u64,
+    reader_cpu_s: f64,
+}
+
+impl Run {
+    fn print(&self) {
+        let per = |n: f64| {
+            if n > 0.0 {
+                self.cpu_s * 1e3 / n
+            } else {
+                f64::NAN
+            }
+        };
+        println!(
+            "{:<42} {:>5} written {:>6} published  {:>7.3} ms CPU/published frame  ({:>5.1} % of a core)  reader {:>7.3} ms/frame",
+            self.name,
+            self.written,
+            self.published,
+            per(self.published as f64),
+            self.cpu_s / self.wall_s * 100.0,
+            if self.published > 0 {
+                self.reader_cpu_s * 1e3 / self.published as f64
+            } else {
+                f64::NAN
+            },
+        );
+    }
+}
+
+/// No sink: the colormap rendering and the 640x480 letterbox both sinks
+/// (the y4m sink without the letterbox) start with, for reference.
+struct RenderOnly {
+    rgb: Vec<u8>,
+    scaled: Vec<u8>,
+}
+
+impl Sink for RenderOnly {
+    fn info(&self) -> sdi_daemon::sink::SinkInfo {
+        sdi_daemon::sink::SinkInfo {
+            kind: "render-only",
+            device: String::new(),
+            format: "RGB3".into(),
+            width: WIDTH as u32,
+            height: HEIGHT as u32,
+        }
+    }
+
+    fn write(
+        &mut self,
+        output: &ModeOutput,
+        display: &DisplayMap,
+    ) -> Result<(), sdi_daemon::sink::SinkError> {
+        display.render_output_rgb8(output, &mut self.rgb);
+        sdi_daemon::sink::loopback::letterbox(
+            &self.rgb,
+            WIDTH,
+            HEIGHT,
+            &mut self.scaled,
+            WIDTH,
+            HEIGHT,
+        );
+        Ok(())
+    }
+
+    fn write_no_signal(&mut self) -> Result<(), sdi_daemon::sink::SinkError> {
+        Ok(())
+    }
+}
+
+fn bench_render(frames: usize, rate_hz: f64) -> Run {
+    let mut sink = RenderOnly {
+        rgb: vec![0; WIDTH * HEIGHT * 3],
+        scaled: vec![0; WIDTH * HEIGHT * 3],
+    };
+    let (wall_s, cpu) = drive(&mut sink, frames, rate_hz);
+    Run {
+        name: "render only (colormap + letterbox)".into(),
+        wall_s,
+        cpu_s: cpu,
+        written: frames,
+        published: frames as u64,
+        reader_cpu_s: 0.0,
+    }
+}
+
+/// Writes `frames` frames at `rate_hz` into `sink`; CPU of this process.
+fn drive(sink: &mut dyn Sink, frames: usize, rate_hz: f64) -> (f64, f64) {
+    let display = DisplayMap {
+        colormap: Colormap::Diverging,
+        range: DisplayRange::SymmetricAuto,
+    };
+    // Made beforehand so only the sink's work is timed.
+    let outputs: Vec<ModeOutput> = (0..16)
+        .map(|k| {
+            let mut out = ModeOutput::new(WIDTH, HEIGHT);
+            fill(&mut out, k);
+            out
+        })
+        .collect();
+    let period = Duration::from_secs_f64(1.0 / rate_hz);
+    let (c0, t0) = (cpu_s(UsageWho::RUSAGE_SELF), Instant::now());
+    for k in 0..frames {
+        if let Err(e) = sink.write(&outputs[k % outputs.len()], &display) {
+            eprintln!("sink_bench: write: {e}");
+        }
+        let next = t0 + period * (k as u32 + 1);
+        if let Some(d) = next.checked_duration_since(Instant::now()) {
+            std::thread::sleep(d);
+        }
+    }
+    // Let the PipeWire thread finish the last frame.
+    std::thread::sleep(period);
+    (
+        t0.elapsed().as_secs_f64(),
+        cpu_s(UsageWho::RUSAGE_SELF) - c0,
+    )
+}
+
+fn bench_pipewire(s: &Session, caps: &str, frames: usize, rate_hz: f64) -> Run {
+    let mut sink = PipewireSink::open(WIDTH, HEIGHT, rate_hz, sdi_core::mode::ModeId::Raw)
+        .unwrap_or_else(|e| panic!("PipeWire sink: {e}"));
+    let reader = (!caps.is_empty()).then(|| s.reader(VIEW_NODE, caps));
+    if reader.is_some() {
+        wait_for(
+            "a reader on the PipeWire node",
+            Duration::from_secs(20),
+            || sink.view_streaming().then_some(()),
+        );
+    }
+    let before = sink.published().0;
+    let (wall_s, cpu) = drive(&mut sink, frames, rate_hz);
+    let published = sink.published().0 - before;
+    drop(sink);
+    let c0 = cpu_s(UsageWho::RUSAGE_CHILDREN);
+    drop(reader);
+    Run {
+        name: if caps.is_empty() {
+            "pipewire, no reader".into()
+        } else {
+            format!("pipewire, reader {caps}")
+        },
+        wall_s,
+        cpu_s: cpu,
+        written: frames,
+        published,
+        reader_cpu_s: cpu_s(UsageWho::RUSAGE_CHILDREN) - c0,
+    }
+}
+
+fn bench_y4m(s: &Session, frames: usize, rate_hz: f64) -> Run {
+    let fifo = s.dir.path().join("bench.y4m");
+    nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::from_bits_truncate(0o600)).expect("mkfifo");
+    // The reader's end opened here first, so the sink finds a reader from
+    // its first frame; then handed to `cat` as blocking stdin.
+    let read_end = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK)
+        .open(&fifo)
+        .expect("open FIFO");
+    {
+        use nix::fcntl::{fcntl, FcntlArg, OFlag};
+        use std::os::fd::AsRawFd;
+        fcntl(read_end.as_raw_fd(), FcntlArg::F_SETFL(OFlag::empty())).expect("blocking FIFO");
+    }
+    let mut sink = Y4mSink::new(Some(&fifo), WIDTH, HEIGHT, rate_hz).expect("y4m sink");
+    let reader = Reaped(
+        Command::new("cat")
+            .stdin(Stdio::from(read_end))
+            .stdout(File::create("/dev/null").expect("/dev/null"))
+            .spawn()
+            .expect("start cat"),
+    );
+    let (wall_s, cpu) = drive(&mut sink, frames, rate_hz);
+    drop(sink);
+    let c0 = cpu_s(UsageWho::RUSAGE_CHILDREN);
+    let mut reader = reader;
+    let _ = reader.0.wait();
+    Run {
+        name: "y4m (C444 FIFO), reader cat".into(),
+        wall_s,
+        cpu_s: cpu,
+        written: frames,
+        published: frames as u64,
+        reader_cpu_s: cpu_s(UsageWho::RUSAGE_CHILDREN) - c0,
+    }
+}
+
+fn main() {
+    let mut args = std::env::args().skip(1);
+    let frames: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(300);
+    let rate_hz: f64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(60.0);
+    if let Some(why) = missing_tools() {
+        eprintln!("sink_bench: {why}");
+        std::process::exit(2);
+    }
+    let s = Session::start();
+    // This process is the PipeWire client: point it at the private daemon
+    // (before any thread of ours starts).
+    std::env::set_var("XDG_RUNTIME_DIR", s.runtime_dir());
+    std::env::remove_var("PIPEWIRE_REMOTE");
+    println!(
+        "sink_bench: {frames} frames of {WIDTH}x{HEIGHT} at {rate_hz} Hz per sink (view 640x480)"
+    );
+    let runs = [
+        bench_y4m(&s, frames, rate_hz),
+        bench_pipewire(&s, "video/x-raw,format=YUY2", frames, rate_hz),
+        bench_pipewire(&s, "video/x-raw,format=RGB", frames, rate_hz),
+        bench_pipewire(&s, "", frames, rate_hz),
+        bench_render(frames, rate_hz),
+    ];
+    for r in &runs {
+        r.print();
+    }
+}

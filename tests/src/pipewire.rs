@@ -1,0 +1,304 @@
+//! A private PipeWire session for tests and the sink benchmark: `pipewire`
+//! and `wireplumber` under a temporary `XDG_RUNTIME_DIR`, on a private
+//! session bus, plus `pw-dump` and `gst-launch-1.0 pipewiresrc` readers.
+
+use std::collections::HashMap;
+use std::io::{BufRead, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use crate::dbus::Bus;
+use crate::process::Reaped;
+
+/// Programs the PipeWire tests need, with the Debian package of each.
+const TOOLS: [(&str, &[&str], &str); 6] = [
+    ("dbus-daemon", &["--version"], "dbus"),
+    ("pipewire", &["--version"], "pipewire"),
+    ("wireplumber", &["--version"], "wireplumber"),
+    ("pw-dump", &["--version"], "pipewire-bin"),
+    ("gst-launch-1.0", &["--version"], "gstreamer1.0-tools"),
+    ("gst-inspect-1.0", &["pipewiresrc"], "gstreamer1.0-pipewire"),
+];
+
+/// Why the PipeWire tests cannot run here (a missing program), if so.
+pub fn missing_tools() -> Option<String> {
+    let missing: Vec<String> = TOOLS
+        .iter()
+        .filter(|(prog, args, _)| {
+            !Command::new(prog)
+                .args(*args)
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success())
+        })
+        .map(|(prog, _, pkg)| format!("{prog} ({pkg})"))
+        .collect();
+    (!missing.is_empty()).then(|| format!("missing {}", missing.join(", ")))
+}
+
+/// Skips (with a message) when the PipeWire tools are missing, unless
+/// `SDI_REQUIRE_VM` is set (CI), where that is a failure.
+#[macro_export]
+macro_rules! require_pipewire {
+    () => {
+        if let Some(why) = $crate::pipewire::missing_tools() {
+            assert!(
+                std::env::var_os("SDI_REQUIRE_VM").is_none(),
+                "PipeWire test cannot run and SDI_REQUIRE_VM is set: {why} \
+                 (apt-get install pipewire pipewire-bin wireplumber gstreamer1.0-pipewire gstreamer1.0-tools)"
+            );
+            eprintln!("SKIPPED: {why} (apt-get install pipewire pipewire-bin wireplumber gstreamer1.0-pipewire gstreamer1.0-tools)");
+            return;
+        }
+    };
+}
+
+/// Polls `f` every 50 ms until it returns `Some`, panicking after `timeout`.
+pub fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
+    let t0 = Instant::now();
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        assert!(
+            t0.elapsed() < timeout,
+            "timed out after {timeout:?} waiting for {what}"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+/// `pipewire` + `wireplumber` on a private bus in a temporary runtime
+/// directory; everything is killed on drop.
+pub struct Session {
+    // Dropped in order: the session manager before the daemon before the bus.
+    _wireplumber: Reaped,
+    _pipewire: Reaped,
+    pub bus: Bus,
+    pub dir: tempfile::TempDir,
+}
+
+impl Session {
+    /// Starts the session and waits until PipeWire answers `pw-dump`.
+    pub fn start() -> Self {
+        let dir = tempfile::tempdir().expect("temporary directory");
+        let runtime = dir.path().join("runtime");
+        std::fs::create_dir(&runtime).expect("runtime dir");
+        std::fs::set_permissions(
+            &runtime,
+            std::os::unix::fs::PermissionsExt::from_mode(0o700),
+        )
+        .expect("chmod runtime dir");
+        let bus = Bus::start();
+        let pipewire = spawn_logged(dir.path(), &bus.address, "pipewire");
+        wait_for(
+            "PipeWire to answer pw-dump",
+            Duration::from_secs(20),
+            || dump(dir.path(), &bus.address),
+        );
+        let wireplumber = spawn_logged(dir.path(), &bus.address, "wireplumber");
+        Self {
+            _wireplumber: wireplumber,
+            _pipewire: pipewire,
+            bus,
+            dir,
+        }
+    }
+
+    pub fn runtime_dir(&self) -> PathBuf {
+        self.dir.path().join("runtime")
+    }
+
+    /// `cmd` set up for this session (runtime dir, bus, config dirs).
+    pub fn command(&self, program: impl AsRef<std::ffi::OsStr>) -> Command {
+        let mut cmd = Command::new(program);
+        env(&mut cmd, self.dir.path(), &self.bus.address);
+        cmd
+    }
+
+    /// Properties of every node, from `pw-dump`.
+    pub fn nodes(&self) -> Vec<HashMap<String, serde_json::Value>> {
+        let Some(serde_json::Value::Array(objects)) = dump(self.dir.path(), &self.bus.address)
+        else {
+            return Vec::new();
+        };
+        objects
+            .iter()
+            .filter(|o| o["type"] == "PipeWire:Interface:Node")
+            .filter_map(|o| o["info"]["props"].as_object())
+            .map(|p| p.iter().map(|(k, v)| (k.clone(), v.clone())).collect())
+            .collect()
+    }
+
+    /// The properties of the node named `name`, once it exists.
+    pub fn node(&self, name: &str) -> Option<HashMap<String, serde_json::Value>> {
+        self.nodes()
+            .into_iter()
+            .find(|p| p.get("node.name").and_then(|v| v.as_str()) == Some(name))
+    }
+
+    /// Reads `frames` buffers of `caps` (e.g. "video/x-raw,format=RGB") from
+    /// node `target` with `gst-launch-1.0 pipewiresrc`; returns the raw bytes.
+    pub fn read_frames(&self, target: &str, caps: &str, frames: u32, timeout: Duration) -> Vec<u8> {
+        let out = self.dir.path().join(format!("{target}.raw"));
+        let _ = std::fs::remove_file(&out);
+        let pipeline = format!(
+            "pipewiresrc target-object={target} num-buffers={frames} ! {caps} ! filesink location={}",
+            out.display()
+        );
+        let mut child = self
+            .command("gst-launch-1.0")
+            .arg("-q")
+            .args(pipeline.split(' '))
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start gst-launch-1.0");
+        let status = wait_child(&mut child, timeout);
+        let mut err = String::new();
+        if let Some(mut e) = child.stderr.take() {
+            let _ = e.read_to_string(&mut err);
+        }
+        assert!(
+            status.is_some_and(|s| s.success()),
+            "gst-launch-1.0 {pipeline}: {status:?} (None = timeout after {timeout:?})\n{err}"
+        );
+        std::fs::read(&out).expect("read the frames gst-launch wrote")
+    }
+
+    /// Starts a reader that runs until killed (`pipewiresrc ! fakesink`).
+    pub fn reader(&self, target: &str, caps: &str) -> Reaped {
+        Reaped(
+            self.command("gst-launch-1.0")
+                .arg("-q")
+                .args(format!("pipewiresrc target-object={target} ! {caps} ! fakesink").split(' '))
+                .stdout(Stdio::null())
+                .stderr(Stdio::null())
+                .spawn()
+                .expect("start gst-launch-1.0"),
+        )
+    }
+}
+
+/// Starts `program` of the session in `dir`, its stderr to `dir/program.log`.
+fn spawn_logged(dir: &Path, bus: &str, program: &str) -> Reaped {
+    let log = std::fs::File::create(dir.join(format!("{program}.log"))).expect("log file");
+    let mut cmd = Command::new(program);
+    env(&mut cmd, dir, bus);
+    Reaped(
+        cmd.stdout(Stdio::null())
+            .stderr(log)
+            .spawn()
+            .unwrap_or_else(|e| panic!("start {program}: {e}")),
+    )
+}
+
+/// `pw-dump`'s JSON, None while PipeWire does not answer.
+fn dump(dir: &Path, bus: &str) -> Option<serde_json::Value> {
+    let mut cmd = Command::new("pw-dump");
+    env(&mut cmd, dir, bus);
+    let out = cmd.stderr(Stdio::null()).output().ok()?;
+    if !out.status.success() {
+        return None;
+    }
+    serde_json::from_slice(&out.stdout).ok()
+}
+
+/// Waits for `child` at most `timeout`; kills it and returns None on timeout.
+fn wait_child(child: &mut Child, timeout: Duration) -> Option<std::process::ExitStatus> {
+    let t0 = Instant::now();
+    loop {
+        if let Ok(Some(s)) = child.try_wait() {
+            return Some(s);
+        }
+        if t0.elapsed() > timeout {
+            let _ = child.kill();
+            let _ = child.wait();
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn env(cmd: &mut Command, dir: &Path, bus: &str) {
+    cmd.env("XDG_RUNTIME_DIR", dir.join("runtime"))
+        .env("XDG_CONFIG_HOME", dir.join("config"))
+        .env("XDG_STATE_HOME", dir.join("state"))
+        .env("XDG_DATA_HOME", dir.join("data"))
+        .env("DBUS_SESSION_BUS_ADDRESS", bus)
+        .env_remove("PIPEWIRE_REMOTE")
+        .env_remove("PIPEWIRE_RUNTIME_DIR")
+        .env_remove("DISPLAY")
+        .env_remove("WAYLAND_DISPLAY");
+}
+
+/// The per-frame lines `sdid` logs with `RUST_LOG=sdid::pipewire::frames=trace`
+/// ("published stream=... crc32=..."), collected from its stderr.
+#[derive(Clone, Default)]
+pub struct FrameLog {
+    lines: Arc<Mutex<Vec<HashMap<String, String>>>>,
+    all: Arc<Mutex<Vec<String>>>,
+}
+
+impl FrameLog {
+    /// Collects from `stderr` on a thread until it closes.
+    pub fn collect(stderr: impl Read + Send + 'static) -> Self {
+        let log = Self::default();
+        let l = log.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                if let Some(fields) = parse_published(&line) {
+                    l.lines.lock().expect("log lock").push(fields);
+                }
+                l.all.lock().expect("log lock").push(line);
+            }
+        });
+        log
+    }
+
+    /// Published frames so far, as key=value fields.
+    pub fn published(&self) -> Vec<HashMap<String, String>> {
+        self.lines.lock().expect("log lock").clone()
+    }
+
+    /// Everything sdid wrote to stderr so far.
+    pub fn text(&self) -> String {
+        self.all.lock().expect("log lock").join("\n")
+    }
+}
+
+/// Fields of one "published" line: `... published stream="sdi-camera" crc32=0a1b2c3d`.
+pub fn parse_published(line: &str) -> Option<HashMap<String, String>> {
+    let rest = line.split_once(" published ")?.1;
+    Some(
+        rest.split_whitespace()
+            .filter_map(|kv| kv.split_once('='))
+            .map(|(k, v)| (k.to_owned(), v.trim_matches('"').to_owned()))
+            .collect(),
+    )
+}
+
+/// CRC-32 (as logged) of each `frame_bytes` chunk of `data`.
+pub fn frame_crcs(data: &[u8], frame_bytes: usize) -> Vec<String> {
+    data.chunks_exact(frame_bytes)
+        .map(|f| format!("{:08x}", crc32fast::hash(f)))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_a_published_line() {
+        let l = "2026-11-24T05:41:29Z TRACE sdid::pipewire::frames: published stream=\"sdi-camera\" format=\"RGB\" mode=\"raw\" seq=2 pts_ns=9806 bytes=921600 crc32=e204d9a6";
+        let f = parse_published(l).unwrap();
+        assert_eq!(f["stream"], "sdi-camera");
+        assert_eq!(f["crc32"], "e204d9a6");
+        assert_eq!(f["pts_ns"], "9806");
+        assert!(parse_published("INFO sdid: serving").is_none());
+    }
+}

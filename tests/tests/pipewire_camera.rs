@@ -1,0 +1,320 @@
+//! The PipeWire sink on the host, without v4l2loopback: a private bus,
+//! `pipewire` and `wireplumber` under a temporary XDG_RUNTIME_DIR, then
+//! `sdid --backend sim --sink pipewire`. `pw-dump` must list the camera node
+//! (Video/Source, media.role Camera), `gst-launch-1.0 pipewiresrc` must read
+//! frames whose CRC-32 sdid logged as published (the exact bytes), through a
+//! mode switch, a second format, the data node and a restart of sdid.
+
+use std::collections::{HashMap, HashSet};
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use sdi_tests::dbus::{bin, sdictl};
+use sdi_tests::pipewire::{frame_crcs, wait_for, FrameLog, Session};
+use sdi_tests::process::Reaped;
+use sdi_tests::require_pipewire;
+
+const VIEW: &str = "sdi-camera";
+const DATA: &str = "sdi-camera-data";
+const TIMEOUT: Duration = Duration::from_secs(30);
+/// The view size (v4l2loopback's view profile) and the simulator's sensor.
+const VIEW_W: usize = 640;
+const VIEW_H: usize = 480;
+const SENSOR_W: usize = 320;
+const SENSOR_H: usize = 240;
+const FRAMES: u32 = 40;
+
+struct Sdid {
+    _child: Reaped,
+    log: FrameLog,
+    address: String,
+}
+
+impl Sdid {
+    fn start(s: &Session, extra: &[&str]) -> Self {
+        let mut child = s
+            .command(bin("sdid"))
+            .args(["--bus-address", &s.bus.address, "--backend", "sim"])
+            .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
+            .args(extra)
+            .env("RUST_LOG", "info,sdid::pipewire::frames=trace")
+            .env_remove("INVOCATION_ID")
+            .env_remove("JOURNAL_STREAM")
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start sdid");
+        let log = FrameLog::collect(child.stderr.take().expect("sdid stderr"));
+        let child = Reaped(child);
+        let address = s.bus.address.clone();
+        let t0 = Instant::now();
+        while !sdictl(&address, &["get", "mode"]).status.success() {
+            assert!(
+                t0.elapsed() < TIMEOUT,
+                "sdid did not come up:\n{}",
+                log.text()
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        Self {
+            _child: child,
+            log,
+            address,
+        }
+    }
+
+    fn ctl(&self, args: &[&str]) -> String {
+        let out = sdictl(&self.address, args);
+        assert!(
+            out.status.success(),
+            "sdictl {args:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        String::from_utf8_lossy(&out.stdout).into_owned()
+    }
+}
+
+fn prop<'a>(p: &'a HashMap<String, serde_json::Value>, key: &str) -> &'a str {
+    p.get(key).and_then(|v| v.as_str()).unwrap_or("")
+}
+
+/// Asserts that every frame in `data` is one sdid published on `stream` in
+/// `format` while in `mode` (same CRC-32), that they are live (not one
+/// still) and that their PTS rise steadily; returns their CRCs.
+fn check_published(
+    d: &Sdid,
+    data: &[u8],
+    frame_bytes: usize,
+    stream: &str,
+    format: &str,
+    mode: &str,
+) -> Vec<String> {
+    assert_eq!(data.len() % frame_bytes, 0, "a partial frame was read");
+    let crcs = frame_crcs(data, frame_bytes);
+    assert!(crcs.len() >= 30, "only {} frames read", crcs.len());
+    let matches = |p: &HashMap<String, String>, crc: &str| {
+        p.get("crc32").map(String::as_str) == Some(crc)
+            && p.get("stream").map(String::as_str) == Some(stream)
+            && p.get("format").map(String::as_str) == Some(format)
+            && p.get("mode").map(String::as_str) == Some(mode)
+    };
+    // The log line is written before the buffer is queued; the collector
+    // thread may still be behind: poll.
+    let t0 = Instant::now();
+    let missing = loop {
+        let published = d.log.published();
+        let missing: Vec<&String> = crcs
+            .iter()
+            .filter(|c| !published.iter().any(|p| matches(p, c)))
+            .collect();
+        if missing.is_empty() || t0.elapsed() > Duration::from_secs(10) {
+            break missing.into_iter().cloned().collect::<Vec<_>>();
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(
+        missing.is_empty(),
+        "{} of {} frames read from {stream} were not published by sdid as {format} in mode {mode}: {missing:?}",
+        missing.len(),
+        crcs.len()
+    );
+    let distinct: HashSet<&String> = crcs.iter().collect();
+    assert!(
+        distinct.len() > crcs.len() / 2,
+        "{stream}: only {} distinct frames of {}",
+        distinct.len(),
+        crcs.len()
+    );
+    // PTS strictly increasing in publishing order, at about the frame rate.
+    let mut pts: Vec<(u64, i64)> = d
+        .log
+        .published()
+        .iter()
+        .filter(|p| p.get("stream").map(String::as_str) == Some(stream))
+        .filter_map(|p| Some((p.get("seq")?.parse().ok()?, p.get("pts_ns")?.parse().ok()?)))
+        .collect();
+    pts.sort_unstable();
+    assert!(
+        pts.windows(2).all(|w| w[1].1 > w[0].1),
+        "{stream}: PTS not increasing"
+    );
+    let mut gaps_ms: Vec<f64> = pts
+        .windows(2)
+        .map(|w| (w[1].1 - w[0].1) as f64 * 1e-6)
+        .collect();
+    gaps_ms.sort_by(f64::total_cmp);
+    let median = gaps_ms[gaps_ms.len() / 2];
+    assert!(
+        (15.0..=100.0).contains(&median),
+        "{stream}: median frame interval {median:.1} ms at 30 fps"
+    );
+    eprintln!(
+        "ok: {} {format} frames of {stream} in mode {mode} match sdid's published CRC-32s ({} distinct, median interval {median:.1} ms)",
+        crcs.len(),
+        distinct.len()
+    );
+    crcs
+}
+
+/// The view is the 320x240 sensor image scaled 2x: every 2x2 block is one colour.
+fn assert_doubled_rgb(frame: &[u8]) {
+    let px = |x: usize, y: usize| &frame[(y * VIEW_W + x) * 3..(y * VIEW_W + x) * 3 + 3];
+    for y in (0..VIEW_H).step_by(2) {
+        for x in (0..VIEW_W).step_by(2) {
+            let p = px(x, y);
+            assert!(
+                px(x + 1, y) == p && px(x, y + 1) == p && px(x + 1, y + 1) == p,
+                "the view is not the sensor image doubled at ({x}, {y})"
+            );
+        }
+    }
+}
+
+fn wait_node(s: &Session, name: &str) -> HashMap<String, serde_json::Value> {
+    wait_for(&format!("node {name} in pw-dump"), TIMEOUT, || s.node(name))
+}
+
+#[test]
+fn pipewire_camera_node_frames_mode_switch_and_restart() {
+    require_pipewire!();
+    let s = Session::start();
+    let d = Sdid::start(&s, &["--sink", "pipewire"]);
+
+    let view = wait_node(&s, VIEW);
+    assert_eq!(prop(&view, "media.class"), "Video/Source", "{view:?}");
+    assert_eq!(prop(&view, "media.role"), "Camera", "{view:?}");
+    assert_eq!(prop(&view, "node.description"), "SDI camera (raw)");
+    let data = wait_node(&s, DATA);
+    assert_eq!(prop(&data, "media.class"), "Video/Source", "{data:?}");
+    assert_ne!(prop(&data, "media.role"), "Camera", "{data:?}");
+    eprintln!(
+        "ok: pw-dump: {VIEW}: media.class {}, media.role {}, description {:?}",
+        prop(&view, "media.class"),
+        prop(&view, "media.role"),
+        prop(&view, "node.description")
+    );
+    let device = d.ctl(&["get", "device"]);
+    assert!(device.contains("PipeWire node \"sdi-camera\""), "{device}");
+
+    // RGB from the camera node.
+    let rgb_bytes = VIEW_W * VIEW_H * 3;
+    let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", FRAMES, TIMEOUT);
+    let raw_crcs = check_published(&d, &rgb, rgb_bytes, VIEW, "RGB", "raw");
+    rgb.chunks_exact(rgb_bytes).for_each(assert_doubled_rgb);
+
+    // The raw data node: Y16 at the sensor size.
+    let y16 = s.read_frames(DATA, "video/x-raw,format=GRAY16_LE", 30, TIMEOUT);
+    check_published(&d, &y16, SENSOR_W * SENSOR_H * 2, DATA, "Y16", "raw");
+
+    // A mode switch: the description follows, and the frames are the new mode's.
+    d.ctl(&["set-mode", "depth-edge"]);
+    wait_for("the node description to follow the mode", TIMEOUT, || {
+        s.node(VIEW)
+            .filter(|p| prop(p, "node.description") == "SDI camera (depth-edge)")
+    });
+    let yuyv = s.read_frames(VIEW, "video/x-raw,format=YUY2", 30, TIMEOUT);
+    let edge_crcs = check_published(&d, &yuyv, VIEW_W * VIEW_H * 2, VIEW, "YUYV", "depth-edge");
+    assert!(edge_crcs.iter().all(|c| !raw_crcs.contains(c)));
+
+    // A restart: the node goes away with sdid and comes back with the new one.
+    drop(d);
+    wait_for("the node to go away with sdid", TIMEOUT, || {
+        s.node(VIEW).is_none().then_some(())
+    });
+    let d = Sdid::start(&s, &["--sink", "pipewire", "--mode", "bipolar-colour"]);
+    let view = wait_node(&s, VIEW);
+    assert_eq!(
+        prop(&view, "node.description"),
+        "SDI camera (bipolar-colour)"
+    );
+    let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", 30, TIMEOUT);
+    check_published(&d, &rgb, rgb_bytes, VIEW, "RGB", "bipolar-colour");
+}
+
+#[test]
+fn sink_auto_prefers_pipewire_then_y4m() {
+    require_pipewire!();
+    let s = Session::start();
+    // A label no loopback device has, so auto passes over v4l2loopback even
+    // where the module is loaded.
+    let config = s.dir.path().join("sdid.toml");
+    std::fs::write(&config, "[output]\nlabel = \"sdi-test absent loopback\"\n")
+        .expect("write config");
+    let config = config.to_string_lossy().into_owned();
+    {
+        let d = Sdid::start(&s, &["--sink", "auto", "--config", &config]);
+        let device = d.ctl(&["get", "device"]);
+        assert!(
+            device.contains("PipeWire node")
+                && device.contains("auto: no v4l2loopback device labelled")
+                && device.contains("PipeWire reachable"),
+            "{device}"
+        );
+        assert!(d.log.text().contains("sink auto:"), "{}", d.log.text());
+        wait_node(&s, VIEW);
+    }
+    // No PipeWire for this runtime directory: y4m, and it says why.
+    let empty = s.dir.path().join("empty-runtime");
+    std::fs::create_dir(&empty).expect("mkdir");
+    let mut cmd = s.command(bin("sdid"));
+    cmd.args(["--bus-address", &s.bus.address, "--backend", "sim"])
+        .args(["--sink", "auto", "--config", &config])
+        .env("XDG_RUNTIME_DIR", &empty)
+        .env("RUST_LOG", "info")
+        .env_remove("INVOCATION_ID")
+        .env_remove("JOURNAL_STREAM")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null());
+    let _d = Reaped(cmd.spawn().expect("start sdid"));
+    let device = wait_for("sdid with the y4m fallback", TIMEOUT, || {
+        let out = sdictl(&s.bus.address, &["get", "device"]);
+        out.status
+            .success()
+            .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+    });
+    assert!(
+        device.contains("sdid-view.y4m")
+            && device.contains("auto: no v4l2loopback device")
+            && device.contains("no PipeWire daemon reachable"),
+        "{device}"
+    );
+}
+
+#[test]
+fn no_signal_card_while_the_source_stops() {
+    require_pipewire!();
+    let s = Session::start();
+    let rec = s.dir.path().join("short.sdirec");
+    let rec = rec.to_string_lossy().into_owned();
+    {
+        let d = Sdid::start(&s, &["--sink", "pipewire"]);
+        d.ctl(&["record", &rec, "--seconds", "1"]);
+    }
+    // The recording played once (no --loop): then the source has stopped and
+    // sdid shows the "no signal" card, about 5 times a second.
+    let d = Sdid::start(&s, &["--sink", "pipewire", "--replay", &rec]);
+    wait_for("the replay to end", TIMEOUT, || {
+        d.log.text().contains("showing no-signal").then_some(())
+    });
+    let rgb_bytes = VIEW_W * VIEW_H * 3;
+    let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", 5, TIMEOUT);
+    assert_eq!(rgb.len(), 5 * rgb_bytes);
+    let card: Vec<u8> = v4l2loopback_glue::no_signal_grey(VIEW_W, VIEW_H)
+        .iter()
+        .flat_map(|&g| [g, g, g])
+        .collect();
+    // A checkerboard of 40 and 72 with a bar of 200 across the middle.
+    assert_eq!(&card[..3], &[40, 40, 40]);
+    assert_eq!(&card[(VIEW_H / 2 * VIEW_W) * 3..][..3], &[200, 200, 200]);
+    for (i, frame) in rgb.chunks_exact(rgb_bytes).enumerate() {
+        assert!(
+            frame == card.as_slice(),
+            "frame {i} is not the no-signal card"
+        );
+    }
+    let crc = frame_crcs(&card, rgb_bytes);
+    assert!(d.log.published().iter().any(
+        |p| p.get("crc32") == crc.first() && p.get("format").map(String::as_str) == Some("RGB")
+    ));
+    eprintln!("ok: 5 RGB frames of {VIEW} are the no-signal card while the replay has ended");
+}
