@@ -4,7 +4,12 @@
 //! symmetric about zero, either fixed or taken from a high percentile of |x|
 //! so a few outliers (hot pixels, saturation, NaN/Inf) do not wash it out.
 
+pub mod reference;
+
 use std::str::FromStr;
+use std::sync::OnceLock;
+
+use multiversion::multiversion;
 
 use crate::image::Image;
 use crate::mode::{ModeOutput, SeparatedChannels};
@@ -85,6 +90,12 @@ pub struct DisplayMap {
 
 const LUT_SIZE: usize = 1023;
 const LUT_HALF: f32 = ((LUT_SIZE - 1) / 2) as f32;
+/// The largest f32 below 0.5: trunc(x + ROUND_BIAS) equals `x.round()` for
+/// every finite x >= 0 (the expansion LLVM itself uses), without a libm call,
+/// so the per-pixel loops vectorize.
+const ROUND_BIAS: f32 = 0.499_999_97;
+/// Pixels per block: indices of one block live on the stack.
+const BLOCK: usize = 256;
 
 /// Diverging anchors at t = -1, -0.5, 0, 0.5, 1 (a red-blue scale).
 const DIVERGING: [[f32; 3]; 5] = [
@@ -94,6 +105,49 @@ const DIVERGING: [[f32; 3]; 5] = [
     [239.0, 138.0, 98.0],
     [178.0, 24.0, 43.0],
 ];
+
+/// One colormap's tables over [-1, 1] in steps of 1/511 (finer than 8-bit
+/// output), built once. 1024 entries so a 10-bit index needs no bounds check.
+struct Tables {
+    rgb: [[u8; 3]; 1024],
+    /// BT.601 limited-range luma of each colour.
+    luma: [u8; 1024],
+    /// Unscaled BT.601 (U, V) of each colour: a pixel pair's chroma is
+    /// ((sum + 256) >> 9) + 128, the formula of v4l2loopback-glue's scalar
+    /// RGB to YUYV packing.
+    chroma: [[i32; 2]; 1024],
+}
+
+impl Tables {
+    fn build(colormap: Colormap) -> Self {
+        let mut t = Tables {
+            rgb: [[0; 3]; 1024],
+            luma: [0; 1024],
+            chroma: [[0; 2]; 1024],
+        };
+        for i in 0..1024 {
+            let x = i.min(LUT_SIZE - 1) as f32 / LUT_HALF - 1.0;
+            let c = match colormap {
+                Colormap::Diverging => reference::diverging(x),
+                Colormap::Grey => [reference::grey(x); 3],
+            };
+            let [r, g, b] = c.map(i32::from);
+            t.rgb[i] = c;
+            t.luma[i] = (((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) as u8;
+            t.chroma[i] = [-38 * r - 74 * g + 112 * b, 112 * r - 94 * g - 18 * b];
+        }
+        t
+    }
+
+    fn get(colormap: Colormap) -> &'static Tables {
+        static DIVERGING_TABLES: OnceLock<Tables> = OnceLock::new();
+        static GREY_TABLES: OnceLock<Tables> = OnceLock::new();
+        match colormap {
+            Colormap::Diverging => DIVERGING_TABLES.get_or_init(|| Tables::build(colormap)),
+            Colormap::Grey => GREY_TABLES.get_or_init(|| Tables::build(colormap)),
+        }
+    }
+}
 
 impl DisplayMap {
     pub fn new(colormap: Colormap, range: DisplayRange) -> Self {
@@ -113,19 +167,53 @@ impl DisplayMap {
     /// Writes 3 bytes (R, G, B) per pixel into `out` (length 3 * width * height;
     /// pixels beyond a shorter `out` are skipped). Uses the selected colormap.
     pub fn render_rgb8(&self, img: &Image<f32>, out: &mut [u8]) {
-        // A lookup table over [-1, 1] (steps of 1/511, finer than 8-bit output).
-        let mut lut = [[0u8; 3]; LUT_SIZE];
-        for (i, c) in lut.iter_mut().enumerate() {
-            let t = i as f32 / LUT_HALF - 1.0;
-            *c = match self.colormap {
-                Colormap::Diverging => diverging(t),
-                Colormap::Grey => [grey(t); 3],
-            };
+        self.render_rgb8_yuyv(img, out, &mut []);
+    }
+
+    /// Writes YUYV (BT.601 limited range, 2 bytes per pixel, chroma from the
+    /// mean of each horizontal pixel pair) of the colormapped image: the
+    /// bytes v4l2loopback-glue's scalar RGB to YUYV packing makes of
+    /// [`Self::render_rgb8`]'s output. Rows or pairs beyond a shorter `out`
+    /// are skipped; with an odd width the last 2 bytes of each row are not written.
+    pub fn render_yuyv(&self, img: &Image<f32>, out: &mut [u8]) {
+        self.render_rgb8_yuyv(img, &mut [], out);
+    }
+
+    /// [`Self::render_rgb8`] into `rgb` and [`Self::render_yuyv`] into
+    /// `yuyv` in one pass with one auto range; an empty slice skips that output.
+    pub fn render_rgb8_yuyv(&self, img: &Image<f32>, rgb: &mut [u8], yuyv: &mut [u8]) {
+        let w = img.width.max(1);
+        let n = img.data.len();
+        let n_rgb = (rgb.len() / 3).min(n);
+        if n_rgb == 0 && yuyv.len() < 4 {
+            return;
         }
         let scale = 1.0 / self.max_abs_dn(img);
-        for (px, &v) in out.chunks_exact_mut(3).zip(&img.data) {
-            let t = normalized(v, scale);
-            px.copy_from_slice(&lut[((t + 1.0) * LUT_HALF).round() as usize]);
+        let tables = Tables::get(self.colormap);
+        let mut idx = [0u16; BLOCK];
+        for (y, row) in img.data.chunks(w).enumerate() {
+            // Whole pairs of this row inside `yuyv`.
+            let yuyv_row = yuyv.get_mut(2 * y * w..).unwrap_or_default();
+            let pairs = (row.len() / 2).min(yuyv_row.len() / 4);
+            for (b, block) in row.chunks(BLOCK).enumerate() {
+                let x0 = b * BLOCK;
+                let idx = &mut idx[..block.len()];
+                lut_indices(block, scale, idx);
+                let rgb_px = n_rgb.saturating_sub(y * w + x0).min(block.len());
+                let rgb_out = &mut rgb[3 * (y * w + x0).min(n_rgb)..][..3 * rgb_px];
+                for (o, &i) in rgb_out.chunks_exact_mut(3).zip(idx.iter()) {
+                    o.copy_from_slice(&tables.rgb[usize::from(i) & 1023]);
+                }
+                let block_pairs = pairs.saturating_sub(x0 / 2).min(block.len() / 2);
+                let yuyv_out = &mut yuyv_row[(2 * x0).min(4 * pairs)..][..4 * block_pairs];
+                for (o, i) in yuyv_out.chunks_exact_mut(4).zip(idx.chunks_exact(2)) {
+                    let (i0, i1) = (usize::from(i[0]) & 1023, usize::from(i[1]) & 1023);
+                    let (c0, c1) = (tables.chroma[i0], tables.chroma[i1]);
+                    let u = (((c0[0] + c1[0] + 256) >> 9) + 128).clamp(0, 255) as u8;
+                    let v = (((c0[1] + c1[1] + 256) >> 9) + 128).clamp(0, 255) as u8;
+                    o.copy_from_slice(&[tables.luma[i0], u, tables.luma[i1], v]);
+                }
+            }
         }
     }
 
@@ -142,9 +230,34 @@ impl DisplayMap {
     /// Writes 1 byte per pixel: the grey scale, whatever the colormap.
     pub fn render_grey8(&self, img: &Image<f32>, out: &mut [u8]) {
         let scale = 1.0 / self.max_abs_dn(img);
-        for (px, &v) in out.iter_mut().zip(&img.data) {
-            *px = grey(normalized(v, scale));
-        }
+        grey_levels(&img.data, scale, out);
+    }
+}
+
+/// v / max in [-1, 1]; NaN maps to 0 (neutral), +-Inf to the ends.
+#[inline(always)]
+fn normalized(v: f32, scale: f32) -> f32 {
+    let t = v * scale;
+    if t.is_nan() {
+        0.0
+    } else {
+        t.clamp(-1.0, 1.0)
+    }
+}
+
+/// Table index of each value: round((t + 1) * 511) for t = v * scale in [-1, 1].
+#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+fn lut_indices(values: &[f32], scale: f32, idx: &mut [u16]) {
+    for (i, &v) in idx.iter_mut().zip(values) {
+        *i = ((normalized(v, scale) + 1.0) * LUT_HALF + ROUND_BIAS) as u16;
+    }
+}
+
+/// Grey level of each value: round((t + 1) * 127.5), zero at 128.
+#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+fn grey_levels(values: &[f32], scale: f32, out: &mut [u8]) {
+    for (o, &v) in out.iter_mut().zip(values) {
+        *o = ((normalized(v, scale) + 1.0) * 127.5 + ROUND_BIAS) as u8;
     }
 }
 
@@ -168,30 +281,15 @@ pub fn render_channels_rgb8(ch: &SeparatedChannels, out: &mut [u8]) {
     }
 }
 
-/// v / max in [-1, 1]; NaN maps to 0 (neutral), +-Inf to the ends.
-#[inline]
-fn normalized(v: f32, scale: f32) -> f32 {
-    let t = v * scale;
-    if t.is_nan() {
-        0.0
-    } else {
-        t.clamp(-1.0, 1.0)
-    }
-}
-
-#[inline]
-fn grey(t: f32) -> u8 {
-    ((t + 1.0) * 127.5).round() as u8
-}
-
-#[inline]
-fn diverging(t: f32) -> [u8; 3] {
-    let x = (t + 1.0) * 2.0; // 0..=4 across the anchors
-    let i = (x.floor() as usize).min(3);
-    let f = x - i as f32;
-    let (a, b) = (DIVERGING[i], DIVERGING[i + 1]);
-    std::array::from_fn(|c| (a[c] + (b[c] - a[c]) * f).round() as u8)
-}
+/// Bits of |x| above this shift select a coarse bin (exponent and 3 mantissa bits).
+const COARSE_SHIFT: u32 = 20;
+/// The next 11 bits select a fine bin inside the coarse one.
+const FINE_SHIFT: u32 = 9;
+const BINS: usize = 2048;
+/// Coarse bins from here on hold Inf and NaN.
+const NON_FINITE_BIN: usize = (f32::INFINITY.to_bits() >> COARSE_SHIFT) as usize;
+/// Coarse bins below this hold only zeros and subnormals.
+const NORMAL_BIN: usize = (f32::MIN_POSITIVE.to_bits() >> COARSE_SHIFT) as usize;
 
 /// The [`AUTO_PERCENTILE`] quantile of |x| over finite values; falls back to
 /// the largest finite |x| when that is 0, and to 1 for an image with no
@@ -199,46 +297,55 @@ fn diverging(t: f32) -> [u8; 3] {
 /// a histogram over the f32 bit pattern (monotonic for x >= 0); the result
 /// is a sample within 2^-14 (relative) above the exact quantile.
 pub fn robust_max_abs(data: &[f32]) -> f32 {
-    const COARSE_SHIFT: u32 = 20;
-    const FINE_SHIFT: u32 = 9;
-    const BINS: usize = 2048;
-    let mut coarse = [0u32; BINS];
-    let mut finite = 0u64;
-    let mut max_abs = 0.0f32;
-    for &v in data {
-        if v.is_finite() {
-            let a = v.abs();
-            coarse[(a.to_bits() >> COARSE_SHIFT) as usize] += 1;
-            finite += 1;
-            max_abs = max_abs.max(a);
+    // Neighbouring pixels often share a bin: four interleaved histograms
+    // keep consecutive increments independent. Non-finite values are
+    // counted too, in bins >= NON_FINITE_BIN, and ignored.
+    let mut coarse4 = [[0u32; BINS]; 4];
+    let mut quads = data.chunks_exact(4);
+    for q in &mut quads {
+        for (h, &v) in coarse4.iter_mut().zip(q) {
+            h[coarse_bin(v)] += 1;
         }
     }
-    if finite == 0 || max_abs == 0.0 {
+    for &v in quads.remainder() {
+        coarse4[0][coarse_bin(v)] += 1;
+    }
+    let mut coarse = [0u32; BINS];
+    for (i, c) in coarse.iter_mut().enumerate() {
+        *c = coarse4.iter().map(|h| h[i]).sum();
+    }
+    let finite: u64 = coarse[..NON_FINITE_BIN].iter().map(|&n| u64::from(n)).sum();
+    if finite == 0 {
         return 1.0;
     }
     // 0-based rank of the quantile among the sorted finite |x|.
     let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
     let (bin, below) = find_bin(&coarse, rank);
+    if bin < NORMAL_BIN {
+        // The quantile is 0 or subnormal: the largest finite |x|, or 1 if 0.
+        let max_abs = data
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold(0.0f32, |m, v| m.max(v.abs()));
+        return if max_abs == 0.0 { 1.0 } else { max_abs };
+    }
     let mut fine = [0u32; BINS];
-    let mut fine_max = [0.0f32; BINS];
+    let mut fine_max_bits = [0u32; BINS];
     for &v in data {
-        if v.is_finite() {
-            let a = v.abs();
-            let bits = a.to_bits();
-            if (bits >> COARSE_SHIFT) as usize == bin {
-                let i = ((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize;
-                fine[i] += 1;
-                fine_max[i] = fine_max[i].max(a);
-            }
+        let bits = v.to_bits() & 0x7fff_ffff;
+        if (bits >> COARSE_SHIFT) as usize == bin {
+            let i = ((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize;
+            fine[i] += 1;
+            fine_max_bits[i] = fine_max_bits[i].max(bits);
         }
     }
     // The largest value sharing the quantile's fine bin: a real sample.
-    let q = fine_max[find_bin(&fine, rank - below).0];
-    if q >= f32::MIN_POSITIVE {
-        q
-    } else {
-        max_abs
-    }
+    f32::from_bits(fine_max_bits[find_bin(&fine, rank - below).0])
+}
+
+#[inline(always)]
+fn coarse_bin(v: f32) -> usize {
+    ((v.to_bits() & 0x7fff_ffff) >> COARSE_SHIFT) as usize
 }
 
 /// The bin holding the element of 0-based `rank`, and how many lie below it.
@@ -256,6 +363,137 @@ fn find_bin(hist: &[u32], rank: u64) -> (usize, u64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use rand::rngs::SmallRng;
+    use rand::{Rng, SeedableRng};
+
+    /// Signed images with the awkward values: NaN, +-Inf, zeros, subnormals,
+    /// huge outliers, exact half steps of the table.
+    fn test_images() -> Vec<Image<f32>> {
+        let mut rng = SmallRng::seed_from_u64(18);
+        let mut imgs = Vec::new();
+        for (w, h) in [(640, 480), (37, 5), (1, 9), (64, 3)] {
+            let mut data: Vec<f32> = (0..w * h)
+                .map(|_| rng.random_range(-1.0f32..1.0).powi(3) * 900.0)
+                .collect();
+            for (k, v) in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 0.0, -0.0, 1e30]
+                .into_iter()
+                .enumerate()
+            {
+                let n = data.len();
+                if k < n {
+                    data[(k * 7919) % n] = v;
+                }
+            }
+            imgs.push(Image::from_vec(w, h, data).unwrap());
+        }
+        // Every table step and half step for a fixed range of 511 DN.
+        let steps: Vec<f32> = (-1100..=1100).map(|i| i as f32 * 0.5).collect();
+        imgs.push(Image::from_vec(steps.len(), 1, steps).unwrap());
+        imgs.push(Image::from_vec(4, 2, vec![f32::MIN_POSITIVE * 0.25; 8]).unwrap());
+        imgs.push(Image::from_vec(3, 1, vec![0.0, f32::NAN, 0.0]).unwrap());
+        imgs
+    }
+
+    fn maps() -> Vec<DisplayMap> {
+        let mut v = Vec::new();
+        for c in [Colormap::Diverging, Colormap::Grey] {
+            for r in [
+                DisplayRange::SymmetricAuto,
+                DisplayRange::Fixed { max_abs_dn: 511.0 },
+                DisplayRange::Fixed { max_abs_dn: 3.7 },
+            ] {
+                v.push(DisplayMap::new(c, r));
+            }
+        }
+        v
+    }
+
+    /// v4l2loopback-glue's scalar RGB to YUYV row packing, copied verbatim.
+    fn glue_rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
+        for (o, p) in d.chunks_exact_mut(4).zip(s.chunks_exact(6)) {
+            let (r0, g0, b0) = (i32::from(p[0]), i32::from(p[1]), i32::from(p[2]));
+            let (r1, g1, b1) = (i32::from(p[3]), i32::from(p[4]), i32::from(p[5]));
+            let y = |r: i32, g: i32, b: i32| (((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) as u8;
+            let (r, g, b) = (r0 + r1, g0 + g1, b0 + b1);
+            let u = (((-38 * r - 74 * g + 112 * b + 256) >> 9) + 128).clamp(0, 255) as u8;
+            let v = (((112 * r - 94 * g - 18 * b + 256) >> 9) + 128).clamp(0, 255) as u8;
+            o[0] = y(r0, g0, b0);
+            o[1] = u;
+            o[2] = y(r1, g1, b1);
+            o[3] = v;
+        }
+    }
+
+    #[test]
+    fn fast_path_is_byte_identical_to_the_reference() {
+        for img in test_images() {
+            let n = img.data.len();
+            assert_eq!(
+                robust_max_abs(&img.data).to_bits(),
+                reference::robust_max_abs(&img.data).to_bits()
+            );
+            for map in maps() {
+                let (mut fast, mut slow) = (vec![1u8; 3 * n], vec![2u8; 3 * n]);
+                map.render_rgb8(&img, &mut fast);
+                reference::render_rgb8(&map, &img, &mut slow);
+                assert_eq!(fast, slow, "{map:?} {}x{}", img.width, img.height);
+                let (mut fast, mut slow) = (vec![1u8; n], vec![2u8; n]);
+                map.render_grey8(&img, &mut fast);
+                reference::render_grey8(&map, &img, &mut slow);
+                assert_eq!(fast, slow, "{map:?}");
+                // YUYV: the glue's packing of the reference RGB, row by row.
+                let mut want = vec![7u8; 2 * n];
+                for (s, d) in slow_rgb(&map, &img)
+                    .chunks(3 * img.width)
+                    .zip(want.chunks_mut(2 * img.width))
+                {
+                    glue_rgb_row_to_yuyv(s, d);
+                }
+                let (mut rgb, mut yuyv) = (vec![0u8; 3 * n], vec![7u8; 2 * n]);
+                map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv);
+                assert_eq!(yuyv, want, "{map:?} {}x{}", img.width, img.height);
+                assert_eq!(rgb, slow_rgb(&map, &img));
+            }
+        }
+    }
+
+    fn slow_rgb(map: &DisplayMap, img: &Image<f32>) -> Vec<u8> {
+        let mut v = vec![0u8; 3 * img.data.len()];
+        reference::render_rgb8(map, img, &mut v);
+        v
+    }
+
+    #[test]
+    fn short_outputs_write_only_what_fits() {
+        let img = Image::from_vec(6, 2, (0..12).map(|i| i as f32 - 6.0).collect()).unwrap();
+        let map = DisplayMap::default();
+        let mut full = vec![0u8; 24];
+        map.render_yuyv(&img, &mut full);
+        let mut short = vec![9u8; 14];
+        map.render_yuyv(&img, &mut short);
+        assert_eq!(&short[..12], &full[..12]);
+        assert_eq!(&short[12..], &[9, 9]);
+        let mut rgb = vec![9u8; 7];
+        map.render_rgb8(&img, &mut rgb);
+        assert_eq!(&rgb[..6], &slow_rgb(&map, &img)[..6]);
+        assert_eq!(rgb[6], 9);
+    }
+
+    #[test]
+    fn round_bias_matches_round_on_the_table_range() {
+        // Every 7th f32 in [0, 1023], and every f32 within 64 ulps of each half step.
+        let check = |x: f32| assert_eq!((x + ROUND_BIAS) as u16, x.round() as u16, "{x:e}");
+        let mut b = 0u32;
+        while b <= 1023f32.to_bits() {
+            check(f32::from_bits(b));
+            b += 7;
+        }
+        for k in 0..1023 {
+            let h = (k as f32 + 0.5).to_bits();
+            (h - 64..=h + 64).for_each(|b| check(f32::from_bits(b)));
+        }
+    }
 
     #[test]
     fn percentile_matches_sorting() {
