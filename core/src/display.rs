@@ -109,21 +109,26 @@ const DIVERGING: [[f32; 3]; 5] = [
 /// One colormap's tables over [-1, 1] in steps of 1/511 (finer than 8-bit
 /// output), built once. 1024 entries so a 10-bit index needs no bounds check.
 struct Tables {
-    rgb: [[u8; 3]; 1024],
+    /// R | G << 8 | B << 16.
+    rgb: [u32; 1024],
     /// BT.601 limited-range luma of each colour.
     luma: [u8; 1024],
-    /// Unscaled BT.601 (U, V) of each colour: a pixel pair's chroma is
-    /// ((sum + 256) >> 9) + 128, the formula of v4l2loopback-glue's scalar
-    /// RGB to YUYV packing.
-    chroma: [[i32; 2]; 1024],
+    /// Unscaled BT.601 U and V of each colour plus [`CHROMA_BIAS`], in the
+    /// low and high 32 bits: one add sums a pixel pair's U and V, and
+    /// (sum + 256) >> 9 is then the formula of v4l2loopback-glue's scalar
+    /// RGB to YUYV packing, ((U0 + U1 + 256) >> 9) + 128.
+    chroma: [u64; 1024],
 }
+
+/// Half the chroma offset 128 << 9 per pixel: keeps every field positive.
+const CHROMA_BIAS: i32 = 128 << 8;
 
 impl Tables {
     fn build(colormap: Colormap) -> Self {
         let mut t = Tables {
-            rgb: [[0; 3]; 1024],
+            rgb: [0; 1024],
             luma: [0; 1024],
-            chroma: [[0; 2]; 1024],
+            chroma: [0; 1024],
         };
         for i in 0..1024 {
             let x = i.min(LUT_SIZE - 1) as f32 / LUT_HALF - 1.0;
@@ -132,9 +137,12 @@ impl Tables {
                 Colormap::Grey => [reference::grey(x); 3],
             };
             let [r, g, b] = c.map(i32::from);
-            t.rgb[i] = c;
+            t.rgb[i] = u32::from_le_bytes([c[0], c[1], c[2], 0]);
             t.luma[i] = (((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) as u8;
-            t.chroma[i] = [-38 * r - 74 * g + 112 * b, 112 * r - 94 * g - 18 * b];
+            // |U|, |V| <= 112 * 255 < CHROMA_BIAS: both fields stay in 0..2^16.
+            let u = (-38 * r - 74 * g + 112 * b + CHROMA_BIAS) as u64;
+            let v = (112 * r - 94 * g - 18 * b + CHROMA_BIAS) as u64;
+            t.chroma[i] = u | v << 32;
         }
         t
     }
@@ -201,18 +209,10 @@ impl DisplayMap {
                 lut_indices(block, scale, idx);
                 let rgb_px = n_rgb.saturating_sub(y * w + x0).min(block.len());
                 let rgb_out = &mut rgb[3 * (y * w + x0).min(n_rgb)..][..3 * rgb_px];
-                for (o, &i) in rgb_out.chunks_exact_mut(3).zip(idx.iter()) {
-                    o.copy_from_slice(&tables.rgb[usize::from(i) & 1023]);
-                }
+                rgb_pixels(tables, idx, rgb_out);
                 let block_pairs = pairs.saturating_sub(x0 / 2).min(block.len() / 2);
                 let yuyv_out = &mut yuyv_row[(2 * x0).min(4 * pairs)..][..4 * block_pairs];
-                for (o, i) in yuyv_out.chunks_exact_mut(4).zip(idx.chunks_exact(2)) {
-                    let (i0, i1) = (usize::from(i[0]) & 1023, usize::from(i[1]) & 1023);
-                    let (c0, c1) = (tables.chroma[i0], tables.chroma[i1]);
-                    let u = (((c0[0] + c1[0] + 256) >> 9) + 128).clamp(0, 255) as u8;
-                    let v = (((c0[1] + c1[1] + 256) >> 9) + 128).clamp(0, 255) as u8;
-                    o.copy_from_slice(&[tables.luma[i0], u, tables.luma[i1], v]);
-                }
+                yuyv_pairs(tables, idx, yuyv_out);
             }
         }
     }
@@ -245,11 +245,54 @@ fn normalized(v: f32, scale: f32) -> f32 {
     }
 }
 
+/// `x.round() as u32` for x in [0, 2^22]: floor(x + ROUND_BIAS) is an exact
+/// integer, and adding 2^23 puts it in the low mantissa bits. Unlike the
+/// saturating `as` casts, this vectorizes (SSE4.1 and up).
+#[inline(always)]
+fn small_uint(x: f32) -> u32 {
+    ((x + ROUND_BIAS).floor() + 8_388_608.0).to_bits() & 0x003f_ffff
+}
+
 /// Table index of each value: round((t + 1) * 511) for t = v * scale in [-1, 1].
 #[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
 fn lut_indices(values: &[f32], scale: f32, idx: &mut [u16]) {
     for (i, &v) in idx.iter_mut().zip(values) {
-        *i = ((normalized(v, scale) + 1.0) * LUT_HALF + ROUND_BIAS) as u16;
+        *i = small_uint((normalized(v, scale) + 1.0) * LUT_HALF) as u16;
+    }
+}
+
+/// Table colours of `idx` as packed RGB8; 4 pixels per 12-byte store group.
+#[inline]
+fn rgb_pixels(tables: &Tables, idx: &[u16], out: &mut [u8]) {
+    let px = |i: u16| tables.rgb[usize::from(i) & 1023];
+    let done = out.len() / 12 * 4;
+    let mut quads = out.chunks_exact_mut(12);
+    for (o, q) in (&mut quads).zip(idx.chunks_exact(4)) {
+        let (a, b, c, d) = (px(q[0]), px(q[1]), px(q[2]), px(q[3]));
+        let lo = u64::from(a) | u64::from(b) << 24 | u64::from(c) << 48;
+        let hi = c >> 16 | d << 8;
+        o[..8].copy_from_slice(&lo.to_le_bytes());
+        o[8..].copy_from_slice(&hi.to_le_bytes());
+    }
+    for (o, &i) in quads
+        .into_remainder()
+        .chunks_exact_mut(3)
+        .zip(&idx[done.min(idx.len())..])
+    {
+        o.copy_from_slice(&px(i).to_le_bytes()[..3]);
+    }
+}
+
+/// YUYV of pixel pairs of `idx` (see [`Tables::chroma`]).
+#[inline]
+fn yuyv_pairs(tables: &Tables, idx: &[u16], out: &mut [u8]) {
+    for (o, p) in out.chunks_exact_mut(4).zip(idx.chunks_exact(2)) {
+        let (i0, i1) = (usize::from(p[0]) & 1023, usize::from(p[1]) & 1023);
+        let sum = tables.chroma[i0] + tables.chroma[i1];
+        let u = ((sum as u32 + 256) >> 9).min(255);
+        let v = (((sum >> 32) as u32 + 256) >> 9).min(255);
+        let word = u32::from(tables.luma[i0]) | u << 8 | u32::from(tables.luma[i1]) << 16 | v << 24;
+        o.copy_from_slice(&word.to_le_bytes());
     }
 }
 
@@ -257,7 +300,7 @@ fn lut_indices(values: &[f32], scale: f32, idx: &mut [u16]) {
 #[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
 fn grey_levels(values: &[f32], scale: f32, out: &mut [u8]) {
     for (o, &v) in out.iter_mut().zip(values) {
-        *o = ((normalized(v, scale) + 1.0) * 127.5 + ROUND_BIAS) as u8;
+        *o = small_uint((normalized(v, scale) + 1.0) * 127.5) as u8;
     }
 }
 
