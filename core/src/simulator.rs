@@ -302,6 +302,23 @@ impl Simulator {
     /// noise, digitizes, and advances the clock by one frame period.
     pub fn capture(&mut self, illumination: &Illumination, out: &mut Frame) {
         self.prepare(illumination, out);
+        self.sample(out);
+    }
+
+    /// Like [`Simulator::capture`], but a moving scene's exposure comes from
+    /// [`Simulator::expect_wells_substepped`]: the previous path, kept as
+    /// the reference the closed-form motion is benchmarked against.
+    pub fn capture_substepped(&mut self, illumination: &Illumination, out: &mut Frame) {
+        let (w, h) = (self.config.sensor.width, self.config.sensor.height);
+        if out.width() != w || out.height() != h {
+            *out = Frame::new(w, h);
+        }
+        self.expect_wells_substepped(illumination, self.time_us);
+        self.sample(out);
+    }
+
+    /// Noise, readout and clock advance for the current expectation.
+    fn sample(&mut self, out: &mut Frame) {
         let entry = &mut self.cache[self.current];
         if !entry.plan_valid {
             entry.plan.rebuild(
