@@ -340,6 +340,106 @@ const NORMAL_BIN: usize = (f32::MIN_POSITIVE.to_bits() >> COARSE_SHIFT) as usize
 /// a histogram over the f32 bit pattern (monotonic for x >= 0); the result
 /// is a sample within 2^-14 (relative) above the exact quantile.
 pub fn robust_max_abs(data: &[f32]) -> f32 {
+    sampled_quantile(data).unwrap_or_else(|| histogram_quantile(data))
+}
+
+/// Every this many values feed the guess of where the quantile lies.
+const SAMPLE_STRIDE: usize = 16;
+/// Values near the guessed quantile kept for the exact count (on the stack).
+const WINDOW_CAPACITY: usize = 8192;
+/// Values per block of the counting pass.
+const COUNT_BLOCK: usize = 16;
+/// |x| bits of +Inf: finite values lie below.
+const INF_BITS: u32 = 0x7f80_0000;
+
+/// The same result as [`histogram_quantile`], faster on large images: a
+/// subsample brackets the quantile between two |x| bit patterns (aligned to
+/// fine bins, so a fine bin is wholly in or out), one vectorized pass counts
+/// the finite values and those below the bracket and keeps the few inside
+/// it, and selection among those finds the quantile's fine bin. None (use the
+/// full histogram) when the bracket misses the quantile or holds more than
+/// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal.
+#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+fn sampled_quantile(data: &[f32]) -> Option<f32> {
+    if data.len() < 64 * SAMPLE_STRIDE {
+        return None;
+    }
+    let mut coarse = [0u32; BINS];
+    for &v in data.iter().step_by(SAMPLE_STRIDE) {
+        coarse[coarse_bin(v)] += 1;
+    }
+    let finite: u64 = coarse[..NON_FINITE_BIN].iter().map(|&n| u64::from(n)).sum();
+    if finite == 0 {
+        return None;
+    }
+    let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
+    // Five standard deviations of the subsample's count above the quantile.
+    let margin = (5.0 * (finite as f64 * (1.0 - AUTO_PERCENTILE)).sqrt()) as u64 + 4;
+    let fine_bin_of = |rank: u64| {
+        let (bin, below) = find_bin(&coarse, rank);
+        let mut fine = [0u32; BINS];
+        for &v in data.iter().step_by(SAMPLE_STRIDE) {
+            let bits = v.to_bits() & 0x7fff_ffff;
+            if (bits >> COARSE_SHIFT) as usize == bin {
+                fine[((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize] += 1;
+            }
+        }
+        ((bin as u32) << COARSE_SHIFT) | ((find_bin(&fine, rank - below).0 as u32) << FINE_SHIFT)
+    };
+    let lo_bits = fine_bin_of(rank.saturating_sub(margin));
+    let hi_bits = fine_bin_of((rank + margin).min(finite - 1)) + (1 << FINE_SHIFT);
+    if lo_bits < f32::MIN_POSITIVE.to_bits() || hi_bits > INF_BITS {
+        return None;
+    }
+    let mut window = [0u32; WINDOW_CAPACITY];
+    let (mut kept, mut finite, mut below) = (0usize, 0u64, 0u64);
+    for block in data.chunks(COUNT_BLOCK) {
+        let (f, b, inside) = count_block(block, lo_bits, hi_bits);
+        finite += u64::from(f);
+        below += u64::from(b);
+        if inside > 0 {
+            if kept + inside as usize > WINDOW_CAPACITY {
+                return None;
+            }
+            for &v in block {
+                let bits = v.to_bits() & 0x7fff_ffff;
+                if (lo_bits..hi_bits).contains(&bits) {
+                    window[kept] = bits;
+                    kept += 1;
+                }
+            }
+        }
+    }
+    let window = &mut window[..kept];
+    let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
+    if rank < below || rank >= below + kept as u64 {
+        return None;
+    }
+    // The largest value sharing the quantile's fine bin, as the histogram finds it.
+    let key = *window.select_nth_unstable((rank - below) as usize).1 >> FINE_SHIFT;
+    let q = window
+        .iter()
+        .filter(|&&bits| bits >> FINE_SHIFT == key)
+        .fold(0, |m, &bits| m.max(bits));
+    Some(f32::from_bits(q))
+}
+
+/// Finite values, values below `lo_bits` and values in [lo_bits, hi_bits)
+/// of |x|'s bit pattern in `block`.
+#[inline(always)]
+fn count_block(block: &[f32], lo_bits: u32, hi_bits: u32) -> (u32, u32, u32) {
+    let (mut finite, mut below, mut inside) = (0u32, 0u32, 0u32);
+    for &v in block {
+        let bits = v.to_bits() & 0x7fff_ffff;
+        finite += u32::from(bits < INF_BITS);
+        below += u32::from(bits < lo_bits);
+        inside += u32::from(bits >= lo_bits && bits < hi_bits);
+    }
+    (finite, below, inside)
+}
+
+/// The two-pass histogram over all values (see [`robust_max_abs`]).
+fn histogram_quantile(data: &[f32]) -> f32 {
     // Neighbouring pixels often share a bin: four interleaved histograms
     // keep consecutive increments independent. Non-finite values are
     // counted too, in bins >= NON_FINITE_BIN, and ignored.
@@ -435,6 +535,20 @@ mod tests {
         imgs.push(Image::from_vec(steps.len(), 1, steps).unwrap());
         imgs.push(Image::from_vec(4, 2, vec![f32::MIN_POSITIVE * 0.25; 8]).unwrap());
         imgs.push(Image::from_vec(3, 1, vec![0.0, f32::NAN, 0.0]).unwrap());
+        // The subsample sees only the outliers, or misses all of them, or
+        // most values are NaN: the bracket misses and the full histogram answers.
+        for (phase, big, nan_every) in [(0, 1e4, 0), (1, 1e4, 0), (3, 50.0, 3)] {
+            let data: Vec<f32> = (0..64 * 48)
+                .map(|i| match i % 16 {
+                    _ if nan_every > 0 && i % nan_every != 0 => f32::NAN,
+                    p if p == phase => big,
+                    _ => (i % 97) as f32 * 0.25 - 12.0,
+                })
+                .collect();
+            imgs.push(Image::from_vec(64, 48, data).unwrap());
+        }
+        // Many values tied at the quantile: more than the bracket's capacity.
+        imgs.push(Image::from_vec(200, 100, vec![3.5; 20_000]).unwrap());
         imgs
     }
 
