@@ -391,25 +391,22 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
     if lo_bits < f32::MIN_POSITIVE.to_bits() || hi_bits > INF_BITS {
         return None;
     }
+    let (finite, below, inside) = count_block(data, lo_bits, hi_bits);
+    if inside as usize > WINDOW_CAPACITY {
+        return None;
+    }
     let mut window = [0u32; WINDOW_CAPACITY];
-    let (mut kept, mut finite, mut below) = (0usize, 0u64, 0u64);
+    let mut kept = 0usize;
+    let in_window = |v: &f32| (lo_bits..hi_bits).contains(&(v.to_bits() & 0x7fff_ffff));
     for block in data.chunks(COUNT_BLOCK) {
-        let (f, b, inside) = count_block(block, lo_bits, hi_bits);
-        finite += u64::from(f);
-        below += u64::from(b);
-        if inside > 0 {
-            if kept + inside as usize > WINDOW_CAPACITY {
-                return None;
-            }
-            for &v in block {
-                let bits = v.to_bits() & 0x7fff_ffff;
-                if (lo_bits..hi_bits).contains(&bits) {
-                    window[kept] = bits;
-                    kept += 1;
-                }
+        if block.iter().fold(false, |any, v| any | in_window(v)) {
+            for v in block.iter().filter(|v| in_window(v)) {
+                window[kept] = v.to_bits() & 0x7fff_ffff;
+                kept += 1;
             }
         }
     }
+    let (finite, below) = (u64::from(finite), u64::from(below));
     let window = &mut window[..kept];
     let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
     if rank < below || rank >= below + kept as u64 {
@@ -425,11 +422,11 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
 }
 
 /// Finite values, values below `lo_bits` and values in [lo_bits, hi_bits)
-/// of |x|'s bit pattern in `block`.
+/// of |x|'s bit pattern in `data`.
 #[inline(always)]
-fn count_block(block: &[f32], lo_bits: u32, hi_bits: u32) -> (u32, u32, u32) {
+fn count_block(data: &[f32], lo_bits: u32, hi_bits: u32) -> (u32, u32, u32) {
     let (mut finite, mut below, mut inside) = (0u32, 0u32, 0u32);
-    for &v in block {
+    for &v in data {
         let bits = v.to_bits() & 0x7fff_ffff;
         finite += u32::from(bits < INF_BITS);
         below += u32::from(bits < lo_bits);
