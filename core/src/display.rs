@@ -111,24 +111,36 @@ const DIVERGING: [[f32; 3]; 5] = [
 struct Tables {
     /// R | G << 8 | B << 16.
     rgb: [u32; 1024],
-    /// BT.601 limited-range luma of each colour.
-    luma: [u8; 1024],
-    /// Unscaled BT.601 U and V of each colour plus [`CHROMA_BIAS`], in the
-    /// low and high 32 bits: one add sums a pixel pair's U and V, and
-    /// (sum + 256) >> 9 is then the formula of v4l2loopback-glue's scalar
-    /// RGB to YUYV packing, ((U0 + U1 + 256) >> 9) + 128.
-    chroma: [u64; 1024],
+    /// YUYV of a pixel pair is `yuyv_word(first[i0] + second[i1])`: each
+    /// entry holds the colour's BT.601 U and V (biased, see [`CHROMA_BIAS`])
+    /// at bits 0 and 20, so one add sums the pair's chroma without carries,
+    /// and its limited-range luma at bit 40 (`first`) or 48 (`second`).
+    first: [u64; 1024],
+    second: [u64; 1024],
 }
 
-/// Half the chroma offset 128 << 9 per pixel: keeps every field positive.
-const CHROMA_BIAS: i32 = 128 << 8;
+/// Per pixel: half the chroma offset 128 << 9 plus half the rounding 256,
+/// so (U0 + U1 + 2 * CHROMA_BIAS) >> 9 is v4l2loopback-glue's scalar
+/// ((U0 + U1 + 256) >> 9) + 128; |U|, |V| <= 112 * 255 keep each biased
+/// value in 0..2^16 and the pair sum's byte in 16..=240.
+const CHROMA_BIAS: i32 = (128 << 8) + 128;
+
+/// The YUYV bytes of a sum of a `first` and a `second` table entry.
+#[inline(always)]
+fn yuyv_word(sum: u64) -> u32 {
+    let u = (sum >> 9) & 0xff;
+    let v = (sum >> 29) & 0xff;
+    let y0 = (sum >> 40) & 0xff;
+    let y1 = (sum >> 48) & 0xff;
+    (y0 | u << 8 | y1 << 16 | v << 24) as u32
+}
 
 impl Tables {
     fn build(colormap: Colormap) -> Self {
         let mut t = Tables {
             rgb: [0; 1024],
-            luma: [0; 1024],
-            chroma: [0; 1024],
+            first: [0; 1024],
+            second: [0; 1024],
         };
         for i in 0..1024 {
             let x = i.min(LUT_SIZE - 1) as f32 / LUT_HALF - 1.0;
@@ -138,11 +150,11 @@ impl Tables {
             };
             let [r, g, b] = c.map(i32::from);
             t.rgb[i] = u32::from_le_bytes([c[0], c[1], c[2], 0]);
-            t.luma[i] = (((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) as u8;
-            // |U|, |V| <= 112 * 255 < CHROMA_BIAS: both fields stay in 0..2^16.
+            let luma = ((((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) & 0xff) as u64;
             let u = (-38 * r - 74 * g + 112 * b + CHROMA_BIAS) as u64;
             let v = (112 * r - 94 * g - 18 * b + CHROMA_BIAS) as u64;
-            t.chroma[i] = u | v << 32;
+            t.first[i] = u | v << 20 | luma << 40;
+            t.second[i] = u | v << 20 | luma << 48;
         }
         t
     }
@@ -283,15 +295,12 @@ fn rgb_pixels(tables: &Tables, idx: &[u16], out: &mut [u8]) {
     }
 }
 
-/// YUYV of pixel pairs of `idx` (see [`Tables::chroma`]).
+/// YUYV of pixel pairs of `idx` (see [`Tables::first`]).
 #[inline]
 fn yuyv_pairs(tables: &Tables, idx: &[u16], out: &mut [u8]) {
     for (o, p) in out.chunks_exact_mut(4).zip(idx.chunks_exact(2)) {
         let (i0, i1) = (usize::from(p[0]) & 1023, usize::from(p[1]) & 1023);
-        let sum = tables.chroma[i0] + tables.chroma[i1];
-        let u = ((sum as u32 + 256) >> 9).min(255);
-        let v = (((sum >> 32) as u32 + 256) >> 9).min(255);
-        let word = u32::from(tables.luma[i0]) | u << 8 | u32::from(tables.luma[i1]) << 16 | v << 24;
+        let word = yuyv_word(tables.first[i0] + tables.second[i1]);
         o.copy_from_slice(&word.to_le_bytes());
     }
 }
