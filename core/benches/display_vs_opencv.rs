@@ -156,6 +156,7 @@ fn main() {
         "ours/copy"
     );
     let mut fixed_rows = Vec::new();
+    let mut agreement = Vec::new();
     for (k, colormap) in [Colormap::Diverging, Colormap::Grey]
         .into_iter()
         .enumerate()
@@ -177,6 +178,37 @@ fn main() {
         };
         let old_scalar = previous(YuyvPath::Scalar);
         let old_simd = previous(YuyvPath::Simd);
+        // Agreement with the previous path's bytes, from this run's image.
+        let mut old_rgb = vec![0u8; W * H * 3];
+        reference::render_rgb8(&map, &img, &mut old_rgb);
+        map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv);
+        let mut worst = [0u8; 2];
+        for (k, path) in [YuyvPath::Scalar, YuyvPath::Simd].into_iter().enumerate() {
+            let mut old_yuyv = vec![0u8; W * H * 2];
+            let mut conv = Converter::new(W as u32, H as u32, PixelFormat::Yuyv, path);
+            if conv
+                .rgb8(Src::packed(&old_rgb, W, H, 3), &mut old_yuyv)
+                .is_ok()
+            {
+                worst[k] = yuyv
+                    .iter()
+                    .zip(&old_yuyv)
+                    .map(|(a, b)| a.abs_diff(*b))
+                    .max()
+                    .unwrap_or(0);
+            }
+        }
+        agreement.push(format!(
+            "{:<10} bytes vs previous: rgb8 {} | yuyv max diff {} (glue scalar), {} (yuvutils)",
+            colormap.name(),
+            if rgb == old_rgb {
+                "identical"
+            } else {
+                "DIFFERENT"
+            },
+            worst[0],
+            worst[1]
+        ));
         let cv = reference_cv[k];
         let fixed = DisplayMap::new(colormap, DisplayRange::Fixed { max_abs_dn: 400.0 });
         let fixed_rgb = time_ms(REPS, || fixed.render_rgb8(&img, &mut rgb));
@@ -203,6 +235,7 @@ fn main() {
         );
     }
     fixed_rows.iter().for_each(|r| println!("{r}"));
+    agreement.iter().for_each(|r| println!("{r}"));
     println!(
         "ours rgb8+yuyv: auto range, colormap, RGB8 and YUYV in one pass (what the goal times)"
     );
