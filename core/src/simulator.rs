@@ -8,8 +8,10 @@
 //! and clipped by the ADC. Light uncorrelated with f (ambient, `Constant`
 //! sources) splits between the wells by the duty of f: under the 50/50 square
 //! wave it cancels in the mean and adds shot noise. Moving scenes are
-//! integrated in sub-steps so motion inside one exposure (temporal gradients,
-//! two-shot ghosting) comes out of the model.
+//! integrated over the exposure so motion inside it (temporal gradients,
+//! two-shot ghosting) comes out of the model: per segment of the modulation
+//! from the scene's own time average ([`Scene::render_mean`], closed form
+//! where it can), else in sub-steps.
 //!
 //! [`Frame::dn`] holds the ADC code minus the (known, constant) black-level
 //! offset; the per-pixel fixed pattern stays in, as on the real sensor: dark
@@ -41,7 +43,9 @@ pub struct SimConfig {
     /// Uniform ambient light, electrons per microsecond per pixel.
     pub ambient_electrons_per_us: f64,
     pub seed: u64,
-    /// Integration sub-steps per exposure for moving scenes (static scenes use one).
+    /// Sub-steps per exposure for moving scenes that cannot integrate
+    /// themselves, and point samples for the parts of those that can but
+    /// sample (static scenes use one).
     pub substeps: usize,
 }
 

@@ -3,10 +3,11 @@
 //! on the right, lit only by ambient light (no active source).
 //!
 //! Everything moves in closed form as a function of time, so the simulator's
-//! sub-step integration of eq. wellmeasurement with the single-transition
-//! pattern produces the gradient: an edge that arrives during the exposure
-//! (leading edge) is brighter late, landing in I+, a trailing edge in I-.
-//! Edges are anti-aliased (coverage from the signed distance in pixels).
+//! integration of eq. wellmeasurement with the single-transition pattern
+//! produces the gradient: an edge that arrives during the exposure (leading
+//! edge) is brighter late, landing in I+, a trailing edge in I-. Edges are
+//! anti-aliased (coverage from the signed distance in pixels). The fan's
+//! time average is exact (`render_mean`); pellets are sampled.
 
 use multiversion::multiversion;
 use rand::rngs::SmallRng;
