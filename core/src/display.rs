@@ -352,10 +352,8 @@ pub fn robust_max_abs(data: &[f32]) -> f32 {
     sampled_quantile(data).unwrap_or_else(|| histogram_quantile(data))
 }
 
-/// The first SAMPLE_RUN values of every SAMPLE_SPAN (one cache line in 16)
-/// feed the guess of where the quantile lies.
-const SAMPLE_RUN: usize = 16;
-const SAMPLE_SPAN: usize = 256;
+/// Every this many values feed the guess of where the quantile lies.
+const SAMPLE_STRIDE: usize = 16;
 /// Values near the guessed quantile kept for the exact count (on the stack).
 const WINDOW_CAPACITY: usize = 8192;
 /// Values per block of the counting pass.
@@ -372,15 +370,11 @@ const INF_BITS: u32 = 0x7f80_0000;
 /// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal.
 #[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
 fn sampled_quantile(data: &[f32]) -> Option<f32> {
-    if data.len() < 16 * SAMPLE_SPAN {
+    if data.len() < 64 * SAMPLE_STRIDE {
         return None;
     }
-    let sample = || {
-        data.chunks(SAMPLE_SPAN)
-            .flat_map(|c| &c[..c.len().min(SAMPLE_RUN)])
-    };
     let mut coarse = [0u32; BINS];
-    for &v in sample() {
+    for &v in data.iter().step_by(SAMPLE_STRIDE) {
         coarse[coarse_bin(v)] += 1;
     }
     let finite: u64 = coarse[..NON_FINITE_BIN].iter().map(|&n| u64::from(n)).sum();
@@ -388,13 +382,12 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
         return None;
     }
     let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
-    // Eight standard deviations of an independent subsample's count above
-    // the quantile (neighbouring pixels are not independent).
-    let margin = (8.0 * (finite as f64 * (1.0 - AUTO_PERCENTILE)).sqrt()) as u64 + 8;
+    // Five standard deviations of the subsample's count above the quantile.
+    let margin = (5.0 * (finite as f64 * (1.0 - AUTO_PERCENTILE)).sqrt()) as u64 + 4;
     let fine_bin_of = |rank: u64| {
         let (bin, below) = find_bin(&coarse, rank);
         let mut fine = [0u32; BINS];
-        for &v in sample() {
+        for &v in data.iter().step_by(SAMPLE_STRIDE) {
             let bits = v.to_bits() & 0x7fff_ffff;
             if (bits >> COARSE_SHIFT) as usize == bin {
                 fine[((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize] += 1;
