@@ -221,10 +221,14 @@ impl DisplayMap {
                 lut_indices(block, scale, idx);
                 let rgb_px = n_rgb.saturating_sub(y * w + x0).min(block.len());
                 let rgb_out = &mut rgb[3 * (y * w + x0).min(n_rgb)..][..3 * rgb_px];
-                rgb_pixels(tables, idx, rgb_out);
                 let block_pairs = pairs.saturating_sub(x0 / 2).min(block.len() / 2);
                 let yuyv_out = &mut yuyv_row[(2 * x0).min(4 * pairs)..][..4 * block_pairs];
-                yuyv_pairs(tables, idx, yuyv_out);
+                if rgb_px == 2 * block_pairs && rgb_px == idx.len() {
+                    rgb_yuyv_pairs(tables, idx, rgb_out, yuyv_out);
+                } else {
+                    rgb_pixels(tables, idx, rgb_out);
+                    yuyv_pairs(tables, idx, yuyv_out);
+                }
             }
         }
     }
@@ -300,6 +304,31 @@ fn rgb_pixels(tables: &Tables, idx: &[u16], out: &mut [u8]) {
 fn yuyv_pairs(tables: &Tables, idx: &[u16], out: &mut [u8]) {
     for (o, p) in out.chunks_exact_mut(4).zip(idx.chunks_exact(2)) {
         let (i0, i1) = (usize::from(p[0]) & 1023, usize::from(p[1]) & 1023);
+        let word = yuyv_word(tables.first[i0] + tables.second[i1]);
+        o.copy_from_slice(&word.to_le_bytes());
+    }
+}
+
+/// Both outputs of whole pixel pairs: `rgb` holds 6 and `yuyv` 4 bytes per
+/// pair of `idx`. Each pair's RGB goes out as one 8-byte store that the next
+/// pair overwrites in part.
+#[inline]
+fn rgb_yuyv_pairs(tables: &Tables, idx: &[u16], rgb: &mut [u8], yuyv: &mut [u8]) {
+    for (j, (p, o)) in idx
+        .chunks_exact(2)
+        .zip(yuyv.chunks_exact_mut(4))
+        .enumerate()
+    {
+        let (i0, i1) = (usize::from(p[0]) & 1023, usize::from(p[1]) & 1023);
+        let six = u64::from(tables.rgb[i0]) | u64::from(tables.rgb[i1]) << 24;
+        match rgb.get_mut(6 * j..6 * j + 8) {
+            Some(d) => d.copy_from_slice(&six.to_le_bytes()),
+            None => {
+                let d = &mut rgb[6 * j..];
+                let len = d.len().min(6);
+                d[..len].copy_from_slice(&six.to_le_bytes()[..len]);
+            }
+        }
         let word = yuyv_word(tables.first[i0] + tables.second[i1]);
         o.copy_from_slice(&word.to_le_bytes());
     }
