@@ -385,16 +385,18 @@ pub fn robust_max_abs(data: &[f32]) -> f32 {
 const SAMPLE_STRIDE: usize = 16;
 /// Values near the guessed quantile kept for the exact count (on the stack).
 const WINDOW_CAPACITY: usize = 8192;
-/// Values per block of the counting pass.
+/// Values per block of the counting pass, and counters per block.
 const COUNT_BLOCK: usize = 16;
+const LANES: usize = 8;
 /// |x| bits of +Inf: finite values lie below.
 const INF_BITS: u32 = 0x7f80_0000;
 
 /// The same result as [`histogram_quantile`], faster on large images: a
 /// subsample brackets the quantile between two |x| bit patterns (aligned to
 /// fine bins, so a fine bin is wholly in or out), one vectorized pass counts
-/// the finite values and those below the bracket and keeps the few inside
-/// it, and selection among those finds the quantile's fine bin. None (use the
+/// the finite values and those below the bracket (per-lane counters, so no
+/// reduction per block) and keeps the few inside it, and selection among
+/// those finds the quantile's fine bin. None (use the
 /// full histogram) when the bracket misses the quantile or holds more than
 /// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal.
 #[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
@@ -429,22 +431,44 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
     if lo_bits < f32::MIN_POSITIVE.to_bits() || hi_bits > INF_BITS {
         return None;
     }
-    let (finite, below, inside) = count_block(data, lo_bits, hi_bits);
-    if inside as usize > WINDOW_CAPACITY {
-        return None;
-    }
+    // One pass: per-lane counts (no reduction per block), and the values
+    // inside the bracket from the blocks that hold any.
+    let (mut finite, mut below) = ([0u32; LANES], [0u32; LANES]);
     let mut window = [0u32; WINDOW_CAPACITY];
     let mut kept = 0usize;
-    let in_window = |v: &f32| (lo_bits..hi_bits).contains(&(v.to_bits() & 0x7fff_ffff));
-    for block in data.chunks(COUNT_BLOCK) {
-        if block.iter().fold(false, |any, v| any | in_window(v)) {
-            for v in block.iter().filter(|v| in_window(v)) {
-                window[kept] = v.to_bits() & 0x7fff_ffff;
-                kept += 1;
+    let mut blocks = data.chunks_exact(COUNT_BLOCK);
+    let mut collect = |block: &[f32], inside: bool| -> Option<()> {
+        if inside {
+            for v in block {
+                let bits = v.to_bits() & 0x7fff_ffff;
+                if (lo_bits..hi_bits).contains(&bits) {
+                    *window.get_mut(kept)? = bits;
+                    kept += 1;
+                }
             }
         }
+        Some(())
+    };
+    for block in &mut blocks {
+        let mut inside = [0u32; LANES];
+        for part in block.chunks_exact(LANES) {
+            for k in 0..LANES {
+                let bits = part[k].to_bits() & 0x7fff_ffff;
+                finite[k] += u32::from(bits < INF_BITS);
+                below[k] += u32::from(bits < lo_bits);
+                inside[k] |= u32::from(bits >= lo_bits) & u32::from(bits < hi_bits);
+            }
+        }
+        collect(block, inside != [0; LANES])?;
     }
-    let (finite, below) = (u64::from(finite), u64::from(below));
+    for &v in blocks.remainder() {
+        let bits = v.to_bits() & 0x7fff_ffff;
+        finite[0] += u32::from(bits < INF_BITS);
+        below[0] += u32::from(bits < lo_bits);
+    }
+    collect(blocks.remainder(), true)?;
+    let finite: u64 = finite.iter().map(|&n| u64::from(n)).sum();
+    let below: u64 = below.iter().map(|&n| u64::from(n)).sum();
     let window = &mut window[..kept];
     let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
     if rank < below || rank >= below + kept as u64 {
@@ -457,20 +481,6 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
         .filter(|&&bits| bits >> FINE_SHIFT == key)
         .fold(0, |m, &bits| m.max(bits));
     Some(f32::from_bits(q))
-}
-
-/// Finite values, values below `lo_bits` and values in [lo_bits, hi_bits)
-/// of |x|'s bit pattern in `data`.
-#[inline(always)]
-fn count_block(data: &[f32], lo_bits: u32, hi_bits: u32) -> (u32, u32, u32) {
-    let (mut finite, mut below, mut inside) = (0u32, 0u32, 0u32);
-    for &v in data {
-        let bits = v.to_bits() & 0x7fff_ffff;
-        finite += u32::from(bits < INF_BITS);
-        below += u32::from(bits < lo_bits);
-        inside += u32::from(bits >= lo_bits && bits < hi_bits);
-    }
-    (finite, below, inside)
 }
 
 /// The two-pass histogram over all values (see [`robust_max_abs`]).
