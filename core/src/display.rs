@@ -113,8 +113,9 @@ struct Tables {
     rgb: [u32; 1024],
     /// YUYV of a pixel pair is `yuyv_word(first[i0] + second[i1])`: each
     /// entry holds the colour's BT.601 U and V (biased, see [`CHROMA_BIAS`])
-    /// at bits 0 and 20, so one add sums the pair's chroma without carries,
-    /// and its limited-range luma at bit 40 (`first`) or 48 (`second`).
+    /// at bits 0 and 32, so one add sums the pair's chroma without carries
+    /// (each sum < 2^17), and its limited-range luma at bit 50 (`first`) or
+    /// 18 (`second`): one shift and mask puts each byte in place.
     first: [u64; 1024],
     second: [u64; 1024],
 }
@@ -128,11 +129,11 @@ const CHROMA_BIAS: i32 = (128 << 8) + 128;
 /// The YUYV bytes of a sum of a `first` and a `second` table entry.
 #[inline(always)]
 fn yuyv_word(sum: u64) -> u32 {
-    let u = (sum >> 9) & 0xff;
-    let v = (sum >> 29) & 0xff;
-    let y0 = (sum >> 40) & 0xff;
-    let y1 = (sum >> 48) & 0xff;
-    (y0 | u << 8 | y1 << 16 | v << 24) as u32
+    let y0 = (sum >> 50) & 0xff;
+    let u = (sum >> 1) & 0xff00; // bits 9..16 of the U sum
+    let y1 = (sum >> 2) & 0xff_0000;
+    let v = (sum >> 17) & 0xff00_0000; // bits 9..16 of the V sum
+    (y0 | u | y1 | v) as u32
 }
 
 impl Tables {
@@ -153,8 +154,8 @@ impl Tables {
             let luma = ((((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) & 0xff) as u64;
             let u = (-38 * r - 74 * g + 112 * b + CHROMA_BIAS) as u64;
             let v = (112 * r - 94 * g - 18 * b + CHROMA_BIAS) as u64;
-            t.first[i] = u | v << 20 | luma << 40;
-            t.second[i] = u | v << 20 | luma << 48;
+            t.first[i] = u | v << 32 | luma << 50;
+            t.second[i] = u | v << 32 | luma << 18;
         }
         t
     }
