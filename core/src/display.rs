@@ -4,7 +4,12 @@
 //! symmetric about zero, either fixed or taken from a high percentile of |x|
 //! so a few outliers (hot pixels, saturation, NaN/Inf) do not wash it out.
 
+pub mod reference;
+
 use std::str::FromStr;
+use std::sync::OnceLock;
+
+use multiversion::multiversion;
 
 use crate::image::Image;
 use crate::mode::{ModeOutput, SeparatedChannels};
@@ -85,6 +90,12 @@ pub struct DisplayMap {
 
 const LUT_SIZE: usize = 1023;
 const LUT_HALF: f32 = ((LUT_SIZE - 1) / 2) as f32;
+/// The largest f32 below 0.5: trunc(x + ROUND_BIAS) equals `x.round()` for
+/// every finite x >= 0 (the expansion LLVM itself uses), without a libm call,
+/// so the per-pixel loops vectorize.
+const ROUND_BIAS: f32 = 0.499_999_97;
+/// Pixels per block: indices of one block live on the stack.
+const BLOCK: usize = 256;
 
 /// Diverging anchors at t = -1, -0.5, 0, 0.5, 1 (a red-blue scale).
 const DIVERGING: [[f32; 3]; 5] = [
@@ -94,6 +105,70 @@ const DIVERGING: [[f32; 3]; 5] = [
     [239.0, 138.0, 98.0],
     [178.0, 24.0, 43.0],
 ];
+
+/// One colormap's tables over [-1, 1] in steps of 1/511 (finer than 8-bit
+/// output), built once. 1024 entries so a 10-bit index needs no bounds check.
+struct Tables {
+    /// R | G << 8 | B << 16.
+    rgb: [u32; 1024],
+    /// YUYV of a pixel pair is `yuyv_word(first[i0] + second[i1])`: each
+    /// entry holds the colour's BT.601 U and V (biased, see [`CHROMA_BIAS`])
+    /// at bits 0 and 32, so one add sums the pair's chroma without carries
+    /// (each sum < 2^17), and its limited-range luma at bit 50 (`first`) or
+    /// 18 (`second`): one shift and mask puts each byte in place.
+    first: [u64; 1024],
+    second: [u64; 1024],
+}
+
+/// Per pixel: half the chroma offset 128 << 9 plus half the rounding 256,
+/// so (U0 + U1 + 2 * CHROMA_BIAS) >> 9 is v4l2loopback-glue's scalar
+/// ((U0 + U1 + 256) >> 9) + 128; |U|, |V| <= 112 * 255 keep each biased
+/// value in 0..2^16 and the pair sum's byte in 16..=240.
+const CHROMA_BIAS: i32 = (128 << 8) + 128;
+
+/// The YUYV bytes of a sum of a `first` and a `second` table entry.
+#[inline(always)]
+fn yuyv_word(sum: u64) -> u32 {
+    let y0 = (sum >> 50) & 0xff;
+    let u = (sum >> 1) & 0xff00; // bits 9..16 of the U sum
+    let y1 = (sum >> 2) & 0xff_0000;
+    let v = (sum >> 17) & 0xff00_0000; // bits 9..16 of the V sum
+    (y0 | u | y1 | v) as u32
+}
+
+impl Tables {
+    fn build(colormap: Colormap) -> Self {
+        let mut t = Tables {
+            rgb: [0; 1024],
+            first: [0; 1024],
+            second: [0; 1024],
+        };
+        for i in 0..1024 {
+            let x = i.min(LUT_SIZE - 1) as f32 / LUT_HALF - 1.0;
+            let c = match colormap {
+                Colormap::Diverging => reference::diverging(x),
+                Colormap::Grey => [reference::grey(x); 3],
+            };
+            let [r, g, b] = c.map(i32::from);
+            t.rgb[i] = u32::from_le_bytes([c[0], c[1], c[2], 0]);
+            let luma = ((((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) & 0xff) as u64;
+            let u = (-38 * r - 74 * g + 112 * b + CHROMA_BIAS) as u64;
+            let v = (112 * r - 94 * g - 18 * b + CHROMA_BIAS) as u64;
+            t.first[i] = u | v << 32 | luma << 50;
+            t.second[i] = u | v << 32 | luma << 18;
+        }
+        t
+    }
+
+    fn get(colormap: Colormap) -> &'static Tables {
+        static DIVERGING_TABLES: OnceLock<Tables> = OnceLock::new();
+        static GREY_TABLES: OnceLock<Tables> = OnceLock::new();
+        match colormap {
+            Colormap::Diverging => DIVERGING_TABLES.get_or_init(|| Tables::build(colormap)),
+            Colormap::Grey => GREY_TABLES.get_or_init(|| Tables::build(colormap)),
+        }
+    }
+}
 
 impl DisplayMap {
     pub fn new(colormap: Colormap, range: DisplayRange) -> Self {
@@ -113,19 +188,49 @@ impl DisplayMap {
     /// Writes 3 bytes (R, G, B) per pixel into `out` (length 3 * width * height;
     /// pixels beyond a shorter `out` are skipped). Uses the selected colormap.
     pub fn render_rgb8(&self, img: &Image<f32>, out: &mut [u8]) {
-        // A lookup table over [-1, 1] (steps of 1/511, finer than 8-bit output).
-        let mut lut = [[0u8; 3]; LUT_SIZE];
-        for (i, c) in lut.iter_mut().enumerate() {
-            let t = i as f32 / LUT_HALF - 1.0;
-            *c = match self.colormap {
-                Colormap::Diverging => diverging(t),
-                Colormap::Grey => [grey(t); 3],
-            };
+        self.render_rgb8_yuyv(img, out, &mut []);
+    }
+
+    /// Writes YUYV (BT.601 limited range, 2 bytes per pixel, chroma from the
+    /// mean of each horizontal pixel pair) of the colormapped image: the
+    /// bytes v4l2loopback-glue's scalar RGB to YUYV packing makes of
+    /// [`Self::render_rgb8`]'s output. Rows or pairs beyond a shorter `out`
+    /// are skipped; with an odd width the last 2 bytes of each row are not written.
+    pub fn render_yuyv(&self, img: &Image<f32>, out: &mut [u8]) {
+        self.render_rgb8_yuyv(img, &mut [], out);
+    }
+
+    /// [`Self::render_rgb8`] into `rgb` and [`Self::render_yuyv`] into
+    /// `yuyv` in one pass with one auto range; an empty slice skips that output.
+    pub fn render_rgb8_yuyv(&self, img: &Image<f32>, rgb: &mut [u8], yuyv: &mut [u8]) {
+        let w = img.width.max(1);
+        let n = img.data.len();
+        let n_rgb = (rgb.len() / 3).min(n);
+        if n_rgb == 0 && yuyv.len() < 4 {
+            return;
         }
         let scale = 1.0 / self.max_abs_dn(img);
-        for (px, &v) in out.chunks_exact_mut(3).zip(&img.data) {
-            let t = normalized(v, scale);
-            px.copy_from_slice(&lut[((t + 1.0) * LUT_HALF).round() as usize]);
+        let tables = Tables::get(self.colormap);
+        let mut idx = [0u16; BLOCK];
+        for (y, row) in img.data.chunks(w).enumerate() {
+            // Whole pairs of this row inside `yuyv`.
+            let yuyv_row = yuyv.get_mut(2 * y * w..).unwrap_or_default();
+            let pairs = (row.len() / 2).min(yuyv_row.len() / 4);
+            for (b, block) in row.chunks(BLOCK).enumerate() {
+                let x0 = b * BLOCK;
+                let idx = &mut idx[..block.len()];
+                lut_indices(block, scale, idx);
+                let rgb_px = n_rgb.saturating_sub(y * w + x0).min(block.len());
+                let rgb_out = &mut rgb[3 * (y * w + x0).min(n_rgb)..][..3 * rgb_px];
+                let block_pairs = pairs.saturating_sub(x0 / 2).min(block.len() / 2);
+                let yuyv_out = &mut yuyv_row[(2 * x0).min(4 * pairs)..][..4 * block_pairs];
+                if rgb_px == 2 * block_pairs && rgb_px == idx.len() {
+                    rgb_yuyv_pairs(tables, idx, rgb_out, yuyv_out);
+                } else {
+                    rgb_pixels(tables, idx, rgb_out);
+                    yuyv_pairs(tables, idx, yuyv_out);
+                }
+            }
         }
     }
 
@@ -142,9 +247,99 @@ impl DisplayMap {
     /// Writes 1 byte per pixel: the grey scale, whatever the colormap.
     pub fn render_grey8(&self, img: &Image<f32>, out: &mut [u8]) {
         let scale = 1.0 / self.max_abs_dn(img);
-        for (px, &v) in out.iter_mut().zip(&img.data) {
-            *px = grey(normalized(v, scale));
+        grey_levels(&img.data, scale, out);
+    }
+}
+
+/// v / max in [-1, 1]; NaN maps to 0 (neutral), +-Inf to the ends.
+#[inline(always)]
+fn normalized(v: f32, scale: f32) -> f32 {
+    let t = v * scale;
+    if t.is_nan() {
+        0.0
+    } else {
+        t.clamp(-1.0, 1.0)
+    }
+}
+
+/// `x.round() as u32` for x in [0, 2^22]: floor(x + ROUND_BIAS) is an exact
+/// integer, and adding 2^23 puts it in the low mantissa bits. Unlike the
+/// saturating `as` casts, this vectorizes (SSE4.1 and up).
+#[inline(always)]
+fn small_uint(x: f32) -> u32 {
+    ((x + ROUND_BIAS).floor() + 8_388_608.0).to_bits() & 0x003f_ffff
+}
+
+/// Table index of each value: round((t + 1) * 511) for t = v * scale in [-1, 1].
+#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+fn lut_indices(values: &[f32], scale: f32, idx: &mut [u16]) {
+    for (i, &v) in idx.iter_mut().zip(values) {
+        *i = small_uint((normalized(v, scale) + 1.0) * LUT_HALF) as u16;
+    }
+}
+
+/// Table colours of `idx` as packed RGB8; 4 pixels per 12-byte store group.
+#[inline]
+fn rgb_pixels(tables: &Tables, idx: &[u16], out: &mut [u8]) {
+    let px = |i: u16| tables.rgb[usize::from(i) & 1023];
+    let done = out.len() / 12 * 4;
+    let mut quads = out.chunks_exact_mut(12);
+    for (o, q) in (&mut quads).zip(idx.chunks_exact(4)) {
+        let (a, b, c, d) = (px(q[0]), px(q[1]), px(q[2]), px(q[3]));
+        let lo = u64::from(a) | u64::from(b) << 24 | u64::from(c) << 48;
+        let hi = c >> 16 | d << 8;
+        o[..8].copy_from_slice(&lo.to_le_bytes());
+        o[8..].copy_from_slice(&hi.to_le_bytes());
+    }
+    for (o, &i) in quads
+        .into_remainder()
+        .chunks_exact_mut(3)
+        .zip(&idx[done.min(idx.len())..])
+    {
+        o.copy_from_slice(&px(i).to_le_bytes()[..3]);
+    }
+}
+
+/// YUYV of pixel pairs of `idx` (see [`Tables::first`]).
+#[inline]
+fn yuyv_pairs(tables: &Tables, idx: &[u16], out: &mut [u8]) {
+    for (o, p) in out.chunks_exact_mut(4).zip(idx.chunks_exact(2)) {
+        let (i0, i1) = (usize::from(p[0]) & 1023, usize::from(p[1]) & 1023);
+        let word = yuyv_word(tables.first[i0] + tables.second[i1]);
+        o.copy_from_slice(&word.to_le_bytes());
+    }
+}
+
+/// Both outputs of whole pixel pairs: `rgb` holds 6 and `yuyv` 4 bytes per
+/// pair of `idx`. Each pair's RGB goes out as one 8-byte store that the next
+/// pair overwrites in part.
+#[inline]
+fn rgb_yuyv_pairs(tables: &Tables, idx: &[u16], rgb: &mut [u8], yuyv: &mut [u8]) {
+    for (j, (p, o)) in idx
+        .chunks_exact(2)
+        .zip(yuyv.chunks_exact_mut(4))
+        .enumerate()
+    {
+        let (i0, i1) = (usize::from(p[0]) & 1023, usize::from(p[1]) & 1023);
+        let six = u64::from(tables.rgb[i0]) | u64::from(tables.rgb[i1]) << 24;
+        match rgb.get_mut(6 * j..6 * j + 8) {
+            Some(d) => d.copy_from_slice(&six.to_le_bytes()),
+            None => {
+                let d = &mut rgb[6 * j..];
+                let len = d.len().min(6);
+                d[..len].copy_from_slice(&six.to_le_bytes()[..len]);
+            }
         }
+        let word = yuyv_word(tables.first[i0] + tables.second[i1]);
+        o.copy_from_slice(&word.to_le_bytes());
+    }
+}
+
+/// Grey level of each value: round((t + 1) * 127.5), zero at 128.
+#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+fn grey_levels(values: &[f32], scale: f32, out: &mut [u8]) {
+    for (o, &v) in out.iter_mut().zip(values) {
+        *o = small_uint((normalized(v, scale) + 1.0) * 127.5) as u8;
     }
 }
 
@@ -168,30 +363,15 @@ pub fn render_channels_rgb8(ch: &SeparatedChannels, out: &mut [u8]) {
     }
 }
 
-/// v / max in [-1, 1]; NaN maps to 0 (neutral), +-Inf to the ends.
-#[inline]
-fn normalized(v: f32, scale: f32) -> f32 {
-    let t = v * scale;
-    if t.is_nan() {
-        0.0
-    } else {
-        t.clamp(-1.0, 1.0)
-    }
-}
-
-#[inline]
-fn grey(t: f32) -> u8 {
-    ((t + 1.0) * 127.5).round() as u8
-}
-
-#[inline]
-fn diverging(t: f32) -> [u8; 3] {
-    let x = (t + 1.0) * 2.0; // 0..=4 across the anchors
-    let i = (x.floor() as usize).min(3);
-    let f = x - i as f32;
-    let (a, b) = (DIVERGING[i], DIVERGING[i + 1]);
-    std::array::from_fn(|c| (a[c] + (b[c] - a[c]) * f).round() as u8)
-}
+/// Bits of |x| above this shift select a coarse bin (exponent and 3 mantissa bits).
+const COARSE_SHIFT: u32 = 20;
+/// The next 11 bits select a fine bin inside the coarse one.
+const FINE_SHIFT: u32 = 9;
+const BINS: usize = 2048;
+/// Coarse bins from here on hold Inf and NaN.
+const NON_FINITE_BIN: usize = (f32::INFINITY.to_bits() >> COARSE_SHIFT) as usize;
+/// Coarse bins below this hold only zeros and subnormals.
+const NORMAL_BIN: usize = (f32::MIN_POSITIVE.to_bits() >> COARSE_SHIFT) as usize;
 
 /// The [`AUTO_PERCENTILE`] quantile of |x| over finite values; falls back to
 /// the largest finite |x| when that is 0, and to 1 for an image with no
@@ -199,46 +379,162 @@ fn diverging(t: f32) -> [u8; 3] {
 /// a histogram over the f32 bit pattern (monotonic for x >= 0); the result
 /// is a sample within 2^-14 (relative) above the exact quantile.
 pub fn robust_max_abs(data: &[f32]) -> f32 {
-    const COARSE_SHIFT: u32 = 20;
-    const FINE_SHIFT: u32 = 9;
-    const BINS: usize = 2048;
+    sampled_quantile(data).unwrap_or_else(|| histogram_quantile(data))
+}
+
+/// Every this many values feed the guess of where the quantile lies.
+const SAMPLE_STRIDE: usize = 16;
+/// Values near the guessed quantile kept for the exact count (on the stack).
+const WINDOW_CAPACITY: usize = 8192;
+/// Values per block of the counting pass, and counters per block.
+const COUNT_BLOCK: usize = 16;
+const LANES: usize = 8;
+/// |x| bits of +Inf: finite values lie below.
+const INF_BITS: u32 = 0x7f80_0000;
+
+/// The same result as [`histogram_quantile`], faster on large images: a
+/// subsample brackets the quantile between two |x| bit patterns (aligned to
+/// fine bins, so a fine bin is wholly in or out), one vectorized pass counts
+/// the finite values and those below the bracket (per-lane counters, so no
+/// reduction per block) and keeps the few inside it, and selection among
+/// those finds the quantile's fine bin. None (use the
+/// full histogram) when the bracket misses the quantile or holds more than
+/// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal.
+#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+fn sampled_quantile(data: &[f32]) -> Option<f32> {
+    if data.len() < 64 * SAMPLE_STRIDE {
+        return None;
+    }
     let mut coarse = [0u32; BINS];
-    let mut finite = 0u64;
-    let mut max_abs = 0.0f32;
-    for &v in data {
-        if v.is_finite() {
-            let a = v.abs();
-            coarse[(a.to_bits() >> COARSE_SHIFT) as usize] += 1;
-            finite += 1;
-            max_abs = max_abs.max(a);
+    for &v in data.iter().step_by(SAMPLE_STRIDE) {
+        coarse[coarse_bin(v)] += 1;
+    }
+    let finite: u64 = coarse[..NON_FINITE_BIN].iter().map(|&n| u64::from(n)).sum();
+    if finite == 0 {
+        return None;
+    }
+    let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
+    // Five standard deviations of the subsample's count above the quantile.
+    let margin = (5.0 * (finite as f64 * (1.0 - AUTO_PERCENTILE)).sqrt()) as u64 + 4;
+    let fine_bin_of = |rank: u64| {
+        let (bin, below) = find_bin(&coarse, rank);
+        let mut fine = [0u32; BINS];
+        for &v in data.iter().step_by(SAMPLE_STRIDE) {
+            let bits = v.to_bits() & 0x7fff_ffff;
+            if (bits >> COARSE_SHIFT) as usize == bin {
+                fine[((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize] += 1;
+            }
+        }
+        ((bin as u32) << COARSE_SHIFT) | ((find_bin(&fine, rank - below).0 as u32) << FINE_SHIFT)
+    };
+    let lo_bits = fine_bin_of(rank.saturating_sub(margin));
+    let hi_bits = fine_bin_of((rank + margin).min(finite - 1)) + (1 << FINE_SHIFT);
+    if lo_bits < f32::MIN_POSITIVE.to_bits() || hi_bits > INF_BITS {
+        return None;
+    }
+    // One pass: per-lane counts (no reduction per block), and the values
+    // inside the bracket from the blocks that hold any.
+    let (mut finite, mut below) = ([0u32; LANES], [0u32; LANES]);
+    let mut window = [0u32; WINDOW_CAPACITY];
+    let mut kept = 0usize;
+    let mut blocks = data.chunks_exact(COUNT_BLOCK);
+    let mut collect = |block: &[f32], inside: bool| -> Option<()> {
+        if inside {
+            for v in block {
+                let bits = v.to_bits() & 0x7fff_ffff;
+                if (lo_bits..hi_bits).contains(&bits) {
+                    *window.get_mut(kept)? = bits;
+                    kept += 1;
+                }
+            }
+        }
+        Some(())
+    };
+    for block in &mut blocks {
+        let mut inside = [0u32; LANES];
+        for part in block.chunks_exact(LANES) {
+            for k in 0..LANES {
+                let bits = part[k].to_bits() & 0x7fff_ffff;
+                finite[k] += u32::from(bits < INF_BITS);
+                below[k] += u32::from(bits < lo_bits);
+                inside[k] |= u32::from(bits >= lo_bits) & u32::from(bits < hi_bits);
+            }
+        }
+        collect(block, inside != [0; LANES])?;
+    }
+    for &v in blocks.remainder() {
+        let bits = v.to_bits() & 0x7fff_ffff;
+        finite[0] += u32::from(bits < INF_BITS);
+        below[0] += u32::from(bits < lo_bits);
+    }
+    collect(blocks.remainder(), true)?;
+    let finite: u64 = finite.iter().map(|&n| u64::from(n)).sum();
+    let below: u64 = below.iter().map(|&n| u64::from(n)).sum();
+    let window = &mut window[..kept];
+    let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
+    if rank < below || rank >= below + kept as u64 {
+        return None;
+    }
+    // The largest value sharing the quantile's fine bin, as the histogram finds it.
+    let key = *window.select_nth_unstable((rank - below) as usize).1 >> FINE_SHIFT;
+    let q = window
+        .iter()
+        .filter(|&&bits| bits >> FINE_SHIFT == key)
+        .fold(0, |m, &bits| m.max(bits));
+    Some(f32::from_bits(q))
+}
+
+/// The two-pass histogram over all values (see [`robust_max_abs`]).
+fn histogram_quantile(data: &[f32]) -> f32 {
+    // Neighbouring pixels often share a bin: four interleaved histograms
+    // keep consecutive increments independent. Non-finite values are
+    // counted too, in bins >= NON_FINITE_BIN, and ignored.
+    let mut coarse4 = [[0u32; BINS]; 4];
+    let mut quads = data.chunks_exact(4);
+    for q in &mut quads {
+        for (h, &v) in coarse4.iter_mut().zip(q) {
+            h[coarse_bin(v)] += 1;
         }
     }
-    if finite == 0 || max_abs == 0.0 {
+    for &v in quads.remainder() {
+        coarse4[0][coarse_bin(v)] += 1;
+    }
+    let mut coarse = [0u32; BINS];
+    for (i, c) in coarse.iter_mut().enumerate() {
+        *c = coarse4.iter().map(|h| h[i]).sum();
+    }
+    let finite: u64 = coarse[..NON_FINITE_BIN].iter().map(|&n| u64::from(n)).sum();
+    if finite == 0 {
         return 1.0;
     }
     // 0-based rank of the quantile among the sorted finite |x|.
     let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
     let (bin, below) = find_bin(&coarse, rank);
+    if bin < NORMAL_BIN {
+        // The quantile is 0 or subnormal: the largest finite |x|, or 1 if 0.
+        let max_abs = data
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold(0.0f32, |m, v| m.max(v.abs()));
+        return if max_abs == 0.0 { 1.0 } else { max_abs };
+    }
     let mut fine = [0u32; BINS];
-    let mut fine_max = [0.0f32; BINS];
+    let mut fine_max_bits = [0u32; BINS];
     for &v in data {
-        if v.is_finite() {
-            let a = v.abs();
-            let bits = a.to_bits();
-            if (bits >> COARSE_SHIFT) as usize == bin {
-                let i = ((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize;
-                fine[i] += 1;
-                fine_max[i] = fine_max[i].max(a);
-            }
+        let bits = v.to_bits() & 0x7fff_ffff;
+        if (bits >> COARSE_SHIFT) as usize == bin {
+            let i = ((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize;
+            fine[i] += 1;
+            fine_max_bits[i] = fine_max_bits[i].max(bits);
         }
     }
     // The largest value sharing the quantile's fine bin: a real sample.
-    let q = fine_max[find_bin(&fine, rank - below).0];
-    if q >= f32::MIN_POSITIVE {
-        q
-    } else {
-        max_abs
-    }
+    f32::from_bits(fine_max_bits[find_bin(&fine, rank - below).0])
+}
+
+#[inline(always)]
+fn coarse_bin(v: f32) -> usize {
+    ((v.to_bits() & 0x7fff_ffff) >> COARSE_SHIFT) as usize
 }
 
 /// The bin holding the element of 0-based `rank`, and how many lie below it.
@@ -256,6 +552,151 @@ fn find_bin(hist: &[u32], rank: u64) -> (usize, u64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use rand::rngs::SmallRng;
+    use rand::{Rng, SeedableRng};
+
+    /// Signed images with the awkward values: NaN, +-Inf, zeros, subnormals,
+    /// huge outliers, exact half steps of the table.
+    fn test_images() -> Vec<Image<f32>> {
+        let mut rng = SmallRng::seed_from_u64(18);
+        let mut imgs = Vec::new();
+        for (w, h) in [(640, 480), (37, 5), (1, 9), (64, 3)] {
+            let mut data: Vec<f32> = (0..w * h)
+                .map(|_| rng.random_range(-1.0f32..1.0).powi(3) * 900.0)
+                .collect();
+            for (k, v) in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, 0.0, -0.0, 1e30]
+                .into_iter()
+                .enumerate()
+            {
+                let n = data.len();
+                if k < n {
+                    data[(k * 7919) % n] = v;
+                }
+            }
+            imgs.push(Image::from_vec(w, h, data).unwrap());
+        }
+        // Every table step and half step for a fixed range of 511 DN.
+        let steps: Vec<f32> = (-1100..=1100).map(|i| i as f32 * 0.5).collect();
+        imgs.push(Image::from_vec(steps.len(), 1, steps).unwrap());
+        imgs.push(Image::from_vec(4, 2, vec![f32::MIN_POSITIVE * 0.25; 8]).unwrap());
+        imgs.push(Image::from_vec(3, 1, vec![0.0, f32::NAN, 0.0]).unwrap());
+        // The subsample sees only the outliers, or misses all of them, or
+        // most values are NaN: the bracket misses and the full histogram answers.
+        for (phase, big, nan_every) in [(0, 1e4, 0), (1, 1e4, 0), (3, 50.0, 3)] {
+            let data: Vec<f32> = (0..64 * 48)
+                .map(|i| match i % 16 {
+                    _ if nan_every > 0 && i % nan_every != 0 => f32::NAN,
+                    p if p == phase => big,
+                    _ => (i % 97) as f32 * 0.25 - 12.0,
+                })
+                .collect();
+            imgs.push(Image::from_vec(64, 48, data).unwrap());
+        }
+        // Many values tied at the quantile: more than the bracket's capacity.
+        imgs.push(Image::from_vec(200, 100, vec![3.5; 20_000]).unwrap());
+        imgs
+    }
+
+    fn maps() -> Vec<DisplayMap> {
+        let mut v = Vec::new();
+        for c in [Colormap::Diverging, Colormap::Grey] {
+            for r in [
+                DisplayRange::SymmetricAuto,
+                DisplayRange::Fixed { max_abs_dn: 511.0 },
+                DisplayRange::Fixed { max_abs_dn: 3.7 },
+            ] {
+                v.push(DisplayMap::new(c, r));
+            }
+        }
+        v
+    }
+
+    /// v4l2loopback-glue's scalar RGB to YUYV row packing, copied verbatim.
+    fn glue_rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
+        for (o, p) in d.chunks_exact_mut(4).zip(s.chunks_exact(6)) {
+            let (r0, g0, b0) = (i32::from(p[0]), i32::from(p[1]), i32::from(p[2]));
+            let (r1, g1, b1) = (i32::from(p[3]), i32::from(p[4]), i32::from(p[5]));
+            let y = |r: i32, g: i32, b: i32| (((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) as u8;
+            let (r, g, b) = (r0 + r1, g0 + g1, b0 + b1);
+            let u = (((-38 * r - 74 * g + 112 * b + 256) >> 9) + 128).clamp(0, 255) as u8;
+            let v = (((112 * r - 94 * g - 18 * b + 256) >> 9) + 128).clamp(0, 255) as u8;
+            o[0] = y(r0, g0, b0);
+            o[1] = u;
+            o[2] = y(r1, g1, b1);
+            o[3] = v;
+        }
+    }
+
+    #[test]
+    fn fast_path_is_byte_identical_to_the_reference() {
+        for img in test_images() {
+            let n = img.data.len();
+            assert_eq!(
+                robust_max_abs(&img.data).to_bits(),
+                reference::robust_max_abs(&img.data).to_bits()
+            );
+            for map in maps() {
+                let (mut fast, mut slow) = (vec![1u8; 3 * n], vec![2u8; 3 * n]);
+                map.render_rgb8(&img, &mut fast);
+                reference::render_rgb8(&map, &img, &mut slow);
+                assert_eq!(fast, slow, "{map:?} {}x{}", img.width, img.height);
+                let (mut fast, mut slow) = (vec![1u8; n], vec![2u8; n]);
+                map.render_grey8(&img, &mut fast);
+                reference::render_grey8(&map, &img, &mut slow);
+                assert_eq!(fast, slow, "{map:?}");
+                // YUYV: the glue's packing of the reference RGB, row by row.
+                let mut want = vec![7u8; 2 * n];
+                for (s, d) in slow_rgb(&map, &img)
+                    .chunks(3 * img.width)
+                    .zip(want.chunks_mut(2 * img.width))
+                {
+                    glue_rgb_row_to_yuyv(s, d);
+                }
+                let (mut rgb, mut yuyv) = (vec![0u8; 3 * n], vec![7u8; 2 * n]);
+                map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv);
+                assert_eq!(yuyv, want, "{map:?} {}x{}", img.width, img.height);
+                assert_eq!(rgb, slow_rgb(&map, &img));
+            }
+        }
+    }
+
+    fn slow_rgb(map: &DisplayMap, img: &Image<f32>) -> Vec<u8> {
+        let mut v = vec![0u8; 3 * img.data.len()];
+        reference::render_rgb8(map, img, &mut v);
+        v
+    }
+
+    #[test]
+    fn short_outputs_write_only_what_fits() {
+        let img = Image::from_vec(6, 2, (0..12).map(|i| i as f32 - 6.0).collect()).unwrap();
+        let map = DisplayMap::default();
+        let mut full = vec![0u8; 24];
+        map.render_yuyv(&img, &mut full);
+        let mut short = vec![9u8; 14];
+        map.render_yuyv(&img, &mut short);
+        assert_eq!(&short[..12], &full[..12]);
+        assert_eq!(&short[12..], &[9, 9]);
+        let mut rgb = vec![9u8; 7];
+        map.render_rgb8(&img, &mut rgb);
+        assert_eq!(&rgb[..6], &slow_rgb(&map, &img)[..6]);
+        assert_eq!(rgb[6], 9);
+    }
+
+    #[test]
+    fn round_bias_matches_round_on_the_table_range() {
+        // Every 7th f32 in [0, 1023], and every f32 within 64 ulps of each half step.
+        let check = |x: f32| assert_eq!((x + ROUND_BIAS) as u16, x.round() as u16, "{x:e}");
+        let mut b = 0u32;
+        while b <= 1023f32.to_bits() {
+            check(f32::from_bits(b));
+            b += 7;
+        }
+        for k in 0..1023 {
+            let h = (k as f32 + 0.5).to_bits();
+            (h - 64..=h + 64).for_each(|b| check(f32::from_bits(b)));
+        }
+    }
 
     #[test]
     fn percentile_matches_sorting() {

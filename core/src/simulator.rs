@@ -8,8 +8,10 @@
 //! and clipped by the ADC. Light uncorrelated with f (ambient, `Constant`
 //! sources) splits between the wells by the duty of f: under the 50/50 square
 //! wave it cancels in the mean and adds shot noise. Moving scenes are
-//! integrated in sub-steps so motion inside one exposure (temporal gradients,
-//! two-shot ghosting) comes out of the model.
+//! integrated over the exposure so motion inside it (temporal gradients,
+//! two-shot ghosting) comes out of the model: per segment of the modulation
+//! from the scene's own time average ([`Scene::render_mean`], closed form
+//! where it can), else in sub-steps.
 //!
 //! [`Frame::dn`] holds the ADC code minus the (known, constant) black-level
 //! offset; the per-pixel fixed pattern stays in, as on the real sensor: dark
@@ -41,7 +43,9 @@ pub struct SimConfig {
     /// Uniform ambient light, electrons per microsecond per pixel.
     pub ambient_electrons_per_us: f64,
     pub seed: u64,
-    /// Integration sub-steps per exposure for moving scenes (static scenes use one).
+    /// Sub-steps per exposure for moving scenes that cannot integrate
+    /// themselves, and point samples for the parts of those that can but
+    /// sample (static scenes use one).
     pub substeps: usize,
 }
 
@@ -221,7 +225,59 @@ impl Simulator {
         entry.plan_valid = false;
     }
 
+    /// The sub-stepped integration of a moving scene's exposure (a render
+    /// at the middle of each of `substeps` steps), whatever the scene can do
+    /// in closed form: the reference [`Simulator::expect_wells`] is tested
+    /// and benchmarked against.
+    pub fn expect_wells_substepped(&mut self, illumination: &Illumination, t0_us: f64) {
+        if self.scene.is_static() {
+            return self.expect_wells(illumination, t0_us);
+        }
+        self.integrate_substeps(illumination, t0_us, false);
+        self.cache[self.current].plan_valid = false;
+    }
+
     fn integrate(&mut self, illumination: &Illumination, t0_us: f64, is_static: bool) {
+        if is_static || !self.integrate_segments(illumination, t0_us) {
+            self.integrate_substeps(illumination, t0_us, is_static);
+        }
+    }
+
+    /// Moving scenes: one mean render per segment of the modulation (f
+    /// constant, or a carrier much faster than the scene), from the scene's
+    /// own time integration. False if the scene cannot integrate.
+    fn integrate_segments(&mut self, illumination: &Illumination, t0_us: f64) -> bool {
+        let exposure_us = self.config.sensor.exposure_us;
+        let substeps = self.config.substeps.max(1);
+        let expected = &mut self.cache[self.current].expected;
+        expected.i_plus_electrons.data.fill(0.0);
+        expected.i_minus_electrons.data.fill(0.0);
+        for seg in &illumination.modulation.segments {
+            let (u0, u1) = (seg.start.max(0.0), seg.end.min(1.0));
+            if u1 <= u0 {
+                continue;
+            }
+            // As many samples as the sub-steps this segment spans.
+            let samples = ((u1 - u0) * substeps as f64).round().max(1.0) as usize;
+            let (ta, tb) = (t0_us + u0 * exposure_us, t0_us + u1 * exposure_us);
+            if !self.scene.render_mean(ta, tb, samples, &mut self.radiance) {
+                return false;
+            }
+            let duty = seg.duty.clamp(0.0, 1.0);
+            accumulate(
+                expected,
+                &self.radiance,
+                illumination,
+                duty,
+                tb - ta,
+                self.config.ambient_electrons_per_us,
+            );
+        }
+        self.radiance_static = false;
+        true
+    }
+
+    fn integrate_substeps(&mut self, illumination: &Illumination, t0_us: f64, is_static: bool) {
         let exposure_us = self.config.sensor.exposure_us;
         let steps = if is_static {
             1
@@ -242,33 +298,7 @@ impl Simulator {
                 self.scene.render(t_mid_us, &mut self.radiance);
                 self.radiance_static = is_static;
             }
-            let channels = [
-                (self.radiance.ls1.as_ref(), illumination.ls1),
-                (self.radiance.ls2.as_ref(), illumination.ls2),
-                (self.radiance.ambient.as_ref(), SourceDrive::Constant),
-            ];
-            let plus = &mut expected.i_plus_electrons.data;
-            let minus = &mut expected.i_minus_electrons.data;
-            for (rate, drive) in channels {
-                let (Some(rate), (fp, fm)) = (rate, drive.well_split(duty)) else {
-                    continue;
-                };
-                let (wp, wm) = ((fp * dt_us) as f32, (fm * dt_us) as f32);
-                if wp == 0.0 && wm == 0.0 {
-                    continue;
-                }
-                for ((p, m), &r) in plus.iter_mut().zip(minus.iter_mut()).zip(&rate.data) {
-                    *p += wp * r;
-                    *m += wm * r;
-                }
-            }
-            if ambient > 0.0 {
-                // Uniform ambient: uncorrelated with f, split by the duty.
-                let (fp, fm) = SourceDrive::Constant.well_split(duty);
-                let (wp, wm) = ((fp * dt_us * ambient) as f32, (fm * dt_us * ambient) as f32);
-                plus.iter_mut().for_each(|p| *p += wp);
-                minus.iter_mut().for_each(|m| *m += wm);
-            }
+            accumulate(expected, &self.radiance, illumination, duty, dt_us, ambient);
         }
     }
 
@@ -276,6 +306,23 @@ impl Simulator {
     /// noise, digitizes, and advances the clock by one frame period.
     pub fn capture(&mut self, illumination: &Illumination, out: &mut Frame) {
         self.prepare(illumination, out);
+        self.sample(out);
+    }
+
+    /// Like [`Simulator::capture`], but a moving scene's exposure comes from
+    /// [`Simulator::expect_wells_substepped`]: the previous path, kept as
+    /// the reference the closed-form motion is benchmarked against.
+    pub fn capture_substepped(&mut self, illumination: &Illumination, out: &mut Frame) {
+        let (w, h) = (self.config.sensor.width, self.config.sensor.height);
+        if out.width() != w || out.height() != h {
+            *out = Frame::new(w, h);
+        }
+        self.expect_wells_substepped(illumination, self.time_us);
+        self.sample(out);
+    }
+
+    /// Noise, readout and clock advance for the current expectation.
+    fn sample(&mut self, out: &mut Frame) {
         let entry = &mut self.cache[self.current];
         if !entry.plan_valid {
             entry.plan.rebuild(
@@ -329,5 +376,45 @@ impl Simulator {
         out.sequence = self.sequence;
         self.sequence += 1;
         self.time_us += 1e6 / self.config.sensor.frame_rate_hz;
+    }
+}
+
+/// Adds the wells' share of `dt_us` of the rates in `radiance` (and the
+/// uniform ambient) at mean duty `duty` of f (eq. wellmeasurement).
+fn accumulate(
+    expected: &mut WellExpectation,
+    radiance: &Radiance,
+    illumination: &Illumination,
+    duty: f64,
+    dt_us: f64,
+    ambient_electrons_per_us: f64,
+) {
+    let channels = [
+        (radiance.ls1.as_ref(), illumination.ls1),
+        (radiance.ls2.as_ref(), illumination.ls2),
+        (radiance.ambient.as_ref(), SourceDrive::Constant),
+    ];
+    let plus = &mut expected.i_plus_electrons.data;
+    let minus = &mut expected.i_minus_electrons.data;
+    for (rate, drive) in channels {
+        let (Some(rate), (fp, fm)) = (rate, drive.well_split(duty)) else {
+            continue;
+        };
+        let (wp, wm) = ((fp * dt_us) as f32, (fm * dt_us) as f32);
+        if wp == 0.0 && wm == 0.0 {
+            continue;
+        }
+        for ((p, m), &r) in plus.iter_mut().zip(minus.iter_mut()).zip(&rate.data) {
+            *p += wp * r;
+            *m += wm * r;
+        }
+    }
+    if ambient_electrons_per_us > 0.0 {
+        // Uniform ambient: uncorrelated with f, split by the duty.
+        let (fp, fm) = SourceDrive::Constant.well_split(duty);
+        let a = ambient_electrons_per_us;
+        let (wp, wm) = ((fp * dt_us * a) as f32, (fm * dt_us * a) as f32);
+        plus.iter_mut().for_each(|p| *p += wp);
+        minus.iter_mut().for_each(|m| *m += wm);
     }
 }

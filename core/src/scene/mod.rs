@@ -50,6 +50,19 @@ pub trait Scene: Send {
     /// Rates at time `t_us` (microseconds since the start of the run).
     /// Implementations reuse the buffers already in `out`.
     fn render(&self, t_us: f64, out: &mut Radiance);
+    /// Moving scenes that can integrate their motion: the mean rates over
+    /// [t0_us, t1_us] into `out`, at least as accurate as the mean of
+    /// `samples` renders at evenly spaced midpoints. False (the default):
+    /// the caller averages renders itself.
+    fn render_mean(
+        &mut self,
+        _t0_us: f64,
+        _t1_us: f64,
+        _samples: usize,
+        _out: &mut Radiance,
+    ) -> bool {
+        false
+    }
 }
 
 /// A scene that does not move and is lit only by LS1 and LS2, described

@@ -1,0 +1,248 @@
+//! Side-by-side benchmark, one run, one core: the display path at 640x480
+//! (auto range, colormap to RGB8, YUYV packing) for the diverging and grey
+//! colormaps, against the previous implementation (scalar colormap, then
+//! v4l2loopback-glue's RGB to YUYV), numpy + OpenCV doing the same, and a
+//! plain copy of the output bytes.
+//!
+//! `cargo bench -p sdi-core --bench display_vs_opencv` (needs /usr/bin/python3
+//! with python3-opencv; without it the OpenCV column stays empty).
+//! Times are the thread's CPU time (CLOCK_THREAD_CPUTIME_ID), immune to
+//! other load on the machine.
+
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use nix::time::{clock_gettime, ClockId};
+use rand::rngs::SmallRng;
+use rand::SeedableRng;
+use rand_distr::{Distribution, Normal};
+use sdi_core::display::{reference, robust_max_abs, Colormap, DisplayMap, DisplayRange};
+use sdi_core::image::Image;
+use v4l2loopback_glue::{Converter, PixelFormat, Src, YuyvPath};
+
+const W: usize = 640;
+const H: usize = 480;
+/// Runs per measurement of our paths (each well under a millisecond).
+const REPS: usize = 400;
+/// Runs of the (slow) previous path and the Python reference.
+const SLOW_REPS: usize = 25;
+
+/// CPU time consumed by this thread so far.
+fn thread_cpu() -> Duration {
+    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
+        .map(Duration::from)
+        .unwrap_or_default()
+}
+
+/// (median wall ms, mean CPU ms) per call over `reps` calls.
+fn time_ms(reps: usize, mut run: impl FnMut()) -> (f64, f64) {
+    run(); // warm caches and tables
+    let c0 = thread_cpu();
+    let mut t: Vec<f64> = (0..reps)
+        .map(|_| {
+            let t0 = Instant::now();
+            run();
+            t0.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    let cpu = (thread_cpu() - c0).as_secs_f64() * 1e3 / reps as f64;
+    t.sort_by(f64::total_cmp);
+    (t[reps / 2], cpu)
+}
+
+/// A difference image: smooth signed structure, shot-like noise, a few
+/// hot pixels and NaNs (what the auto range must see through).
+fn test_image() -> Image<f32> {
+    let mut rng = SmallRng::seed_from_u64(18);
+    let noise = Normal::new(0.0f32, 12.0).unwrap_or_else(|_| unreachable!());
+    let mut data = Vec::with_capacity(W * H);
+    for y in 0..H {
+        for x in 0..W {
+            let s = ((x as f32 * 0.02).sin() + (y as f32 * 0.015).cos()) * 300.0;
+            data.push(s + noise.sample(&mut rng));
+        }
+    }
+    for k in 0..200 {
+        data[(k * 7919) % (W * H)] = if k % 2 == 0 { 4e4 } else { f32::NAN };
+    }
+    Image {
+        width: W,
+        height: H,
+        data,
+    }
+}
+
+/// OpenCV's (wall, CPU) ms per frame for each colormap from the Python reference.
+fn opencv(frame: &std::path::Path) -> [(f64, f64); 2] {
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/opencv_display.py");
+    let nan = (f64::NAN, f64::NAN);
+    let mut out = [nan; 2];
+    let run = Command::new("/usr/bin/python3")
+        .arg(script)
+        .arg(frame)
+        .args([W.to_string(), H.to_string(), SLOW_REPS.to_string()])
+        .output();
+    let Ok(o) = run else {
+        eprintln!("no /usr/bin/python3: OpenCV column left empty");
+        return out;
+    };
+    if !o.status.success() {
+        eprintln!(
+            "opencv script failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+    for line in String::from_utf8_lossy(&o.stdout).lines() {
+        let mut it = line.split_whitespace();
+        let slot = match it.next() {
+            Some("opencv_diverging") => 0,
+            Some("opencv_grey") => 1,
+            _ => continue,
+        };
+        let v: Vec<f64> = it.filter_map(|v| v.parse().ok()).collect();
+        if let [wall, cpu] = v[..] {
+            out[slot] = (wall, cpu);
+        }
+    }
+    out
+}
+
+fn main() {
+    let img = test_image();
+    let path = std::env::temp_dir().join(format!("sdi_display_bench_{}.f32", std::process::id()));
+    let bytes: Vec<u8> = img.data.iter().flat_map(|v| v.to_le_bytes()).collect();
+    if let Err(e) = std::fs::write(&path, bytes) {
+        eprintln!("cannot write {}: {e}", path.display());
+    }
+    let reference_cv = opencv(&path);
+    let _ = std::fs::remove_file(&path);
+
+    let mut rgb = vec![0u8; W * H * 3];
+    let mut yuyv = vec![0u8; W * H * 2];
+    let (src_rgb, src_yuyv) = (vec![1u8; W * H * 3], vec![2u8; W * H * 2]);
+    let copy = time_ms(REPS, || {
+        rgb.copy_from_slice(std::hint::black_box(&src_rgb));
+        yuyv.copy_from_slice(std::hint::black_box(&src_yuyv));
+        std::hint::black_box((&rgb, &yuyv));
+    });
+    let range = time_ms(REPS, || {
+        std::hint::black_box(robust_max_abs(std::hint::black_box(&img.data)));
+    });
+    let old_range = time_ms(SLOW_REPS, || {
+        std::hint::black_box(reference::robust_max_abs(std::hint::black_box(&img.data)));
+    });
+    println!("display path at {W}x{H}, one core, side by side in one run");
+    println!("each cell: median wall ms / mean thread CPU ms per frame");
+    println!(
+        "auto range alone: ours {} | previous {}",
+        cell(range),
+        cell(old_range)
+    );
+    println!(
+        "memcpy of the output (RGB8 + YUYV, {} bytes): {}",
+        rgb.len() + yuyv.len(),
+        cell(copy)
+    );
+    println!(
+        "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>17} {:>9} {:>9}",
+        "colormap",
+        "ours rgb8",
+        "ours yuyv",
+        "ours rgb8+yuyv",
+        "previous",
+        "previous(simd)",
+        "numpy+opencv",
+        "cv/ours",
+        "ours/copy"
+    );
+    let mut fixed_rows = Vec::new();
+    let mut agreement = Vec::new();
+    for (k, colormap) in [Colormap::Diverging, Colormap::Grey]
+        .into_iter()
+        .enumerate()
+    {
+        let map = DisplayMap::new(colormap, DisplayRange::SymmetricAuto);
+        let only_rgb = time_ms(REPS, || map.render_rgb8(&img, &mut rgb));
+        let only_yuyv = time_ms(REPS, || map.render_yuyv(&img, &mut yuyv));
+        let both = time_ms(REPS, || map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv));
+        // The previous daemon path: scalar colormap, then the glue's packing
+        // (its scalar loop, and yuvutils where AVX2 makes that the faster).
+        let mut previous = |path| {
+            let mut conv = Converter::new(W as u32, H as u32, PixelFormat::Yuyv, path);
+            let mut old_rgb = vec![0u8; W * H * 3];
+            time_ms(SLOW_REPS, || {
+                reference::render_rgb8(&map, &img, &mut old_rgb);
+                let r = conv.rgb8(Src::packed(&old_rgb, W, H, 3), &mut yuyv);
+                std::hint::black_box(r.is_ok());
+            })
+        };
+        let old_scalar = previous(YuyvPath::Scalar);
+        let old_simd = previous(YuyvPath::Simd);
+        // Agreement with the previous path's bytes, from this run's image.
+        let mut old_rgb = vec![0u8; W * H * 3];
+        reference::render_rgb8(&map, &img, &mut old_rgb);
+        map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv);
+        let mut worst = [0u8; 2];
+        for (k, path) in [YuyvPath::Scalar, YuyvPath::Simd].into_iter().enumerate() {
+            let mut old_yuyv = vec![0u8; W * H * 2];
+            let mut conv = Converter::new(W as u32, H as u32, PixelFormat::Yuyv, path);
+            if conv
+                .rgb8(Src::packed(&old_rgb, W, H, 3), &mut old_yuyv)
+                .is_ok()
+            {
+                worst[k] = yuyv
+                    .iter()
+                    .zip(&old_yuyv)
+                    .map(|(a, b)| a.abs_diff(*b))
+                    .max()
+                    .unwrap_or(0);
+            }
+        }
+        agreement.push(format!(
+            "{:<10} bytes vs previous: rgb8 {} | yuyv max diff {} (glue scalar), {} (yuvutils)",
+            colormap.name(),
+            if rgb == old_rgb {
+                "identical"
+            } else {
+                "DIFFERENT"
+            },
+            worst[0],
+            worst[1]
+        ));
+        let cv = reference_cv[k];
+        let fixed = DisplayMap::new(colormap, DisplayRange::Fixed { max_abs_dn: 400.0 });
+        let fixed_rgb = time_ms(REPS, || fixed.render_rgb8(&img, &mut rgb));
+        let fixed_yuyv = time_ms(REPS, || fixed.render_yuyv(&img, &mut yuyv));
+        let fixed_grey = time_ms(REPS, || fixed.render_grey8(&img, &mut yuyv[..W * H]));
+        fixed_rows.push(format!(
+            "{:<10} fixed range (no auto range): rgb8 {} | yuyv {} | grey8 {}",
+            colormap.name(),
+            cell(fixed_rgb),
+            cell(fixed_yuyv),
+            cell(fixed_grey)
+        ));
+        println!(
+            "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>17} {:>8.1}x {:>8.2}x",
+            colormap.name(),
+            cell(only_rgb),
+            cell(only_yuyv),
+            cell(both),
+            cell(old_scalar),
+            cell(old_simd),
+            cell(cv),
+            cv.1 / both.1,
+            both.1 / copy.1,
+        );
+    }
+    fixed_rows.iter().for_each(|r| println!("{r}"));
+    agreement.iter().for_each(|r| println!("{r}"));
+    println!(
+        "ours rgb8+yuyv: auto range, colormap, RGB8 and YUYV in one pass (what the goal times)"
+    );
+    println!("previous: old colormap + glue scalar RGB->YUYV; previous(simd): + yuvutils");
+    println!("cv/ours and ours/copy: ratios of CPU time (numpy+OpenCV makes both outputs too)");
+}
+
+fn cell(t: (f64, f64)) -> String {
+    format!("{:.3} / {:.3}", t.0, t.1)
+}
