@@ -15,7 +15,6 @@ use zbus::{interface, Connection};
 
 use super::client_fd::{self, recording_label};
 use super::errors::{check_range, invalid_mode, SdiError};
-use sdi_api::{CalibrationReply, DarkFrameReply, RecordingReply};
 use super::paths::{validate_output_path, OutputKind};
 use crate::backend::{BackendError, CaptureSettings, Limits};
 use crate::calibration_store;
@@ -24,6 +23,7 @@ use crate::modes::{Colormap, DisplayMap, DisplayRange};
 use crate::recording::{Calibration, Header as RecHeader, RecordingWriter};
 use crate::sink::SinkInfo;
 use crate::stats::Stats;
+use sdi_api::{CalibrationReply, DarkFrameReply, RecordingReply};
 use sdi_core::calibration::CalibrationRecord;
 
 /// Largest number of frames one dark-frame or calibration call may average.
