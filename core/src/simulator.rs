@@ -170,6 +170,11 @@ impl Simulator {
         &self.config
     }
 
+    /// True when the scene does not move (one expectation serves every frame).
+    pub fn scene_is_static(&self) -> bool {
+        self.scene.is_static()
+    }
+
     /// Simulation clock: start of the next exposure, microseconds.
     pub fn time_us(&self) -> f64 {
         self.time_us

@@ -1,4 +1,8 @@
 //! Offline tools: run the imaging core without the daemon.
 
+pub mod frames;
 pub mod report;
+pub mod sensor_arg;
+pub mod separate;
 pub mod sim;
+pub mod sim_truth;
