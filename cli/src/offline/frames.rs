@@ -216,10 +216,6 @@ impl NpyFrames {
             h,
         ))
     }
-
-    pub fn frames(&self) -> usize {
-        self.frames
-    }
 }
 
 /// Frames from a file: `.sdirec` recordings or `.npy` stacks.
@@ -237,8 +233,6 @@ pub enum FrameInput {
 pub struct InputInfo {
     pub width: usize,
     pub height: usize,
-    /// Frame count when known up front (.npy).
-    pub frames: Option<usize>,
     /// Sensor parameters stored with a recording.
     pub sensor: Option<SensorParams>,
     /// Temporal dark variance measured by sdid when the recording started, DN^2.
@@ -265,7 +259,6 @@ impl FrameInput {
             let info = InputInfo {
                 width: header.sensor.width,
                 height: header.sensor.height,
-                frames: None,
                 sensor: Some(header.sensor.clone()),
                 read_variance_dn2: header.calibration.read_noise_variance_dn2,
             };
@@ -284,13 +277,11 @@ impl FrameInput {
             Ok((input, info))
         } else {
             let (npy, w, h) = NpyFrames::open(path)?;
-            let frames = Some(npy.frames());
             Ok((
                 FrameInput::Npy(npy),
                 InputInfo {
                     width: w,
                     height: h,
-                    frames,
                     sensor: None,
                     read_variance_dn2: None,
                 },

@@ -217,7 +217,8 @@ mod tests {
     #[test]
     fn bad_descriptions_are_refused_with_the_field_named() {
         let base = SensorDescription::preset(SensorPreset::TiOpt8241);
-        let cases: [(&str, Box<dyn Fn(&mut SensorDescription)>); 7] = [
+        type Edit = Box<dyn Fn(&mut SensorDescription)>;
+        let cases: [(&str, Edit); 7] = [
             (
                 "demodulation_contrast",
                 Box::new(|d| d.demodulation_contrast = 0.0),
