@@ -16,11 +16,11 @@ use sdi_core::calibration::DarkCalibration;
 use sdi_core::modulation::Illumination;
 use sdi_core::scene::ColourChart;
 use sdi_core::scene::SceneSpec;
-use sdi_core::sensor::{SensorPreset, SkellamMixing};
+use sdi_core::sensor::{mixing_with_adc, SkellamMixing};
 use sdi_core::separation::{
-    auto_segment, bilateral_exact, pool_moments, segment_moments, unmix, unmix_local_into,
-    BilateralGrid, BilateralParams, PoolParams, SegmentParams, SeparableBilateral, Separated,
-    SeparationError, UnmixOptions, Welford,
+    auto_segment, bilateral_exact, noise_sigma, pool_moments, segment_moments, unmix,
+    unmix_local_into, BilateralGrid, BilateralParams, PoolParams, SegmentParams,
+    SeparableBilateral, Separated, SeparationError, UnmixOptions, Welford,
 };
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
@@ -40,6 +40,22 @@ pub struct SeparationReportArgs {
     /// Simulator seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Sensor: preset (ti, pmd) or a sensor description file (TOML).
+    #[arg(long, default_value = "ti", value_parser = super::sensor_arg::parse_sensor)]
+    pub sensor: sdi_core::sensor::SensorDescription,
+    /// Exposure per frame, microseconds [default: the sensor's].
+    #[arg(long, value_parser = parse_exposure_us)]
+    pub exposure_us: Option<f64>,
+    /// Also write the table as JSON (separation.json).
+    #[arg(long)]
+    pub json: bool,
+}
+
+fn parse_exposure_us(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 1e6 => Ok(v),
+        _ => Err("expected microseconds, 0 < X <= 1000000".into()),
+    }
 }
 
 /// What can go wrong while reporting.
@@ -101,8 +117,11 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
     };
     let scene = SceneSpec::from_name(&name)
         .ok_or_else(|| ReportError::UnknownScene(name.clone(), SceneSpec::NAMES.join(", ")))?;
-    let sensor = SensorPreset::TiOpt8241.params();
-    let h = sensor.skellam();
+    let mut sensor = args.sensor.params();
+    if let Some(e) = args.exposure_us {
+        sensor.exposure_us = e;
+    }
+    let h = mixing_with_adc(&sensor);
     let mut config = SimConfig::new(sensor.clone(), scene);
     config.seed = args.seed;
     let mut sim = Simulator::new(config)?;
@@ -197,7 +216,8 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
 
     // Single-frame estimators on the first frame.
     let one = &frames[0];
-    let noise_dn = noise_sigma_dn(&truth, &h);
+    // M3's range scale from the frame itself (robust MAD), never from the truth.
+    let noise_dn = noise_sigma(one);
     for radius in [1usize, 2, 4] {
         let p = SegmentParams {
             smooth_radius_px: radius,
@@ -247,9 +267,17 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
         }
     }
 
-    print_table(&name, w, ht, &rows);
+    print_table(&name, &sensor.model, w, ht, &rows);
     std::fs::create_dir_all(&args.out).map_err(|e| ReportError::Io(args.out.clone(), e))?;
     write_tsv(&args.out.join("separation.tsv"), &rows)?;
+    if args.json {
+        write_json(
+            &args.out.join("separation.json"),
+            &name,
+            &sensor.model,
+            &rows,
+        )?;
+    }
     let svg = args.out.join("separation.svg");
     plot(&svg, &name, &rows)?;
     println!(
@@ -275,14 +303,6 @@ fn median_of_3<T>(
     times.sort_by(f64::total_cmp);
     let result = last.ok_or(ReportError::Plot("no run".into()))?;
     Ok((result, times[1]))
-}
-
-/// Typical per-pixel noise of one frame, DN: sqrt(g^2 mean(I+ + I-) + read).
-fn noise_sigma_dn(t: &Truth, h: &SkellamMixing) -> f64 {
-    let n = t.plus.len().max(1) as f64;
-    let sum = t.plus.iter().zip(&t.minus).map(|(a, b)| a + b).sum::<f64>() / n;
-    let g = h.gain_dn_per_electron;
-    (g * g * sum + h.read_variance_dn2).sqrt().max(1.0)
 }
 
 fn rel(est: &Image<f32>, truth: &[f64]) -> (f64, f64) {
@@ -359,8 +379,8 @@ fn row(method: &'static str, params: String, sep: &Separated, t: &Truth, ms: f64
     }
 }
 
-fn print_table(scene: &str, w: usize, h: usize, rows: &[Row]) {
-    println!("separation report: scene {scene}, {w}x{h}, TI preset, dark-frame subtracted");
+fn print_table(scene: &str, model: &str, w: usize, h: usize, rows: &[Row]) {
+    println!("separation report: scene {scene}, {w}x{h}, sensor {model}, dark-frame subtracted");
     println!("relative RMSE per pixel (rmse), per patch mean (patch), M1's sampling floor per pixel (floor)");
     println!(
         "{:<13} {:<22} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>15} {:>10}",
@@ -433,6 +453,31 @@ pub fn ordering(rows: &[Row]) -> String {
             "does NOT hold"
         }
     )
+}
+
+fn write_json(path: &Path, scene: &str, model: &str, rows: &[Row]) -> Result<(), ReportError> {
+    let order = ordering(rows);
+    let rows: Vec<serde_json::Value> = rows
+        .iter()
+        .map(|r| {
+            serde_json::json!({
+                "method": r.method,
+                "params": r.params,
+                "rel_rmse_plus": r.rmse_plus,
+                "rel_bias_plus": r.bias_plus,
+                "rel_rmse_minus": r.rmse_minus,
+                "rel_bias_minus": r.bias_minus,
+                "patch_rmse_plus": r.patch_plus,
+                "patch_rmse_minus": r.patch_minus,
+                "floor_plus": r.floor.map(|f| f.0),
+                "floor_minus": r.floor.map(|f| f.1),
+                "ms_per_frame": r.ms_per_frame,
+            })
+        })
+        .collect();
+    let doc = serde_json::json!({"scene": scene, "sensor": model, "ordering": order, "rows": rows});
+    std::fs::write(path, serde_json::to_string_pretty(&doc).unwrap_or_default())
+        .map_err(|e| ReportError::Io(path.to_path_buf(), e))
 }
 
 fn write_tsv(path: &Path, rows: &[Row]) -> Result<(), ReportError> {
