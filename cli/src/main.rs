@@ -46,6 +46,8 @@ enum Command {
 enum Report {
     /// Error against run time of every separation estimator (I+, I- recovery).
     Separation(offline::report::SeparationReportArgs),
+    /// Variance against intensity, snapshot vs two-shot, and the ratio of the low-light intercepts (section 5.5).
+    Noise(offline::noise_report::NoiseReportArgs),
 }
 
 fn main() -> ExitCode {
@@ -53,6 +55,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Sim(args) => offline::sim::run(args),
         Command::Separate(args) => offline::separate::run(args),
+        Command::Report(Report::Noise(args)) => offline::noise_report::run(&args),
         Command::Report(Report::Separation(args)) => offline::report::run_cli(&args),
         Command::Online(cmd) => return online::run(cmd, cli.bus),
         Command::Completions { shell } => {
