@@ -36,7 +36,7 @@ pub fn linear_fit(xs: &[f64], ys: &[f64]) -> Result<LinearFit, CalibrationError>
     let mx = pts.iter().map(|p| p.0).sum::<f64>() / nf;
     let my = pts.iter().map(|p| p.1).sum::<f64>() / nf;
     let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
-    if !(sxx > 0.0) {
+    if sxx <= 0.0 {
         return Err(CalibrationError::Store("all intensities are equal".into()));
     }
     let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
