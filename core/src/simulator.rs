@@ -19,6 +19,7 @@
 //! (see [`readout`]) for each recently used illumination, so a frame costs one
 //! random draw per bright pixel.
 
+pub mod light_travel;
 pub mod poisson;
 pub mod readout;
 

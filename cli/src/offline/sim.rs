@@ -173,6 +173,11 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
     config.ambient_electrons_per_us =
         args.ambient + 2.0 * args.sensor.dark_current_electrons_per_us;
     config.seed = args.seed;
+    if let Some(w) =
+        sdi_core::simulator::light_travel::light_travel_warning(&config.scene, carrier_hz)
+    {
+        eprintln!("warning: {w}");
+    }
     let mut sim = Simulator::new(config).map_err(|e| CliError::Usage(e.to_string()))?;
     let (w, h) = (sim.params().width, sim.params().height);
 
