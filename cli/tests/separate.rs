@@ -544,3 +544,75 @@ fn sim_truth_and_two_shot_frames_have_the_documented_shapes() {
     ]));
     assert_eq!(load(&t).0, vec![2, 2, 120, 165]);
 }
+
+#[test]
+fn report_separation_on_measured_frames_uses_ls_only_frames_as_truth() {
+    let dir = scratch("measured");
+    let (f, ts, ab) = (dir.join("f.npy"), dir.join("ts.npy"), dir.join("ab.npy"));
+    ok(&sdictl(&[
+        "sim",
+        "--scene",
+        "colour-chart",
+        "--mode",
+        "raw",
+        "--frames",
+        "100",
+        "--out",
+        s(&f),
+        "--sensor",
+        "pmd",
+    ]));
+    ok(&sdictl(&[
+        "sim",
+        "--scene",
+        "colour-chart",
+        "--mode",
+        "two-shot",
+        "--frames",
+        "100",
+        "--out",
+        s(&ts),
+        "--two-shot-frames",
+        s(&ab),
+        "--sensor",
+        "pmd",
+        "--seed",
+        "3",
+    ]));
+    let (shape, v) = load(&ab);
+    let plane = shape[2] * shape[3];
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for k in 0..shape[0] {
+        a.extend_from_slice(&v[(2 * k) * plane..(2 * k + 1) * plane]);
+        b.extend_from_slice(&v[(2 * k + 1) * plane..(2 * k + 2) * plane]);
+    }
+    let (pa, pb) = (dir.join("a.npy"), dir.join("b.npy"));
+    write_stack(&pa, &[shape[0], shape[2], shape[3]], &a);
+    write_stack(&pb, &[shape[0], shape[2], shape[3]], &b);
+    let out = dir.join("rep");
+    let o = sdictl(&[
+        "report",
+        "separation",
+        "--in",
+        s(&f),
+        "--truth-plus",
+        s(&pa),
+        "--truth-minus",
+        s(&pb),
+        "--sensor",
+        "pmd",
+        "--out",
+        s(&out),
+        "--json",
+    ]);
+    ok(&o);
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("separation.json")).unwrap())
+            .unwrap();
+    let m1 = &doc["rows"][0];
+    assert_eq!(m1["method"], "M1");
+    for k in ["rel_bias_plus", "rel_bias_minus"] {
+        let b = m1[k].as_f64().unwrap();
+        assert!(b.abs() < 0.05, "{k} = {b}");
+    }
+}

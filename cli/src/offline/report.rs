@@ -49,6 +49,16 @@ pub struct SeparationReportArgs {
     /// Also write the table as JSON (separation.json).
     #[arg(long)]
     pub json: bool,
+    /// Measured data instead of the simulator: frames with both sources on
+    /// (.sdirec or .npy, DN, dark-subtracted); needs --truth-plus and --truth-minus.
+    #[arg(long = "in", requires_all = ["truth_plus", "truth_minus"])]
+    pub input: Option<PathBuf>,
+    /// Frames with LS1 alone: I+ = mean / g (eq. pixeleff).
+    #[arg(long, requires = "input")]
+    pub truth_plus: Option<PathBuf>,
+    /// Frames with LS2 alone: I- = -mean / g.
+    #[arg(long, requires = "input")]
+    pub truth_minus: Option<PathBuf>,
 }
 
 fn parse_exposure_us(s: &str) -> Result<f64, String> {
@@ -102,6 +112,9 @@ struct Truth {
 /// The subcommand: unknown scenes are usage errors, the rest runtime errors.
 pub fn run_cli(args: &SeparationReportArgs) -> Result<(), crate::exit::CliError> {
     use crate::exit::CliError;
+    if args.input.is_some() {
+        return run_measured(args).map(|_| ());
+    }
     run(args).map(|_| ()).map_err(|e| match e {
         ReportError::UnknownScene(..) => CliError::Usage(e.to_string()),
         _ => CliError::Runtime(e.to_string()),
@@ -580,4 +593,141 @@ fn plot(path: &Path, scene: &str, rows: &[Row]) -> Result<(), ReportError> {
         .map_err(pe)?;
     root.present().map_err(pe)?;
     Ok(())
+}
+
+/// Reads up to `max` frames of a recording or .npy (dark subtracted as recorded).
+fn read_frames(
+    path: &Path,
+    max: usize,
+) -> Result<(Vec<Frame>, super::frames::InputInfo), crate::exit::CliError> {
+    let (mut input, info) = super::frames::FrameInput::open(path)?;
+    let mut frame = Frame::new(info.width, info.height);
+    let mut out = Vec::new();
+    while out.len() < max && input.next_frame(path, &mut frame)? {
+        out.push(frame.clone());
+    }
+    if out.is_empty() {
+        return Err(crate::exit::CliError::Usage(format!(
+            "'{}' holds no frames",
+            path.display()
+        )));
+    }
+    Ok((out, info))
+}
+
+/// Per-pixel mean over frames (unusable samples skipped), DN.
+fn mean_dn(frames: &[Frame]) -> Vec<f64> {
+    let n = frames[0].dn.data.len();
+    let (mut s, mut k) = (vec![0.0; n], vec![0u32; n]);
+    for f in frames {
+        for i in 0..n {
+            let v = f.dn.data[i];
+            if v.is_finite() && f.saturated.data[i] == 0 {
+                s[i] += f64::from(v);
+                k[i] += 1;
+            }
+        }
+    }
+    s.iter()
+        .zip(&k)
+        .map(|(s, &k)| if k > 0 { s / f64::from(k) } else { 0.0 })
+        .collect()
+}
+
+/// `report separation` on measured data: the truth is the mean of the
+/// LS1-only and LS2-only frames through g (I+ = mean / g, I- = -mean / g,
+/// or +mean / g when LS2 was driven in phase);
+/// M1 over N frames, pooled M1, M2 auto and M3 (separable, range scale from
+/// the frame) on the both-sources frames.
+pub fn run_measured(args: &SeparationReportArgs) -> Result<Vec<Row>, crate::exit::CliError> {
+    use crate::exit::CliError;
+    let rt = |e: ReportError| CliError::Runtime(e.to_string());
+    let us = |e: SeparationError| CliError::Usage(e.to_string());
+    let (Some(input), Some(tp), Some(tm)) = (&args.input, &args.truth_plus, &args.truth_minus)
+    else {
+        return Err(CliError::Usage(
+            "--in needs --truth-plus and --truth-minus".into(),
+        ));
+    };
+    let n_max = args.max_frames.clamp(2, 100_000);
+    let (frames, info) = read_frames(input, n_max)?;
+    let (plus, _) = read_frames(tp, n_max)?;
+    let (minus, _) = read_frames(tm, n_max)?;
+    let (w, ht) = (frames[0].width(), frames[0].height());
+    for f in [&plus[0], &minus[0]] {
+        if f.width() != w || f.height() != ht {
+            return Err(CliError::Usage(
+                "the truth frames differ in size from --in".into(),
+            ));
+        }
+    }
+    // A recording's own sensor wins; an .npy uses --sensor.
+    let sensor = info.sensor.is_none().then_some(&args.sensor);
+    let h = super::separate::choose_mixing(None, sensor, &info)?.h;
+    let g = h.gain_dn_per_electron;
+    // LS2 alone lands in I- (negative D) when driven out of phase, as in the
+    // snapshot; two-shot's B frames drive it in phase (positive D). The
+    // pooled sign tells which.
+    let mean_minus = mean_dn(&minus);
+    let sign = if mean_minus.iter().sum::<f64>() > 0.0 {
+        eprintln!("note: --truth-minus frames are positive (LS2 driven in phase, as two-shot's B frames): I- = +mean / g");
+        1.0
+    } else {
+        -1.0
+    };
+    let truth = Truth {
+        plus: mean_dn(&plus).iter().map(|m| m / g).collect(),
+        minus: mean_minus.iter().map(|m| sign * m / g).collect(),
+        patch: None,
+    };
+    let opts = UnmixOptions::default();
+    let mut rows = Vec::new();
+    let n = frames.len();
+    if n >= 2 {
+        let t0 = Instant::now();
+        let mut acc = Welford::new(w, ht);
+        for f in &frames {
+            acc.push(f).map_err(us)?;
+        }
+        let m = acc.moments().map_err(us)?;
+        let sep = unmix(&m, &h, opts).map_err(us)?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
+        let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
+        r.floor = Some(m1_floor(&truth, &h, n));
+        rows.push(r);
+        let pooled = pool_moments(&m, PoolParams::default()).map_err(us)?;
+        let sep = unmix(&pooled, &h, opts).map_err(us)?;
+        rows.push(row("M1 pooled", format!("N={n}"), &sep, &truth, ms));
+    }
+    let one = &frames[0];
+    let t0 = Instant::now();
+    let seg = auto_segment(one, SegmentParams::default()).map_err(us)?;
+    let m = segment_moments(one, &seg.labels, Some(&seg.interior)).map_err(us)?;
+    let sep = unmix(&m, &h, opts).map_err(us)?;
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    rows.push(row("M2 auto", "smooth r=2".into(), &sep, &truth, ms));
+    let noise = noise_sigma(one);
+    for k in [2.0, 4.0] {
+        let p = BilateralParams::new(1.5, k * noise);
+        let mut out = Separated::default();
+        let mut separable = SeparableBilateral::new();
+        let t0 = Instant::now();
+        unmix_local_into(separable.compute(one, p).map_err(us)?, &h, opts, &mut out).map_err(us)?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        rows.push(row(
+            "M3 separable",
+            format!("sd=1.5 sr={k}sigma"),
+            &out,
+            &truth,
+            ms,
+        ));
+    }
+    let name = format!("measured {}", input.display());
+    print_table(&name, "measured", w, ht, &rows);
+    std::fs::create_dir_all(&args.out).map_err(|e| rt(ReportError::Io(args.out.clone(), e)))?;
+    write_tsv(&args.out.join("separation.tsv"), &rows).map_err(rt)?;
+    if args.json {
+        write_json(&args.out.join("separation.json"), &name, "measured", &rows).map_err(rt)?;
+    }
+    Ok(rows)
 }
