@@ -29,6 +29,8 @@ struct Cli {
 enum Command {
     /// Simulate a scene through a mode pipeline and write the frames (.npy) and one display frame (.png).
     Sim(offline::sim::SimArgs),
+    /// Separate I+ and I- offline from a recording (.sdirec) or an .npy stack (section 6: M1, M2, M3, Skellam ML).
+    Separate(offline::separate::SeparateArgs),
     /// Offline reports on simulator data.
     #[command(subcommand)]
     Report(Report),
@@ -44,12 +46,16 @@ enum Command {
 enum Report {
     /// Error against run time of every separation estimator (I+, I- recovery).
     Separation(offline::report::SeparationReportArgs),
+    /// Variance against intensity, snapshot vs two-shot, and the ratio of the low-light intercepts (section 5.5).
+    Noise(offline::noise_report::NoiseReportArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Sim(args) => offline::sim::run(args),
+        Command::Separate(args) => offline::separate::run(args),
+        Command::Report(Report::Noise(args)) => offline::noise_report::run(&args),
         Command::Report(Report::Separation(args)) => offline::report::run_cli(&args),
         Command::Online(cmd) => return online::run(cmd, cli.bus),
         Command::Completions { shell } => {

@@ -21,6 +21,7 @@
 //! (see [`readout`]) for each recently used illumination, so a frame costs one
 //! random draw per bright pixel.
 
+pub mod light_travel;
 pub mod poisson;
 pub mod readout;
 
@@ -172,6 +173,11 @@ impl Simulator {
 
     pub fn config(&self) -> &SimConfig {
         &self.config
+    }
+
+    /// True when the scene does not move (one expectation serves every frame).
+    pub fn scene_is_static(&self) -> bool {
+        self.scene.is_static()
     }
 
     /// Simulation clock: start of the next exposure, microseconds.

@@ -6,7 +6,6 @@ use std::sync::mpsc;
 
 use clap::Parser;
 use sdi_core::mode::ModeId;
-use sdi_core::sensor::SensorPreset;
 use sdi_daemon::backend::board::{self as board_backend, BoardBackend, OnUnplug};
 use sdi_daemon::backend::opt8241::init::Roi;
 use sdi_daemon::backend::opt8241::BoardSelector;
@@ -54,7 +53,7 @@ struct Args {
     /// Mode at start.
     #[arg(long)]
     mode: Option<String>,
-    /// Simulator sensor preset: ti or pmd.
+    /// Simulator sensor: preset (ti, pmd) or a sensor description file (TOML).
     #[arg(long)]
     sensor: Option<String>,
     #[arg(long)]
@@ -197,9 +196,17 @@ fn build_backend(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExt
             }
         }
         "sim" => {
-            let preset = SensorPreset::from_name(&c.sensor)
-                .ok_or_else(|| format!("unknown sensor preset '{}': use ti or pmd", c.sensor))?;
-            let mut p = preset.params();
+            let desc = sdi_daemon::sensor_file::load(&c.sensor)?;
+            if let Some(hz) = c.modulation_hz {
+                desc.check_modulation_hz(hz).map_err(|e| e.to_string())?;
+            }
+            if desc.dark_current_electrons_per_us > 0.0 {
+                tracing::warn!(
+                    "sensor '{}': dark current is not simulated by sdid (sdictl sim adds it)",
+                    c.sensor
+                );
+            }
+            let mut p = desc.params();
             p.exposure_us = c.exposure_us.unwrap_or(p.exposure_us);
             p.frame_rate_hz = c.frame_rate_hz.unwrap_or(p.frame_rate_hz);
             p.modulation_hz = c.modulation_hz.unwrap_or(p.modulation_hz);

@@ -1,4 +1,9 @@
 //! Offline tools: run the imaging core without the daemon.
 
+pub mod frames;
+pub mod noise_report;
 pub mod report;
+pub mod sensor_arg;
+pub mod separate;
 pub mod sim;
+pub mod sim_truth;

@@ -16,11 +16,11 @@ use sdi_core::calibration::DarkCalibration;
 use sdi_core::modulation::Illumination;
 use sdi_core::scene::ColourChart;
 use sdi_core::scene::SceneSpec;
-use sdi_core::sensor::{SensorPreset, SkellamMixing};
+use sdi_core::sensor::{mixing_with_adc, SkellamMixing};
 use sdi_core::separation::{
-    auto_segment, bilateral_exact, pool_moments, segment_moments, unmix, unmix_local_into,
-    BilateralGrid, BilateralParams, PoolParams, SegmentParams, SeparableBilateral, Separated,
-    SeparationError, UnmixOptions, Welford,
+    auto_segment, bilateral_exact, noise_sigma, pool_moments, segment_moments, unmix,
+    unmix_local_into, BilateralGrid, BilateralParams, PoolParams, SegmentParams,
+    SeparableBilateral, Separated, SeparationError, UnmixOptions, Welford,
 };
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
@@ -40,6 +40,32 @@ pub struct SeparationReportArgs {
     /// Simulator seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Sensor: preset (ti, pmd) or a sensor description file (TOML).
+    #[arg(long, default_value = "ti", value_parser = super::sensor_arg::parse_sensor)]
+    pub sensor: sdi_core::sensor::SensorDescription,
+    /// Exposure per frame, microseconds [default: the sensor's].
+    #[arg(long, value_parser = parse_exposure_us)]
+    pub exposure_us: Option<f64>,
+    /// Also write the table as JSON (separation.json).
+    #[arg(long)]
+    pub json: bool,
+    /// Measured data instead of the simulator: frames with both sources on
+    /// (.sdirec or .npy, DN, dark-subtracted); needs --truth-plus and --truth-minus.
+    #[arg(long = "in", requires_all = ["truth_plus", "truth_minus"])]
+    pub input: Option<PathBuf>,
+    /// Frames with LS1 alone: I+ = mean / g (eq. pixeleff).
+    #[arg(long, requires = "input")]
+    pub truth_plus: Option<PathBuf>,
+    /// Frames with LS2 alone: I- = -mean / g.
+    #[arg(long, requires = "input")]
+    pub truth_minus: Option<PathBuf>,
+}
+
+fn parse_exposure_us(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v <= 1e6 => Ok(v),
+        _ => Err("expected microseconds, 0 < X <= 1000000".into()),
+    }
 }
 
 /// What can go wrong while reporting.
@@ -86,6 +112,9 @@ struct Truth {
 /// The subcommand: unknown scenes are usage errors, the rest runtime errors.
 pub fn run_cli(args: &SeparationReportArgs) -> Result<(), crate::exit::CliError> {
     use crate::exit::CliError;
+    if args.input.is_some() {
+        return run_measured(args).map(|_| ());
+    }
     run(args).map(|_| ()).map_err(|e| match e {
         ReportError::UnknownScene(..) => CliError::Usage(e.to_string()),
         _ => CliError::Runtime(e.to_string()),
@@ -101,8 +130,11 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
     };
     let scene = SceneSpec::from_name(&name)
         .ok_or_else(|| ReportError::UnknownScene(name.clone(), SceneSpec::NAMES.join(", ")))?;
-    let sensor = SensorPreset::TiOpt8241.params();
-    let h = sensor.skellam();
+    let mut sensor = args.sensor.params();
+    if let Some(e) = args.exposure_us {
+        sensor.exposure_us = e;
+    }
+    let h = mixing_with_adc(&sensor);
     let mut config = SimConfig::new(sensor.clone(), scene);
     config.seed = args.seed;
     let mut sim = Simulator::new(config)?;
@@ -197,7 +229,8 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
 
     // Single-frame estimators on the first frame.
     let one = &frames[0];
-    let noise_dn = noise_sigma_dn(&truth, &h);
+    // M3's range scale from the frame itself (robust MAD), never from the truth.
+    let noise_dn = noise_sigma(one);
     for radius in [1usize, 2, 4] {
         let p = SegmentParams {
             smooth_radius_px: radius,
@@ -247,9 +280,17 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
         }
     }
 
-    print_table(&name, w, ht, &rows);
+    print_table(&name, &sensor.model, w, ht, &rows);
     std::fs::create_dir_all(&args.out).map_err(|e| ReportError::Io(args.out.clone(), e))?;
     write_tsv(&args.out.join("separation.tsv"), &rows)?;
+    if args.json {
+        write_json(
+            &args.out.join("separation.json"),
+            &name,
+            &sensor.model,
+            &rows,
+        )?;
+    }
     let svg = args.out.join("separation.svg");
     plot(&svg, &name, &rows)?;
     println!(
@@ -275,14 +316,6 @@ fn median_of_3<T>(
     times.sort_by(f64::total_cmp);
     let result = last.ok_or(ReportError::Plot("no run".into()))?;
     Ok((result, times[1]))
-}
-
-/// Typical per-pixel noise of one frame, DN: sqrt(g^2 mean(I+ + I-) + read).
-fn noise_sigma_dn(t: &Truth, h: &SkellamMixing) -> f64 {
-    let n = t.plus.len().max(1) as f64;
-    let sum = t.plus.iter().zip(&t.minus).map(|(a, b)| a + b).sum::<f64>() / n;
-    let g = h.gain_dn_per_electron;
-    (g * g * sum + h.read_variance_dn2).sqrt().max(1.0)
 }
 
 fn rel(est: &Image<f32>, truth: &[f64]) -> (f64, f64) {
@@ -359,8 +392,8 @@ fn row(method: &'static str, params: String, sep: &Separated, t: &Truth, ms: f64
     }
 }
 
-fn print_table(scene: &str, w: usize, h: usize, rows: &[Row]) {
-    println!("separation report: scene {scene}, {w}x{h}, TI preset, dark-frame subtracted");
+fn print_table(scene: &str, model: &str, w: usize, h: usize, rows: &[Row]) {
+    println!("separation report: scene {scene}, {w}x{h}, sensor {model}, dark-frame subtracted");
     println!("relative RMSE per pixel (rmse), per patch mean (patch), M1's sampling floor per pixel (floor)");
     println!(
         "{:<13} {:<22} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>15} {:>10}",
@@ -433,6 +466,31 @@ pub fn ordering(rows: &[Row]) -> String {
             "does NOT hold"
         }
     )
+}
+
+fn write_json(path: &Path, scene: &str, model: &str, rows: &[Row]) -> Result<(), ReportError> {
+    let order = ordering(rows);
+    let rows: Vec<serde_json::Value> = rows
+        .iter()
+        .map(|r| {
+            serde_json::json!({
+                "method": r.method,
+                "params": r.params,
+                "rel_rmse_plus": r.rmse_plus,
+                "rel_bias_plus": r.bias_plus,
+                "rel_rmse_minus": r.rmse_minus,
+                "rel_bias_minus": r.bias_minus,
+                "patch_rmse_plus": r.patch_plus,
+                "patch_rmse_minus": r.patch_minus,
+                "floor_plus": r.floor.map(|f| f.0),
+                "floor_minus": r.floor.map(|f| f.1),
+                "ms_per_frame": r.ms_per_frame,
+            })
+        })
+        .collect();
+    let doc = serde_json::json!({"scene": scene, "sensor": model, "ordering": order, "rows": rows});
+    std::fs::write(path, serde_json::to_string_pretty(&doc).unwrap_or_default())
+        .map_err(|e| ReportError::Io(path.to_path_buf(), e))
 }
 
 fn write_tsv(path: &Path, rows: &[Row]) -> Result<(), ReportError> {
@@ -535,4 +593,141 @@ fn plot(path: &Path, scene: &str, rows: &[Row]) -> Result<(), ReportError> {
         .map_err(pe)?;
     root.present().map_err(pe)?;
     Ok(())
+}
+
+/// Reads up to `max` frames of a recording or .npy (dark subtracted as recorded).
+fn read_frames(
+    path: &Path,
+    max: usize,
+) -> Result<(Vec<Frame>, super::frames::InputInfo), crate::exit::CliError> {
+    let (mut input, info) = super::frames::FrameInput::open(path)?;
+    let mut frame = Frame::new(info.width, info.height);
+    let mut out = Vec::new();
+    while out.len() < max && input.next_frame(path, &mut frame)? {
+        out.push(frame.clone());
+    }
+    if out.is_empty() {
+        return Err(crate::exit::CliError::Usage(format!(
+            "'{}' holds no frames",
+            path.display()
+        )));
+    }
+    Ok((out, info))
+}
+
+/// Per-pixel mean over frames (unusable samples skipped), DN.
+fn mean_dn(frames: &[Frame]) -> Vec<f64> {
+    let n = frames[0].dn.data.len();
+    let (mut s, mut k) = (vec![0.0; n], vec![0u32; n]);
+    for f in frames {
+        for i in 0..n {
+            let v = f.dn.data[i];
+            if v.is_finite() && f.saturated.data[i] == 0 {
+                s[i] += f64::from(v);
+                k[i] += 1;
+            }
+        }
+    }
+    s.iter()
+        .zip(&k)
+        .map(|(s, &k)| if k > 0 { s / f64::from(k) } else { 0.0 })
+        .collect()
+}
+
+/// `report separation` on measured data: the truth is the mean of the
+/// LS1-only and LS2-only frames through g (I+ = mean / g, I- = -mean / g,
+/// or +mean / g when LS2 was driven in phase);
+/// M1 over N frames, pooled M1, M2 auto and M3 (separable, range scale from
+/// the frame) on the both-sources frames.
+pub fn run_measured(args: &SeparationReportArgs) -> Result<Vec<Row>, crate::exit::CliError> {
+    use crate::exit::CliError;
+    let rt = |e: ReportError| CliError::Runtime(e.to_string());
+    let us = |e: SeparationError| CliError::Usage(e.to_string());
+    let (Some(input), Some(tp), Some(tm)) = (&args.input, &args.truth_plus, &args.truth_minus)
+    else {
+        return Err(CliError::Usage(
+            "--in needs --truth-plus and --truth-minus".into(),
+        ));
+    };
+    let n_max = args.max_frames.clamp(2, 100_000);
+    let (frames, info) = read_frames(input, n_max)?;
+    let (plus, _) = read_frames(tp, n_max)?;
+    let (minus, _) = read_frames(tm, n_max)?;
+    let (w, ht) = (frames[0].width(), frames[0].height());
+    for f in [&plus[0], &minus[0]] {
+        if f.width() != w || f.height() != ht {
+            return Err(CliError::Usage(
+                "the truth frames differ in size from --in".into(),
+            ));
+        }
+    }
+    // A recording's own sensor wins; an .npy uses --sensor.
+    let sensor = info.sensor.is_none().then_some(&args.sensor);
+    let h = super::separate::choose_mixing(None, sensor, &info)?.h;
+    let g = h.gain_dn_per_electron;
+    // LS2 alone lands in I- (negative D) when driven out of phase, as in the
+    // snapshot; two-shot's B frames drive it in phase (positive D). The
+    // pooled sign tells which.
+    let mean_minus = mean_dn(&minus);
+    let sign = if mean_minus.iter().sum::<f64>() > 0.0 {
+        eprintln!("note: --truth-minus frames are positive (LS2 driven in phase, as two-shot's B frames): I- = +mean / g");
+        1.0
+    } else {
+        -1.0
+    };
+    let truth = Truth {
+        plus: mean_dn(&plus).iter().map(|m| m / g).collect(),
+        minus: mean_minus.iter().map(|m| sign * m / g).collect(),
+        patch: None,
+    };
+    let opts = UnmixOptions::default();
+    let mut rows = Vec::new();
+    let n = frames.len();
+    if n >= 2 {
+        let t0 = Instant::now();
+        let mut acc = Welford::new(w, ht);
+        for f in &frames {
+            acc.push(f).map_err(us)?;
+        }
+        let m = acc.moments().map_err(us)?;
+        let sep = unmix(&m, &h, opts).map_err(us)?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
+        let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
+        r.floor = Some(m1_floor(&truth, &h, n));
+        rows.push(r);
+        let pooled = pool_moments(&m, PoolParams::default()).map_err(us)?;
+        let sep = unmix(&pooled, &h, opts).map_err(us)?;
+        rows.push(row("M1 pooled", format!("N={n}"), &sep, &truth, ms));
+    }
+    let one = &frames[0];
+    let t0 = Instant::now();
+    let seg = auto_segment(one, SegmentParams::default()).map_err(us)?;
+    let m = segment_moments(one, &seg.labels, Some(&seg.interior)).map_err(us)?;
+    let sep = unmix(&m, &h, opts).map_err(us)?;
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    rows.push(row("M2 auto", "smooth r=2".into(), &sep, &truth, ms));
+    let noise = noise_sigma(one);
+    for k in [2.0, 4.0] {
+        let p = BilateralParams::new(1.5, k * noise);
+        let mut out = Separated::default();
+        let mut separable = SeparableBilateral::new();
+        let t0 = Instant::now();
+        unmix_local_into(separable.compute(one, p).map_err(us)?, &h, opts, &mut out).map_err(us)?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        rows.push(row(
+            "M3 separable",
+            format!("sd=1.5 sr={k}sigma"),
+            &out,
+            &truth,
+            ms,
+        ));
+    }
+    let name = format!("measured {}", input.display());
+    print_table(&name, "measured", w, ht, &rows);
+    std::fs::create_dir_all(&args.out).map_err(|e| rt(ReportError::Io(args.out.clone(), e)))?;
+    write_tsv(&args.out.join("separation.tsv"), &rows).map_err(rt)?;
+    if args.json {
+        write_json(&args.out.join("separation.json"), &name, "measured", &rows).map_err(rt)?;
+    }
+    Ok(rows)
 }

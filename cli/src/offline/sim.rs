@@ -12,11 +12,12 @@ use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Args;
 use sdi_core::dark_frame::DarkFrameAverager;
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
-use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
+use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig, SeparationConfig, DEFAULT_BILATERAL};
 use sdi_core::modulation::Illumination;
 use sdi_core::npy::NpyF32Writer;
 use sdi_core::scene::SceneSpec;
-use sdi_core::sensor::SensorPreset;
+use sdi_core::sensor::{mixing_with_adc, SensorDescription};
+use sdi_core::separation::LiveMethod;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
 
@@ -44,10 +45,9 @@ pub struct SimArgs {
     /// Number of output frames to write (1..=10000).
     #[arg(long, value_parser = parse_frames, allow_negative_numbers = true)]
     pub frames: usize,
-    /// Sensor preset.
-    #[arg(long, default_value = "ti", value_parser = PossibleValuesParser::new(["ti", "pmd"])
-        .try_map(|s| SensorPreset::from_name(&s).ok_or("unknown sensor")))]
-    pub sensor: SensorPreset,
+    /// Sensor: preset (ti, pmd) or a sensor description file (TOML).
+    #[arg(long, default_value = "ti", value_parser = super::sensor_arg::parse_sensor)]
+    pub sensor: SensorDescription,
     /// Exposure per frame, microseconds (0 < X <= 1e6) [default: the sensor's].
     #[arg(long, value_parser = parse_exposure_us, allow_negative_numbers = true)]
     pub exposure_us: Option<f64>,
@@ -60,9 +60,19 @@ pub struct SimArgs {
     /// Dark frames averaged before the run and subtracted (0 = none).
     #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u32).range(0..=i64::from(MAX_DARK_FRAMES)), allow_negative_numbers = true)]
     pub dark_frames: u32,
-    /// Output .npy file (N x H x W float32, DN).
+    /// Output .npy file (N x H x W float32, DN; separation: N x 2 x H x W
+    /// float32 electrons, I+ then I-, recovered by M3 on each frame).
     #[arg(long)]
     pub out: PathBuf,
+    /// Also write the ground truth: the expected wells I+ and I- in electrons
+    /// per exposure under the snapshot illumination, (2, H, W) for a static
+    /// scene, (N, 2, H, W) for a moving one.
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
+    /// two-shot only: also write the dark-subtracted A (LS1 only) and B (LS2
+    /// only) frames, (N, 2, H, W) DN.
+    #[arg(long)]
+    pub two_shot_frames: Option<PathBuf>,
     /// Also write the last frame as a display image (PNG).
     #[arg(long)]
     pub png: Option<PathBuf>,
@@ -158,8 +168,16 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
     }
     let carrier_hz = sensor.modulation_hz;
     let mut config = SimConfig::new(sensor, scene);
-    config.ambient_electrons_per_us = args.ambient;
+    // Dark current fills both wells regardless of f: like uncorrelated light
+    // of twice the per-well rate, split 50/50 by the square wave.
+    config.ambient_electrons_per_us =
+        args.ambient + 2.0 * args.sensor.dark_current_electrons_per_us;
     config.seed = args.seed;
+    if let Some(w) =
+        sdi_core::simulator::light_travel::light_travel_warning(&config.scene, carrier_hz)
+    {
+        eprintln!("warning: {w}");
+    }
     let mut sim = Simulator::new(config).map_err(|e| CliError::Usage(e.to_string()))?;
     let (w, h) = (sim.params().width, sim.params().height);
 
@@ -176,8 +194,27 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
     let writer = npy_file
         .create()
         .map_err(|e| io_error("cannot create", &tmp, e))?;
-    let mut npy = NpyF32Writer::new(writer, &[args.frames, h, w])
-        .map_err(|e| io_error("cannot write", &tmp, e))?;
+    let separated = args.mode == ModeId::Separation;
+    let shape: &[usize] = if separated {
+        &[args.frames, 2, h, w]
+    } else {
+        &[args.frames, h, w]
+    };
+    let mut npy =
+        NpyF32Writer::new(writer, shape).map_err(|e| io_error("cannot write", &tmp, e))?;
+    if args.two_shot_frames.is_some() && args.mode != ModeId::TwoShot {
+        return Err(CliError::Usage(
+            "--two-shot-frames needs --mode two-shot".into(),
+        ));
+    }
+    let mut extras = super::sim_truth::Extras::open(
+        args.truth.as_deref(),
+        args.two_shot_frames.as_deref(),
+        w,
+        h,
+    )?;
+    let truth_illumination = Illumination::snapshot(carrier_hz);
+    let static_scene = sim.scene_is_static();
 
     let mut frame = Frame::new(w, h);
     let mut next_sequence = 0u64;
@@ -188,10 +225,15 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
         next_sequence = frame.sequence + 1;
         dark.add(&frame);
     }
+    let dark_dn = dark.mean_dn();
     let mut pipeline = build_pipeline(
         args.mode,
         PipelineConfig {
-            dark_frame_dn: dark.mean_dn(),
+            dark_frame_dn: dark_dn.clone(),
+            separation: SeparationConfig::new(
+                LiveMethod::Bilateral(DEFAULT_BILATERAL),
+                mixing_with_adc(sim.params()),
+            ),
             ..PipelineConfig::default()
         },
     );
@@ -208,15 +250,39 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
                 args.mode
             )));
         }
+        let t0_us = sim.time_us();
         sim.capture(
             &args.mode.illumination(next_sequence, carrier_hz),
             &mut frame,
         );
         captures += 1;
         next_sequence = frame.sequence + 1;
+        extras.captured(&frame, dark_dn.as_ref(), t0_us);
         if let Some(out) = pipeline.process(&frame) {
-            npy.write(&out.signed_dn.data)
-                .map_err(|e| io_error("cannot write", &tmp, e))?;
+            match (&out.channels, separated) {
+                (Some(c), true) => {
+                    npy.write(&c.i_plus_electrons.data)
+                        .and_then(|()| npy.write(&c.i_minus_electrons.data))
+                        .map_err(|e| io_error("cannot write", &tmp, e))?;
+                }
+                (None, true) => {
+                    return Err(CliError::Runtime(
+                        "the separation pipeline gave no channels".into(),
+                    ))
+                }
+                _ => npy
+                    .write(&out.signed_dn.data)
+                    .map_err(|e| io_error("cannot write", &tmp, e))?,
+            }
+            let two_shot = args.mode == ModeId::TwoShot;
+            if !static_scene || written == 0 {
+                if two_shot {
+                    sim.expect_wells(&truth_illumination, extras.first_t0_us());
+                }
+                extras.output(sim.last_expectation(), !two_shot)?;
+            } else {
+                extras.output_pair_only()?;
+            }
             written += 1;
             if written == args.frames {
                 last.data.copy_from_slice(&out.signed_dn.data);
@@ -231,6 +297,7 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
     if let Some(png) = &png_file {
         write_png(png.tmp_path(), &display, &last)?;
     }
+    extras.finish(static_scene)?;
     npy_file
         .commit()
         .map_err(|e| io_error("cannot write", &args.out, e))?;

@@ -5,10 +5,12 @@
 
 mod dark;
 mod error;
+pub mod noise_analysis;
 mod photon_transfer;
 mod store;
 
 pub use dark::DarkCalibration;
 pub use error::CalibrationError;
+pub use noise_analysis::{linear_fit, ratio_with_se, LinearFit};
 pub use photon_transfer::{fit_photon_transfer, PhotonTransferFit, PtcPoint};
 pub use store::{CalibrationRecord, CalibrationStore};

@@ -42,7 +42,9 @@ pub use live::{LiveMethod, LiveSeparator};
 pub use local_moments::LocalMoments;
 pub use moments::{MomentSource, Moments, PixelStats};
 pub use pooling::{pool_moments, PoolParams};
-pub use segments::{auto_segment, segment_moments, SegmentParams, Segmentation, IGNORE_LABEL};
+pub use segments::{
+    auto_segment, noise_sigma, segment_moments, SegmentParams, Segmentation, IGNORE_LABEL,
+};
 pub use skellam_ml::{
     skellam_log_likelihood, skellam_ml_counts, skellam_ml_pixel, MlMethod, SkellamFit,
     COUNTS_READ_NOISE_ELECTRONS,

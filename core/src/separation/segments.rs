@@ -428,8 +428,10 @@ fn box_mean(frame: &Frame, r: usize) -> Vec<f64> {
     out
 }
 
-/// Per-pixel noise sigma from horizontal neighbour differences: 1.4826 MAD / sqrt(2).
-fn noise_sigma(frame: &Frame) -> f64 {
+/// Per-pixel noise sigma of one frame from horizontal neighbour differences,
+/// 1.4826 MAD / sqrt(2), DN (at least 0.5; 1 when no pair is usable): a
+/// noise scale taken from the data alone (M3's range sigma).
+pub fn noise_sigma(frame: &Frame) -> f64 {
     let (w, h) = (frame.width(), frame.height());
     let mut d: Vec<f64> = Vec::with_capacity(w * h);
     for y in 0..h {

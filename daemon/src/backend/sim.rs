@@ -32,6 +32,11 @@ impl SimBackend {
 }
 
 fn build(sensor: SensorParams, scene: SceneSpec, seed: u64) -> Result<Simulator, BackendError> {
+    if let Some(w) =
+        sdi_core::simulator::light_travel::light_travel_warning(&scene, sensor.modulation_hz)
+    {
+        tracing::warn!("{w}");
+    }
     let mut config = SimConfig::new(sensor, scene);
     config.seed = seed;
     Simulator::new(config).map_err(|e| BackendError::OutOfRange(e.to_string()))

@@ -1,0 +1,618 @@
+//! `sdictl separate` end to end: the round trip from simulated data alone
+//! (pooled within 3% of the truth, per pixel equal to an independent numpy
+//! M1), the same on a recording, and the extremes (tiny frames, one frame,
+//! NaN/inf, zero light, saturation, a truncated recording, bad sensor files).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use sdi_core::modulation::Illumination;
+use sdi_core::npy::{read_f32, write_f32};
+use sdi_core::scene::SceneSpec;
+use sdi_core::sensor::{mixing_with_adc, SensorPreset};
+use sdi_core::simulator::{SimConfig, Simulator};
+use sdi_core::{Frame, Image};
+use sdi_daemon::recording::{Calibration, Header, RecordingWriter};
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("separate-{name}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn sdictl(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_sdictl"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn ok(o: &Output) {
+    assert!(
+        o.status.success(),
+        "status {:?}\nstdout: {}\nstderr: {}",
+        o.status,
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn load(p: &Path) -> (Vec<usize>, Vec<f32>) {
+    read_f32(std::fs::File::open(p).unwrap()).unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A python3 with numpy, if this machine has one.
+fn numpy_python() -> Option<String> {
+    ["python3", "/usr/bin/python3"].into_iter().find_map(|py| {
+        Command::new(py)
+            .args(["-c", "import numpy"])
+            .output()
+            .ok()
+            .filter(|o| o.status.success())
+            .map(|_| py.to_string())
+    })
+}
+
+/// Independent M1 in numpy: mean and unbiased variance over axis 0, then
+/// (I+, I-) = ((max(v - r, 0) / g^2 +- m / g) / 2; prints the largest
+/// difference from `sep` relative to max(|numpy|, 1).
+fn numpy_m1_max_rel_diff(py: &str, frames: &Path, sep: &Path, g: f64, r: f64) -> f64 {
+    let code = format!(
+        "import numpy as np\n\
+         x = np.load('{}').astype(np.float64)\n\
+         s = np.load('{}').astype(np.float64)\n\
+         m = x.mean(0); v = x.var(0, ddof=1)\n\
+         S = np.maximum(v - {r:.17e}, 0) / {g:.17e}**2; D = m / {g:.17e}\n\
+         ref = np.stack([0.5 * (S + D), 0.5 * (S - D)])\n\
+         print((np.abs(ref - s) / np.maximum(np.abs(ref), 1.0)).max())\n",
+        s(frames),
+        s(sep)
+    );
+    let o = Command::new(py).args(["-c", &code]).output().unwrap();
+    ok(&o);
+    String::from_utf8_lossy(&o.stdout).trim().parse().unwrap()
+}
+
+#[test]
+fn m1_round_trip_from_data_alone_matches_truth_and_numpy() {
+    let dir = scratch("round-trip");
+    let (f, t, out, sig) = (
+        dir.join("f.npy"),
+        dir.join("t.npy"),
+        dir.join("s.npy"),
+        dir.join("sigma.npy"),
+    );
+    ok(&sdictl(&[
+        "sim",
+        "--scene",
+        "colour-chart",
+        "--mode",
+        "raw",
+        "--frames",
+        "300",
+        "--out",
+        s(&f),
+        "--truth",
+        s(&t),
+    ]));
+    ok(&sdictl(&[
+        "separate",
+        "--method",
+        "m1",
+        "--in",
+        s(&f),
+        "--out",
+        s(&out),
+        "--sigma",
+        s(&sig),
+    ]));
+    let (ts, tv) = load(&t);
+    let (ss, sv) = load(&out);
+    let (gs, gv) = load(&sig);
+    assert_eq!(ts, vec![2, 240, 320]);
+    assert_eq!(ss, ts);
+    assert_eq!(gs, ts);
+    let n = 240 * 320;
+    for c in 0..2 {
+        let truth: f64 = tv[c * n..(c + 1) * n].iter().map(|&v| v as f64).sum();
+        let est: f64 = sv[c * n..(c + 1) * n].iter().map(|&v| v as f64).sum();
+        let rel = est / truth - 1.0;
+        assert!(rel.abs() < 0.03, "channel {c}: pooled error {rel}");
+    }
+    assert!(sv.iter().chain(&gv).all(|v| v.is_finite()));
+    // The standard errors predict the per-pixel scatter (within 25%).
+    let rms_err = (sv
+        .iter()
+        .zip(&tv)
+        .map(|(a, b)| ((a - b) as f64).powi(2))
+        .sum::<f64>()
+        / sv.len() as f64)
+        .sqrt();
+    let rms_se = (gv.iter().map(|&v| (v as f64).powi(2)).sum::<f64>() / gv.len() as f64).sqrt();
+    assert!(
+        (rms_err / rms_se - 1.0).abs() < 0.25,
+        "{rms_err} vs {rms_se}"
+    );
+    let Some(py) = numpy_python() else {
+        eprintln!("SKIPPED numpy comparison: no python3 with numpy");
+        return;
+    };
+    let h = mixing_with_adc(&SensorPreset::TiOpt8241.params());
+    let d = numpy_m1_max_rel_diff(&py, &f, &out, h.gain_dn_per_electron, h.read_variance_dn2);
+    assert!(d < 1e-5, "numpy and sdictl differ by {d} (relative)");
+}
+
+fn small_sensor() -> sdi_core::sensor::SensorParams {
+    let mut p = SensorPreset::TiOpt8241.params();
+    p.width = 48;
+    p.height = 36;
+    p
+}
+
+/// A recording in sdid's format of `n` raw snapshot frames with a dark
+/// frame record, written through the daemon's own writer.
+fn make_recording(path: &Path, n: usize) {
+    let sensor = small_sensor();
+    let mut sim = Simulator::new(SimConfig::new(
+        sensor.clone(),
+        SceneSpec::from_name("colour-chart").unwrap(),
+    ))
+    .unwrap();
+    let header = Header {
+        format_version: 1,
+        mode: "raw".into(),
+        backend: "sim".into(),
+        sensor: sensor.clone(),
+        exposure_us: sensor.exposure_us,
+        frame_rate_hz: sensor.frame_rate_hz,
+        modulation_hz: sensor.modulation_hz,
+        started_unix_s: 0.0,
+        calibration: Calibration::default(),
+    };
+    let w = RecordingWriter::create(path, &header).unwrap();
+    let mut frame = Frame::new(sensor.width, sensor.height);
+    let mut dark = Image::<f32>::new(sensor.width, sensor.height);
+    for _ in 0..16 {
+        sim.capture_dark(&mut frame);
+        for (d, v) in dark.data.iter_mut().zip(&frame.dn.data) {
+            *d += v / 16.0;
+        }
+    }
+    assert!(w.push_dark(16, &dark));
+    let light = Illumination::snapshot(sensor.modulation_hz);
+    for _ in 0..n {
+        sim.capture(&light, &mut frame);
+        // The writer queue holds 64 frames; wait rather than drop.
+        while !w.push_frame("raw", &frame) {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+    }
+    let summary = w.finish().unwrap();
+    let _ = summary;
+}
+
+/// Frames of a recording, dark-subtracted, as an .npy (N, H, W).
+fn recording_to_npy(rec: &Path, npy: &Path) -> usize {
+    let reader = sdi_daemon::recording::RecordingReader::open(rec).unwrap();
+    let mut dark: Option<Image<f32>> = None;
+    let mut data = Vec::new();
+    let (mut n, mut w, mut h) = (0, 0, 0);
+    for r in reader {
+        match r {
+            sdi_daemon::recording::Record::Dark { dn, .. } => dark = Some(dn),
+            sdi_daemon::recording::Record::Frame { frame, .. } => {
+                let d = dark.as_ref().unwrap();
+                data.extend(frame.dn.data.iter().zip(&d.data).map(|(a, b)| a - b));
+                (w, h) = (frame.width(), frame.height());
+                n += 1;
+            }
+            _ => {}
+        }
+    }
+    write_f32(std::fs::File::create(npy).unwrap(), &[n, h, w], &data).unwrap();
+    n
+}
+
+#[test]
+fn m1_on_a_recording_equals_numpy_and_survives_truncation() {
+    let dir = scratch("recording");
+    let rec = dir.join("r.sdirec");
+    make_recording(&rec, 120);
+    let out = dir.join("s.npy");
+    let o = sdictl(&[
+        "separate",
+        "--method",
+        "m1",
+        "--in",
+        s(&rec),
+        "--out",
+        s(&out),
+    ]);
+    ok(&o);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("recording's sensor"));
+    let (shape, v) = load(&out);
+    assert_eq!(shape, vec![2, 36, 48]);
+    assert!(v.iter().all(|x| x.is_finite()));
+    let frames = dir.join("frames.npy");
+    assert_eq!(recording_to_npy(&rec, &frames), 120);
+    if let Some(py) = numpy_python() {
+        let h = mixing_with_adc(&small_sensor());
+        let d = numpy_m1_max_rel_diff(
+            &py,
+            &frames,
+            &out,
+            h.gain_dn_per_electron,
+            h.read_variance_dn2,
+        );
+        assert!(d < 1e-5, "numpy and sdictl differ by {d} (relative)");
+    } else {
+        eprintln!("SKIPPED numpy comparison: no python3 with numpy");
+    }
+    // The same frames as .npy give the same result with the same sensor.
+    let out2 = dir.join("s2.npy");
+    let sensor_file = dir.join("small.toml");
+    let mut d = sdi_core::sensor::SensorDescription::preset(SensorPreset::TiOpt8241);
+    d.width = 48;
+    d.height = 36;
+    std::fs::write(&sensor_file, d.to_toml()).unwrap();
+    ok(&sdictl(&[
+        "separate",
+        "--method",
+        "m1",
+        "--in",
+        s(&frames),
+        "--out",
+        s(&out2),
+        "--sensor",
+        s(&sensor_file),
+    ]));
+    let (_, v2) = load(&out2);
+    let max = v
+        .iter()
+        .zip(&v2)
+        .map(|(a, b)| (a - b).abs() / a.abs().max(1.0))
+        .fold(0.0, f32::max);
+    assert!(max < 1e-4, "recording and npy differ by {max}");
+    // Truncated mid-record: the intact frames are used, with a warning.
+    let bytes = std::fs::read(&rec).unwrap();
+    let cut = dir.join("cut.sdirec");
+    std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    let o = sdictl(&[
+        "separate",
+        "--method",
+        "m3",
+        "--in",
+        s(&cut),
+        "--out",
+        s(&out),
+    ]);
+    ok(&o);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("damaged record"));
+    let (shape, v) = load(&out);
+    assert!(shape[0] > 10 && shape[0] < 120 && shape[1..] == [2, 36, 48]);
+    assert!(v.iter().all(|x| x.is_finite()));
+    // Cut inside the header: a clear error.
+    std::fs::write(&cut, &bytes[..20]).unwrap();
+    let o = sdictl(&[
+        "separate",
+        "--method",
+        "m1",
+        "--in",
+        s(&cut),
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(
+        o.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn write_stack(path: &Path, shape: &[usize], data: &[f32]) {
+    write_f32(std::fs::File::create(path).unwrap(), shape, data).unwrap();
+}
+
+#[test]
+fn extremes_give_finite_flagged_results_or_clear_errors() {
+    let dir = scratch("extremes");
+    let out = dir.join("o.npy");
+    let sig = dir.join("sig.npy");
+    let fl = dir.join("fl.npy");
+    let methods = ["m1", "m1-pooled", "m2", "m3", "ml"];
+    let cases: Vec<(&str, Vec<usize>, Vec<f32>)> = vec![
+        ("1x1 x 5", vec![5, 1, 1], vec![10.0, 12.0, 9.0, 30.0, 11.0]),
+        ("2x1 x 2", vec![2, 1, 2], vec![10.0, -4.0, 12.0, 3.0]),
+        ("zero light", vec![4, 3, 5], vec![0.0; 60]),
+        ("saturated", vec![4, 3, 5], vec![2047.0; 60]),
+        (
+            "nan and inf",
+            vec![3, 2, 3],
+            vec![
+                f32::NAN,
+                1.0,
+                2.0,
+                f32::INFINITY,
+                5.0,
+                6.0, //
+                f32::NAN,
+                3.0,
+                -2.0,
+                f32::NEG_INFINITY,
+                4.0,
+                9.0, //
+                f32::NAN,
+                0.0,
+                1.0,
+                7.0,
+                5.5,
+                6.0,
+            ],
+        ),
+    ];
+    for (name, shape, data) in &cases {
+        let input = dir.join("in.npy");
+        write_stack(&input, shape, data);
+        for m in methods {
+            let o = sdictl(&[
+                "separate",
+                "--method",
+                m,
+                "--in",
+                s(&input),
+                "--out",
+                s(&out),
+                "--sigma",
+                s(&sig),
+                "--flags",
+                s(&fl),
+            ]);
+            ok(&o);
+            let (os, ov) = load(&out);
+            let (_, sv) = load(&sig);
+            let (_, fv) = load(&fl);
+            assert!(ov.iter().all(|v| v.is_finite()), "{name} {m}: {ov:?}");
+            assert!(sv.iter().all(|v| !v.is_nan()), "{name} {m}: {sv:?}");
+            assert_eq!(*os.last().unwrap(), shape[2], "{name} {m}");
+            if *name == "nan and inf" {
+                assert!(
+                    fv.iter().any(|&f| f as u8 & 2 != 0),
+                    "{name} {m}: NONFINITE flagged"
+                );
+            }
+        }
+    }
+    // One frame: M1 refuses clearly; per-frame methods give a flagged result.
+    let one = dir.join("one.npy");
+    write_stack(&one, &[1, 2, 2], &[1.0, 2.0, 3.0, 4.0]);
+    let o = sdictl(&[
+        "separate",
+        "--method",
+        "m1",
+        "--in",
+        s(&one),
+        "--out",
+        s(&out),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("at least 2 frames"));
+    assert!(!out.exists() || load(&out).0 != vec![2, 2, 2]);
+    for m in ["m2", "m3", "ml"] {
+        ok(&sdictl(&[
+            "separate",
+            "--method",
+            m,
+            "--in",
+            s(&one),
+            "--out",
+            s(&out),
+        ]));
+        let (os, ov) = load(&out);
+        assert_eq!(os, vec![1, 2, 2, 2]);
+        assert!(ov.iter().all(|v| v.is_finite()));
+    }
+    // Truncated .npy and garbage: clear errors, nothing written.
+    let bytes = std::fs::read(&one).unwrap();
+    let cut = dir.join("cut.npy");
+    std::fs::write(&cut, &bytes[..bytes.len() - 3]).unwrap();
+    let gone = dir.join("never.npy");
+    for bad in [&cut, &dir.join("missing.npy")] {
+        let o = sdictl(&[
+            "separate",
+            "--method",
+            "m3",
+            "--in",
+            s(bad),
+            "--out",
+            s(&gone),
+        ]);
+        assert!(!o.status.success());
+        assert!(!gone.exists());
+    }
+    // Bad sensor files.
+    let input = dir.join("in.npy");
+    write_stack(&input, &[3, 1, 2], &[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
+    let base = sdi_core::sensor::SensorDescription::preset(SensorPreset::TiOpt8241);
+    for (field, value) in [
+        ("demodulation_contrast", 0.0),
+        ("demodulation_contrast", 1e-12),
+        ("conversion_gain_dn_per_electron", 0.0),
+        ("read_noise_electrons", -1.0),
+    ] {
+        let mut t: toml::Table = toml::from_str(&base.to_toml()).unwrap();
+        t.insert(field.into(), toml::Value::Float(value));
+        let file = dir.join("bad.toml");
+        std::fs::write(&file, toml::to_string(&t).unwrap()).unwrap();
+        for cmd in [
+            vec![
+                "separate",
+                "--method",
+                "m1",
+                "--in",
+                s(&input),
+                "--out",
+                s(&gone),
+                "--sensor",
+                s(&file),
+            ],
+            vec![
+                "sim",
+                "--mode",
+                "raw",
+                "--frames",
+                "1",
+                "--out",
+                s(&gone),
+                "--sensor",
+                s(&file),
+            ],
+        ] {
+            let o = sdictl(&cmd);
+            assert_eq!(o.status.code(), Some(2), "{field}={value}");
+            assert!(
+                String::from_utf8_lossy(&o.stderr).contains(field),
+                "{field}"
+            );
+            assert!(!gone.exists());
+        }
+    }
+}
+
+#[test]
+fn sim_truth_and_two_shot_frames_have_the_documented_shapes() {
+    let dir = scratch("sim-truth");
+    let (f, t, ab) = (dir.join("f.npy"), dir.join("t.npy"), dir.join("ab.npy"));
+    ok(&sdictl(&[
+        "sim",
+        "--mode",
+        "two-shot",
+        "--frames",
+        "3",
+        "--out",
+        s(&f),
+        "--truth",
+        s(&t),
+        "--two-shot-frames",
+        s(&ab),
+        "--sensor",
+        "pmd",
+    ]));
+    assert_eq!(load(&t).0, vec![2, 120, 165]);
+    let (abs, abv) = load(&ab);
+    assert_eq!(abs, vec![3, 2, 120, 165]);
+    // A - B is the two-shot output.
+    let (_, fv) = load(&f);
+    let n = 120 * 165;
+    for k in 0..3 {
+        for i in (0..n).step_by(97) {
+            let d = abv[k * 2 * n + i] - abv[k * 2 * n + n + i];
+            assert!((d - fv[k * n + i]).abs() < 1e-3, "frame {k} pixel {i}");
+        }
+    }
+    // Separation mode writes the separated channels, not the difference.
+    ok(&sdictl(&[
+        "sim",
+        "--mode",
+        "separation",
+        "--frames",
+        "2",
+        "--out",
+        s(&f),
+        "--sensor",
+        "pmd",
+    ]));
+    assert_eq!(load(&f).0, vec![2, 2, 120, 165]);
+    // A moving scene has one truth per frame.
+    ok(&sdictl(&[
+        "sim",
+        "--mode",
+        "temporal-gradient",
+        "--frames",
+        "2",
+        "--out",
+        s(&f),
+        "--truth",
+        s(&t),
+        "--sensor",
+        "pmd",
+    ]));
+    assert_eq!(load(&t).0, vec![2, 2, 120, 165]);
+}
+
+#[test]
+fn report_separation_on_measured_frames_uses_ls_only_frames_as_truth() {
+    let dir = scratch("measured");
+    let (f, ts, ab) = (dir.join("f.npy"), dir.join("ts.npy"), dir.join("ab.npy"));
+    ok(&sdictl(&[
+        "sim",
+        "--scene",
+        "colour-chart",
+        "--mode",
+        "raw",
+        "--frames",
+        "100",
+        "--out",
+        s(&f),
+        "--sensor",
+        "pmd",
+    ]));
+    ok(&sdictl(&[
+        "sim",
+        "--scene",
+        "colour-chart",
+        "--mode",
+        "two-shot",
+        "--frames",
+        "100",
+        "--out",
+        s(&ts),
+        "--two-shot-frames",
+        s(&ab),
+        "--sensor",
+        "pmd",
+        "--seed",
+        "3",
+    ]));
+    let (shape, v) = load(&ab);
+    let plane = shape[2] * shape[3];
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for k in 0..shape[0] {
+        a.extend_from_slice(&v[(2 * k) * plane..(2 * k + 1) * plane]);
+        b.extend_from_slice(&v[(2 * k + 1) * plane..(2 * k + 2) * plane]);
+    }
+    let (pa, pb) = (dir.join("a.npy"), dir.join("b.npy"));
+    write_stack(&pa, &[shape[0], shape[2], shape[3]], &a);
+    write_stack(&pb, &[shape[0], shape[2], shape[3]], &b);
+    let out = dir.join("rep");
+    let o = sdictl(&[
+        "report",
+        "separation",
+        "--in",
+        s(&f),
+        "--truth-plus",
+        s(&pa),
+        "--truth-minus",
+        s(&pb),
+        "--sensor",
+        "pmd",
+        "--out",
+        s(&out),
+        "--json",
+    ]);
+    ok(&o);
+    let doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("separation.json")).unwrap())
+            .unwrap();
+    let m1 = &doc["rows"][0];
+    assert_eq!(m1["method"], "M1");
+    for k in ["rel_bias_plus", "rel_bias_minus"] {
+        let b = m1[k].as_f64().unwrap();
+        assert!(b.abs() < 0.05, "{k} = {b}");
+    }
+}
