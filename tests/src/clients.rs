@@ -13,9 +13,27 @@ use crate::process::stdout_of;
 /// Card labels of the two nodes.
 pub const VIEW_LABEL: &str = "SDI camera";
 pub const DATA_LABEL: &str = "SDI data";
-/// The small sensor keeps the simulator cheap under TCG.
-pub const SENSOR_W: usize = 165;
-pub const SENSOR_H: usize = 120;
+/// Simulator sensor presets: `sdid --sensor NAME`, and its frame size.
+#[derive(Clone, Copy, Debug)]
+pub struct Sensor {
+    pub name: &'static str,
+    pub width: usize,
+    pub height: usize,
+}
+
+/// The small sensor (165x120) keeps the simulator cheap under TCG.
+pub const PMD: Sensor = Sensor {
+    name: "pmd",
+    width: 165,
+    height: 120,
+};
+/// The board's OPT8241 (320x240): an even row width (GStreamer cannot map
+/// 165-pixel Y16 rows, see docs/loopback.md).
+pub const TI: Sensor = Sensor {
+    name: "ti",
+    width: 320,
+    height: 240,
+};
 
 /// Path of a binary the host test put in the environment (`SDID`, `SDICTL`).
 pub fn exe(var: &str) -> PathBuf {
@@ -56,12 +74,13 @@ pub struct Sdid {
     pub data: PathBuf,
     config: PathBuf,
     fps: String,
+    pub sensor: Sensor,
 }
 
 impl Sdid {
-    /// Starts sdid (simulator, pmd sensor, `fps`) and waits until it serves
+    /// Starts sdid (simulator, `sensor`, `fps`) and waits until it serves
     /// D-Bus and both nodes are capture devices.
-    pub fn start(view_nr: u32, data_nr: u32, fps: u32) -> Self {
+    pub fn start(view_nr: u32, data_nr: u32, sensor: Sensor, fps: u32) -> Self {
         let dir = Path::new("/tmp/sdi-clients");
         std::fs::create_dir_all(dir).expect("mkdir /tmp/sdi-clients");
         let config = dir.join("sdid.toml");
@@ -77,6 +96,7 @@ impl Sdid {
             data: PathBuf::from(format!("/dev/video{data_nr}")),
             config,
             fps: fps.to_string(),
+            sensor,
         };
         s.spawn();
         s
@@ -86,7 +106,8 @@ impl Sdid {
         let child = Command::new(exe("SDID"))
             .args(["--bus-address", &self.bus.address, "--config"])
             .arg(&self.config)
-            .args(["--backend", "sim", "--sensor", "pmd", "--sink", "loopback"])
+            .args(["--backend", "sim", "--sensor", self.sensor.name])
+            .args(["--sink", "loopback"])
             .args(["--frame-rate-hz", &self.fps, "--exposure-us", "2000"])
             .env("RUST_LOG", "warn")
             .env_remove("INVOCATION_ID")
