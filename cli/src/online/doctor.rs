@@ -298,11 +298,13 @@ fn loopback_nodes(sys: &Sys) -> Vec<Node> {
         else {
             continue;
         };
-        // only v4l2loopback's nodes: their device is a v4l2loopback platform device
+        // only v4l2loopback's nodes: virtual (0.12.x registers them with no
+        // parent device) or on a v4l2loopback platform device
         let driver = std::fs::read_link(e.path().join("device/driver"))
             .ok()
             .and_then(|p| p.file_name().map(|f| f.to_string_lossy().into_owned()));
-        if driver.as_deref() != Some("v4l2loopback") {
+        let virtual_node = !e.path().join("device").exists();
+        if !virtual_node && driver.as_deref() != Some("v4l2loopback") {
             continue;
         }
         let label = sys
