@@ -59,6 +59,17 @@ fn unit_trigger() -> Vec<String> {
     line.split_whitespace().map(str::to_owned).collect()
 }
 
+/// Runs sdid.service's ExecStartPost (udevadm trigger --action=change ...).
+fn trigger() -> Vec<String> {
+    let trigger = unit_trigger();
+    let s = udevadm()
+        .args(&trigger[1..])
+        .status()
+        .expect("udevadm trigger");
+    assert!(s.success(), "{trigger:?}");
+    trigger
+}
+
 /// PipeWire + WirePlumber (+ pipewire-pulse not needed), killed on drop.
 struct PipeWire {
     _bus: Bus,
@@ -79,6 +90,7 @@ impl PipeWire {
             let log = std::fs::File::create(format!("/tmp/{prog}.log")).expect("log");
             let mut c = Command::new(prog);
             c.envs(env.iter().map(|(k, v)| (k, v)))
+                .env("WIREPLUMBER_DEBUG", "2")
                 .stdin(Stdio::null())
                 .stdout(log.try_clone().expect("log"))
                 .stderr(log);
@@ -95,11 +107,18 @@ impl PipeWire {
             env,
         };
         // WirePlumber is up when it shows as a client.
-        wait_until("WirePlumber connected", Duration::from_secs(60), || {
-            me.dump()
-                .iter()
-                .any(|o| o["info"]["props"]["application.name"] == "WirePlumber")
-        });
+        let t0 = Instant::now();
+        while !me
+            .dump()
+            .iter()
+            .any(|o| o["info"]["props"]["application.name"] == "WirePlumber")
+        {
+            if t0.elapsed() > Duration::from_secs(120) {
+                diagnose(&me);
+                panic!("WirePlumber did not connect to PipeWire in 120 s");
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
         me
     }
 
@@ -155,6 +174,50 @@ impl PipeWire {
     }
 }
 
+/// Prints what PipeWire lists, udev's view of the node and the daemons' logs.
+fn diagnose(pw: &PipeWire) {
+    for o in pw.dump() {
+        let p = &o["info"]["props"];
+        eprintln!(
+            "pw-dump {} {}: class {} name {} card {} path {}",
+            o["id"],
+            o["type"],
+            p["media.class"],
+            p["node.name"],
+            p["api.v4l2.cap.card"],
+            p["api.v4l2.path"]
+        );
+    }
+    let info = udevadm()
+        .args(["info", &format!("/dev/video{VIEW_NR}")])
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
+        .unwrap_or_default();
+    eprintln!("udevadm info:\n{info}");
+    for log in ["/tmp/pipewire.log", "/tmp/wireplumber.log"] {
+        let text = std::fs::read_to_string(log).unwrap_or_default();
+        let lines: Vec<&str> = text.lines().collect();
+        eprintln!(
+            "{log}:\n{}",
+            lines[lines.len().saturating_sub(40)..].join("\n")
+        );
+    }
+}
+
+/// Waits for PipeWire to list the SDI camera; on timeout prints what it
+/// lists, udev's view of the node and the daemons' logs, then panics.
+fn wait_listed(pw: &PipeWire, what: &str) -> Duration {
+    let t0 = Instant::now();
+    while pw.sdi_node().is_none() {
+        if t0.elapsed() > Duration::from_secs(60) {
+            diagnose(pw);
+            panic!("{what}: PipeWire does not list the SDI camera after 60 s");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+    t0.elapsed()
+}
+
 /// The node's properties and a frame with the mode's colours.
 fn check(pw: &PipeWire, sdid: &Sdid, order: &str) {
     let (id, props) = pw.sdi_node().expect("listed");
@@ -199,13 +262,13 @@ fn in_vm_checks() {
     clients::load_module(VIEW_NR, DATA_NR);
     settle();
     let sdid = Sdid::start(VIEW_NR, DATA_NR, PMD, 15);
+    // udev recorded the node as output-only at module load (v4l_id's
+    // ID_V4L_CAPABILITIES); sdid.service's change event updates it.
+    trigger();
+    settle();
     let t0 = Instant::now();
     let pw = PipeWire::start();
-    let t = wait_until(
-        "sdid first: PipeWire lists the SDI camera",
-        Duration::from_secs(60),
-        || pw.sdi_node().is_some(),
-    );
+    let t = wait_listed(&pw, "sdid first");
     eprintln!(
         "sdid first: listed {:.1} s after PipeWire started ({:.1} s for WirePlumber)",
         t0.elapsed().as_secs_f64(),
@@ -236,17 +299,8 @@ fn in_vm_checks() {
         }
     );
     // What sdid.service does once sdid is ready.
-    let trigger = unit_trigger();
-    let s = udevadm()
-        .args(&trigger[1..])
-        .status()
-        .expect("udevadm trigger");
-    assert!(s.success(), "{trigger:?}");
-    let t = wait_until(
-        "WirePlumber first: listed after the change event",
-        Duration::from_secs(60),
-        || pw.sdi_node().is_some(),
-    );
+    let trigger = trigger();
+    let t = wait_listed(&pw, "WirePlumber first, after the change event");
     eprintln!(
         "WirePlumber first: listed {:.1} s after {trigger:?}",
         t.as_secs_f64()
