@@ -81,6 +81,12 @@ impl PipeWire {
     fn start() -> Self {
         let runtime = Path::new("/run/user/0");
         std::fs::create_dir_all(runtime).expect("runtime dir");
+        // WirePlumber 0.4 quits ("failed to start systemd logind monitor:
+        // -2") when logind's state directories are missing, as in the VM.
+        for d in ["seats", "sessions", "users", "machines"] {
+            std::fs::create_dir_all(Path::new("/run/systemd").join(d))
+                .expect("mkdir /run/systemd/*");
+        }
         let bus = Bus::start();
         let env = vec![
             ("XDG_RUNTIME_DIR".to_owned(), runtime.display().to_string()),
@@ -199,7 +205,7 @@ fn diagnose(pw: &PipeWire) {
         let lines: Vec<&str> = text.lines().collect();
         eprintln!(
             "{log}:\n{}",
-            lines[lines.len().saturating_sub(40)..].join("\n")
+            lines[lines.len().saturating_sub(80)..].join("\n")
         );
     }
 }
