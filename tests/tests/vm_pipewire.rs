@@ -155,13 +155,14 @@ impl PipeWire {
         let _ = std::fs::remove_file(file);
         let t0 = Instant::now();
         let pipeline = format!(
-            "pipewiresrc path={id} num-buffers=4 ! video/x-raw,format=YUY2,width=640,height=480 \
+            "pipewiresrc target-object={id} always-copy=true num-buffers=4 ! video/x-raw,format=YUY2,width=640,height=480 \
              ! videoconvert ! video/x-raw,format=RGB ! filesink location={file}"
         );
         let out = Command::new("timeout")
             .args(["120", "gst-launch-1.0", "-v"])
             .args(pipeline.split_whitespace())
             .envs(self.env.iter().map(|(k, v)| (k, v)))
+            .env("GST_DEBUG", "pipewire*:4")
             .output()
             .expect("gst-launch-1.0");
         let log = format!(
