@@ -2,6 +2,8 @@
 
 pub mod bench;
 pub mod board_emulator;
+pub mod browser;
+pub mod clients;
 pub mod dbus;
 pub mod loopback;
 pub mod pipewire;

@@ -1,5 +1,6 @@
 //! Online subcommands: talk to `sdid` over D-Bus (`org.sdi.Camera1`).
 
+mod doctor;
 mod errors;
 mod export;
 mod new_file;
@@ -95,6 +96,14 @@ pub enum OnlineCommand {
     },
     /// Convert a recording to .npy (frames x height x width, float32 DN); offline.
     Export { recording: PathBuf, out: PathBuf },
+    /// Check what the SDI camera needs (module, nodes, Secure Boot, groups,
+    /// daemon, board, PipeWire) and print the fix for each problem; exit
+    /// status 0 only when nothing blocks.
+    Doctor {
+        /// Read sysfs/procfs under this directory (tests).
+        #[arg(long, hide = true, default_value = "/")]
+        sysroot: PathBuf,
+    },
 }
 
 /// Runs an online subcommand and maps the outcome to an exit status.
@@ -102,6 +111,7 @@ pub fn run(cmd: OnlineCommand, bus: BusArgs) -> ExitCode {
     let json = bus.json;
     let result = match cmd {
         OnlineCommand::Export { recording, out } => export::run(&recording, &out, json),
+        OnlineCommand::Doctor { sysroot } => return doctor::run(&bus, &sysroot),
         cmd => match tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()
@@ -525,6 +535,7 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
             }
         }
         OnlineCommand::Export { .. } => unreachable!("handled offline"),
+        OnlineCommand::Doctor { .. } => unreachable!("handled by doctor::run"),
     }
     Ok(())
 }

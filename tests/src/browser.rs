@@ -1,0 +1,358 @@
+//! A page on 127.0.0.1 that opens the SDI camera with getUserMedia and
+//! reports what it sees, for the browser VM tests.
+//!
+//! `--dump-dom` and `--virtual-time-budget` return before getUserMedia
+//! resolves, so the browser keeps running and the page reports: it POSTs
+//! JSON to `/report` (devices, the opened track, one frame drawn to a
+//! canvas per second: size and mean colour) and polls `/cmd` for what to do
+//! next (`data`: open the Y16 data node too). localhost is a secure
+//! context, which getUserMedia needs.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use serde_json::Value;
+
+/// The page: everything it learns goes to `/report`.
+pub const PAGE: &str = r#"<!doctype html><html><body><script>
+const t0 = performance.now();
+const post = (o) => { o.ms = Math.round(performance.now() - t0);
+  return fetch('/report', {method: 'POST', body: JSON.stringify(o)}).catch(() => {}); };
+const list = async () => (await navigator.mediaDevices.enumerateDevices())
+  .map(d => ({kind: d.kind, label: d.label, id: d.deviceId}));
+function stats(video, canvas) {
+  const w = video.videoWidth, h = video.videoHeight;
+  if (!w || !h) return null;
+  canvas.width = w; canvas.height = h;
+  const ctx = canvas.getContext('2d', {willReadFrequently: true});
+  ctx.drawImage(video, 0, 0);
+  const mean = (y0, y1) => { const d = ctx.getImageData(0, y0, w, y1 - y0).data;
+    const m = [0, 0, 0]; for (let i = 0; i < d.length; i += 4) { m[0] += d[i]; m[1] += d[i+1]; m[2] += d[i+2]; }
+    const n = d.length / 4; return m.map(v => v / n); };
+  return {w, h, mean: mean(0, h), top: mean(0, Math.min(4, h))};
+}
+async function watch(name, constraints) {
+  let frames = 0, opened = 0;
+  const video = document.createElement('video');
+  video.muted = true; video.playsInline = true;
+  document.body.appendChild(video);
+  const canvas = document.createElement('canvas');
+  const count = () => { frames++; if (video.requestVideoFrameCallback) video.requestVideoFrameCallback(count); };
+  async function open() {
+    for (;;) {
+      try {
+        const stream = await navigator.mediaDevices.getUserMedia(constraints);
+        const track = stream.getVideoTracks()[0];
+        opened++;
+        post({kind: 'opened', name, opened, label: track.label, settings: track.getSettings(),
+              devices: await list()});
+        track.onended = () => { post({kind: 'ended', name}); setTimeout(open, 1000); };
+        track.onmute = () => post({kind: 'mute', name});
+        track.onunmute = () => post({kind: 'unmute', name});
+        video.srcObject = stream;
+        await video.play();
+        if (video.requestVideoFrameCallback) video.requestVideoFrameCallback(count);
+        return track;
+      } catch (e) {
+        post({kind: 'error', name, error: String(e), error_name: e.name});
+        await new Promise(r => setTimeout(r, 2000));
+      }
+    }
+  }
+  let track = await open();
+  setInterval(() => {
+    const s = stats(video, canvas);
+    const t = video.srcObject && video.srcObject.getVideoTracks()[0];
+    post({kind: 'frame', name, frames, opened, stats: s,
+          state: t ? t.readyState : 'none', muted: t ? t.muted : null});
+  }, 1000);
+}
+(async () => {
+  try {
+    post({kind: 'devices-before', devices: await list()});
+    // Labels are empty until a getUserMedia was granted: open any camera,
+    // then pick the SDI camera by its label.
+    const any = await navigator.mediaDevices.getUserMedia({video: true});
+    any.getTracks().forEach(t => t.stop());
+    const devices = await list();
+    post({kind: 'devices', devices});
+    const cam = devices.find(d => d.kind === 'videoinput' && d.label.startsWith('SDI camera'));
+    if (!cam) { post({kind: 'error', name: 'view', error: 'no SDI camera listed'}); return; }
+    watch('view', {video: {deviceId: {exact: cam.id}, width: 640, height: 480}});
+    for (;;) {
+      await new Promise(r => setTimeout(r, 1000));
+      const cmd = await (await fetch('/cmd')).text();
+      if (cmd === 'data') {
+        const data = (await list()).find(d => d.kind === 'videoinput' && d.label.startsWith('SDI data'));
+        if (!data) post({kind: 'error', name: 'data', error: 'SDI data not listed'});
+        else watch('data', {video: {deviceId: {exact: data.id}}});
+      }
+    }
+  } catch (e) { post({kind: 'error', name: 'page', error: String(e), error_name: e.name}); }
+})();
+</script></body></html>
+"#;
+
+/// Reports the page POSTed, in order, with the time each arrived.
+pub type Reports = Arc<Mutex<Vec<(Instant, Value)>>>;
+
+/// The local page server on 127.0.0.1 (a thread; lives with the process).
+pub struct PageServer {
+    pub url: String,
+    pub reports: Reports,
+    commands: Arc<Mutex<Vec<String>>>,
+}
+
+fn handle(
+    mut s: TcpStream,
+    reports: &Reports,
+    commands: &Mutex<Vec<String>>,
+) -> std::io::Result<()> {
+    s.set_read_timeout(Some(Duration::from_secs(30)))?;
+    let mut r = BufReader::new(s.try_clone()?);
+    let mut line = String::new();
+    r.read_line(&mut line)?;
+    let mut parts = line.split_whitespace();
+    let (method, path) = (
+        parts.next().unwrap_or("").to_owned(),
+        parts.next().unwrap_or("").to_owned(),
+    );
+    let mut length = 0usize;
+    loop {
+        let mut h = String::new();
+        if r.read_line(&mut h)? == 0 || h == "\r\n" || h == "\n" {
+            break;
+        }
+        if let Some((k, v)) = h.split_once(':') {
+            if k.eq_ignore_ascii_case("content-length") {
+                length = v.trim().parse().unwrap_or(0);
+            }
+        }
+    }
+    let mut body = vec![0; length];
+    r.read_exact(&mut body)?;
+    let (ctype, reply) = match (method.as_str(), path.as_str()) {
+        ("POST", "/report") => {
+            if let Ok(v) = serde_json::from_slice::<Value>(&body) {
+                reports.lock().expect("reports").push((Instant::now(), v));
+            }
+            ("text/plain", String::new())
+        }
+        ("GET", "/cmd") => {
+            let mut c = commands.lock().expect("commands");
+            let next = if c.is_empty() {
+                String::new()
+            } else {
+                c.remove(0)
+            };
+            ("text/plain", next)
+        }
+        _ => ("text/html", PAGE.to_owned()),
+    };
+    write!(
+        s,
+        "HTTP/1.1 200 OK\r\nContent-Type: {ctype}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n{reply}",
+        reply.len()
+    )?;
+    s.flush()
+}
+
+impl PageServer {
+    pub fn start() -> Self {
+        let listener = TcpListener::bind("127.0.0.1:0").expect("bind 127.0.0.1");
+        let port = listener.local_addr().expect("local addr").port();
+        let reports: Reports = Arc::default();
+        let commands: Arc<Mutex<Vec<String>>> = Arc::default();
+        let (r, c) = (reports.clone(), commands.clone());
+        std::thread::spawn(move || {
+            for s in listener.incoming().flatten() {
+                let (r, c) = (r.clone(), c.clone());
+                std::thread::spawn(move || {
+                    let _ = handle(s, &r, &c);
+                });
+            }
+        });
+        Self {
+            url: format!("http://127.0.0.1:{port}/"),
+            reports,
+            commands,
+        }
+    }
+
+    /// Queues a command for the page's next `/cmd` poll.
+    pub fn command(&self, cmd: &str) {
+        self.commands.lock().expect("commands").push(cmd.to_owned());
+    }
+
+    /// Forgets the reports so far (a new browser starts).
+    pub fn clear(&self) {
+        self.reports.lock().expect("reports").clear();
+    }
+
+    /// The first report from index `from` on that `pred` accepts, polling
+    /// until `limit`; panics with the reports seen (and `what`) otherwise.
+    /// Returns (its index, the report).
+    pub fn wait_for(
+        &self,
+        what: &str,
+        from: usize,
+        limit: Duration,
+        pred: impl Fn(&Value) -> bool,
+    ) -> (usize, Value) {
+        let t0 = Instant::now();
+        loop {
+            {
+                let r = self.reports.lock().expect("reports");
+                if let Some((i, (_, v))) =
+                    r.iter().enumerate().skip(from).find(|(_, (_, v))| pred(v))
+                {
+                    return (i, v.clone());
+                }
+                if t0.elapsed() > limit {
+                    let tail: Vec<String> = r
+                        .iter()
+                        .skip(r.len().saturating_sub(15))
+                        .map(|(_, v)| v.to_string())
+                        .collect();
+                    panic!(
+                        "{what}: not within {limit:?}; last reports:\n{}",
+                        tail.join("\n")
+                    );
+                }
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
+    /// Number of reports so far.
+    pub fn len(&self) -> usize {
+        self.reports.lock().expect("reports").len()
+    }
+
+    /// True before the first report.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Every report of `kind` (for the log).
+    pub fn of_kind(&self, kind: &str) -> Vec<Value> {
+        self.reports
+            .lock()
+            .expect("reports")
+            .iter()
+            .filter(|(_, v)| v["kind"] == kind)
+            .map(|(_, v)| v.clone())
+            .collect()
+    }
+}
+
+/// A browser process group, killed on drop.
+pub struct Browser {
+    child: Child,
+    pub log: PathBuf,
+    pub started: Instant,
+}
+
+impl Browser {
+    fn spawn(mut cmd: Command, log: &Path) -> Self {
+        let out = std::fs::File::create(log).expect("browser log");
+        let err = out.try_clone().expect("browser log");
+        // No session bus it could lose when the test tears down; its own
+        // process group so that all its processes go with it.
+        cmd.env_remove("DBUS_SESSION_BUS_ADDRESS")
+            .env("DBUS_SYSTEM_BUS_ADDRESS", "unix:path=/nonexistent")
+            .stdin(Stdio::null())
+            .stdout(out)
+            .stderr(err);
+        std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
+        let started = Instant::now();
+        let child = cmd.spawn().expect("spawn browser");
+        Self {
+            child,
+            log: log.to_owned(),
+            started,
+        }
+    }
+
+    /// Headless Chromium on `url` with the camera permission granted by the
+    /// fake UI (the real devices, not the fake one); as root it needs
+    /// `--no-sandbox`. The other flags keep it off the (closed) network.
+    pub fn chromium(url: &str, dir: &Path) -> Self {
+        let profile = dir.join("chromium-profile");
+        let _ = std::fs::remove_dir_all(&profile);
+        let mut cmd = Command::new("chromium");
+        cmd.args([
+            "--headless=new",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--disable-quic",
+            "--no-first-run",
+            "--disable-background-networking",
+            "--disable-component-update",
+            "--disable-sync",
+            "--use-fake-ui-for-media-stream",
+            "--autoplay-policy=no-user-gesture-required",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg(url)
+        .env("HOME", dir);
+        Self::spawn(cmd, &dir.join("chromium.log"))
+    }
+
+    /// Headless Firefox ESR with a test profile: no permission prompt, the
+    /// real devices (not the fake stream), no network chatter.
+    pub fn firefox(url: &str, dir: &Path) -> Self {
+        let profile = dir.join("firefox-profile");
+        let _ = std::fs::remove_dir_all(&profile);
+        std::fs::create_dir_all(&profile).expect("firefox profile");
+        let prefs = [
+            ("media.navigator.permission.disabled", "true"),
+            ("media.navigator.streams.fake", "false"),
+            ("media.autoplay.default", "0"),
+            ("media.autoplay.blocking_policy", "0"),
+            ("browser.shell.checkDefaultBrowser", "false"),
+            ("browser.aboutwelcome.enabled", "false"),
+            ("datareporting.policy.dataSubmissionEnabled", "false"),
+            ("toolkit.telemetry.reportingpolicy.firstRun", "false"),
+            ("app.update.enabled", "false"),
+            ("network.captive-portal-service.enabled", "false"),
+            ("network.connectivity-service.enabled", "false"),
+            ("browser.safebrowsing.update.enabled", "false"),
+            ("extensions.update.enabled", "false"),
+            ("browser.startup.homepage_override.mstone", "\"ignore\""),
+        ];
+        let user_js: String = prefs
+            .iter()
+            .map(|(k, v)| format!("user_pref(\"{k}\", {v});\n"))
+            .collect();
+        std::fs::write(profile.join("user.js"), user_js).expect("user.js");
+        let mut cmd = Command::new("firefox-esr");
+        cmd.args(["--headless", "--no-remote", "--profile"])
+            .arg(&profile)
+            .arg(url)
+            .env("HOME", dir)
+            .env("MOZ_DISABLE_CONTENT_SANDBOX", "1");
+        Self::spawn(cmd, &dir.join("firefox.log"))
+    }
+
+    /// The last lines of the browser's log.
+    pub fn log_tail(&self) -> String {
+        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
+        let lines: Vec<&str> = text.lines().collect();
+        lines[lines.len().saturating_sub(30)..].join("\n")
+    }
+}
+
+impl Drop for Browser {
+    fn drop(&mut self) {
+        let pg = self.child.id().to_string();
+        let _ = Command::new("kill")
+            .args(["-KILL", "--", &format!("-{pg}")])
+            .status();
+        let _ = self.child.wait();
+    }
+}
