@@ -32,7 +32,7 @@ for i in $(seq 1 "$runs"); do
     log=$logs/run-$i.log
     echo "== fresh check $i/$runs of $head in $work (log $log)"
     start=$(date +%s)
-    set +e
+    rc=0
     unshare -m --propagation private env -i \
         PATH="$PATH" HOME="$HOME" USER="${USER:-root}" LANG=C.UTF-8 \
         RUSTUP_HOME="${RUSTUP_HOME:-$HOME/.rustup}" \
@@ -43,9 +43,7 @@ for i in $(seq 1 "$runs"); do
             mount -t tmpfs vmrun-cache-empty "$1"
             # cargo and rustup binaries stay reachable; the registry does not
             mkdir -p "$CARGO_HOME"
-            cd "$2" && exec bash .ci/run </dev/null' _ "$cache_dir" "$work/sdi" >"$log" 2>&1
-    rc=$?
-    set -e
+            cd "$2" && exec bash .ci/run </dev/null' _ "$cache_dir" "$work/sdi" >"$log" 2>&1 || rc=$?
     secs=$(( $(date +%s) - start ))
     summary=$(grep -aE '^test result:' "$log" | awk '{p+=$4; f+=$6} END {print p+0 " passed, " f+0 " failed"}')
     echo "run $i: exit $rc after $((secs / 60)) min $((secs % 60)) s; $summary"

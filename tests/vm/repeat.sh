@@ -3,7 +3,7 @@
 #   tests/vm/repeat.sh TEST N          one test target of sdi-tests (e.g. vm_daemon)
 #   tests/vm/repeat.sh 'vm_*' N        a glob over tests/tests/*.rs
 #   tests/vm/repeat.sh all N           every VM and D-Bus test (vm_*, dbus_*,
-#                                      daemon_*, system_dbus_*, system_hotplug, system_sandbox)
+#                                      daemon_*, system_dbus_*, system_hotplug, system_sandbox, pipewire_*)
 # VM tests are mandatory here (SDI_REQUIRE_VM=1). Logs of failed runs are kept
 # in $REPEAT_LOGS (default /var/tmp/sdi-repeat); the last line per test is
 # "TEST: F of N failed".
@@ -13,7 +13,7 @@ trap 'rc=$?; echo "repeat.sh: failed at line $LINENO (exit $rc): $BASH_COMMAND" 
 pattern=$1 n=$2
 cd "$(dirname "$0")/../.."
 if [ "$pattern" = all ]; then
-    pattern='vm_* dbus_* daemon_* system_dbus_* system_hotplug system_sandbox'
+    pattern='vm_* dbus_* daemon_* system_dbus_* system_hotplug system_sandbox pipewire_*'
 fi
 tests=()
 for p in $pattern; do
