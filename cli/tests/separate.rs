@@ -3,7 +3,10 @@
 //! M1), the same on a recording, and the extremes (tiny frames, one frame,
 //! NaN/inf, zero light, saturation, a truncated recording, bad sensor files).
 
-use std::path::{Path, PathBuf};
+mod common;
+use common::{scratch, sdictl};
+
+use std::path::Path;
 use std::process::{Command, Output};
 
 use sdi_core::modulation::Illumination;
@@ -13,20 +16,6 @@ use sdi_core::sensor::{mixing_with_adc, SensorPreset};
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
 use sdi_daemon::recording::{Calibration, Header, RecordingWriter};
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("separate-{name}"));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn sdictl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sdictl"))
-        .args(args)
-        .output()
-        .unwrap()
-}
 
 fn ok(o: &Output) {
     assert!(
@@ -80,7 +69,7 @@ fn numpy_m1_max_rel_diff(py: &str, frames: &Path, sep: &Path, g: f64, r: f64) ->
 
 #[test]
 fn m1_round_trip_from_data_alone_matches_truth_and_numpy() {
-    let dir = scratch("round-trip");
+    let dir = scratch("separate", "round-trip");
     let (f, t, out, sig) = (
         dir.join("f.npy"),
         dir.join("t.npy"),
@@ -220,7 +209,7 @@ fn recording_to_npy(rec: &Path, npy: &Path) -> usize {
 
 #[test]
 fn m1_on_a_recording_equals_numpy_and_survives_truncation() {
-    let dir = scratch("recording");
+    let dir = scratch("separate", "recording");
     let rec = dir.join("r.sdirec");
     make_recording(&rec, 120);
     let out = dir.join("s.npy");
@@ -321,7 +310,7 @@ fn write_stack(path: &Path, shape: &[usize], data: &[f32]) {
 
 #[test]
 fn extremes_give_finite_flagged_results_or_clear_errors() {
-    let dir = scratch("extremes");
+    let dir = scratch("separate", "extremes");
     let out = dir.join("o.npy");
     let sig = dir.join("sig.npy");
     let fl = dir.join("fl.npy");
@@ -486,7 +475,7 @@ fn extremes_give_finite_flagged_results_or_clear_errors() {
 
 #[test]
 fn sim_truth_and_two_shot_frames_have_the_documented_shapes() {
-    let dir = scratch("sim-truth");
+    let dir = scratch("separate", "sim-truth");
     let (f, t, ab) = (dir.join("f.npy"), dir.join("t.npy"), dir.join("ab.npy"));
     ok(&sdictl(&[
         "sim",
@@ -547,7 +536,7 @@ fn sim_truth_and_two_shot_frames_have_the_documented_shapes() {
 
 #[test]
 fn report_separation_on_measured_frames_uses_ls_only_frames_as_truth() {
-    let dir = scratch("measured");
+    let dir = scratch("separate", "measured");
     let (f, ts, ab) = (dir.join("f.npy"), dir.join("ts.npy"), dir.join("ab.npy"));
     ok(&sdictl(&[
         "sim",

@@ -1,28 +1,12 @@
 //! `sdictl sim` end to end: exit statuses, messages, the .npy contents, the
 //! PNG, and that nothing is left behind on error.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
+use common::{scratch, sdictl, stderr};
+
+use std::path::Path;
 
 use sdi_core::npy::read_f32;
-
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join(format!("sim-{name}"));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn sdictl(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_sdictl"))
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
 
 fn entries(dir: &Path) -> Vec<String> {
     std::fs::read_dir(dir)
@@ -33,7 +17,7 @@ fn entries(dir: &Path) -> Vec<String> {
 
 #[test]
 fn writes_npy_of_n_frames_and_png_of_sensor_size() {
-    let dir = scratch("ok");
+    let dir = scratch("sim", "ok");
     let out = dir.join("f.npy");
     let png = dir.join("sub/f.png");
     let o = sdictl(&[
@@ -72,7 +56,7 @@ fn writes_npy_of_n_frames_and_png_of_sensor_size() {
 
 #[test]
 fn same_seed_same_frames() {
-    let dir = scratch("seed");
+    let dir = scratch("sim", "seed");
     let run = |name: &str| {
         let out = dir.join(name);
         let o = sdictl(&[
@@ -94,7 +78,7 @@ fn same_seed_same_frames() {
 
 #[test]
 fn two_shot_and_temporal_gradient_run() {
-    let dir = scratch("modes");
+    let dir = scratch("sim", "modes");
     for mode in ["two-shot", "temporal-gradient", "depth-edge-vertical"] {
         let out = dir.join(format!("{mode}.npy"));
         let o = sdictl(&[
@@ -120,7 +104,7 @@ fn two_shot_and_temporal_gradient_run() {
 
 #[test]
 fn bad_input_exits_2_with_choices_and_writes_nothing() {
-    let dir = scratch("bad");
+    let dir = scratch("sim", "bad");
     let out = dir.join("x.npy");
     let out = out.to_str().unwrap();
     let cases: &[(&[&str], &str)] = &[
@@ -190,7 +174,7 @@ fn bad_input_exits_2_with_choices_and_writes_nothing() {
 
 #[test]
 fn unwritable_output_fails_without_leftovers() {
-    let dir = scratch("io");
+    let dir = scratch("sim", "io");
     // The PNG's directory is a file, or the PNG is a directory: nothing written.
     std::fs::write(dir.join("blocker"), b"").unwrap();
     let out = dir.join("f.npy");
