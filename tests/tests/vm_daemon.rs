@@ -26,6 +26,8 @@ const LABEL: &str = "sdi-daemon-view";
 const THUMB_W: usize = 16;
 const THUMB_H: usize = 12;
 const THUMB_BYTES: usize = THUMB_W * THUMB_H * 3;
+/// Frames of each mode the reader gets (by buffer timestamp) before the next switch.
+const NEW_MODE_FRAMES: usize = 12;
 /// Sensor frame rate: low enough for QEMU TCG with the separation mode.
 const FPS: &str = "15";
 
@@ -254,11 +256,19 @@ fn in_vm_checks() {
         }
         switches.push((mode.clone(), first_us));
         // The reader must keep getting frames; which of them are the new
-        // mode's is told by the announced timestamp, not by waiting.
-        wait_for(&count, before + 20, Duration::from_secs(120), mode);
+        // mode's is told by the announced timestamp: hold the mode until the
+        // reader has NEW_MODE_FRAMES of them (and their thumbnails).
+        let new_frames = || {
+            let s = stamps.lock().expect("stamps");
+            s.0.iter().filter(|&&t| t >= first_us).count()
+        };
+        wait_for(&new_frames, NEW_MODE_FRAMES, Duration::from_secs(120), mode);
+        let stamped = stamps.lock().expect("stamps").0.len();
+        wait_for(&count, stamped, Duration::from_secs(30), mode);
         eprintln!(
-            "mode {mode:<20} set-mode returned after {returned_s:.1} s: first frame at {first_us} us; 20 frames read {:.1} s after set-mode",
-            t_switch.elapsed().as_secs_f64()
+            "mode {mode:<20} set-mode returned after {returned_s:.1} s: first frame at {first_us} us; {NEW_MODE_FRAMES} of its frames read {:.1} s after set-mode ({} frames in all since)",
+            t_switch.elapsed().as_secs_f64(),
+            count() - before
         );
     }
     // Pair every thumbnail with its buffer timestamp.
