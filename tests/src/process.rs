@@ -53,3 +53,18 @@ pub fn stdout_of(out: &Output) -> String {
     );
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
+
+/// A copy of the program at `path` in `dir` (created), both mode 0755, so
+/// another user can run it wherever the checkout lives (a 0700 parent, as
+/// `mktemp -d` makes, hides the build from everybody but its owner).
+pub fn runnable_copy(path: &std::path::Path, dir: &std::path::Path) -> std::path::PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::create_dir_all(dir).expect("mkdir for the copy");
+    let name = path.file_name().expect("a program file name");
+    let copy = dir.join(name);
+    std::fs::copy(path, &copy).expect("copy the program");
+    for p in [dir, copy.as_path()] {
+        std::fs::set_permissions(p, std::fs::Permissions::from_mode(0o755)).expect("chmod 755");
+    }
+    copy
+}

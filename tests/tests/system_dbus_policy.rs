@@ -220,18 +220,10 @@ fn policy_controls_who_may_do_what() {
 
     // Output files by descriptor: sdictl, run as the user, creates the file
     // in a directory only that user may write and passes it to the daemon.
-    // A copy the users can run wherever the checkout lives (a 0700 parent,
-    // as mktemp -d makes, would hide the host's build from them).
-    let sdictl = dir.join("sdictl");
-    std::fs::copy(
-        std::env::var_os("SDICTL").expect("SDICTL path from the host"),
-        &sdictl,
-    )
-    .expect("copy sdictl");
-    for p in [&dir, &sdictl] {
-        std::fs::set_permissions(p, std::os::unix::fs::PermissionsExt::from_mode(0o755))
-            .expect("chmod 755");
-    }
+    let sdictl = sdi_tests::process::runnable_copy(
+        Path::new(&std::env::var_os("SDICTL").expect("SDICTL path from the host")),
+        &dir,
+    );
     let snapshot_as = |user: &str, file: &Path| {
         run(Command::new("runuser")
             .args(["-u", user, "--", "env"])

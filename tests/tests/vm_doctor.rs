@@ -164,7 +164,11 @@ fn doctor_on_the_host_without_the_module() {
 }
 
 fn in_vm_checks() {
-    let sdictl = clients::exe("SDICTL");
+    // Run as other users too: a copy they can reach.
+    let sdictl = sdi_tests::process::runnable_copy(
+        &clients::exe("SDICTL"),
+        Path::new("/tmp/sdi-doctor-bin"),
+    );
     // Module present, nodes as udev/modprobe.d sets them, sdid streaming.
     clients::load_module(40, 41);
     let sdid = Sdid::start(40, 41, PMD, 15);
