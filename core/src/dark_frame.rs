@@ -4,48 +4,86 @@
 use crate::frame::Frame;
 use crate::image::Image;
 
-/// Running per-pixel mean of dark frames (LEDs off).
-///
-/// Sums in f64 so averaging thousands of frames loses nothing; pixels that
-/// are saturated or non-finite in a frame are left out of that pixel's mean.
-#[derive(Debug, Clone)]
-pub struct DarkFrameAverager {
-    width: usize,
-    height: usize,
-    sum_dn: Vec<f64>,
-    count: Vec<u32>,
-    frames: u32,
+/// A frame whose size differs from the accumulator's.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("dark frame is {got_w}x{got_h}, expected {want_w}x{want_h}")]
+pub struct SizeMismatch {
+    pub want_w: usize,
+    pub want_h: usize,
+    pub got_w: usize,
+    pub got_h: usize,
 }
 
-impl DarkFrameAverager {
+/// Summary of a dark-frame capture.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DarkStats {
+    pub frames: u32,
+    /// Spatial mean of the per-pixel means, DN (pixels with a valid sample).
+    pub mean_dn: f64,
+    /// Spatial mean of the per-pixel unbiased temporal variance, DN^2: the
+    /// read noise (eq. skellamvar with no light). NaN with fewer than two
+    /// valid samples in every pixel (N = 1).
+    pub read_noise_variance_dn2: f64,
+    /// Spatial standard deviation (1/K) of the per-pixel means, DN: the fixed pattern.
+    pub fixed_pattern_sigma_dn: f64,
+}
+
+/// Running per-pixel mean and temporal variance of dark frames (LEDs off).
+///
+/// Welford updates in f64, so thousands of frames at any offset lose
+/// nothing to cancellation; samples that are saturated or non-finite are
+/// left out of that pixel's statistics. The one dark-frame statistic of
+/// the project: the daemon's dark capture, the simulator tools and
+/// [`crate::calibration::DarkCalibration`] all use it.
+#[derive(Debug, Clone)]
+pub struct DarkAccumulator {
+    width: usize,
+    height: usize,
+    frames: u32,
+    count: Vec<u32>,
+    mean_dn: Vec<f64>,
+    /// Sum of squared deviations from the running mean, DN^2.
+    m2_dn2: Vec<f64>,
+}
+
+impl DarkAccumulator {
     pub fn new(width: usize, height: usize) -> Self {
+        let n = width * height;
         Self {
             width,
             height,
-            sum_dn: vec![0.0; width * height],
-            count: vec![0; width * height],
             frames: 0,
+            count: vec![0; n],
+            mean_dn: vec![0.0; n],
+            m2_dn2: vec![0.0; n],
         }
     }
 
-    /// Adds one dark frame; a frame of another size is refused (returns false).
-    pub fn add(&mut self, frame: &Frame) -> bool {
+    /// Adds one dark frame; a frame of another size is refused.
+    pub fn push(&mut self, frame: &Frame) -> Result<(), SizeMismatch> {
         if frame.width() != self.width || frame.height() != self.height {
-            return false;
+            return Err(SizeMismatch {
+                want_w: self.width,
+                want_h: self.height,
+                got_w: frame.width(),
+                got_h: frame.height(),
+            });
         }
-        let it = self
-            .sum_dn
-            .iter_mut()
-            .zip(self.count.iter_mut())
-            .zip(frame.dn.data.iter().zip(&frame.saturated.data));
-        for ((sum, n), (&v, &sat)) in it {
-            if sat == 0 && v.is_finite() {
-                *sum += f64::from(v);
-                *n += 1;
+        let samples = frame.dn.data.iter().zip(&frame.saturated.data);
+        for (i, (&v, &sat)) in samples.enumerate() {
+            if sat != 0 || !v.is_finite() {
+                continue;
             }
+            // Same update as the separation's M1 (section 6): mean and M2.
+            let n1 = f64::from(self.count[i]);
+            let delta = f64::from(v) - self.mean_dn[i];
+            let delta_n = delta / (n1 + 1.0);
+            self.mean_dn[i] += delta_n;
+            self.m2_dn2[i] += delta * delta_n * n1;
+            self.count[i] += 1;
         }
         self.frames += 1;
-        true
+        Ok(())
     }
 
     /// Number of frames added so far.
@@ -53,24 +91,64 @@ impl DarkFrameAverager {
         self.frames
     }
 
+    /// (width, height) this accumulator takes.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// Valid samples of pixel `i`.
+    pub fn samples(&self, i: usize) -> u32 {
+        self.count[i]
+    }
+
+    /// Mean of pixel `i`, DN (0 when it never had a valid sample).
+    pub fn pixel_mean_dn(&self, i: usize) -> f64 {
+        self.mean_dn[i]
+    }
+
+    /// Unbiased temporal variance of pixel `i`, DN^2; `None` below two valid samples.
+    pub fn pixel_variance_dn2(&self, i: usize) -> Option<f64> {
+        let n = self.count[i];
+        (n >= 2).then(|| self.m2_dn2[i] / f64::from(n - 1))
+    }
+
     /// The mean dark frame in DN; pixels never valid get 0. `None` before any frame.
     pub fn mean_dn(&self) -> Option<Image<f32>> {
         if self.frames == 0 {
             return None;
         }
-        let data = self
-            .sum_dn
-            .iter()
-            .zip(&self.count)
-            .map(|(&s, &n)| {
-                if n == 0 {
-                    0.0
-                } else {
-                    (s / f64::from(n)) as f32
-                }
-            })
-            .collect();
+        let data = self.mean_dn.iter().map(|&m| m as f32).collect();
         Image::from_vec(self.width, self.height, data)
+    }
+
+    /// Mean level, read noise and fixed pattern; `None` until a pixel had a
+    /// valid sample.
+    pub fn stats(&self) -> Option<DarkStats> {
+        let valid = || (0..self.count.len()).filter(|&i| self.count[i] > 0);
+        let k = valid().count();
+        if k == 0 {
+            return None;
+        }
+        let k = k as f64;
+        let mean_dn = valid().map(|i| self.mean_dn[i]).sum::<f64>() / k;
+        let fpn_var = valid()
+            .map(|i| (self.mean_dn[i] - mean_dn).powi(2))
+            .sum::<f64>()
+            / k;
+        let variances: Vec<f64> = (0..self.count.len())
+            .filter_map(|i| self.pixel_variance_dn2(i))
+            .collect();
+        let read_noise_variance_dn2 = if variances.is_empty() {
+            f64::NAN
+        } else {
+            variances.iter().sum::<f64>() / variances.len() as f64
+        };
+        Some(DarkStats {
+            frames: self.frames,
+            mean_dn,
+            read_noise_variance_dn2,
+            fixed_pattern_sigma_dn: fpn_var.sqrt(),
+        })
     }
 }
 
@@ -87,22 +165,142 @@ pub fn subtract_dark(dn: &mut [f32], dark_dn: &[f32]) {
 mod tests {
     use super::*;
 
-    #[test]
-    fn mean_skips_saturated_and_nan() {
-        let mut avg = DarkFrameAverager::new(2, 1);
-        let mut f = Frame::new(2, 1);
-        f.dn.data = vec![2.0, f32::NAN];
-        assert!(avg.add(&f));
-        f.dn.data = vec![4.0, 7.0];
-        f.saturated.data = vec![0, 1];
-        assert!(avg.add(&f));
-        let m = avg.mean_dn().unwrap();
-        assert_eq!(m.data, vec![3.0, 0.0]);
-        assert!(!avg.add(&Frame::new(3, 1)));
+    fn frame(dn: &[f32], saturated: &[u8]) -> Frame {
+        let mut f = Frame::new(dn.len(), 1);
+        f.dn.data = dn.to_vec();
+        f.saturated.data = saturated.to_vec();
+        f
     }
 
     #[test]
-    fn empty_averager_has_no_mean() {
-        assert!(DarkFrameAverager::new(4, 4).mean_dn().is_none());
+    fn mean_skips_saturated_and_nan() {
+        let mut acc = DarkAccumulator::new(2, 1);
+        acc.push(&frame(&[2.0, f32::NAN], &[0, 0])).unwrap();
+        acc.push(&frame(&[4.0, 7.0], &[0, 1])).unwrap();
+        let m = acc.mean_dn().unwrap();
+        assert_eq!(m.data, vec![3.0, 0.0]);
+        assert_eq!(acc.frames(), 2);
+        assert_eq!((acc.samples(0), acc.samples(1)), (2, 0));
+        assert!(acc.push(&Frame::new(3, 1)).is_err());
+        // the unusable pixel stays out of the figures
+        let s = acc.stats().unwrap();
+        assert_eq!(s.mean_dn, 3.0);
+        assert_eq!(s.read_noise_variance_dn2, 2.0);
+        assert_eq!(s.fixed_pattern_sigma_dn, 0.0);
+    }
+
+    #[test]
+    fn empty_accumulator_has_no_mean() {
+        let acc = DarkAccumulator::new(4, 4);
+        assert!(acc.mean_dn().is_none());
+        assert!(acc.stats().is_none());
+    }
+
+    #[test]
+    fn all_invalid_has_a_mean_frame_but_no_stats() {
+        let mut acc = DarkAccumulator::new(2, 1);
+        acc.push(&frame(&[f32::INFINITY, 9.0], &[0, 1])).unwrap();
+        acc.push(&frame(&[f32::NAN, f32::NEG_INFINITY], &[0, 0]))
+            .unwrap();
+        assert_eq!(acc.mean_dn().unwrap().data, vec![0.0, 0.0]);
+        assert!(acc.stats().is_none());
+    }
+
+    #[test]
+    fn one_frame_has_no_read_noise() {
+        let mut acc = DarkAccumulator::new(2, 1);
+        acc.push(&frame(&[10.0, 14.0], &[0, 0])).unwrap();
+        let s = acc.stats().unwrap();
+        assert_eq!(
+            (s.frames, s.mean_dn, s.fixed_pattern_sigma_dn),
+            (1, 12.0, 2.0)
+        );
+        assert!(s.read_noise_variance_dn2.is_nan());
+        assert_eq!(acc.pixel_variance_dn2(0), None);
+    }
+
+    #[test]
+    fn one_pixel() {
+        let mut acc = DarkAccumulator::new(1, 1);
+        for v in [100.0, 102.0, 104.0] {
+            acc.push(&frame(&[v], &[0])).unwrap();
+        }
+        let s = acc.stats().unwrap();
+        assert_eq!(s.mean_dn, 102.0);
+        assert_eq!(s.read_noise_variance_dn2, 4.0);
+        assert_eq!(s.fixed_pattern_sigma_dn, 0.0);
+    }
+
+    #[test]
+    fn zero_sized_frames_give_no_stats() {
+        let mut acc = DarkAccumulator::new(0, 0);
+        acc.push(&Frame::new(0, 0)).unwrap();
+        assert!(acc.stats().is_none());
+    }
+
+    #[test]
+    fn large_offset_keeps_the_variance() {
+        // 1e7 +- 1 DN (exact in f32): Welford gives the variance to rounding
+        let mut acc = DarkAccumulator::new(1, 1);
+        for k in 0..1000 {
+            let v = 1.0e7 + if k % 2 == 0 { -1.0 } else { 1.0 };
+            acc.push(&frame(&[v], &[0])).unwrap();
+        }
+        let var = acc.pixel_variance_dn2(0).unwrap();
+        assert!((var - 1000.0 / 999.0).abs() < 1e-9, "{var}");
+    }
+
+    /// The daemon's former sums-and-squares statistics, for comparison.
+    fn sums_and_squares(frames: &[Frame]) -> (f64, f64, f64) {
+        let px = frames[0].dn.data.len();
+        let n = frames.len() as f64;
+        let mut sum = vec![0.0f64; px];
+        let mut sum_sq = vec![0.0f64; px];
+        for f in frames {
+            for ((s, q), &v) in sum.iter_mut().zip(&mut sum_sq).zip(&f.dn.data) {
+                *s += f64::from(v);
+                *q += f64::from(v) * f64::from(v);
+            }
+        }
+        let mean = sum.iter().sum::<f64>() / (n * px as f64);
+        let var_t = sum
+            .iter()
+            .zip(&sum_sq)
+            .map(|(s, q)| (q - s * s / n) / (n - 1.0))
+            .sum::<f64>()
+            / px as f64;
+        let var_s = sum.iter().map(|s| (s / n - mean).powi(2)).sum::<f64>() / px as f64;
+        (mean, var_t, var_s.sqrt())
+    }
+
+    #[test]
+    fn agrees_with_sums_and_squares_on_clean_data() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand::rngs::SmallRng::seed_from_u64(14);
+        let (w, h) = (16, 8);
+        let offsets: Vec<f32> = (0..w * h).map(|_| rng.random_range(60.0..90.0)).collect();
+        let frames: Vec<Frame> = (0..25)
+            .map(|_| {
+                let mut f = Frame::new(w, h);
+                for (v, o) in f.dn.data.iter_mut().zip(&offsets) {
+                    *v = (o + rng.random_range(-4.0f32..4.0)).round();
+                }
+                f
+            })
+            .collect();
+        let mut acc = DarkAccumulator::new(w, h);
+        for f in &frames {
+            acc.push(f).unwrap();
+        }
+        let s = acc.stats().unwrap();
+        let (mean, var_t, sigma_s) = sums_and_squares(&frames);
+        assert_eq!(s.frames, 25);
+        assert!(
+            (s.mean_dn - mean).abs() < 1e-9 * mean,
+            "{} {mean}",
+            s.mean_dn
+        );
+        assert!((s.read_noise_variance_dn2 - var_t).abs() < 1e-9 * var_t);
+        assert!((s.fixed_pattern_sigma_dn - sigma_s).abs() < 1e-9 * sigma_s);
     }
 }

@@ -13,6 +13,7 @@ pub mod image;
 pub mod mode;
 pub mod modulation;
 pub mod npy;
+pub mod pixel_flags;
 pub mod scene;
 pub mod sensor;
 pub mod separation;
@@ -20,3 +21,4 @@ pub mod simulator;
 
 pub use frame::Frame;
 pub use image::Image;
+pub use pixel_flags::PixelFlags;

@@ -3,6 +3,10 @@
 //! The writer streams: header first, then frames, so long recordings never sit
 //! in memory. The reader rejects anything malformed with a typed error and
 //! never trusts the header for allocation sizes.
+//!
+//! Hand-written because both crates that do this panic on hostile headers
+//! (npyz 0.8 on a shape whose product overflows, ndarray-npy 0.9 on
+//! `(0, 2^64-1)`; tests below); numpy checks it in `tests/tests/npy_numpy.rs`.
 
 use std::io::{Read, Write};
 
@@ -322,6 +326,33 @@ mod tests {
         ));
         let neg = with_header("{'descr': '<f4', 'fortran_order': False, 'shape': (-1,), }\n");
         assert!(matches!(read_f32(&neg[..]), Err(NpyError::BadHeader(_))));
+    }
+
+    /// The headers that made npyz and ndarray-npy panic: a typed error here.
+    #[test]
+    fn shapes_that_overflow_are_refused() {
+        for shape in [
+            "(18446744073709551615, 18446744073709551615)",
+            "(4294967296, 4294967296, 4294967296)",
+            "(99999999999999999999999999,)",
+        ] {
+            let h = with_header(&format!(
+                "{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}\n"
+            ));
+            assert!(
+                matches!(
+                    read_f32(&h[..]),
+                    Err(NpyError::ShapeTooLarge(_) | NpyError::BadHeader(_))
+                ),
+                "{shape}"
+            );
+        }
+        // Empty, however long the other side: no data, no allocation.
+        let h = with_header(
+            "{'descr': '<f4', 'fortran_order': False, 'shape': (0, 18446744073709551615), }\n",
+        );
+        let (shape, data) = read_f32(&h[..]).unwrap();
+        assert_eq!((shape, data.len()), (vec![0, usize::MAX], 0));
     }
 
     proptest::proptest! {

@@ -1,6 +1,6 @@
 //! Dark-frame averaging and subtraction remove the fixed-pattern offset.
 
-use sdi_core::dark_frame::DarkFrameAverager;
+use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
 use sdi_core::modulation::Illumination;
 use sdi_core::scene::SceneSpec;
@@ -18,10 +18,10 @@ fn spatial_std_of_mean(dark_frames: usize, n: usize) -> f64 {
     };
     let mut sim = Simulator::new(SimConfig::new(sensor, scene)).unwrap();
     let mut frame = Frame::new(320, 240);
-    let mut avg = DarkFrameAverager::new(320, 240);
+    let mut avg = DarkAccumulator::new(320, 240);
     for _ in 0..dark_frames {
         sim.capture(&Illumination::dark(carrier_hz), &mut frame);
-        assert!(avg.add(&frame));
+        assert!(avg.push(&frame).is_ok());
     }
     let mut p = build_pipeline(
         ModeId::Raw,

@@ -3,9 +3,10 @@
 //! only where they fit.
 
 use sdi_core::image::Image;
-use sdi_core::mode::{build_pipeline, flags, ModeId, PipelineConfig};
+use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
 use sdi_core::modulation::SourceDrive;
 use sdi_core::Frame;
+use sdi_core::PixelFlags;
 
 fn frame(w: usize, h: usize, seq: u64, values: &[f32]) -> Frame {
     let mut f = Frame::new(w, h);
@@ -51,7 +52,12 @@ fn nan_inf_become_zero_and_flagged_saturation_kept() {
     assert_eq!(out.signed_dn.data, vec![0.0, 0.0, 2047.0, -5.0]);
     assert_eq!(
         out.saturated.data,
-        vec![flags::INVALID, flags::INVALID, flags::SATURATED, 0]
+        vec![
+            PixelFlags::NONFINITE.bits(),
+            PixelFlags::NONFINITE.bits(),
+            PixelFlags::SATURATED.bits(),
+            0
+        ]
     );
     let mut z = build_pipeline(
         ModeId::Raw,

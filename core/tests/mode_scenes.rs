@@ -2,7 +2,7 @@
 //! structure the paper describes. Modes whose scene is not built in (the
 //! flat-field fallback) are skipped.
 
-use sdi_core::dark_frame::DarkFrameAverager;
+use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
 use sdi_core::modulation::Illumination;
 use sdi_core::sensor::SensorPreset;
@@ -21,10 +21,11 @@ fn mean_output(mode: ModeId, n: usize) -> Option<Vec<f32>> {
     let (w, h) = (sim.params().width, sim.params().height);
     let mut frame = Frame::new(w, h);
     // Measurement procedure (section 4): average a dark frame, subtract it.
-    let mut dark = DarkFrameAverager::new(w, h);
+    let mut dark = DarkAccumulator::new(w, h);
     for _ in 0..16 {
         sim.capture(&Illumination::dark(carrier_hz), &mut frame);
-        dark.add(&frame);
+        dark.push(&frame)
+            .expect("simulated frames have the sensor size");
     }
     let mut p = build_pipeline(
         mode,

@@ -4,9 +4,10 @@
 mod separation_support;
 
 use sdi_core::image::Image;
-use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig, SeparationConfig};
+use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
 use sdi_core::sensor::SensorPreset;
 use sdi_core::separation::LiveMethod;
+use sdi_core::separation::LiveSeparatorConfig;
 use separation_support::{chart, rel_rmse_bias, Sampler};
 
 const OFFSET_DN: f32 = 120.0;
@@ -19,7 +20,7 @@ fn config(method: LiveMethod) -> PipelineConfig {
             height: 24,
             data: vec![OFFSET_DN; 32 * 24],
         }),
-        separation: SeparationConfig::new(method, h),
+        separation: LiveSeparatorConfig::new(method, h),
         ..Default::default()
     }
 }

@@ -47,12 +47,12 @@ mod separation_support;
 
 use sdi_core::sensor::SkellamMixing;
 use sdi_core::separation::{
-    auto_segment, bilateral_exact, bilateral_grid, bilateral_separable, flags, pool_moments,
+    auto_segment, bilateral_exact, bilateral_grid, bilateral_separable, pool_moments,
     segment_moments, skellam_ml_counts, skellam_ml_pixel, unmix, BilateralGrid, BilateralParams,
     MlMethod, Moments, PoolParams, SegmentParams, SeparableBilateral, SeparationError,
     SlidingWelford, UnmixOptions, Welford,
 };
-use sdi_core::{Frame, Image};
+use sdi_core::{Frame, Image, PixelFlags};
 use separation_support::{chart, ti_h, Sampler, Truth};
 
 fn flat(w: usize, h: usize, plus: f64, minus: f64) -> Truth {
@@ -115,7 +115,7 @@ fn zero_photons_give_zero_within_errors_and_nonnegative_projection() {
         .flags
         .data
         .iter()
-        .filter(|&&f| f & flags::VARIANCE_CLAMPED != 0)
+        .filter(|&&f| f & PixelFlags::VARIANCE_CLAMPED.bits() != 0)
         .count();
     assert!(
         clamped > 100,
@@ -200,10 +200,10 @@ fn saturated_samples_are_excluded_and_flagged() {
     }
     let m = acc.moments().unwrap();
     let sep = unmix(&m, &h, UnmixOptions::default()).unwrap();
-    assert_ne!(sep.flags.data[0] & flags::INSUFFICIENT, 0);
-    assert_ne!(sep.flags.data[0] & flags::SATURATED, 0);
+    assert_ne!(sep.flags.data[0] & PixelFlags::INSUFFICIENT.bits(), 0);
+    assert_ne!(sep.flags.data[0] & PixelFlags::SATURATED.bits(), 0);
     assert_eq!(sep.i_plus_se_electrons.data[0], f32::INFINITY);
-    assert_ne!(sep.flags.data[1] & flags::SATURATED, 0);
+    assert_ne!(sep.flags.data[1] & PixelFlags::SATURATED.bits(), 0);
     assert_eq!(m.samples.data[1], 200.0);
     // Pixel 1's mean is unaffected by the clipped values.
     assert!(
@@ -224,7 +224,7 @@ fn variance_below_read_noise_is_clamped_and_flagged() {
         acc.push(&f).unwrap();
     }
     let sep = unmix(&acc.moments().unwrap(), &h, UnmixOptions::default()).unwrap();
-    assert_ne!(sep.flags.data[0] & flags::VARIANCE_CLAMPED, 0);
+    assert_ne!(sep.flags.data[0] & PixelFlags::VARIANCE_CLAMPED.bits(), 0);
     let (p, m) = (sep.i_plus_electrons.data[0], sep.i_minus_electrons.data[0]);
     assert!(p.is_finite() && m.is_finite());
     // Clamped: I+ + I- = 0, I+ - I- = mean / g.
@@ -271,7 +271,7 @@ fn sigma_range_extremes_underflow_cleanly() {
     // sigma_range -> 0: only equal values get weight; the mean is the pixel itself.
     let m = bilateral_exact(&f, BilateralParams::new(2.0, 1e-300)).unwrap();
     for i in 0..f.dn.len() {
-        if m.flags.data[i] & flags::INSUFFICIENT == 0 {
+        if m.flags.data[i] & PixelFlags::INSUFFICIENT.bits() == 0 {
             assert_eq!(m.mean_dn.data[i], f.dn.data[i] as f64);
         }
     }
@@ -450,7 +450,7 @@ fn check(name: &str, m: &Moments, h: &SkellamMixing) {
         );
         let se = plain.i_plus_se_electrons.data[i];
         assert!(!se.is_nan() && !plain.i_minus_se_electrons.data[i].is_nan());
-        if m.flags.data[i] & flags::INSUFFICIENT != 0 {
+        if m.flags.data[i] & PixelFlags::INSUFFICIENT.bits() != 0 {
             assert_eq!(se, f32::INFINITY, "{name} px {i}");
         } else {
             let want = mu / g;
@@ -465,7 +465,7 @@ fn check(name: &str, m: &Moments, h: &SkellamMixing) {
 }
 
 fn usable_mean(m: &Moments, img: &Image<f64>) -> f64 {
-    let ok = |i: &usize| m.flags.data[*i] & flags::INSUFFICIENT == 0;
+    let ok = |i: &usize| m.flags.data[*i] & PixelFlags::INSUFFICIENT.bits() == 0;
     let idx: Vec<usize> = (0..img.len()).filter(ok).collect();
     idx.iter().map(|&i| img.data[i]).sum::<f64>() / idx.len() as f64
 }
@@ -521,11 +521,11 @@ fn table_unusable_inputs() {
         }
     }
     let expected = [
-        (14, flags::SATURATED),
-        (30, flags::NONFINITE),
-        (31, flags::NONFINITE),
-        (60, flags::NONFINITE),
-        (90, flags::SATURATED),
+        (14, PixelFlags::SATURATED.bits()),
+        (30, PixelFlags::NONFINITE.bits()),
+        (31, PixelFlags::NONFINITE.bits()),
+        (60, PixelFlags::NONFINITE.bits()),
+        (90, PixelFlags::SATURATED.bits()),
     ];
     for (name, _, est) in estimators() {
         let m = est(&scene).unwrap();
@@ -535,7 +535,7 @@ fn table_unusable_inputs() {
         }
         // Never spread: a clipped 1e6 or an infinity would show far off.
         for i in 0..t.i_plus.len() {
-            if m.flags.data[i] & flags::INSUFFICIENT == 0 {
+            if m.flags.data[i] & PixelFlags::INSUFFICIENT.bits() == 0 {
                 let (a, v) = (m.mean_dn.data[i], m.variance_dn2.data[i]);
                 assert!((a - mu).abs() < 3.0 * var.sqrt(), "{name} px {i}: {a}");
                 assert!(v < 3.0 * var, "{name} px {i}: {v}");
@@ -544,15 +544,20 @@ fn table_unusable_inputs() {
     }
     // Nothing usable at all (a blown-out frame, or a dead readout): every
     // pixel insufficient and flagged, still no NaN.
-    for (bit, poison) in [(flags::SATURATED, 0.0f32), (flags::NONFINITE, f32::NAN)] {
+    for (bit, poison) in [
+        (PixelFlags::SATURATED.bits(), 0.0f32),
+        (PixelFlags::NONFINITE.bits(), f32::NAN),
+    ] {
         for f in scene.frames.iter_mut() {
             f.dn.data.fill(poison);
-            f.saturated.data.fill(u8::from(bit == flags::SATURATED));
+            f.saturated
+                .data
+                .fill(u8::from(bit == PixelFlags::SATURATED.bits()));
         }
         for (name, _, est) in estimators() {
             let m = est(&scene).unwrap();
             check(name, &m, &h);
-            let want = bit | flags::INSUFFICIENT;
+            let want = bit | PixelFlags::INSUFFICIENT.bits();
             assert!(m.flags.data.iter().all(|f| f & want == want), "{name}");
         }
     }
@@ -580,9 +585,13 @@ fn table_variance_below_read_noise() {
         check(name, &m, &h);
         let sep = unmix(&m, &h, UnmixOptions::default()).unwrap();
         for i in 0..64 {
-            assert_eq!(sep.flags.data[i] & flags::INSUFFICIENT, 0, "{name} px {i}");
+            assert_eq!(
+                sep.flags.data[i] & PixelFlags::INSUFFICIENT.bits(),
+                0,
+                "{name} px {i}"
+            );
             assert_ne!(
-                sep.flags.data[i] & flags::VARIANCE_CLAMPED,
+                sep.flags.data[i] & PixelFlags::VARIANCE_CLAMPED.bits(),
                 0,
                 "{name} px {i}"
             );
@@ -613,7 +622,11 @@ fn table_one_and_two_frames() {
         let m = est(&two).unwrap();
         check(name, &m, &h);
         if multi {
-            assert!(m.flags.data.iter().all(|f| f & flags::INSUFFICIENT == 0));
+            assert!(m
+                .flags
+                .data
+                .iter()
+                .all(|f| f & PixelFlags::INSUFFICIENT.bits() == 0));
             assert!(m.samples.data.iter().all(|&n| n >= 2.0), "{name}");
         }
     }
@@ -634,7 +647,7 @@ fn segments_of_one_and_two_pixels() {
     };
     let m = segment_moments(&f, &labels, None).unwrap();
     check("segments", &m, &ti_h());
-    assert_ne!(m.flags.data[0] & flags::INSUFFICIENT, 0);
+    assert_ne!(m.flags.data[0] & PixelFlags::INSUFFICIENT.bits(), 0);
     assert_eq!((m.mean_dn.data[1], m.variance_dn2.data[1]), (3.0, 2.0));
     assert_eq!((m.mean_dn.data[4], m.variance_dn2.data[4]), (7.0, 0.0));
     assert_eq!(m.flags.data[1..], [0; 4]);
@@ -655,7 +668,11 @@ fn table_tiny_images() {
                 // A lone pixel has no neighbours: no single-frame variance.
                 // Two pixels (under M3's weights fewer than two effective
                 // samples) may go either way: both are defined results.
-                let insufficient = m.flags.data.iter().any(|f| f & flags::INSUFFICIENT != 0);
+                let insufficient = m
+                    .flags
+                    .data
+                    .iter()
+                    .any(|f| f & PixelFlags::INSUFFICIENT.bits() != 0);
                 if w * ht != 2 || multi {
                     assert_eq!(insufficient, !multi && w * ht == 1, "{name} {w}x{ht}");
                 }

@@ -3,11 +3,11 @@
 use proptest::prelude::*;
 use sdi_core::sensor::SkellamMixing;
 use sdi_core::separation::{
-    auto_segment, bilateral_exact, bilateral_grid, bilateral_separable, flags, pool_moments,
+    auto_segment, bilateral_exact, bilateral_grid, bilateral_separable, pool_moments,
     segment_moments, skellam_ml_pixel, unmix, BilateralParams, MlMethod, Moments, PoolParams,
     SegmentParams, SeparationError, SlidingWelford, UnmixOptions, Welford,
 };
-use sdi_core::{Frame, Image};
+use sdi_core::{Frame, Image, PixelFlags};
 
 fn value() -> impl Strategy<Value = f32> {
     prop_oneof![
@@ -94,7 +94,7 @@ proptest! {
                         prop_assert!(a >= 0.0 && b >= 0.0);
                     }
                     if !f.dn.data[i].is_finite() {
-                        prop_assert!(sep.flags.data[i] & flags::NONFINITE != 0);
+                        prop_assert!(sep.flags.data[i] & PixelFlags::NONFINITE.bits() != 0);
                     }
                 }
             }
@@ -111,7 +111,7 @@ proptest! {
         for m in [bilateral_exact(f, p).unwrap(), bilateral_separable(f, p).unwrap(), bilateral_grid(f, p).unwrap(), segment_moments(f, &labels, None).unwrap(), welford, pooled] {
             let sep = unmix(&m, &h, UnmixOptions::default()).unwrap();
             for i in 0..f.dn.len() {
-                if sep.flags.data[i] & (flags::INSUFFICIENT | flags::PROJECTED) == 0 {
+                if sep.flags.data[i] & (PixelFlags::INSUFFICIENT.bits() | PixelFlags::PROJECTED.bits()) == 0 {
                     let d = (sep.i_plus_electrons.data[i] - sep.i_minus_electrons.data[i]) as f64;
                     let want = m.mean_dn.data[i] / g;
                     // Outputs are f32: the difference is resolved to ~1e-6 of the larger channel.
@@ -150,7 +150,7 @@ proptest! {
             prop_assert_eq!(&p, &m);
         }
         let (w, ht) = (m.width(), m.height());
-        let ok = |i: usize| m.flags.data[i] & flags::INSUFFICIENT == 0;
+        let ok = |i: usize| m.flags.data[i] & PixelFlags::INSUFFICIENT.bits() == 0;
         for i in 0..w * ht {
             prop_assert_eq!(p.flags.data[i] & m.flags.data[i], m.flags.data[i]);
             if !ok(i) {

@@ -47,7 +47,9 @@ pub fn load(dir: &Path, model: &str, serial: &str) -> io::Result<Option<Calibrat
     Ok(read_store(dir)?.get(model, serial).cloned())
 }
 
-/// Adds or replaces `record` in the store, atomically (temporary file + rename).
+/// Adds or replaces `record` in the store, atomically: a fresh temporary file
+/// (`tempfile`, O_EXCL, random name) in `dir`, flushed, renamed over the
+/// store, then the directory flushed.
 pub fn save(dir: &Path, record: CalibrationRecord) -> io::Result<PathBuf> {
     std::fs::create_dir_all(dir)?;
     let mut store = read_store(dir)?;
@@ -56,10 +58,14 @@ pub fn save(dir: &Path, record: CalibrationRecord) -> io::Result<PathBuf> {
         .to_toml()
         .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e.to_string()))?;
     let path = dir.join(FILE_NAME);
-    let tmp = dir.join(format!(".{FILE_NAME}.tmp"));
-    std::fs::write(&tmp, text)?;
-    std::fs::File::open(&tmp)?.sync_all()?;
-    std::fs::rename(&tmp, &path)?;
+    let mut tmp = tempfile::Builder::new()
+        .prefix(&format!(".{FILE_NAME}."))
+        .permissions(std::os::unix::fs::PermissionsExt::from_mode(0o644))
+        .tempfile_in(dir)?;
+    io::Write::write_all(&mut tmp, text.as_bytes())?;
+    tmp.as_file().sync_all()?;
+    tmp.persist(&path).map_err(|e| e.error)?;
+    std::fs::File::open(dir)?.sync_all()?;
     Ok(path)
 }
 

@@ -7,31 +7,25 @@ use std::sync::mpsc::{Receiver, TryRecvError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use sdi_core::mode::{ModeId, SeparationConfig};
-use sdi_core::separation::LiveMethod;
+use sdi_core::mode::ModeId;
+use sdi_core::separation::{LiveMethod, LiveSeparatorConfig};
 use sdi_core::{Frame, Image};
 use tokio::sync::{oneshot, watch};
 
 use crate::backend::{Backend, BackendError, CaptureSettings};
+use crate::dark_capture::{DarkCapture, DarkJob};
+use crate::job::{Running, Settling};
 use crate::modes::{self, DisplayMap, ModeOutput, Pipeline, PipelineConfig};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
-use crate::photon_transfer::{PtcJob, Step};
+use crate::photon_transfer::PtcJob;
 use crate::recording::{Calibration, RecordingWriter, Summary};
 use crate::sink::output::Output;
 use crate::stats::{Stats, StatsWindow};
 use sdi_core::calibration::PhotonTransferFit;
 use sdi_core::sensor::SkellamMixing;
 
-/// Statistics of a dark-frame capture.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DarkStats {
-    pub frames: u32,
-    pub mean_dn: f64,
-    /// Mean per-pixel temporal variance, DN^2: the read noise (eq. skellamvar with no light).
-    pub read_noise_variance_dn2: f64,
-    /// Spatial standard deviation of the dark frame, DN.
-    pub fixed_pattern_sigma_dn: f64,
-}
+/// Statistics of a dark-frame capture (computed in core).
+pub use sdi_core::dark_frame::DarkStats;
 
 /// The latest processed frame, for snapshots.
 pub struct SnapshotData {
@@ -41,6 +35,9 @@ pub struct SnapshotData {
 }
 
 pub type Reply<T> = oneshot::Sender<T>;
+
+/// Refusal of a second dark capture or calibration while one runs.
+const JOB_RUNNING: &str = "a dark-frame capture or calibration is already running";
 
 /// The first frame produced under a new setting: every published output with
 /// `sequence >= self.sequence` (and timestamp `>= self.timestamp_us`) was
@@ -87,12 +84,33 @@ pub enum Command {
     Shutdown,
 }
 
-struct DarkJob {
-    wanted: u32,
-    n: u32,
-    sum: Vec<f64>,
-    sum_sq: Vec<f64>,
-    reply: Reply<Result<DarkStats, BackendError>>,
+/// The job running instead of the mode pipeline, with its reply.
+enum ActiveJob {
+    Dark(Running<DarkJob>, Reply<Result<DarkStats, BackendError>>),
+    PhotonTransfer(Running<PtcJob>, Reply<Result<PhotonTransferFit, String>>),
+}
+
+impl ActiveJob {
+    fn illumination(&self, carrier_hz: f64) -> sdi_core::modulation::Illumination {
+        match self {
+            Self::Dark(run, _) => run.illumination(carrier_hz),
+            Self::PhotonTransfer(run, _) => run.illumination(carrier_hz),
+        }
+    }
+
+    /// The capture failed: puts the settings back and replies with `e`.
+    fn fail(self, backend: &mut dyn Backend, e: BackendError) {
+        match self {
+            Self::Dark(run, reply) => {
+                let _ = run.end(backend);
+                let _ = reply.send(Err(e));
+            }
+            Self::PhotonTransfer(run, reply) => {
+                let _ = run.end(backend);
+                let _ = reply.send(Err(e.to_string()));
+            }
+        }
+    }
 }
 
 pub struct FrameLoop {
@@ -104,21 +122,22 @@ pub struct FrameLoop {
     recorder: Option<RecordingWriter>,
     dark: Option<(u32, Image<f32>)>,
     calibration: Calibration,
-    dark_job: Option<DarkJob>,
+    /// Dark capture or calibration running instead of the pipeline.
+    job: Option<ActiveJob>,
     last: Option<Arc<ModeOutput>>,
     stats: StatsWindow,
     stats_tx: watch::Sender<Stats>,
     calibration_tx: watch::Sender<Calibration>,
     /// Estimator and H of the separation mode.
-    separation: SeparationConfig,
-    ptc: Option<(PtcJob, Reply<Result<PhotonTransferFit, String>>)>,
+    separation: LiveSeparatorConfig,
     /// Keeps output timestamps increasing when the backend restarts its clock.
     clock: MonotonicClock,
     /// Snapshots asked for while the lights were off: answered from the
     /// first output of two consecutive lit captures.
     pending_snapshots: Vec<Reply<Option<SnapshotData>>>,
-    /// Consecutive captures with the mode's illumination (not dark).
-    lit_captures: u32,
+    /// Whether the mode's illumination (not dark) has been on long enough
+    /// for a capture to be wholly lit.
+    lights: Settling,
     /// Sequence number of the last capture (the first is 1).
     sequence: u64,
     /// Setting changes waiting for their first published frame.
@@ -141,9 +160,9 @@ impl FrameLoop {
         stats_tx: watch::Sender<Stats>,
         calibration_tx: watch::Sender<Calibration>,
     ) -> Self {
-        let separation = SeparationConfig {
+        let separation = LiveSeparatorConfig {
             h: backend.sensor().skellam(),
-            ..SeparationConfig::default()
+            ..LiveSeparatorConfig::default()
         };
         let pipeline = modes::build_pipeline(
             mode,
@@ -161,16 +180,15 @@ impl FrameLoop {
             recorder: None,
             dark: None,
             calibration: Calibration::default(),
-            dark_job: None,
+            job: None,
             last: None,
             stats: StatsWindow::new(),
             stats_tx,
             calibration_tx,
             separation,
-            ptc: None,
             clock: MonotonicClock::default(),
             pending_snapshots: Vec::new(),
-            lit_captures: 0,
+            lights: Settling::changed(),
             sequence: 0,
             pending_marks: Vec::new(),
         }
@@ -211,15 +229,14 @@ impl FrameLoop {
                 }
             }
             let carrier_hz = self.backend.settings().modulation_hz;
-            let lit = self.dark_job.is_none()
-                && self.ptc.is_none()
+            let lit = self.job.is_none()
                 && lights_needed(
                     self.output.watchers(),
                     self.recorder.is_some(),
                     !self.pending_snapshots.is_empty(),
                 );
-            let illumination = if self.ptc.is_some() && self.dark_job.is_none() {
-                PtcJob::illumination(carrier_hz)
+            let illumination = if let Some(job) = &self.job {
+                job.illumination(carrier_hz)
             } else if lit {
                 // Numbered as the frame will be: the two-shot pipeline pairs by it.
                 modes::illumination(self.mode, self.sequence + 1, carrier_hz)
@@ -233,14 +250,10 @@ impl FrameLoop {
                         tracing::warn!("backend: {e}; showing no-signal");
                         stalled = true;
                     }
-                    if let Some((job, reply)) = self.ptc.take() {
-                        let _ = self.backend.configure(&job.base());
-                        let _ = reply.send(Err(e.to_string()));
+                    if let Some(job) = self.job.take() {
+                        job.fail(&mut *self.backend, e);
                     }
-                    if let Some(job) = self.dark_job.take() {
-                        let _ = job.reply.send(Err(e));
-                    }
-                    self.lit_captures = 0;
+                    self.lights.change();
                     self.answer_pending_snapshots();
                     self.answer_marks_while_stalled();
                     self.output.send_no_signal();
@@ -256,18 +269,19 @@ impl FrameLoop {
             self.sequence = self.next_sequence(frame.sequence);
             frame.sequence = self.sequence;
             self.mark_capture(&frame);
-            self.lit_captures = if lit { self.lit_captures + 1 } else { 0 };
+            if lit {
+                self.lights.capture();
+            } else {
+                self.lights.change();
+            }
             if let Some(dark) = self.backend.take_dark_frame() {
                 self.set_dark(dark.0, dark.1);
             }
-            if let (Some(rec), None, None) = (&self.recorder, &self.dark_job, &self.ptc) {
+            if let (Some(rec), None) = (&self.recorder, &self.job) {
                 rec.push_frame(self.mode.name(), &frame);
             }
-            if self.dark_job.is_some() {
-                self.accumulate_dark(&frame);
-                self.answer_marks(u64::MAX);
-            } else if self.ptc.is_some() {
-                self.photon_transfer_step(&frame);
+            if self.job.is_some() {
+                self.job_step(&frame);
                 self.answer_marks(u64::MAX);
             } else if let Some(out) = self.pipeline.process(&frame) {
                 let out = Arc::new(out.clone());
@@ -275,7 +289,7 @@ impl FrameLoop {
                 let published = out.sequence;
                 self.last = Some(out);
                 self.answer_marks(published);
-                if self.lit_captures >= 2 {
+                if self.lights.is_settled() {
                     self.answer_pending_snapshots();
                 }
             }
@@ -399,15 +413,20 @@ impl FrameLoop {
                 self.display = d;
                 self.await_first_frame(reply);
             }
+            Command::CaptureDark(_, reply) if self.job.is_some() => {
+                let _ = reply.send(Err(BackendError::Failed(JOB_RUNNING.into())));
+            }
             Command::CaptureDark(n, reply) => {
-                let px = self.backend.sensor().width * self.backend.sensor().height;
-                self.dark_job = Some(DarkJob {
-                    wanted: n.max(1),
-                    n: 0,
-                    sum: vec![0.0; px],
-                    sum_sq: vec![0.0; px],
-                    reply,
-                });
+                let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
+                match Running::start(DarkJob::new(n, w, h), &mut *self.backend) {
+                    Ok(run) => self.job = Some(ActiveJob::Dark(run, reply)),
+                    Err(e) => {
+                        let _ = reply.send(Err(e));
+                    }
+                }
+            }
+            Command::PhotonTransfer(_, reply) if self.job.is_some() => {
+                let _ = reply.send(Err(JOB_RUNNING.into()));
             }
             Command::PhotonTransfer(frames, reply) => {
                 let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
@@ -418,14 +437,14 @@ impl FrameLoop {
                     w,
                     h,
                 );
-                match self.backend.configure(&job.settings()) {
-                    Ok(()) => self.ptc = Some((job, reply)),
+                match Running::start(job, &mut *self.backend) {
+                    Ok(run) => self.job = Some(ActiveJob::PhotonTransfer(run, reply)),
                     Err(e) => {
                         let _ = reply.send(Err(e.to_string()));
                     }
                 }
             }
-            Command::Snapshot(reply) if self.lit_captures < 2 => {
+            Command::Snapshot(reply) if !self.lights.is_settled() => {
                 // lights off (nobody watched) or just switched on
                 self.pending_snapshots.push(reply);
             }
@@ -448,28 +467,42 @@ impl FrameLoop {
         }
     }
 
-    fn photon_transfer_step(&mut self, frame: &Frame) {
-        let Some((job, _)) = self.ptc.as_mut() else {
+    /// Feeds the running job a frame; applies and answers its result once done.
+    fn job_step(&mut self, frame: &Frame) {
+        let Some(job) = self.job.take() else {
             return;
         };
-        match job.push(frame) {
-            Step::Continue => {}
-            Step::NextLevel => {
-                let next = job.settings();
-                if let Err(e) = self.backend.configure(&next) {
-                    self.finish_photon_transfer(Err(e.to_string()));
+        let backend = &mut *self.backend;
+        match job {
+            ActiveJob::Dark(mut run, reply) => match run.feed(frame, backend) {
+                Ok(None) => self.job = Some(ActiveJob::Dark(run, reply)),
+                Ok(Some(done)) => {
+                    let _ = run.end(backend);
+                    let r = done
+                        .map(|capture| self.finish_dark(capture))
+                        .map_err(|e| BackendError::Failed(e.to_string()));
+                    let _ = reply.send(r);
                 }
-            }
-            Step::Done(r) => self.finish_photon_transfer(r),
+                Err(e) => ActiveJob::Dark(run, reply).fail(backend, e),
+            },
+            ActiveJob::PhotonTransfer(mut run, reply) => match run.feed(frame, backend) {
+                Ok(None) => self.job = Some(ActiveJob::PhotonTransfer(run, reply)),
+                Ok(Some(r)) => {
+                    let restored = run.end(backend);
+                    self.finish_photon_transfer(r, restored, reply);
+                }
+                Err(e) => ActiveJob::PhotonTransfer(run, reply).fail(backend, e),
+            },
         }
     }
 
-    /// Restores the capture settings, uses a successful fit for H, replies.
-    fn finish_photon_transfer(&mut self, r: Result<PhotonTransferFit, String>) {
-        let Some((job, reply)) = self.ptc.take() else {
-            return;
-        };
-        let restored = self.backend.configure(&job.base());
+    /// Uses a successful fit for H and replies.
+    fn finish_photon_transfer(
+        &mut self,
+        r: Result<PhotonTransferFit, String>,
+        restored: Result<(), BackendError>,
+        reply: Reply<Result<PhotonTransferFit, String>>,
+    ) {
         if let Ok(fit) = &r {
             self.set_gain(SkellamMixing::new(
                 fit.gain_dn_per_electron,
@@ -489,68 +522,15 @@ impl FrameLoop {
         self.rebuild_pipeline();
     }
 
-    fn accumulate_dark(&mut self, frame: &Frame) {
-        let Some(job) = self.dark_job.as_mut() else {
-            return;
-        };
-        if job.sum.len() != frame.dn.data.len() {
-            return;
-        }
-        for ((s, q), &v) in job
-            .sum
-            .iter_mut()
-            .zip(job.sum_sq.iter_mut())
-            .zip(&frame.dn.data)
-        {
-            let v = v as f64;
-            *s += v;
-            *q += v * v;
-        }
-        job.n += 1;
-        if job.n < job.wanted {
-            return;
-        }
-        let Some(job) = self.dark_job.take() else {
-            return;
-        };
-        let n = job.n as f64;
-        let px = job.sum.len() as f64;
-        let means: Vec<f32> = job.sum.iter().map(|s| (s / n) as f32).collect();
-        let mean_dn = job.sum.iter().sum::<f64>() / (n * px);
-        let var_t = if job.n > 1 {
-            job.sum
-                .iter()
-                .zip(&job.sum_sq)
-                .map(|(s, q)| (q - s * s / n) / (n - 1.0))
-                .sum::<f64>()
-                / px
-        } else {
-            f64::NAN
-        };
-        let var_s = means
-            .iter()
-            .map(|&m| (m as f64 - mean_dn).powi(2))
-            .sum::<f64>()
-            / px;
-        let stats = DarkStats {
-            frames: job.n,
-            mean_dn,
-            read_noise_variance_dn2: var_t,
-            fixed_pattern_sigma_dn: var_s.sqrt(),
-        };
-        let (w, h) = (frame.width(), frame.height());
-        self.set_dark(
-            job.n,
-            Image {
-                width: w,
-                height: h,
-                data: means,
-            },
-        );
+    /// Holds the captured dark frame and publishes its statistics.
+    fn finish_dark(&mut self, capture: DarkCapture) -> DarkStats {
+        let stats = capture.stats;
+        self.set_dark(stats.frames, capture.dark_dn);
+        let var_t = stats.read_noise_variance_dn2;
         self.calibration.read_noise_variance_dn2 = var_t.is_finite().then_some(var_t);
         self.calibration.fixed_pattern_sigma_dn = Some(stats.fixed_pattern_sigma_dn);
         self.calibration_tx.send_replace(self.calibration.clone());
-        let _ = job.reply.send(Ok(stats));
+        stats
     }
 }
 

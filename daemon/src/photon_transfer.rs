@@ -10,26 +10,17 @@ use sdi_core::separation::Welford;
 use sdi_core::{Frame, Image};
 
 use crate::backend::CaptureSettings;
+use crate::job::{Job, Step};
 
 /// Exposures of the levels, as fractions of the current exposure.
 pub const LEVELS: [f64; 5] = [0.2, 0.4, 0.6, 0.8, 1.0];
-
-/// What the frame loop does after feeding a frame.
-#[derive(Debug)]
-pub enum Step {
-    /// Keep capturing with the same settings.
-    Continue,
-    /// Apply [`PtcJob::settings`] (the next level) before the next frame.
-    NextLevel,
-    /// Finished: restore [`PtcJob::base`] and report.
-    Done(Result<PhotonTransferFit, String>),
-}
 
 pub struct PtcJob {
     base: CaptureSettings,
     frames_per_level: u32,
     level: usize,
-    /// Frames seen at this level, including the discarded first one.
+    /// Frames fed at this level (the frame loop skips the first one after
+    /// each exposure change: [`crate::job::Settling`]).
     seen: u32,
     welford: Welford,
     points: Vec<PtcPoint>,
@@ -57,21 +48,25 @@ impl PtcJob {
         }
     }
 
-    /// The settings the calibration started from (restored at the end).
-    pub fn base(&self) -> CaptureSettings {
-        self.base
-    }
-
     /// Capture settings of the current level.
-    pub fn settings(&self) -> CaptureSettings {
+    fn settings(&self) -> CaptureSettings {
         CaptureSettings {
             exposure_us: self.base.exposure_us * LEVELS[self.level.min(LEVELS.len() - 1)],
             ..self.base
         }
     }
+}
+
+impl Job for PtcJob {
+    type Output = Result<PhotonTransferFit, String>;
+
+    /// The first level's exposure.
+    fn prepare(&mut self) -> Option<CaptureSettings> {
+        Some(self.settings())
+    }
 
     /// LS1 alone, driven by f: all its light lands in I+.
-    pub fn illumination(carrier_hz: f64) -> Illumination {
+    fn illumination(&self, carrier_hz: f64) -> Illumination {
         Illumination {
             modulation: ModulationPattern::square_wave(carrier_hz),
             ls1: SourceDrive::Modulated,
@@ -79,19 +74,9 @@ impl PtcJob {
         }
     }
 
-    /// Fraction done, 0..=1.
-    pub fn progress(&self) -> f64 {
-        let per = f64::from(self.frames_per_level + 1);
-        (self.level as f64 * per + f64::from(self.seen)) / (LEVELS.len() as f64 * per)
-    }
-
-    /// Feeds one frame captured with [`Self::settings`].
-    pub fn push(&mut self, frame: &Frame) -> Step {
+    /// Feeds one frame captured with the current level's settings.
+    fn process(&mut self, frame: &Frame) -> Step<Self::Output> {
         self.seen += 1;
-        // The first frame of a level may still carry the previous exposure.
-        if self.seen == 1 {
-            return Step::Continue;
-        }
         self.scratch.clone_from(frame);
         if let Some(d) = self.dark.as_ref().filter(|d| d.same_size(&frame.dn)) {
             subtract_dark(&mut self.scratch.dn.data, &d.data);
@@ -99,7 +84,7 @@ impl PtcJob {
         if let Err(e) = self.welford.push(&self.scratch) {
             return Step::Done(Err(e.to_string()));
         }
-        if self.seen <= self.frames_per_level {
+        if self.seen < self.frames_per_level {
             return Step::Continue;
         }
         let point = self
@@ -115,9 +100,14 @@ impl PtcJob {
         self.seen = 0;
         self.level += 1;
         if self.level < LEVELS.len() {
-            Step::NextLevel
+            Step::Configure(self.settings())
         } else {
             Step::Done(fit_photon_transfer(&self.points).map_err(|e| e.to_string()))
         }
+    }
+
+    /// The settings the calibration started from.
+    fn restore(&self) -> Option<CaptureSettings> {
+        Some(self.base)
     }
 }

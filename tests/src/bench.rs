@@ -8,7 +8,7 @@ use std::time::Instant;
 
 use nix::sys::resource::{getrusage, UsageWho};
 use v4l2loopback_glue::{
-    Converter, IoMethod, LoopbackWriter, OutputConfig, PixelFormat, Src, YuyvPath,
+    Converter, IoMethod, LoopbackFormat, LoopbackWriter, PixelFormat, Src, YuyvPath,
 };
 
 fn cpu_s(who: UsageWho) -> f64 {
@@ -19,7 +19,7 @@ fn cpu_s(who: UsageWho) -> f64 {
 }
 
 /// (fps, CPU ms per frame)
-fn ours(dev: &str, cfg: OutputConfig, frames: u32, packed: bool) -> (f64, f64) {
+fn ours(dev: &str, cfg: LoopbackFormat, frames: u32, packed: bool) -> (f64, f64) {
     let mut w = LoopbackWriter::open(dev, cfg).expect("open writer");
     assert_eq!(w.io_method(), cfg.io);
     let (wd, ht) = (cfg.width as usize, cfg.height as usize);
@@ -44,7 +44,7 @@ fn ours(dev: &str, cfg: OutputConfig, frames: u32, packed: bool) -> (f64, f64) {
 }
 
 /// ffmpeg writing `frames` copies of one raw frame; returns (wall s, CPU s).
-fn ffmpeg_run(dev: &str, cfg: OutputConfig, raw: &Path, frames: u32) -> (f64, f64) {
+fn ffmpeg_run(dev: &str, cfg: LoopbackFormat, raw: &Path, frames: u32) -> (f64, f64) {
     let c0 = cpu_s(UsageWho::RUSAGE_CHILDREN);
     let t0 = Instant::now();
     let st = Command::new("ffmpeg")
@@ -86,7 +86,7 @@ fn ffmpeg_run(dev: &str, cfg: OutputConfig, raw: &Path, frames: u32) -> (f64, f6
 
 /// ffmpeg over 4N frames: (fps including its start-up, marginal fps from
 /// the N vs 4N difference or NaN when noise hides it, CPU ms per frame).
-fn ffmpeg(dev: &str, cfg: OutputConfig, raw: &Path, frames: u32) -> (f64, f64, f64) {
+fn ffmpeg(dev: &str, cfg: LoopbackFormat, raw: &Path, frames: u32) -> (f64, f64, f64) {
     let (t1, _) = ffmpeg_run(dev, cfg, raw, frames);
     let (t4, c4) = ffmpeg_run(dev, cfg, raw, 4 * frames);
     let marginal = if t4 > t1 + 0.05 {
@@ -139,7 +139,7 @@ pub fn run(dev_ours: &str, dev_ffmpeg: &str, frames: u32) {
         ),
         (PixelFormat::Y16, next(dev_ours), next(dev_ffmpeg)),
     ] {
-        let cfg = OutputConfig {
+        let cfg = LoopbackFormat {
             width: 640,
             height: 480,
             format: fmt,
@@ -151,7 +151,7 @@ pub fn run(dev_ours: &str, dev_ffmpeg: &str, frames: u32) {
         let mm = ours(&ours_dev, cfg, frames, false);
         let wr = ours(
             &ours_dev,
-            OutputConfig {
+            LoopbackFormat {
                 io: IoMethod::Write,
                 ..cfg
             },

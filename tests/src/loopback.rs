@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use v4l2loopback_glue::{GlueError, Input, LoopbackWriter, OutputConfig, Src};
+use v4l2loopback_glue::{GlueError, Input, LoopbackFormat, LoopbackWriter, Src};
 
 /// Which v4l2loopback build a VM test loads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -339,7 +339,7 @@ impl Drop for BackgroundWriter {
 /// pixel format (no conversion).
 pub fn ffmpeg_read(
     dev: &Path,
-    cfg: &OutputConfig,
+    cfg: &LoopbackFormat,
     frames: u32,
     out: &Path,
 ) -> Result<Vec<u8>, String> {

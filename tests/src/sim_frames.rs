@@ -7,7 +7,7 @@
 use std::collections::hash_map::DefaultHasher;
 use std::hash::{Hash, Hasher};
 
-use sdi_core::dark_frame::DarkFrameAverager;
+use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
 use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
 use sdi_core::modulation::Illumination;
@@ -39,10 +39,11 @@ impl SimFrames {
         let mut sim = Simulator::new(config).expect("simulator parameters");
         let (w, h) = (sim.params().width, sim.params().height);
         let mut frame = Frame::new(w, h);
-        let mut dark = DarkFrameAverager::new(w, h);
+        let mut dark = DarkAccumulator::new(w, h);
         for _ in 0..8 {
             sim.capture(&Illumination::dark(carrier_hz), &mut frame);
-            dark.add(&frame);
+            dark.push(&frame)
+                .expect("simulated frames have the sensor size");
         }
         let mut pipeline = build_pipeline(
             mode,

@@ -12,7 +12,7 @@ use sdi_tests::sim_frames::{checksum, SimFrames};
 use sdi_tests::vm;
 use v4l2loopback_glue::{
     control_version, create_device, find_device, query_device, remove_device, CreateOptions,
-    GlueError, IoMethod, LoopbackWriter, ModuleVersion, OutputConfig, PixelFormat,
+    GlueError, IoMethod, LoopbackFormat, LoopbackWriter, ModuleVersion, PixelFormat,
 };
 
 /// The TI OPT8241 model's size: the simulator frames are published as is.
@@ -64,7 +64,7 @@ fn check_round_trip(
     reads: u32,
     tmp: &Path,
 ) {
-    let cfg = OutputConfig {
+    let cfg = LoopbackFormat {
         width: W,
         height: H,
         format,
@@ -225,7 +225,7 @@ fn check_control_device(version: ModuleVersion) {
     // again: found, not created twice
     assert_eq!(create_device(&opts).unwrap().path, dev(50));
     {
-        let _open = LoopbackWriter::open(&created.path, OutputConfig::raw(64, 48, 10)).unwrap();
+        let _open = LoopbackWriter::open(&created.path, LoopbackFormat::raw(64, 48, 10)).unwrap();
         assert!(
             matches!(remove_device(&created), Err(GlueError::Busy { .. })),
             "REMOVE of an open node"
@@ -301,7 +301,7 @@ fn module_checks(build: ModuleBuild, sim: &SimFrames, tmp: &Path) {
     }
 
     // the view profile, streaming, for the remaining clients
-    let writer = LoopbackWriter::open(&view.path, OutputConfig::view(30)).unwrap();
+    let writer = LoopbackWriter::open(&view.path, LoopbackFormat::view(30)).unwrap();
     eprintln!("ok: view writer features: {:?}", writer.features());
     let f = writer.features();
     assert!(f.keep_format && f.sustain_framerate && f.frame_interval);
@@ -325,9 +325,9 @@ fn module_checks(build: ModuleBuild, sim: &SimFrames, tmp: &Path) {
     check_watchers(&bg, view.version, "/dev/video24");
 
     // a second producer asking for another format gets a typed error
-    let other = OutputConfig {
+    let other = LoopbackFormat {
         format: PixelFormat::Grey,
-        ..OutputConfig::view(30)
+        ..LoopbackFormat::view(30)
     };
     match LoopbackWriter::open(&view.path, other) {
         Err(GlueError::FormatLocked { wanted, current }) => {

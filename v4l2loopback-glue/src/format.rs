@@ -79,7 +79,7 @@ pub enum IoMethod {
 /// The fixed geometry and rate of one loopback node. All modes render into
 /// one geometry: the module cannot change resolution under open readers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct OutputConfig {
+pub struct LoopbackFormat {
     pub width: u32,
     pub height: u32,
     pub format: PixelFormat,
@@ -87,7 +87,7 @@ pub struct OutputConfig {
     pub io: IoMethod,
 }
 
-impl OutputConfig {
+impl LoopbackFormat {
     /// Browser-safe view profile: YUYV 640x480 (a size Firefox lists).
     pub fn view(fps: u32) -> Self {
         Self {
@@ -135,7 +135,7 @@ impl OutputConfig {
     }
 }
 
-impl std::fmt::Display for OutputConfig {
+impl std::fmt::Display for LoopbackFormat {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
@@ -160,11 +160,11 @@ mod tests {
             assert_eq!(PixelFormat::from_fourcc(f.fourcc()), Some(f));
         }
         assert_eq!(PixelFormat::Yuyv.fourcc(), 0x5659_5559);
-        let c = OutputConfig::view(30);
+        let c = LoopbackFormat::view(30);
         assert_eq!(c.bytes_per_line(), 1280);
         assert_eq!(c.frame_bytes(), 640 * 480 * 2);
-        assert!(OutputConfig { width: 641, ..c }.validate().is_err());
-        assert!(OutputConfig { fps: 0, ..c }.validate().is_err());
+        assert!(LoopbackFormat { width: 641, ..c }.validate().is_err());
+        assert!(LoopbackFormat { fps: 0, ..c }.validate().is_err());
         assert_eq!(PixelFormat::Y16.to_string(), "Y16");
     }
 }

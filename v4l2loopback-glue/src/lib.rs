@@ -4,10 +4,10 @@
 //! # Usage
 //!
 //! ```no_run
-//! use v4l2loopback_glue::{find_device, LoopbackWriter, OutputConfig};
+//! use v4l2loopback_glue::{find_device, LoopbackWriter, LoopbackFormat};
 //! # fn main() -> Result<(), v4l2loopback_glue::GlueError> {
 //! let dev = find_device("SDI view")?; // path + module version
-//! let mut view = LoopbackWriter::open(&dev.path, OutputConfig::view(30))?;
+//! let mut view = LoopbackWriter::open(&dev.path, LoopbackFormat::view(30))?;
 //! let rgb = vec![0u8; 640 * 480 * 3];
 //! view.write_rgb8(&rgb, 1_000_000)?; // sensor timestamp in µs
 //! view.write_no_signal()?; // sensor paused
@@ -22,13 +22,13 @@
 //! * [`LoopbackWriter::watchers`]: readers streaming, from the client-usage
 //!   event (0.13+), so the daemon powers the light sources only while
 //!   someone watches.
-//! * [`LoopbackWriter::open`] negotiates [`OutputConfig`] (VIDIOC_S_FMT on the
+//! * [`LoopbackWriter::open`] negotiates [`LoopbackFormat`] (VIDIOC_S_FMT on the
 //!   output type, VIDIOC_S_PARM), sets `keep_format` and `sustain_framerate`,
 //!   requests mmap buffers (falls back to `write()`), STREAMONs and shows the
 //!   "no signal" card, so a reader can open at once and keeps working across
 //!   daemon restarts.
-//! * Two profiles: [`OutputConfig::view`] (YUYV 640x480, browser-safe) and
-//!   [`OutputConfig::raw`] (Y16 at the sensor size; signed DN are stored as
+//! * Two profiles: [`LoopbackFormat::view`] (YUYV 640x480, browser-safe) and
+//!   [`LoopbackFormat::raw`] (Y16 at the sensor size; signed DN are stored as
 //!   `dn + 32768`, see [`PixelFormat::Y16`]).
 //! * Inputs are plain slices with width/height/stride ([`Src`], [`Input`]):
 //!   RGB8, grey8, signed DN as f32. No allocation per frame.
@@ -48,5 +48,5 @@ pub use device::{
     video_nr, CreateOptions, LoopbackDevice, ModuleVersion, NodeInfo,
 };
 pub use error::GlueError;
-pub use format::{IoMethod, OutputConfig, PixelFormat, Y16_ZERO_DN};
+pub use format::{IoMethod, LoopbackFormat, PixelFormat, Y16_ZERO_DN};
 pub use writer::{no_signal_grey, DriverFeatures, Input, LoopbackWriter};

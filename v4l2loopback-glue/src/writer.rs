@@ -12,7 +12,7 @@ use nix::errno::Errno;
 use crate::convert::{Converter, Src, YuyvPath};
 use crate::device::ModuleVersion;
 use crate::error::err;
-use crate::format::{IoMethod, OutputConfig, PixelFormat};
+use crate::format::{IoMethod, LoopbackFormat, PixelFormat};
 use crate::sys;
 use crate::GlueError;
 
@@ -86,7 +86,7 @@ pub struct DriverFeatures {
 pub struct LoopbackWriter {
     file: File,
     path: PathBuf,
-    config: OutputConfig,
+    config: LoopbackFormat,
     io: Io,
     io_method: IoMethod,
     conv: Converter,
@@ -97,7 +97,7 @@ pub struct LoopbackWriter {
     frames_written: u64,
 }
 
-fn pix_format(cfg: &OutputConfig) -> sys::v4l2_pix_format {
+fn pix_format(cfg: &LoopbackFormat) -> sys::v4l2_pix_format {
     sys::v4l2_pix_format {
         width: cfg.width,
         height: cfg.height,
@@ -147,14 +147,14 @@ impl LoopbackWriter {
     /// Opens `path`, negotiates `config` (S_FMT on the output type, S_PARM),
     /// starts streaming and shows the "no signal" card, so readers can start
     /// at once.
-    pub fn open(path: impl AsRef<Path>, config: OutputConfig) -> Result<Self, GlueError> {
+    pub fn open(path: impl AsRef<Path>, config: LoopbackFormat) -> Result<Self, GlueError> {
         Self::open_with(path, config, YuyvPath::fastest())
     }
 
     /// [`open`](Self::open) with an explicit RGB->YUYV implementation.
     pub fn open_with(
         path: impl AsRef<Path>,
-        config: OutputConfig,
+        config: LoopbackFormat,
         yuyv_path: YuyvPath,
     ) -> Result<Self, GlueError> {
         let path = path.as_ref().to_path_buf();
@@ -419,7 +419,7 @@ impl LoopbackWriter {
     /// while readers stream (the module cannot change formats under them);
     /// otherwise streaming is stopped, buffers released and the new format
     /// negotiated.
-    pub fn reconfigure(&mut self, config: OutputConfig) -> Result<(), GlueError> {
+    pub fn reconfigure(&mut self, config: LoopbackFormat) -> Result<(), GlueError> {
         config
             .validate()
             .map_err(|detail| GlueError::InvalidArgument {
@@ -573,7 +573,7 @@ impl LoopbackWriter {
         &self.no_signal
     }
 
-    pub fn config(&self) -> OutputConfig {
+    pub fn config(&self) -> LoopbackFormat {
         self.config
     }
 
@@ -625,13 +625,13 @@ mod tests {
 
     #[test]
     fn opening_a_non_device_is_a_typed_error() {
-        let e = LoopbackWriter::open("/nonexistent/video99", OutputConfig::view(30));
+        let e = LoopbackWriter::open("/nonexistent/video99", LoopbackFormat::view(30));
         assert!(matches!(e, Err(GlueError::DeviceNotFound { .. })));
-        let e = LoopbackWriter::open("/dev/null", OutputConfig::view(30));
+        let e = LoopbackWriter::open("/dev/null", LoopbackFormat::view(30));
         assert!(e.is_err());
-        let bad = OutputConfig {
+        let bad = LoopbackFormat {
             width: 641,
-            ..OutputConfig::view(30)
+            ..LoopbackFormat::view(30)
         };
         assert!(matches!(
             LoopbackWriter::open("/dev/null", bad),

@@ -31,7 +31,7 @@ use sdi_core::separation::{
     unmix_into, unmix_local_into, BilateralParams, PoolParams, SegmentParams, SeparableBilateral,
     Separated, SlidingWelford, UnmixOptions, Welford, IGNORE_LABEL,
 };
-use sdi_core::{Frame, Image};
+use sdi_core::{Frame, Image, PixelFlags};
 
 use super::frames::{FrameInput, InputInfo, NpyOut};
 use super::sensor_arg::parse_sensor;
@@ -266,7 +266,7 @@ impl Outputs {
     /// f32) become 0 and are flagged NONFINITE; standard errors are finite
     /// or +inf, never NaN.
     fn push(&mut self, s: &mut Separated) -> Result<(), CliError> {
-        use sdi_core::separation::flags::NONFINITE;
+        const NONFINITE: u8 = PixelFlags::NONFINITE.bits();
         let n = s.flags.data.len();
         for i in 0..n {
             let (p, m) = (s.i_plus_electrons.data[i], s.i_minus_electrons.data[i]);
@@ -511,7 +511,7 @@ pub fn separate(args: &SeparateArgs) -> Result<SeparateSummary, CliError> {
 
 /// Every pixel flagged INSUFFICIENT: 0 with infinite standard error.
 fn insufficient(sep: &mut Separated, w: usize, h: usize) {
-    use sdi_core::separation::flags::INSUFFICIENT;
+    const INSUFFICIENT: u8 = PixelFlags::INSUFFICIENT.bits();
     if sep.flags.width != w || sep.flags.height != h {
         *sep = Separated {
             i_plus_electrons: Image::new(w, h),
@@ -539,7 +539,8 @@ fn ml_stream(
     sep: &mut Separated,
     outs: &mut Outputs,
 ) -> Result<(), CliError> {
-    use sdi_core::separation::flags::{INSUFFICIENT, SATURATED};
+    const INSUFFICIENT: u8 = PixelFlags::INSUFFICIENT.bits();
+    const SATURATED: u8 = PixelFlags::SATURATED.bits();
     let (w, ht) = (frame.width(), frame.height());
     let npx = w * ht;
     // Ring of the last `win` frames, NaN where a sample is unusable.

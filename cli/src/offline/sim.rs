@@ -10,14 +10,15 @@ use std::path::{Path, PathBuf};
 
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Args;
-use sdi_core::dark_frame::DarkFrameAverager;
+use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
-use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig, SeparationConfig, DEFAULT_BILATERAL};
+use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
 use sdi_core::modulation::Illumination;
 use sdi_core::npy::NpyF32Writer;
 use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::{mixing_with_adc, SensorDescription};
 use sdi_core::separation::LiveMethod;
+use sdi_core::separation::{LiveSeparatorConfig, DEFAULT_BILATERAL};
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
 
@@ -218,19 +219,20 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
 
     let mut frame = Frame::new(w, h);
     let mut next_sequence = 0u64;
-    let mut dark = DarkFrameAverager::new(w, h);
+    let mut dark = DarkAccumulator::new(w, h);
     let dark_illumination = Illumination::dark(carrier_hz);
     for _ in 0..args.dark_frames {
         sim.capture(&dark_illumination, &mut frame);
         next_sequence = frame.sequence + 1;
-        dark.add(&frame);
+        dark.push(&frame)
+            .map_err(|e| CliError::Runtime(e.to_string()))?;
     }
     let dark_dn = dark.mean_dn();
     let mut pipeline = build_pipeline(
         args.mode,
         PipelineConfig {
             dark_frame_dn: dark_dn.clone(),
-            separation: SeparationConfig::new(
+            separation: LiveSeparatorConfig::new(
                 LiveMethod::Bilateral(DEFAULT_BILATERAL),
                 mixing_with_adc(sim.params()),
             ),

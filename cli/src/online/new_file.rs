@@ -1,22 +1,20 @@
 //! A new output file that sdictl creates as the calling user and hands to
 //! the daemon as a descriptor: written under a hidden temporary name in the
-//! destination's directory, linked to its name on commit (never replacing an
-//! existing file), removed if dropped uncommitted, so an error leaves nothing
-//! behind.
+//! destination's directory (created O_EXCL), flushed and linked to its name
+//! on commit (never replacing an existing file), removed if dropped
+//! uncommitted, so an error leaves nothing behind. The file handling is
+//! [`crate::atomic_file::AtomicFile`]'s.
 
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::ErrorKind;
-use std::os::unix::fs::OpenOptionsExt;
-use std::path::{Path, PathBuf};
-use std::time::{SystemTime, UNIX_EPOCH};
+use std::path::Path;
 
 use super::errors::OnlineError;
+use crate::atomic_file::AtomicFile;
 
 pub struct NewFile {
-    tmp: PathBuf,
-    dest: PathBuf,
-    file: File,
-    committed: bool,
+    file: AtomicFile,
+    dest: std::path::PathBuf,
 }
 
 fn io_error(what: &str, path: &Path, e: std::io::Error) -> OnlineError {
@@ -32,70 +30,36 @@ fn io_error(what: &str, path: &Path, e: std::io::Error) -> OnlineError {
 impl NewFile {
     /// Creates the empty temporary file next to `dest`, which must not exist.
     pub fn create(dest: &Path) -> Result<Self, OnlineError> {
-        let name = dest
-            .file_name()
-            .ok_or_else(|| OnlineError::Invalid(format!("'{}' names no file", dest.display())))?;
+        if dest.file_name().is_none() {
+            return Err(OnlineError::Invalid(format!(
+                "'{}' names no file",
+                dest.display()
+            )));
+        }
         if dest.symlink_metadata().is_ok() {
             return Err(OnlineError::Invalid(format!(
                 "{} exists (sdictl never overwrites)",
                 dest.display()
             )));
         }
-        let nanos = SystemTime::now()
-            .duration_since(UNIX_EPOCH)
-            .map_or(0, |d| d.subsec_nanos());
-        let mut tmp_name = std::ffi::OsString::from(".");
-        tmp_name.push(name);
-        tmp_name.push(format!(".sdictl-{}-{nanos:09}", std::process::id()));
-        let tmp = dest.with_file_name(tmp_name);
-        let file = OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .mode(0o644)
-            .open(&tmp)
-            .map_err(|e| io_error("cannot create", &tmp, e))?;
+        let file = AtomicFile::new(dest).map_err(|e| io_error("cannot create", dest, e))?;
         Ok(Self {
-            tmp,
-            dest: dest.to_owned(),
             file,
-            committed: false,
+            dest: dest.to_owned(),
         })
     }
 
     /// The open file, to pass to the daemon.
     pub fn file(&self) -> &File {
-        &self.file
+        self.file.file()
     }
 
     /// Gives the finished file its name; fails (removing the temporary file)
     /// if something appeared at the destination meanwhile.
-    pub fn commit(mut self) -> Result<(), OnlineError> {
-        match std::fs::hard_link(&self.tmp, &self.dest) {
-            Ok(()) => {}
-            // File systems without hard links (vfat, some FUSE): rename,
-            // after checking again that nothing is in the way.
-            Err(e)
-                if e.kind() != ErrorKind::AlreadyExists
-                    && self.dest.symlink_metadata().is_err() =>
-            {
-                std::fs::rename(&self.tmp, &self.dest)
-                    .map_err(|e| io_error("cannot rename into", &self.dest, e))?;
-                self.committed = true;
-                return Ok(());
-            }
-            Err(e) => return Err(io_error("cannot create", &self.dest, e)),
-        }
-        self.committed = true;
-        let _ = std::fs::remove_file(&self.tmp);
-        Ok(())
-    }
-}
-
-impl Drop for NewFile {
-    fn drop(&mut self) {
-        if !self.committed {
-            let _ = std::fs::remove_file(&self.tmp);
-        }
+    pub fn commit(self) -> Result<(), OnlineError> {
+        self.file
+            .commit_new()
+            .map_err(|e| io_error("cannot create", &self.dest, e))
     }
 }
 

@@ -1,9 +1,9 @@
 //! Dark frame and fixed-pattern map from N frames with both sources off.
 
 use super::CalibrationError;
+use crate::dark_frame::DarkAccumulator;
 use crate::frame::Frame;
 use crate::image::Image;
-use crate::separation::{flags, Welford};
 
 /// Per-pixel dark level and its temporal noise.
 #[derive(Debug, Clone, PartialEq)]
@@ -26,17 +26,17 @@ impl DarkCalibration {
     pub fn from_frames<'a>(
         frames: impl IntoIterator<Item = &'a Frame>,
     ) -> Result<Self, CalibrationError> {
-        let mut acc: Option<Welford> = None;
+        let mut acc: Option<DarkAccumulator> = None;
         for f in frames {
-            let a = acc.get_or_insert_with(|| Welford::new(f.width(), f.height()));
-            a.push(f).map_err(|_| CalibrationError::SizeMismatch {
-                want_w: 0,
-                want_h: 0,
-                got_w: f.width(),
-                got_h: f.height(),
+            let a = acc.get_or_insert_with(|| DarkAccumulator::new(f.width(), f.height()));
+            a.push(f).map_err(|e| CalibrationError::SizeMismatch {
+                want_w: e.want_w,
+                want_h: e.want_h,
+                got_w: e.got_w,
+                got_h: e.got_h,
             })?;
         }
-        let got = acc.as_ref().map_or(0, Welford::frames);
+        let got = acc.as_ref().map_or(0, |a| a.frames() as usize);
         let Some(acc) = acc.filter(|a| a.frames() >= 2) else {
             return Err(CalibrationError::TooFew {
                 what: "dark frames",
@@ -44,13 +44,13 @@ impl DarkCalibration {
                 got,
             });
         };
-        let m = acc.moments().map_err(|_| CalibrationError::TooFew {
-            what: "dark frames",
-            needed: 2,
-            got,
-        })?;
-        let good: Vec<usize> = (0..m.mean_dn.len())
-            .filter(|&i| m.flags.data[i] & flags::INSUFFICIENT == 0)
+        let (width, height) = acc.size();
+        // Pixels with two or more valid samples, with their mean and variance.
+        let good: Vec<(usize, f64, f64)> = (0..width * height)
+            .filter_map(|i| {
+                let var = acc.pixel_variance_dn2(i)?;
+                Some((i, acc.pixel_mean_dn(i), var))
+            })
             .collect();
         if good.is_empty() {
             return Err(CalibrationError::TooFew {
@@ -60,25 +60,25 @@ impl DarkCalibration {
             });
         }
         let k = good.len() as f64;
-        let mean = good.iter().map(|&i| m.mean_dn.data[i]).sum::<f64>() / k;
+        let mean = good.iter().map(|&(_, m, _)| m).sum::<f64>() / k;
         let fpn_var = good
             .iter()
-            .map(|&i| (m.mean_dn.data[i] - mean).powi(2))
+            .map(|&(_, m, _)| (m - mean).powi(2))
             .sum::<f64>()
             / (k - 1.0).max(1.0);
-        let read = good.iter().map(|&i| m.variance_dn2.data[i]).sum::<f64>() / k;
+        let read = good.iter().map(|&(_, _, v)| v).sum::<f64>() / k;
         let read_spread = good
             .iter()
-            .map(|&i| (m.variance_dn2.data[i] - read).powi(2))
+            .map(|&(_, _, v)| (v - read).powi(2))
             .sum::<f64>()
             / (k - 1.0).max(1.0);
         let dark_dn = Image {
-            width: m.width(),
-            height: m.height(),
-            data: (0..m.mean_dn.len())
+            width,
+            height,
+            data: (0..width * height)
                 .map(|i| {
-                    if m.flags.data[i] & flags::INSUFFICIENT == 0 {
-                        m.mean_dn.data[i] as f32
+                    if acc.samples(i) >= 2 {
+                        acc.pixel_mean_dn(i) as f32
                     } else {
                         mean as f32
                     }
@@ -87,13 +87,13 @@ impl DarkCalibration {
         };
         // The per-pixel temporal variance also contains the (temporal) mean's
         // noise, sigma^2/N, in the spatial spread of the dark map: remove it.
-        let fpn_var = (fpn_var - read / acc.frames() as f64).max(0.0);
+        let fpn_var = (fpn_var - read / f64::from(acc.frames())).max(0.0);
         Ok(Self {
             dark_dn,
             fixed_pattern_sigma_dn: fpn_var.sqrt(),
             read_variance_dn2: read,
             read_variance_se_dn2: (read_spread / k).sqrt(),
-            frames: acc.frames(),
+            frames: acc.frames() as usize,
         })
     }
 

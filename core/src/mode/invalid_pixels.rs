@@ -1,10 +1,10 @@
 //! The invalid-pixel stage: flags saturated pixels and neutralizes NaN/Inf so
 //! no sink ever sees a non-finite value.
 
-use super::pipeline::flags;
+use crate::PixelFlags;
 
 /// Combines the sensor's saturation flags into `out_flags` and replaces
-/// non-finite values by 0 (flagged [`flags::INVALID`]); with `zero_saturated`,
+/// non-finite values by 0 (flagged [`PixelFlags::NONFINITE.bits()`]); with `zero_saturated`,
 /// saturated values become 0 too. All slices have the same length.
 #[inline]
 pub fn handle_invalid(
@@ -14,10 +14,14 @@ pub fn handle_invalid(
     zero_saturated: bool,
 ) {
     for ((v, &sat), f) in dn.iter_mut().zip(saturated_in).zip(out_flags.iter_mut()) {
-        let mut flag = if sat != 0 { flags::SATURATED } else { 0 };
+        let mut flag = if sat != 0 {
+            PixelFlags::SATURATED.bits()
+        } else {
+            0
+        };
         if !v.is_finite() {
             *v = 0.0;
-            flag |= flags::INVALID;
+            flag |= PixelFlags::NONFINITE.bits();
         } else if flag != 0 && zero_saturated {
             *v = 0.0;
         }
@@ -40,9 +44,9 @@ mod tests {
             out,
             [
                 0,
-                flags::INVALID,
-                flags::INVALID | flags::SATURATED,
-                flags::SATURATED
+                PixelFlags::NONFINITE.bits(),
+                PixelFlags::NONFINITE.bits() | PixelFlags::SATURATED.bits(),
+                PixelFlags::SATURATED.bits()
             ]
         );
         handle_invalid(&mut dn, &sat, &mut out, true);

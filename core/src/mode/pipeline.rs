@@ -14,20 +14,11 @@
 //! mapping is not a pipeline stage: sinks call [`crate::display::DisplayMap`].
 //! After the first frame (or a change of frame size) no stage allocates.
 
-use super::separation::{SeparationConfig, SeparationPipeline};
-use super::snapshot::SnapshotPipeline;
-use super::two_shot::TwoShotPipeline;
+use super::output::ModeOutput;
 use super::ModeId;
 use crate::frame::Frame;
 use crate::image::Image;
-
-/// Per-pixel flags of [`ModeOutput::saturated`] (bit set).
-pub mod flags {
-    /// A well reached full-well capacity or the ADC clipped.
-    pub const SATURATED: u8 = 1;
-    /// The input was NaN or infinite; the output value is 0.
-    pub const INVALID: u8 = 2;
-}
+use crate::separation::LiveSeparatorConfig;
 
 /// How a pipeline is set up.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -39,51 +30,7 @@ pub struct PipelineConfig {
     /// (they stay flagged either way).
     pub zero_saturated: bool,
     /// Estimator and H of the separation mode (ignored by the other modes).
-    pub separation: SeparationConfig,
-}
-
-/// One output image of a mode.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ModeOutput {
-    /// Signed difference, DN: positive where LS1 (I+) dominates.
-    pub signed_dn: Image<f32>,
-    /// Bit flags per pixel, see [`flags`]; 0 = valid.
-    pub saturated: Image<u8>,
-    /// Start of the (first) exposure that produced this output, microseconds.
-    pub timestamp_us: u64,
-    /// Sequence number of the (last) frame that completed this output.
-    pub sequence: u64,
-    /// I+ and I- of the separation mode; None in every other mode (and while
-    /// a sliding window fills).
-    pub channels: Option<SeparatedChannels>,
-}
-
-/// The two latent images recovered by the separation mode (section 6).
-#[derive(Debug, Clone, PartialEq)]
-pub struct SeparatedChannels {
-    /// I+ (LS1), electrons per exposure.
-    pub i_plus_electrons: Image<f32>,
-    /// I- (LS2), electrons per exposure.
-    pub i_minus_electrons: Image<f32>,
-}
-
-impl ModeOutput {
-    pub fn new(width: usize, height: usize) -> Self {
-        Self {
-            signed_dn: Image::new(width, height),
-            saturated: Image::new(width, height),
-            timestamp_us: 0,
-            sequence: 0,
-            channels: None,
-        }
-    }
-
-    /// Reallocates only when the size changes (warm-up).
-    pub(crate) fn ensure_size(&mut self, width: usize, height: usize) {
-        if self.signed_dn.width != width || self.signed_dn.height != height {
-            *self = Self::new(width, height);
-        }
-    }
+    pub separation: LiveSeparatorConfig,
 }
 
 /// A running mode: feed frames, get output images.
@@ -98,19 +45,4 @@ pub trait Pipeline: Send {
     fn dark_frame_applies(&self, width: usize, height: usize) -> bool;
     /// Forgets state carried between frames (a half-formed two-shot pair).
     fn reset(&mut self) {}
-}
-
-/// The pipeline of `mode`.
-pub fn build_pipeline(mode: ModeId, config: PipelineConfig) -> Box<dyn Pipeline> {
-    match mode {
-        ModeId::TwoShot => Box::new(TwoShotPipeline::new(config)),
-        ModeId::Separation => Box::new(SeparationPipeline::new(config)),
-        ModeId::Raw
-        | ModeId::DirectOnly
-        | ModeId::BipolarColour
-        | ModeId::DepthEdge
-        | ModeId::DepthEdgeVertical
-        | ModeId::SpatialGradient
-        | ModeId::TemporalGradient => Box::new(SnapshotPipeline::new(mode, config)),
-    }
 }

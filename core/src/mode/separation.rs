@@ -6,50 +6,14 @@
 //! frame (the dark offset would bias the mean, eq. skellammatrix's mu), with
 //! saturated and non-finite pixels flagged by the estimator itself.
 
-use super::pipeline::{ModeOutput, Pipeline, PipelineConfig, SeparatedChannels};
+use super::output::{ModeOutput, SeparatedChannels};
+use super::pipeline::{Pipeline, PipelineConfig};
 use super::snapshot::SnapshotPipeline;
 use super::ModeId;
 use crate::dark_frame::subtract_dark;
 use crate::frame::Frame;
 use crate::image::Image;
-use crate::sensor::SkellamMixing;
-use crate::separation::{BilateralParams, LiveMethod, LiveSeparator, UnmixOptions};
-
-/// M3's default live parameters: a 5x5-ish window, range sigma of a few noise sigmas.
-pub const DEFAULT_BILATERAL: BilateralParams = BilateralParams {
-    sigma_domain_px: 1.5,
-    sigma_range_dn: 20.0,
-    radius_px: 0,
-};
-
-/// How the separation mode separates, and with which H.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SeparationConfig {
-    pub method: LiveMethod,
-    /// H from the sensor parameters or the photon-transfer calibration.
-    pub h: SkellamMixing,
-    pub options: UnmixOptions,
-}
-
-impl SeparationConfig {
-    pub fn new(method: LiveMethod, h: SkellamMixing) -> Self {
-        Self {
-            method,
-            h,
-            options: UnmixOptions::default(),
-        }
-    }
-}
-
-impl Default for SeparationConfig {
-    /// M3 with the default sensor preset's H (pipelines built without a sensor).
-    fn default() -> Self {
-        Self::new(
-            LiveMethod::Bilateral(DEFAULT_BILATERAL),
-            crate::sensor::SensorPreset::TiOpt8241.params().skellam(),
-        )
-    }
-}
+use crate::separation::LiveSeparator;
 
 pub struct SeparationPipeline {
     signed: SnapshotPipeline,
@@ -64,7 +28,7 @@ impl SeparationPipeline {
         let sep = config.separation;
         Self {
             signed: SnapshotPipeline::new(ModeId::Separation, config),
-            separator: LiveSeparator::new(sep.method, sep.h, sep.options),
+            separator: LiveSeparator::from_config(sep),
             scratch: Frame::new(0, 0),
             out: ModeOutput::new(0, 0),
         }

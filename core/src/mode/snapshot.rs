@@ -3,7 +3,8 @@
 //! and neutralize invalid pixels.
 
 use super::invalid_pixels::handle_invalid;
-use super::pipeline::{ModeOutput, Pipeline, PipelineConfig};
+use super::output::ModeOutput;
+use super::pipeline::{Pipeline, PipelineConfig};
 use super::ModeId;
 use crate::dark_frame::subtract_dark;
 use crate::frame::Frame;

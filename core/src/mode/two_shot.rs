@@ -16,7 +16,8 @@
 //! it cancels exactly in A - B.
 
 use super::invalid_pixels::handle_invalid;
-use super::pipeline::{ModeOutput, Pipeline, PipelineConfig};
+use super::output::ModeOutput;
+use super::pipeline::{Pipeline, PipelineConfig};
 use super::ModeId;
 use crate::frame::Frame;
 use crate::image::Image;

@@ -18,8 +18,9 @@ use multiversion::multiversion;
 
 use super::bilateral::check_input;
 use super::fast_exp::{exp2_neg, madd};
-use super::{flags, BilateralParams, LocalMoments, SeparationError};
+use super::{BilateralParams, LocalMoments, SeparationError};
 use crate::frame::Frame;
+use crate::PixelFlags;
 
 /// Pixels per block of the horizontal pass (32 measured fastest of 8 to 64).
 const LANES: usize = 32;
@@ -181,8 +182,15 @@ fn prepare(kn: &mut Kernel) {
             let good = finite && unsaturated;
             v[x] = if good { dn[x] } else { 0.0 };
             ok[x] = if good { 1.0 } else { 0.0 };
-            fl[x] = if unsaturated { 0 } else { flags::SATURATED }
-                | if finite { 0 } else { flags::NONFINITE };
+            fl[x] = if unsaturated {
+                0
+            } else {
+                PixelFlags::SATURATED.bits()
+            } | if finite {
+                0
+            } else {
+                PixelFlags::NONFINITE.bits()
+            };
         }
     }
 }
@@ -369,7 +377,11 @@ fn vertical<const FMA: bool>(kn: &mut Kernel, y: usize, taps: &[[Tap; 2]]) {
         mean[x] = if good { vc[x] + m } else { 0.0 };
         var[x] = if good { v.max(0.0) } else { 0.0 };
         samples[x] = n;
-        fl[x] |= if good { 0 } else { flags::INSUFFICIENT };
+        fl[x] |= if good {
+            0
+        } else {
+            PixelFlags::INSUFFICIENT.bits()
+        };
     }
 }
 

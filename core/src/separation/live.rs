@@ -24,6 +24,43 @@ pub enum LiveMethod {
     SlidingWindow { frames: usize },
 }
 
+/// M3's default live parameters: a 5x5-ish window, range sigma of a few noise sigmas.
+pub const DEFAULT_BILATERAL: BilateralParams = BilateralParams {
+    sigma_domain_px: 1.5,
+    sigma_range_dn: 20.0,
+    radius_px: 0,
+};
+
+/// How the live separator separates, and with which H (the separation
+/// mode's setting).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LiveSeparatorConfig {
+    pub method: LiveMethod,
+    /// H from the sensor parameters or the photon-transfer calibration.
+    pub h: SkellamMixing,
+    pub options: UnmixOptions,
+}
+
+impl LiveSeparatorConfig {
+    pub fn new(method: LiveMethod, h: SkellamMixing) -> Self {
+        Self {
+            method,
+            h,
+            options: UnmixOptions::default(),
+        }
+    }
+}
+
+impl Default for LiveSeparatorConfig {
+    /// M3 with the default sensor preset's H (pipelines built without a sensor).
+    fn default() -> Self {
+        Self::new(
+            LiveMethod::Bilateral(DEFAULT_BILATERAL),
+            crate::sensor::SensorPreset::TiOpt8241.params().skellam(),
+        )
+    }
+}
+
 /// Turns a stream of frames into I+ and I- images.
 #[derive(Debug, Clone)]
 pub struct LiveSeparator {
@@ -38,6 +75,11 @@ pub struct LiveSeparator {
 }
 
 impl LiveSeparator {
+    /// The separator `config` describes.
+    pub fn from_config(config: LiveSeparatorConfig) -> Self {
+        Self::new(config.method, config.h, config.options)
+    }
+
     pub fn new(method: LiveMethod, h: SkellamMixing, options: UnmixOptions) -> Self {
         Self {
             method,

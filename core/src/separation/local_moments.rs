@@ -2,8 +2,9 @@
 //! fast M3 variants (one frame in, every frame), three images and flags
 //! instead of [`Moments`]' six f64 images.
 
-use super::{flags, MomentSource, Moments, PixelStats};
+use super::{MomentSource, Moments, PixelStats};
 use crate::image::Image;
+use crate::PixelFlags;
 
 /// Weighted mean and variance of each pixel's neighbourhood, DN, with the
 /// effective number of samples (sum w)^2 / sum w^2 behind them. Sampling
@@ -14,7 +15,7 @@ pub struct LocalMoments {
     pub mean_dn: Image<f32>,
     pub variance_dn2: Image<f32>,
     pub samples: Image<f32>,
-    /// [`flags`] bits; INSUFFICIENT pixels carry mean 0 and variance 0.
+    /// [`PixelFlags`](crate::PixelFlags) bits; INSUFFICIENT pixels carry mean 0 and variance 0.
     pub flags: Image<u8>,
 }
 
@@ -50,7 +51,7 @@ impl LocalMoments {
         self.mean_dn.data[i] = 0.0;
         self.variance_dn2.data[i] = 0.0;
         self.samples.data[i] = samples;
-        self.flags.data[i] |= flags::INSUFFICIENT;
+        self.flags.data[i] |= PixelFlags::INSUFFICIENT.bits();
     }
 
     /// The same statistics as full [`Moments`] (f64, sampling variances spelt out).
@@ -60,7 +61,7 @@ impl LocalMoments {
         for i in 0..w * h {
             out.flags.data[i] = self.flags.data[i];
             let n = self.samples.data[i] as f64;
-            if self.flags.data[i] & flags::INSUFFICIENT != 0 {
+            if self.flags.data[i] & PixelFlags::INSUFFICIENT.bits() != 0 {
                 out.set_insufficient(i);
                 out.samples.data[i] = n;
                 continue;

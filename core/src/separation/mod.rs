@@ -17,13 +17,14 @@
 //!   likelihood (scaled Bessel functions), non-negative by construction.
 //! - [`LiveSeparator`]: per-frame separation for the daemon.
 
+use crate::PixelFlags;
+
 mod bessel;
 mod bilateral;
 mod bilateral_grid;
 mod bilateral_separable;
 mod error;
 mod fast_exp;
-pub mod flags;
 mod live;
 mod local_moments;
 mod moments;
@@ -38,7 +39,7 @@ pub use bilateral::{bilateral_exact, BilateralParams};
 pub use bilateral_grid::{bilateral_grid, BilateralGrid, MAX_LEVELS};
 pub use bilateral_separable::{bilateral_separable, SeparableBilateral};
 pub use error::SeparationError;
-pub use live::{LiveMethod, LiveSeparator};
+pub use live::{LiveMethod, LiveSeparator, LiveSeparatorConfig, DEFAULT_BILATERAL};
 pub use local_moments::LocalMoments;
 pub use moments::{MomentSource, Moments, PixelStats};
 pub use pooling::{pool_moments, PoolParams};
@@ -63,10 +64,10 @@ pub(crate) fn usable(frame: &crate::Frame, i: usize) -> bool {
 pub(crate) fn input_flags(frame: &crate::Frame, i: usize) -> u8 {
     let mut f = 0;
     if frame.saturated.data[i] != 0 {
-        f |= flags::SATURATED;
+        f |= PixelFlags::SATURATED.bits();
     }
     if !frame.dn.data[i].is_finite() {
-        f |= flags::NONFINITE;
+        f |= PixelFlags::NONFINITE.bits();
     }
     f
 }

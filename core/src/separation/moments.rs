@@ -79,7 +79,7 @@ impl Moments {
         self.mean_var_dn2.data[i] = f64::INFINITY;
         self.variance_var_dn4.data[i] = f64::INFINITY;
         self.mean_variance_cov_dn3.data[i] = 0.0;
-        self.flags.data[i] |= super::flags::INSUFFICIENT;
+        self.flags.data[i] |= crate::PixelFlags::INSUFFICIENT.bits();
     }
 }
 

@@ -12,7 +12,8 @@
 //! It assumes I+ and I- are locally constant where the statistics agree (a
 //! smooth gradient inside the window biases the result slightly).
 
-use super::{flags, Moments, SeparationError};
+use super::{Moments, SeparationError};
+use crate::PixelFlags;
 
 /// Parameters of [`pool_moments`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -34,7 +35,7 @@ impl Default for PoolParams {
 }
 
 /// Edge-aware pooling of per-pixel moments (see module docs). Pixels flagged
-/// [`flags::INSUFFICIENT`] are neither pooled nor used.
+/// [`PixelFlags::INSUFFICIENT.bits()`] are neither pooled nor used.
 pub fn pool_moments(m: &Moments, params: PoolParams) -> Result<Moments, SeparationError> {
     let t = params.tolerance_sigmas;
     SeparationError::check("tolerance_sigmas", t, t > 0.0, "> 0")?;
@@ -46,7 +47,7 @@ pub fn pool_moments(m: &Moments, params: PoolParams) -> Result<Moments, Separati
     // wide; clamping keeps `x + r + 1` from overflowing (radius usize::MAX).
     let r = params.radius_px.min(w.max(h));
     let t2 = t * t;
-    let ok = |i: usize| m.flags.data[i] & flags::INSUFFICIENT == 0;
+    let ok = |i: usize| m.flags.data[i] & PixelFlags::INSUFFICIENT.bits() == 0;
     let mut out = m.clone();
     for y in 0..h {
         for x in 0..w {
@@ -89,7 +90,7 @@ pub fn pool_moments(m: &Moments, params: PoolParams) -> Result<Moments, Separati
             out.variance_var_dn4.data[i] = acc[3] / (k * k);
             out.mean_variance_cov_dn3.data[i] = acc[4] / (k * k);
             out.samples.data[i] = acc[5];
-            out.flags.data[i] |= f & (flags::SATURATED | flags::NONFINITE);
+            out.flags.data[i] |= f & (PixelFlags::SATURATED.bits() | PixelFlags::NONFINITE.bits());
         }
     }
     Ok(out)

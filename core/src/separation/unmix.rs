@@ -1,9 +1,10 @@
 //! H^-1 applied per pixel (section 6), with standard errors, clamping and an
 //! optional projection onto I+, I- >= 0.
 
-use super::{flags, LocalMoments, MomentSource, SeparationError};
+use super::{LocalMoments, MomentSource, SeparationError};
 use crate::image::Image;
 use crate::sensor::SkellamMixing;
+use crate::PixelFlags;
 
 /// How to invert H.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -30,7 +31,7 @@ pub struct Separated {
     pub i_minus_electrons: Image<f32>,
     pub i_plus_se_electrons: Image<f32>,
     pub i_minus_se_electrons: Image<f32>,
-    /// [`flags`] bits (the moments' flags plus clamping and projection).
+    /// [`PixelFlags`](crate::PixelFlags) bits (the moments' flags plus clamping and projection).
     pub flags: Image<u8>,
 }
 
@@ -80,7 +81,7 @@ pub fn unmix_into(
     let g2 = g * g;
     for i in 0..w * ht {
         let mut f = out.flags.data[i];
-        if f & flags::INSUFFICIENT != 0 {
+        if f & PixelFlags::INSUFFICIENT.bits() != 0 {
             out.i_plus_electrons.data[i] = 0.0;
             out.i_minus_electrons.data[i] = 0.0;
             out.i_plus_se_electrons.data[i] = f32::INFINITY;
@@ -92,7 +93,7 @@ pub fn unmix_into(
         let mut excess = px.variance_dn2 - read;
         if excess < 0.0 {
             excess = 0.0;
-            f |= flags::VARIANCE_CLAMPED;
+            f |= PixelFlags::VARIANCE_CLAMPED.bits();
         }
         let (var_mean, var_var) = (px.mean_var_dn2, px.variance_var_dn4);
         let cov = px.mean_variance_cov_dn3;
@@ -107,7 +108,7 @@ pub fn unmix_into(
         let se_m = (0.25 * (var_sum + var_diff - 2.0 * cov_sd)).max(0.0).sqrt();
         if options.nonnegative && (p < 0.0 || m < 0.0) {
             (p, m) = project(g, mean, excess, var_mean, var_var);
-            f |= flags::PROJECTED;
+            f |= PixelFlags::PROJECTED.bits();
         }
         out.i_plus_electrons.data[i] = p as f32;
         out.i_minus_electrons.data[i] = m as f32;
@@ -171,7 +172,7 @@ pub fn unmix_local_into(
     let fl = &mut out.flags.data;
     let mut negative = false;
     for i in 0..w * ht {
-        let insufficient = fl_in[i] & flags::INSUFFICIENT != 0;
+        let insufficient = fl_in[i] & PixelFlags::INSUFFICIENT.bits() != 0;
         let excess = var[i] - read;
         let clamped = excess < 0.0 && !insufficient;
         let excess = excess.max(0.0);
@@ -185,17 +186,22 @@ pub fn unmix_local_into(
         minus[i] = if insufficient { 0.0 } else { m };
         se_plus[i] = if insufficient { f32::INFINITY } else { se };
         se_minus[i] = se_plus[i];
-        fl[i] = fl_in[i] | if clamped { flags::VARIANCE_CLAMPED } else { 0 };
+        fl[i] = fl_in[i]
+            | if clamped {
+                PixelFlags::VARIANCE_CLAMPED.bits()
+            } else {
+                0
+            };
         negative |= !insufficient && (p < 0.0 || m < 0.0);
     }
     if options.nonnegative && negative {
         for i in 0..w * ht {
-            if fl[i] & flags::INSUFFICIENT == 0 && (plus[i] < 0.0 || minus[i] < 0.0) {
+            if fl[i] & PixelFlags::INSUFFICIENT.bits() == 0 && (plus[i] < 0.0 || minus[i] < 0.0) {
                 let px = moments.pixel(i);
                 let excess = (px.variance_dn2 - read as f64).max(0.0);
                 let (p, m) = project(g, px.mean_dn, excess, px.mean_var_dn2, px.variance_var_dn4);
                 (plus[i], minus[i]) = (p as f32, m as f32);
-                fl[i] |= flags::PROJECTED;
+                fl[i] |= PixelFlags::PROJECTED.bits();
             }
         }
     }
@@ -238,7 +244,7 @@ mod tests {
             m.variance_dn2.data[i] = ((i * 53) % 97) as f32 * 3.0;
             m.samples.data[i] = 1.0 + (i % 40) as f32;
             if m.samples.data[i] < 2.0 || i % 17 == 0 {
-                m.flags.data[i] = flags::INSUFFICIENT;
+                m.flags.data[i] = PixelFlags::INSUFFICIENT.bits();
                 m.mean_dn.data[i] = 0.0;
                 m.variance_dn2.data[i] = 0.0;
             }

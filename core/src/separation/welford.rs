@@ -6,9 +6,10 @@
 
 use std::collections::VecDeque;
 
-use super::{flags, input_flags, usable, Moments, SeparationError};
+use super::{input_flags, usable, Moments, SeparationError};
 use crate::frame::Frame;
 use crate::image::Image;
+use crate::PixelFlags;
 
 /// Streaming accumulator for M1.
 #[derive(Debug, Clone)]
@@ -111,7 +112,7 @@ impl Welford {
 
     /// Mean and unbiased variance (1/(N-1), section 6 M1) per pixel.
     /// Fewer than 2 frames is an error; pixels with fewer than 2 usable
-    /// samples are flagged [`flags::INSUFFICIENT`].
+    /// samples are flagged [`PixelFlags::INSUFFICIENT.bits()`].
     pub fn moments(&self) -> Result<Moments, SeparationError> {
         if self.frames < 2 {
             return Err(SeparationError::TooFewFrames {
@@ -223,10 +224,10 @@ impl SlidingWelford {
             for i in 0..dn.data.len() {
                 let x = dn.data[i];
                 if sat.data[i] != 0 {
-                    self.acc.flags[i] |= flags::SATURATED;
+                    self.acc.flags[i] |= PixelFlags::SATURATED.bits();
                 }
                 if !x.is_finite() {
-                    self.acc.flags[i] |= flags::NONFINITE;
+                    self.acc.flags[i] |= PixelFlags::NONFINITE.bits();
                 }
                 if sat.data[i] == 0 && x.is_finite() {
                     self.acc.add(i, x as f64);
@@ -254,12 +255,12 @@ impl SlidingWelford {
     pub fn moments(&self) -> Result<Moments, SeparationError> {
         let mut m = self.acc.moments()?;
         for (i, f) in m.flags.data.iter_mut().enumerate() {
-            *f &= !(flags::SATURATED | flags::NONFINITE);
+            *f &= !(PixelFlags::SATURATED.bits() | PixelFlags::NONFINITE.bits());
             if self.saturated[i] > 0 {
-                *f |= flags::SATURATED;
+                *f |= PixelFlags::SATURATED.bits();
             }
             if self.nonfinite[i] > 0 {
-                *f |= flags::NONFINITE;
+                *f |= PixelFlags::NONFINITE.bits();
             }
         }
         Ok(m)

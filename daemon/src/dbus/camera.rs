@@ -73,14 +73,13 @@ fn colormap_name(c: Colormap) -> &'static str {
     }
 }
 
-impl From<&DarkStats> for DarkFrameReply {
-    fn from(s: &DarkStats) -> Self {
-        Self {
-            frames: s.frames,
-            mean_dn: s.mean_dn,
-            read_noise_variance_dn2: s.read_noise_variance_dn2,
-            fixed_pattern_sigma_dn: s.fixed_pattern_sigma_dn,
-        }
+/// The reply of CaptureDarkFrame (core's statistics, the API's struct).
+fn dark_frame_reply(s: &DarkStats) -> DarkFrameReply {
+    DarkFrameReply {
+        frames: s.frames,
+        mean_dn: s.mean_dn,
+        read_noise_variance_dn2: s.read_noise_variance_dn2,
+        fixed_pattern_sigma_dn: s.fixed_pattern_sigma_dn,
     }
 }
 
@@ -410,7 +409,7 @@ impl Camera {
     /// pipelines subtract; returns its statistics.
     async fn capture_dark_frame(&self, frames: u32) -> Result<DarkFrameReply, SdiError> {
         let s = self.dark(frames, 1).await?;
-        Ok(DarkFrameReply::from(&s))
+        Ok(dark_frame_reply(&s))
     }
 
     /// Calibration: the dark frame, read-noise variance (DN^2, eq. skellamvar

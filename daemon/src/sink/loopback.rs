@@ -2,7 +2,7 @@
 //! mode's rendering letterboxed and scaled) and optionally a raw data node
 //! (Y16 at the sensor size, signed DN offset by 32768).
 
-use v4l2loopback_glue::{find_device, LoopbackWriter, OutputConfig};
+use v4l2loopback_glue::{find_device, LoopbackFormat, LoopbackWriter};
 
 use super::{Sink, SinkError, SinkInfo};
 use crate::modes::{DisplayMap, ModeOutput};
@@ -29,7 +29,7 @@ impl LoopbackSink {
     ) -> Result<Self, SinkError> {
         let fps = fps.round().clamp(1.0, 240.0) as u32;
         let dev = find_device(label).map_err(glue)?;
-        let view = LoopbackWriter::open(&dev.path, OutputConfig::view(fps)).map_err(glue)?;
+        let view = LoopbackWriter::open(&dev.path, LoopbackFormat::view(fps)).map_err(glue)?;
         let data = if data_label.is_empty() {
             None
         } else {
@@ -37,7 +37,7 @@ impl LoopbackSink {
             Some(
                 LoopbackWriter::open(
                     &d.path,
-                    OutputConfig::raw(sensor_width as u32, sensor_height as u32, fps),
+                    LoopbackFormat::raw(sensor_width as u32, sensor_height as u32, fps),
                 )
                 .map_err(glue)?,
             )

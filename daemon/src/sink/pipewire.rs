@@ -22,7 +22,7 @@ use pw::spa;
 use sdi_core::mode::ModeId;
 use spa::pod::{ChoiceValue, Object, Pod, Property, Value};
 use spa::utils::{Choice, ChoiceEnum, ChoiceFlags, Fraction, Id, Rectangle};
-use v4l2loopback_glue::{no_signal_grey, Converter, OutputConfig, PixelFormat, Src, YuyvPath};
+use v4l2loopback_glue::{no_signal_grey, Converter, LoopbackFormat, PixelFormat, Src, YuyvPath};
 
 use super::{Sink, SinkError, SinkInfo};
 use crate::modes::{DisplayMap, ModeOutput};
@@ -164,7 +164,7 @@ pub struct PipewireSink {
     shared: Arc<Shared>,
     tx: pw::channel::Sender<Msg>,
     thread: Option<JoinHandle<()>>,
-    view: OutputConfig,
+    view: LoopbackFormat,
     data_width: usize,
     data_height: usize,
     mode: Option<ModeId>,
@@ -199,7 +199,7 @@ impl PipewireSink {
         mode: ModeId,
     ) -> Result<Self, SinkError> {
         let frame_rate_hz = frame_rate_hz.round().clamp(1.0, 240.0) as u32;
-        let view = OutputConfig::view(frame_rate_hz);
+        let view = LoopbackFormat::view(frame_rate_hz);
         let shared = Arc::new(Shared {
             view: Port::new(),
             data: Port::new(),

@@ -4,7 +4,7 @@
 
 use std::time::{Duration, Instant};
 
-use v4l2loopback_glue::{IoMethod, LoopbackWriter, OutputConfig, PixelFormat};
+use v4l2loopback_glue::{IoMethod, LoopbackFormat, LoopbackWriter, PixelFormat};
 
 fn parse_format(s: &str) -> PixelFormat {
     match s {
@@ -26,7 +26,7 @@ fn main() {
             } else {
                 IoMethod::Mmap
             };
-            let cfg = OutputConfig {
+            let cfg = LoopbackFormat {
                 width: num(4),
                 height: num(5),
                 format: parse_format(&args[3]),

@@ -1,0 +1,47 @@
+//! What a mode pipeline produces per output frame.
+
+use crate::image::Image;
+
+/// One output image of a mode.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModeOutput {
+    /// Signed difference, DN: positive where LS1 (I+) dominates.
+    pub signed_dn: Image<f32>,
+    /// [`PixelFlags`](crate::PixelFlags) bits per pixel (SATURATED, NONFINITE); 0 = valid.
+    pub saturated: Image<u8>,
+    /// Start of the (first) exposure that produced this output, microseconds.
+    pub timestamp_us: u64,
+    /// Sequence number of the (last) frame that completed this output.
+    pub sequence: u64,
+    /// I+ and I- of the separation mode; None in every other mode (and while
+    /// a sliding window fills).
+    pub channels: Option<SeparatedChannels>,
+}
+
+/// The two latent images recovered by the separation mode (section 6).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SeparatedChannels {
+    /// I+ (LS1), electrons per exposure.
+    pub i_plus_electrons: Image<f32>,
+    /// I- (LS2), electrons per exposure.
+    pub i_minus_electrons: Image<f32>,
+}
+
+impl ModeOutput {
+    pub fn new(width: usize, height: usize) -> Self {
+        Self {
+            signed_dn: Image::new(width, height),
+            saturated: Image::new(width, height),
+            timestamp_us: 0,
+            sequence: 0,
+            channels: None,
+        }
+    }
+
+    /// Reallocates only when the size changes (warm-up).
+    pub(crate) fn ensure_size(&mut self, width: usize, height: usize) {
+        if self.signed_dn.width != width || self.signed_dn.height != height {
+            *self = Self::new(width, height);
+        }
+    }
+}
