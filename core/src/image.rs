@@ -1,4 +1,7 @@
 //! A dense row-major 2-D image: the one container every stage passes along.
+//!
+//! By hand rather than `ndarray`/`image`: three public fields and no
+//! strides or colour types keep every stage's inner loop a plain slice loop.
 
 /// Row-major image of `width * height` samples.
 #[derive(Debug, Clone, PartialEq, Default)]

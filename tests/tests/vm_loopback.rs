@@ -86,12 +86,9 @@ fn check_round_trip(
     assert_eq!(index.len(), SIM_FRAMES, "{format}: simulator frames differ");
     let bg = BackgroundWriter::start(writer, patterns);
     let out = tmp.join(format!("{format}.raw"));
-    // readers coming and going: the writer must not notice
-    for round in 0..reads {
-        let t0 = std::time::Instant::now();
-        let data = loopback::ffmpeg_read(&dev(nr), &cfg, 30, &out).unwrap();
-        let n = cfg.frame_bytes();
-        assert_eq!(data.len(), 30 * n, "{format}: 30 frames (round {round})");
+    let n = cfg.frame_bytes();
+    let check = |data: &[u8], reader: &str, round: u32| {
+        assert_eq!(data.len(), 30 * n, "{format}: 30 frames ({reader}, round {round})");
         let mut seen = BTreeSet::new();
         let mut cards = 0;
         for (i, frame) in data.chunks_exact(n).enumerate() {
@@ -102,19 +99,26 @@ fn check_round_trip(
                 }
                 None if sum == card => cards += 1,
                 None => panic!(
-                    "{format} via {io:?}: frame {i} (checksum {sum:016x}) is neither a \
-                     simulator frame written nor the card"
+                    "{format} via {io:?}, {reader}: frame {i} (checksum {sum:016x}) is neither \
+                     a simulator frame written nor the card"
                 ),
             }
         }
         assert!(
             seen.len() >= 3,
-            "{format}: only simulator frames {seen:?} arrived"
+            "{format}, {reader}: only simulator frames {seen:?} arrived"
         );
         assert!(
             index.contains_key(&checksum(&data[29 * n..])),
-            "{format}: last frame is not a simulator frame"
+            "{format}, {reader}: last frame is not a simulator frame"
         );
+        (seen, cards)
+    };
+    // readers coming and going: the writer must not notice
+    for round in 0..reads {
+        let t0 = std::time::Instant::now();
+        let data = loopback::ffmpeg_read(&dev(nr), &cfg, 30, &out).unwrap();
+        let (seen, cards) = check(&data, "ffmpeg", round);
         eprintln!(
             "ok: {format} via {io:?}: 30 frames in {:.1} s, byte-exact; {} distinct simulator \
              frames {seen:?}, {cards} no-signal cards",
@@ -122,8 +126,46 @@ fn check_round_trip(
             seen.len()
         );
     }
+    // and the Rust client (the v4l crate), mmap streaming
+    let t0 = std::time::Instant::now();
+    let data = v4l_read(&dev(nr), &cfg, 30);
+    let (seen, cards) = check(&data, "v4l", 0);
+    eprintln!(
+        "ok: {format} via {io:?}: v4l client, 30 frames in {:.1} s, byte-exact; {} distinct \
+         simulator frames, {cards} no-signal cards",
+        t0.elapsed().as_secs_f64(),
+        seen.len()
+    );
     let frames = bg.stop().unwrap();
     eprintln!("ok: {format} via {io:?}: {reads} reader(s), {frames} frames written");
+}
+
+/// Reads `frames` frames from `path` with the `v4l` crate (VIDIOC_G_FMT,
+/// mmap streaming), after checking that the node announces `cfg`'s format.
+fn v4l_read(path: &Path, cfg: &LoopbackFormat, frames: usize) -> Vec<u8> {
+    use v4l::io::traits::CaptureStream;
+    use v4l::video::Capture;
+    let dev = v4l::Device::with_path(path).unwrap();
+    let caps = dev.query_caps().unwrap();
+    assert_eq!(caps.driver, "v4l2 loopback", "{}", path.display());
+    let fmt = dev.format().unwrap();
+    assert_eq!(
+        (fmt.width, fmt.height, u32::from_le_bytes(fmt.fourcc.repr)),
+        (cfg.width, cfg.height, cfg.format.fourcc()),
+        "{}: capture format",
+        path.display()
+    );
+    let mut stream =
+        v4l::io::mmap::Stream::with_buffers(&dev, v4l::buffer::Type::VideoCapture, 4).unwrap();
+    stream.set_timeout(Duration::from_secs(10));
+    let n = cfg.frame_bytes();
+    let mut data = Vec::with_capacity(frames * n);
+    for i in 0..frames {
+        let (buf, meta) = stream.next().unwrap();
+        assert_eq!(meta.bytesused as usize, n, "{}: frame {i} size", path.display());
+        data.extend_from_slice(&buf[..n]);
+    }
+    data
 }
 
 /// ffmpeg reading `node` until killed, frames discarded.

@@ -34,6 +34,14 @@
 //!   RGB8, grey8, signed DN as f32. No allocation per frame.
 //! * Errors are typed ([`GlueError`]): EBUSY, EINVAL, ENODEV, a locked format
 //!   under streaming readers, a missing module (with its modprobe command).
+//!
+//! The V4L2 ioctls are by hand (`sys.rs`), not the `v4l` crate's, because
+//! v4l 0.14 panics on hostile input here (its `enum_devices`/`Node::index`
+//! unwrap a `/dev/video*` name without digits or not UTF-8, its
+//! `Capabilities` unwraps a non-UTF-8 card label, which any user of the
+//! control device can set), lacks `device_caps` (exclusive_caps), and always
+//! opens `O_NONBLOCK` without adopting a descriptor; `v4l` is the independent
+//! Rust capture client in `tests/tests/vm_loopback.rs` instead.
 
 mod convert;
 mod device;

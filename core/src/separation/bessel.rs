@@ -10,6 +10,10 @@
 //! - nu >= 30: Debye's uniform expansion (Abramowitz & Stegun 9.7.7) with
 //!   u_1..u_4, where nu eta - x is formed as nu^2 / (sqrt(nu^2 + x^2) + x)
 //!   + nu ln(z / (1 + sqrt(1 + z^2))) to avoid cancellation.
+//!
+//! By hand: the likelihood needs the scaled log form at orders and arguments
+//! up to ~1e7; special-function crates return I_nu(x) itself, which
+//! overflows f64 from x ~ 713 on.
 
 /// ln(I_nu(x) e^-x) for x >= 0; -inf for nu > 0 at x = 0; NaN for NaN or
 /// negative x.

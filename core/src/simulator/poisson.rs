@@ -12,6 +12,10 @@
 //! The simulator only uses this path where the per-well counts matter
 //! (few electrons, wells near full-well capacity, coarse gain); bright
 //! unsaturated pixels take the moment-matched Gaussian in `readout`.
+//!
+//! By hand rather than `rand_distr::Poisson`: that one returns f64 and its
+//! sample sequence may change between releases, while the simulator's
+//! seeded scenes and statistical tests need a fixed, exact u64 sampler.
 
 use rand::Rng;
 

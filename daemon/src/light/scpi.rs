@@ -8,6 +8,10 @@
 //! DG-series generators accept (`SOURce<n>:FUNCtion SQUare`, `...:FREQuency`,
 //! `...:FUNCtion:SQUare:DCYCle`, `...:PHASe`, `OUTPut<n>[:STATe]`,
 //! `OUTPut<n>:POLarity`); each configuration ends with `SYSTem:ERRor?`.
+//!
+//! By hand: the Rust SCPI/VISA crates need the vendors' VISA libraries or
+//! lack USBTMC; these dozen line-based commands over a socket or a
+//! character device need neither.
 
 use std::fs::{File, OpenOptions};
 use std::io::{BufRead, BufReader, ErrorKind, Read, Write};
