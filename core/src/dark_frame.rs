@@ -3,6 +3,7 @@
 
 use crate::frame::Frame;
 use crate::image::Image;
+use crate::separation::Welford;
 
 /// A frame whose size differs from the accumulator's.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
@@ -30,59 +31,46 @@ pub struct DarkStats {
 
 /// Running per-pixel mean and temporal variance of dark frames (LEDs off).
 ///
-/// Welford updates in f64, so thousands of frames at any offset lose
-/// nothing to cancellation; samples that are saturated or non-finite are
-/// left out of that pixel's statistics. The one dark-frame statistic of
-/// the project: the daemon's dark capture, the simulator tools and
-/// [`crate::calibration::DarkCalibration`] all use it.
+/// M1's Welford accumulator ([`Welford`], f64), so thousands of frames at
+/// any offset lose nothing to cancellation; samples that are saturated or
+/// non-finite are left out of that pixel's statistics. The one dark-frame
+/// statistic of the project: the daemon's dark capture, the simulator tools
+/// and [`crate::calibration::DarkCalibration`] all use it.
 #[derive(Debug, Clone)]
 pub struct DarkAccumulator {
-    width: usize,
-    height: usize,
+    acc: Welford,
     frames: u32,
-    count: Vec<u32>,
-    mean_dn: Vec<f64>,
-    /// Sum of squared deviations from the running mean, DN^2.
-    m2_dn2: Vec<f64>,
 }
 
 impl DarkAccumulator {
     pub fn new(width: usize, height: usize) -> Self {
-        let n = width * height;
         Self {
-            width,
-            height,
+            acc: Welford::new(width, height),
             frames: 0,
-            count: vec![0; n],
-            mean_dn: vec![0.0; n],
-            m2_dn2: vec![0.0; n],
         }
     }
 
     /// Adds one dark frame; a frame of another size is refused.
     pub fn push(&mut self, frame: &Frame) -> Result<(), SizeMismatch> {
-        if frame.width() != self.width || frame.height() != self.height {
+        let (want_w, want_h) = self.acc.size();
+        if frame.width() != want_w || frame.height() != want_h {
             return Err(SizeMismatch {
-                want_w: self.width,
-                want_h: self.height,
+                want_w,
+                want_h,
                 got_w: frame.width(),
                 got_h: frame.height(),
             });
         }
-        let samples = frame.dn.data.iter().zip(&frame.saturated.data);
-        for (i, (&v, &sat)) in samples.enumerate() {
-            if sat != 0 || !v.is_finite() {
-                continue;
-            }
-            // Same update as the separation's M1 (section 6): mean and M2.
-            let n1 = f64::from(self.count[i]);
-            let delta = f64::from(v) - self.mean_dn[i];
-            let delta_n = delta / (n1 + 1.0);
-            self.mean_dn[i] += delta_n;
-            self.m2_dn2[i] += delta * delta_n * n1;
-            self.count[i] += 1;
+        // Only an empty (0-pixel) frame is refused by M1: nothing to add then.
+        if want_w * want_h > 0 {
+            self.acc.push(frame).map_err(|_| SizeMismatch {
+                want_w,
+                want_h,
+                got_w: frame.width(),
+                got_h: frame.height(),
+            })?;
         }
-        self.frames += 1;
+        self.frames = self.frames.saturating_add(1);
         Ok(())
     }
 
@@ -93,23 +81,27 @@ impl DarkAccumulator {
 
     /// (width, height) this accumulator takes.
     pub fn size(&self) -> (usize, usize) {
-        (self.width, self.height)
+        self.acc.size()
     }
 
     /// Valid samples of pixel `i`.
     pub fn samples(&self, i: usize) -> u32 {
-        self.count[i]
+        self.acc.samples(i)
     }
 
     /// Mean of pixel `i`, DN (0 when it never had a valid sample).
     pub fn pixel_mean_dn(&self, i: usize) -> f64 {
-        self.mean_dn[i]
+        self.acc.pixel_mean_dn(i)
     }
 
     /// Unbiased temporal variance of pixel `i`, DN^2; `None` below two valid samples.
     pub fn pixel_variance_dn2(&self, i: usize) -> Option<f64> {
-        let n = self.count[i];
-        (n >= 2).then(|| self.m2_dn2[i] / f64::from(n - 1))
+        self.acc.pixel_variance_dn2(i)
+    }
+
+    fn pixels(&self) -> usize {
+        let (w, h) = self.acc.size();
+        w * h
     }
 
     /// The mean dark frame in DN; pixels never valid get 0. `None` before any frame.
@@ -117,25 +109,26 @@ impl DarkAccumulator {
         if self.frames == 0 {
             return None;
         }
-        let data = self.mean_dn.iter().map(|&m| m as f32).collect();
-        Image::from_vec(self.width, self.height, data)
+        let (w, h) = self.acc.size();
+        let data = (0..w * h).map(|i| self.pixel_mean_dn(i) as f32).collect();
+        Image::from_vec(w, h, data)
     }
 
     /// Mean level, read noise and fixed pattern; `None` until a pixel had a
     /// valid sample.
     pub fn stats(&self) -> Option<DarkStats> {
-        let valid = || (0..self.count.len()).filter(|&i| self.count[i] > 0);
+        let valid = || (0..self.pixels()).filter(|&i| self.samples(i) > 0);
         let k = valid().count();
         if k == 0 {
             return None;
         }
         let k = k as f64;
-        let mean_dn = valid().map(|i| self.mean_dn[i]).sum::<f64>() / k;
+        let mean_dn = valid().map(|i| self.pixel_mean_dn(i)).sum::<f64>() / k;
         let fpn_var = valid()
-            .map(|i| (self.mean_dn[i] - mean_dn).powi(2))
+            .map(|i| (self.pixel_mean_dn(i) - mean_dn).powi(2))
             .sum::<f64>()
             / k;
-        let variances: Vec<f64> = (0..self.count.len())
+        let variances: Vec<f64> = (0..self.pixels())
             .filter_map(|i| self.pixel_variance_dn2(i))
             .collect();
         let read_noise_variance_dn2 = if variances.is_empty() {

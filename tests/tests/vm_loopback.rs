@@ -88,7 +88,11 @@ fn check_round_trip(
     let out = tmp.join(format!("{format}.raw"));
     let n = cfg.frame_bytes();
     let check = |data: &[u8], reader: &str, round: u32| {
-        assert_eq!(data.len(), 30 * n, "{format}: 30 frames ({reader}, round {round})");
+        assert_eq!(
+            data.len(),
+            30 * n,
+            "{format}: 30 frames ({reader}, round {round})"
+        );
         let mut seen = BTreeSet::new();
         let mut cards = 0;
         for (i, frame) in data.chunks_exact(n).enumerate() {
@@ -162,7 +166,12 @@ fn v4l_read(path: &Path, cfg: &LoopbackFormat, frames: usize) -> Vec<u8> {
     let mut data = Vec::with_capacity(frames * n);
     for i in 0..frames {
         let (buf, meta) = stream.next().unwrap();
-        assert_eq!(meta.bytesused as usize, n, "{}: frame {i} size", path.display());
+        assert_eq!(
+            meta.bytesused as usize,
+            n,
+            "{}: frame {i} size",
+            path.display()
+        );
         data.extend_from_slice(&buf[..n]);
     }
     data

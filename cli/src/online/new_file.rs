@@ -66,16 +66,8 @@ impl NewFile {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::atomic_file::tests::entries;
     use std::io::Write;
-
-    fn entries(dir: &Path) -> Vec<String> {
-        let mut v: Vec<String> = std::fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        v.sort();
-        v
-    }
 
     #[test]
     fn commit_links_and_drop_cleans_up() {

@@ -46,6 +46,27 @@ impl Welford {
         self.frames
     }
 
+    /// (width, height) this accumulator takes.
+    pub fn size(&self) -> (usize, usize) {
+        (self.width, self.height)
+    }
+
+    /// Usable samples of pixel `i` so far.
+    pub fn samples(&self, i: usize) -> u32 {
+        self.count[i]
+    }
+
+    /// Mean of pixel `i`'s usable samples, DN (0 without any).
+    pub fn pixel_mean_dn(&self, i: usize) -> f64 {
+        self.mean[i]
+    }
+
+    /// Unbiased variance (1/(N-1)) of pixel `i`, DN^2; `None` below two usable samples.
+    pub fn pixel_variance_dn2(&self, i: usize) -> Option<f64> {
+        let n = self.count[i];
+        (n >= 2).then(|| self.m2[i] / f64::from(n - 1))
+    }
+
     pub fn reset(&mut self) {
         *self = Self::new(self.width, self.height);
     }
