@@ -90,7 +90,8 @@ fn numpy_reads_what_we_write() {
             1 => format!("({},)", dims[0]),
             _ => format!("({})", dims.join(", ")),
         };
-        assert_eq!(got, format!("<f4 {tuple} True {}", hex(&data)), "{shape:?}");
+        let want = format!("<f4 {tuple} True {}", hex(&data));
+        assert_eq!(got, want.trim_end(), "{shape:?}");
     }
     // The streaming writer, one frame at a time, as `sdictl sim` writes.
     let path = dir.path().join("stream.npy");
