@@ -69,11 +69,15 @@ async fn another_clients_calls_are_answered_under_a_flood() {
 
     let mut set_mode = Vec::new();
     let mut get_prop = Vec::new();
-    for i in 0..5 {
+    for i in 0..5u32 {
         let t = Instant::now();
-        cam.set_mode(if i % 2 == 0 { "depth-edge" } else { "raw" })
-            .await
-            .unwrap();
+        cam.set_mode(if i.is_multiple_of(2) {
+            "depth-edge"
+        } else {
+            "raw"
+        })
+        .await
+        .unwrap();
         set_mode.push(t.elapsed());
         let t = Instant::now();
         cam.exposure_us().await.unwrap();

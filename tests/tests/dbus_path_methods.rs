@@ -93,11 +93,21 @@ fn every_refused_path_gets_the_same_error() {
 
     // A plain new name in the state directory works, by sdictl --by-path too.
     assert_eq!(block_on(call(&d.address, "Snapshot", &s("ok.npy"))), None);
-    assert!(std::fs::metadata(state.path().join("ok.npy")).unwrap().len() > 80);
+    assert!(
+        std::fs::metadata(state.path().join("ok.npy"))
+            .unwrap()
+            .len()
+            > 80
+    );
     stdout_of(&d.ctl(&["snapshot", "--by-path", &s("ok.png")]));
     assert!(image::open(state.path().join("ok.png")).is_ok());
     stdout_of(&d.ctl(&["record", "--by-path", &s("r.sdirec"), "--seconds", "0.3"]));
-    assert!(std::fs::metadata(state.path().join("r.sdirec")).unwrap().len() > 0);
+    assert!(
+        std::fs::metadata(state.path().join("r.sdirec"))
+            .unwrap()
+            .len()
+            > 0
+    );
 }
 
 /// A newline in a client's path must not start a log line of its own.
@@ -107,11 +117,7 @@ fn client_strings_do_not_split_log_lines() {
     let state = tempfile::tempdir().unwrap();
     let log = tempfile::NamedTempFile::new().unwrap();
     let bus = Bus::start();
-    let mut cmd = Daemon::command(
-        &bus,
-        &[],
-        &["--state-dir", state.path().to_str().unwrap()],
-    );
+    let mut cmd = Daemon::command(&bus, &[], &["--state-dir", state.path().to_str().unwrap()]);
     let child = cmd
         .env("RUST_LOG", "info")
         .env("NO_COLOR", "1")
@@ -139,7 +145,10 @@ fn client_strings_do_not_split_log_lines() {
     drop(d);
     let text = std::fs::read_to_string(log.path()).unwrap();
     for line in text.lines() {
-        assert!(!line.contains("INJECTED") || line.contains("\\n"), "split log line: {line:?}\n{text}");
+        assert!(
+            !line.contains("INJECTED") || line.contains("\\n"),
+            "split log line: {line:?}\n{text}"
+        );
         assert!(!line.trim_start().starts_with("INJECTED"), "{text}");
     }
     assert!(text.contains("INJECTED"), "the refusal is logged: {text}");

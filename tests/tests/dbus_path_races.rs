@@ -101,7 +101,14 @@ impl Setup {
         std::os::unix::fs::chown(&user, Some(CALLER_UID), Some(CALLER_UID)).unwrap();
         let (bus, address) = open_bus(&root);
         let sdid = Command::new(bin("sdid"))
-            .args(["--bus-address", &address, "--backend", "sim", "--sink", "y4m"])
+            .args([
+                "--bus-address",
+                &address,
+                "--backend",
+                "sim",
+                "--sink",
+                "y4m",
+            ])
             .args(["--y4m-path", "-", "--frame-rate-hz", "60"])
             .args(["--state-dir", state.to_str().unwrap()])
             .env("RUST_LOG", "warn")
@@ -120,7 +127,10 @@ impl Setup {
         };
         let start = Instant::now();
         while !s.as_caller(&["get", "mode"]).status.success() {
-            assert!(start.elapsed() < Duration::from_secs(30), "sdid did not come up");
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "sdid did not come up"
+            );
             std::thread::sleep(Duration::from_millis(100));
         }
         s
@@ -229,6 +239,18 @@ fn symlink_over_the_new_file_never_gives_a_root_file_away() {
     assert_eq!(won, None, "the victim was handed to uid {CALLER_UID}");
     assert_eq!(fs::read(&victim).unwrap(), b"root's");
     assert!(ok > 0, "no snapshot was ever written: the race was not run");
+    // The files the attacker left alone were handed to the caller.
+    let handed = fs::read_dir(&state)
+        .unwrap()
+        .filter_map(Result::ok)
+        .filter_map(|e| e.path().symlink_metadata().ok())
+        .filter(|m| m.file_type().is_file() && m.uid() == CALLER_UID)
+        .count();
+    eprintln!("race 1: {handed} new files left in place, owned by uid {CALLER_UID}");
+    assert!(
+        handed + swapped >= ok,
+        "{handed} handed + {swapped} swapped < {ok} written"
+    );
 }
 
 #[test]
@@ -251,7 +273,7 @@ fn swapping_the_parent_never_creates_a_file_in_a_root_only_directory() {
             let (sub, tmp) = (state.join("sub"), state.join(".sub"));
             let mut k = 0usize;
             while !stop.load(Ordering::Relaxed) {
-                let to = if k % 2 == 0 { &user } else { &secret };
+                let to = if k.is_multiple_of(2) { &user } else { &secret };
                 let _ = fs::remove_file(&tmp);
                 if std::os::unix::fs::symlink(to, &tmp).is_ok() && fs::rename(&tmp, &sub).is_ok() {
                     k += 1;

@@ -437,7 +437,8 @@ impl Camera {
     /// Averages `frames` frames with both sources off into the dark frame the
     /// pipelines subtract; returns its statistics.
     async fn capture_dark_frame(
-        &self, frames: u32,
+        &self,
+        frames: u32,
         #[zbus(header)] hdr: Header<'_>,
     ) -> Result<DarkFrameReply, SdiError> {
         let _turn = self.fairness.turn(&hdr).await;
@@ -451,7 +452,8 @@ impl Camera {
     /// gain g = rho eta (DN/electron) and read variance with standard errors,
     /// which the separation mode's H uses from then on.
     async fn calibrate(
-        &self, frames: u32,
+        &self,
+        frames: u32,
         #[zbus(header)] hdr: Header<'_>,
     ) -> Result<CalibrationReply, SdiError> {
         let _turn = self.fairness.turn(&hdr).await;

@@ -38,8 +38,8 @@ pub fn create(
         refused(path, state_dir, allowed)
     };
     let dir_path = state_dir.ok_or_else(|| no(&"no state directory"))?;
-    let (name, kind) =
-        state_dir_name(path, dir_path, allowed).ok_or_else(|| no(&"not a new NAME.ext in the state directory"))?;
+    let (name, kind) = state_dir_name(path, dir_path, allowed)
+        .ok_or_else(|| no(&"not a new NAME.ext in the state directory"))?;
     // The state directory is the daemon's own configuration, not client input.
     std::fs::create_dir_all(dir_path).map_err(|e| no(&e))?;
     let dir = rustix::fs::open(
@@ -121,9 +121,18 @@ mod tests {
         // one message apart from the path it quotes.
         std::os::unix::fs::symlink("/nonexistent/target", dir.path().join("l.png")).unwrap();
         let strip = |m: String, path: &str| m.replacen(path, "P", 1);
-        let exists = strip(invalid_path(create(Some(dir.path()), &p("a.npy"), &ALL, None)), &p("a.npy"));
-        let link = strip(invalid_path(create(Some(dir.path()), &p("l.png"), &ALL, None)), &p("l.png"));
-        let other = strip(invalid_path(create(Some(dir.path()), "/etc/x.png", &ALL, None)), "/etc/x.png");
+        let exists = strip(
+            invalid_path(create(Some(dir.path()), &p("a.npy"), &ALL, None)),
+            &p("a.npy"),
+        );
+        let link = strip(
+            invalid_path(create(Some(dir.path()), &p("l.png"), &ALL, None)),
+            &p("l.png"),
+        );
+        let other = strip(
+            invalid_path(create(Some(dir.path()), "/etc/x.png", &ALL, None)),
+            "/etc/x.png",
+        );
         assert_eq!(exists, link);
         assert_eq!(exists, other);
         assert!(!Path::new("/nonexistent/target").exists());
