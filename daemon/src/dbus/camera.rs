@@ -508,8 +508,8 @@ impl Camera {
     }
 
     /// Starts recording raw sensor frames to a new `.sdirec` file named
-    /// `<state dir>/NAME.sdirec`: the only path the daemon creates itself
-    /// (docs/dbus.md, "Output files"); anything else is `InvalidPath`.
+    /// `STATE_DIR/NAME.sdirec`: the only path the daemon creates itself
+    /// (docs/dbus.md, "Path methods"); anything else is `InvalidPath`.
     async fn start_recording(
         &self,
         path: &str,
@@ -584,7 +584,7 @@ impl Camera {
         })
     }
 
-    /// Writes the latest processed frame to a new file `<state dir>/NAME.png`
+    /// Writes the latest processed frame to a new file `STATE_DIR/NAME.png`
     /// (as displayed) or `NAME.npy` (signed DN, float32, shape (height,
     /// width)): the only paths the daemon creates itself; anything else is
     /// `InvalidPath`.
