@@ -16,7 +16,8 @@ pub enum SdiError {
     DeviceUnavailable(String),
     /// Another long operation (dark frame, calibration, recording) is running.
     Busy(String),
-    /// A path that is empty, relative, of the wrong type, or not writable by the caller.
+    /// A path a path method refuses (anything but a new `<state dir>/NAME.ext`;
+    /// one message whatever the reason), or a recording label it cannot show.
     InvalidPath(String),
     /// A passed file descriptor that is not an empty regular file open for writing.
     InvalidFd(String),

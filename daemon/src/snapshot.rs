@@ -2,19 +2,12 @@
 //! shows it) or `.npy`: signed DN, float32, shape (height, width); in the
 //! separation mode I+ and I- in electrons, float32, shape (2, height, width).
 
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::{self, BufWriter, Write};
-use std::path::Path;
 
 use crate::dbus::paths::OutputKind;
 use crate::frame_loop::SnapshotData;
 use crate::modes;
-
-/// Writes `snap` to a new file at `path`.
-pub fn write(path: &Path, kind: OutputKind, snap: &SnapshotData) -> io::Result<()> {
-    let file = OpenOptions::new().write(true).create_new(true).open(path)?;
-    write_to(file, kind, snap)
-}
 
 /// Writes `snap` into `file` (e.g. a descriptor a client passed), then syncs it.
 pub fn write_to(file: File, kind: OutputKind, snap: &SnapshotData) -> io::Result<()> {
@@ -53,15 +46,4 @@ fn encode_png(rgb: &[u8], width: u32, height: u32) -> io::Result<Vec<u8>> {
     )
     .map_err(io::Error::other)?;
     Ok(buf.into_inner())
-}
-
-/// Hands a file the daemon (as root) wrote over to the caller.
-pub fn give_to(path: &Path, uid: Option<u32>) {
-    if let Some(uid) = uid {
-        if nix::unistd::geteuid().is_root() && uid != 0 {
-            if let Err(e) = std::os::unix::fs::chown(path, Some(uid), None) {
-                tracing::warn!(path = %path.display(), "chown to uid {uid}: {e}");
-            }
-        }
-    }
 }

@@ -9,4 +9,5 @@ pub mod loopback;
 pub mod pipewire;
 pub mod process;
 pub mod sim_frames;
+pub mod udev;
 pub mod vm;

@@ -41,4 +41,6 @@ if touch /etc/.sdi-sandbox-probe 2>/dev/null; then
     exit 1
 fi
 export INVOCATION_ID=sdi-sandbox
+# StateDirectory=sdi: systemd names it to the service.
+export STATE_DIRECTORY=/var/lib/sdi
 exec "$@"

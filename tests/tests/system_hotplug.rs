@@ -13,18 +13,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use sdi_tests::process::{must as run, repo_root, Reaped};
+use sdi_tests::udev::{start_udevd, udevadm, wait_initialized};
 use sdi_tests::vm;
 
 const GADGET: &str = "/sys/kernel/config/usb_gadget/sdi-board";
 const RULES: &str = "70-sdi-board.rules";
-
-/// udevadm; the VM runs tests in a chroot, where udevadm would otherwise
-/// refuse to settle or monitor.
-fn udevadm() -> Command {
-    let mut cmd = Command::new("udevadm");
-    cmd.env("SYSTEMD_IGNORE_CHROOT", "1");
-    cmd
-}
 
 fn write(path: impl AsRef<Path>, value: &str) {
     let path = path.as_ref();
@@ -76,14 +69,40 @@ fn plug(vendor: &str, product: &str) -> PathBuf {
         dev = usb_device(vendor, product);
         dev.is_some()
     });
-    run(udevadm().args(["settle", "--timeout=30"]));
-    dev.unwrap()
+    let dev = dev.unwrap();
+    wait_initialized(&[&dev]);
+    dev
 }
 
+/// Unbinds the gadget; returns once udevd has processed the remove event
+/// (its database entry for the device is gone).
 fn unplug(dev: &Path) {
+    let db = db_entry(&properties(dev));
     write(format!("{GADGET}/UDC"), "\n");
     wait_until("the device to disappear", || !dev.exists());
-    run(udevadm().args(["settle", "--timeout=30"]));
+    wait_until("udevd to process the remove event", || !db.exists());
+}
+
+/// udevd's database file of a device, from its MAJOR and MINOR properties.
+fn db_entry(props: &str) -> PathBuf {
+    let value = |key: &str| {
+        props
+            .lines()
+            .find_map(|l| l.strip_prefix(key))
+            .unwrap_or_else(|| panic!("no {key} in\n{props}"))
+            .to_owned()
+    };
+    let db = PathBuf::from(format!(
+        "/run/udev/data/c{}:{}",
+        value("MAJOR="),
+        value("MINOR=")
+    ));
+    assert!(
+        db.exists(),
+        "{} missing for an initialized device",
+        db.display()
+    );
+    db
 }
 
 /// `udevadm info` properties as KEY=VALUE lines.
@@ -123,14 +142,7 @@ fn setup() -> Reaped {
     if !Path::new("/sys/kernel/config/usb_gadget").exists() {
         run(Command::new("mount").args(["-t", "configfs", "none", "/sys/kernel/config"]));
     }
-    let udevd = Command::new("/lib/systemd/systemd-udevd")
-        .env("SYSTEMD_IGNORE_CHROOT", "1")
-        .stdout(Stdio::null())
-        .spawn()
-        .expect("spawn systemd-udevd");
-    let udevd = Reaped(udevd);
-    wait_until("systemd-udevd", || Path::new("/run/udev/control").exists());
-    udevd
+    start_udevd()
 }
 
 #[test]
@@ -219,13 +231,21 @@ fn board_hotplug_tags_device_for_systemd_and_group() {
             "{} still exists after unplug",
             node.display()
         );
-        std::thread::sleep(Duration::from_millis(300));
-        let out = monitor.stop();
         let devpath = dev
             .strip_prefix("/sys")
             .unwrap()
             .to_string_lossy()
             .into_owned();
+        // udevd broadcasts the event right after updating its database.
+        wait_until("udevadm monitor to print the remove event", || {
+            monitor
+                .out
+                .lock()
+                .unwrap()
+                .lines()
+                .any(|l| l.contains("remove") && l.contains(&devpath))
+        });
+        let out = monitor.stop();
         assert!(
             out.lines()
                 .any(|l| l.contains("add") && l.contains(&devpath)),

@@ -3,7 +3,7 @@
 //! namespace: read-only system, private /tmp, no homes, /var/lib/sdi
 //! writable. The daemon must start and serve there; snapshots and
 //! recordings reach the caller's /tmp through descriptors, the path methods
-//! work below /var/lib/sdi and are refused or fail elsewhere.
+//! work directly in /var/lib/sdi and are refused elsewhere.
 //!
 //! Needs root (mount namespaces with real mounts); skipped otherwise.
 
@@ -71,7 +71,8 @@ fn sdid_serves_inside_the_unit_sandbox() {
     ]));
     assert!(state.path().join("state.npy").is_file());
     assert!(state.path().join("state.sdirec").is_file());
-    // ... its private /tmp is refused, the read-only system fails cleanly.
+    // ... its private /tmp is refused, and so is the read-only system
+    // (every path outside the state directory, before anything is opened).
     let in_tmp = user_tmp.path().join("by-path.npy");
     failed(
         &d.ctl(&["snapshot", "--by-path", in_tmp.to_str().unwrap()]),
@@ -81,7 +82,7 @@ fn sdid_serves_inside_the_unit_sandbox() {
     let outside = Path::new("/etc/sdi-sandbox-probe.npy");
     failed(
         &d.ctl(&["snapshot", "--by-path", outside.to_str().unwrap()]),
-        "Read-only file system",
+        "org.sdi.Error.InvalidPath",
     );
     assert!(!outside.exists() && !in_tmp.exists());
     // Still serving.

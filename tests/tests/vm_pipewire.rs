@@ -29,23 +29,17 @@ use sdi_tests::clients::{self, mean_rgb, wait_until, Sdid, PMD};
 use sdi_tests::dbus::Bus;
 use sdi_tests::loopback;
 use sdi_tests::process::{repo_root, Reaped};
+use sdi_tests::udev::{self, udevadm};
 use sdi_tests::vm;
 
 const VIEW_NR: u32 = 40;
 const DATA_NR: u32 = 41;
 
-fn udevadm() -> Command {
-    let mut c = Command::new("udevadm");
-    c.env("SYSTEMD_IGNORE_CHROOT", "1");
-    c
-}
-
-fn settle() {
-    let s = udevadm()
-        .args(["settle", "--timeout=30"])
-        .status()
-        .expect("udevadm settle");
-    assert!(s.success(), "udevadm settle");
+/// Waits until udevd has processed the SDI nodes' add events.
+fn nodes_initialized() {
+    let view = format!("/dev/video{VIEW_NR}");
+    let data = format!("/dev/video{DATA_NR}");
+    udev::wait_initialized(&[Path::new(&view), Path::new(&data)]);
 }
 
 /// The `udevadm trigger` line of `sdid.service`'s ExecStartPost.
@@ -61,14 +55,13 @@ fn unit_trigger() -> Vec<String> {
     line.split_whitespace().map(str::to_owned).collect()
 }
 
-/// Runs sdid.service's ExecStartPost (udevadm trigger --action=change ...).
+/// Runs sdid.service's ExecStartPost (udevadm trigger --action=change ...),
+/// returning once udevd has processed the events it caused.
 fn trigger() -> Vec<String> {
     let trigger = unit_trigger();
-    let s = udevadm()
-        .args(&trigger[1..])
-        .status()
-        .expect("udevadm trigger");
-    assert!(s.success(), "{trigger:?}");
+    let args: Vec<&str> = trigger[2..].iter().map(String::as_str).collect();
+    assert_eq!(trigger[1], "trigger", "{trigger:?}");
+    udev::trigger_settled(&args);
     trigger
 }
 
@@ -248,25 +241,15 @@ fn check(pw: &PipeWire, sdid: &Sdid, order: &str) {
 }
 
 fn in_vm_checks() {
-    let udevd = Command::new("/lib/systemd/systemd-udevd")
-        .env("SYSTEMD_IGNORE_CHROOT", "1")
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("spawn systemd-udevd");
-    let _udevd = Reaped(udevd);
-    wait_until("systemd-udevd", Duration::from_secs(30), || {
-        Path::new("/run/udev/control").exists()
-    });
+    let _udevd = udev::start_udevd();
 
     // Order 1: sdid first, then PipeWire and WirePlumber.
     clients::load_module(VIEW_NR, DATA_NR);
-    settle();
+    nodes_initialized();
     let sdid = Sdid::start(VIEW_NR, DATA_NR, PMD, 15);
     // udev recorded the node as output-only at module load (v4l_id's
     // ID_V4L_CAPABILITIES); sdid.service's change event updates it.
     trigger();
-    settle();
     let t0 = Instant::now();
     let pw = PipeWire::start();
     let t = wait_listed(&pw, "sdid first");
@@ -282,14 +265,14 @@ fn in_vm_checks() {
     // Order 2: PipeWire and WirePlumber first, on a fresh node.
     loopback::unload_module().expect("rmmod");
     clients::load_module(VIEW_NR, DATA_NR);
-    settle();
+    nodes_initialized();
     let pw = PipeWire::start();
     assert!(
         pw.sdi_node().is_none(),
         "listed before a producer: exclusive_caps=1 should hide it"
     );
     let sdid = Sdid::start(VIEW_NR, DATA_NR, PMD, 15);
-    settle();
+    nodes_initialized();
     let hidden = pw.sdi_node().is_none();
     eprintln!(
         "WirePlumber first: {} once sdid streams, before any udev event",

@@ -72,7 +72,8 @@ pub enum OnlineCommand {
         path: PathBuf,
         #[arg(long)]
         seconds: Option<f64>,
-        /// Let the daemon create PATH itself (a place the service may write, e.g. /var/lib/sdi).
+        /// Let the daemon create PATH itself: only a new file directly in its
+        /// state directory (/var/lib/sdi/NAME for the service).
         #[arg(long)]
         by_path: bool,
     },
@@ -84,7 +85,8 @@ pub enum OnlineCommand {
     /// daemon its descriptor.
     Snapshot {
         path: PathBuf,
-        /// Let the daemon create PATH itself (a place the service may write, e.g. /var/lib/sdi).
+        /// Let the daemon create PATH itself: only a new file directly in its
+        /// state directory (/var/lib/sdi/NAME for the service).
         #[arg(long)]
         by_path: bool,
     },

@@ -14,8 +14,10 @@ use zbus::object_server::SignalEmitter;
 use zbus::{interface, Connection};
 
 use super::client_fd::{self, recording_label};
+use super::client_file;
 use super::errors::{check_range, invalid_mode, SdiError};
-use super::paths::{validate_output_path, OutputKind};
+use super::fairness::Fairness;
+use super::paths::OutputKind;
 use crate::backend::{BackendError, CaptureSettings, Limits};
 use crate::calibration_store;
 use crate::frame_loop::{Command, DarkStats, FrameMark};
@@ -64,6 +66,8 @@ pub struct Camera {
     change_lock: tokio::sync::Mutex<()>,
     /// Held during dark frames and calibration.
     long_op: Arc<tokio::sync::Mutex<()>>,
+    /// Each caller's share of the method calls (one client's flood waits in its own queue).
+    fairness: Fairness,
 }
 
 fn colormap_name(c: Colormap) -> &'static str {
@@ -115,6 +119,7 @@ impl Camera {
             calibration,
             change_lock: tokio::sync::Mutex::new(()),
             long_op: Arc::new(tokio::sync::Mutex::new(())),
+            fairness: Fairness::default(),
         }
     }
 
@@ -282,10 +287,21 @@ impl Camera {
             .map_err(|e| SdiError::InvalidPath(format!("{}: {e}", label.display())))?;
         self.ask(|tx| Command::StartRecording(Box::new(writer), tx))
             .await?;
-        tracing::info!(path = %label.display(), "recording started");
+        tracing::info!(path = ?label, "recording started");
         self.update(|s| s.recording = Some(label));
         let _ = self.recording_changed(emitter).await;
         Ok(())
+    }
+
+    /// Creates `path` for a path method: a new file directly in the state
+    /// directory, owned by the caller (`client_file`).
+    fn create_in_state_dir(
+        &self,
+        path: &str,
+        allowed: &[OutputKind],
+        uid: Option<u32>,
+    ) -> Result<client_file::StateDirFile, SdiError> {
+        client_file::create(self.info.state_dir.as_deref(), path, allowed, uid)
     }
 
     /// The latest processed frame, waiting up to 2 s for the first one.
@@ -312,7 +328,9 @@ impl Camera {
         &self,
         mode: &str,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+        #[zbus(header)] hdr: Header<'_>,
     ) -> Result<(u64, u64), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let m = ModeId::from_name(mode).map_err(|_| invalid_mode(mode))?;
         let guard = self.change_lock.lock().await;
         let (tx, rx) = oneshot::channel();
@@ -335,7 +353,9 @@ impl Camera {
         &self,
         exposure_us: f64,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+        #[zbus(header)] hdr: Header<'_>,
     ) -> Result<(u64, u64), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let (lo, hi) = self.info.limits.exposure_us;
         let v = check_range("ExposureUs", exposure_us, lo, hi, "us")?;
         self.configure(&emitter, |c| c.exposure_us = v).await
@@ -347,7 +367,9 @@ impl Camera {
         &self,
         frame_rate_hz: f64,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+        #[zbus(header)] hdr: Header<'_>,
     ) -> Result<(u64, u64), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let (lo, hi) = self.info.limits.frame_rate_hz;
         let v = check_range("FrameRate", frame_rate_hz, lo, hi, "Hz")?;
         self.configure(&emitter, |c| c.frame_rate_hz = v).await
@@ -359,7 +381,9 @@ impl Camera {
         &self,
         modulation_hz: f64,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+        #[zbus(header)] hdr: Header<'_>,
     ) -> Result<(u64, u64), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let (lo, hi) = self.info.limits.modulation_hz;
         let v = check_range("ModulationHz", modulation_hz, lo, hi, "Hz")?;
         self.configure(&emitter, |c| c.modulation_hz = v).await
@@ -371,7 +395,9 @@ impl Camera {
         &self,
         colormap: &str,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+        #[zbus(header)] hdr: Header<'_>,
     ) -> Result<(u64, u64), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let c = match colormap {
             "diverging" => Colormap::Diverging,
             "grey" | "gray" => Colormap::Grey,
@@ -391,7 +417,9 @@ impl Camera {
         &self,
         max_abs_dn: f64,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+        #[zbus(header)] hdr: Header<'_>,
     ) -> Result<(u64, u64), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let v = check_range("Range", max_abs_dn, 0.0, MAX_RANGE_DN, "DN")?;
         self.set_display(&emitter, |d| {
             d.range = if v == 0.0 {
@@ -407,7 +435,12 @@ impl Camera {
 
     /// Averages `frames` frames with both sources off into the dark frame the
     /// pipelines subtract; returns its statistics.
-    async fn capture_dark_frame(&self, frames: u32) -> Result<DarkFrameReply, SdiError> {
+    async fn capture_dark_frame(
+        &self,
+        frames: u32,
+        #[zbus(header)] hdr: Header<'_>,
+    ) -> Result<DarkFrameReply, SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let s = self.dark(frames, 1).await?;
         Ok(dark_frame_reply(&s))
     }
@@ -417,7 +450,12 @@ impl Camera {
     /// then photon transfer (LS1 alone at 5 exposures, `frames` frames each):
     /// gain g = rho eta (DN/electron) and read variance with standard errors,
     /// which the separation mode's H uses from then on.
-    async fn calibrate(&self, frames: u32) -> Result<CalibrationReply, SdiError> {
+    async fn calibrate(
+        &self,
+        frames: u32,
+        #[zbus(header)] hdr: Header<'_>,
+    ) -> Result<CalibrationReply, SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let s = self.dark(frames, 2).await?;
         let _guard = self.long_op.try_lock().map_err(|_| {
             SdiError::Busy("a dark-frame capture or calibration is already running".into())
@@ -468,8 +506,9 @@ impl Camera {
         Ok(reply)
     }
 
-    /// Starts recording raw sensor frames to a new `.sdirec` file at an absolute path
-    /// the daemon itself may write (under the system service: below /var/lib/sdi).
+    /// Starts recording raw sensor frames to a new `.sdirec` file named
+    /// `STATE_DIR/NAME.sdirec`: the only path the daemon creates itself
+    /// (docs/dbus.md, "Path methods"); anything else is `InvalidPath`.
     async fn start_recording(
         &self,
         path: &str,
@@ -477,15 +516,26 @@ impl Camera {
         #[zbus(connection)] conn: &Connection,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
     ) -> Result<(), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let uid = caller_uid(conn, &hdr).await;
-        let (path, _) = validate_output_path(path, &[OutputKind::Recording], uid)?;
-        let p2 = path.clone();
-        self.begin_recording(path.clone(), &emitter, move |header| {
-            RecordingWriter::create(&p2, header)
-        })
-        .await?;
-        crate::snapshot::give_to(&path, uid);
-        Ok(())
+        let out = self.create_in_state_dir(path, &[OutputKind::Recording], uid)?;
+        let (file, label) = match out.file.try_clone() {
+            Ok(f) => (f, out.path.clone()),
+            Err(e) => {
+                out.discard();
+                return Err(SdiError::Failed(format!("duplicating a descriptor: {e}")));
+            }
+        };
+        let l2 = label.clone();
+        let started = self
+            .begin_recording(label, &emitter, move |header| {
+                RecordingWriter::from_file(file, &l2, header)
+            })
+            .await;
+        if started.is_err() {
+            out.discard();
+        }
+        started
     }
 
     /// Starts recording into `fd`, a new empty file the caller opened for
@@ -496,7 +546,9 @@ impl Camera {
         fd: zbus::zvariant::OwnedFd,
         label: &str,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+        #[zbus(header)] hdr: Header<'_>,
     ) -> Result<(), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let label = PathBuf::from(recording_label(label)?);
         let file = client_fd::output_file(fd.into())?;
         let l2 = label.clone();
@@ -510,7 +562,9 @@ impl Camera {
     async fn stop_recording(
         &self,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
+        #[zbus(header)] hdr: Header<'_>,
     ) -> Result<RecordingReply, SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let _guard = self.change_lock.lock().await;
         let Some(path) = self.state().recording else {
             return Err(SdiError::NotRecording("no recording in progress".into()));
@@ -521,7 +575,7 @@ impl Camera {
         let summary = summary
             .ok_or_else(|| SdiError::NotRecording("no recording in progress".into()))?
             .map_err(|e| SdiError::Failed(format!("finishing {}: {e}", path.display())))?;
-        tracing::info!(path = %path.display(), frames = summary.frames, dropped = summary.dropped, "recording stopped");
+        tracing::info!(path = ?path, frames = summary.frames, dropped = summary.dropped, "recording stopped");
         Ok(RecordingReply {
             path: path.display().to_string(),
             frames: summary.frames,
@@ -529,25 +583,36 @@ impl Camera {
         })
     }
 
-    /// Writes the latest processed frame to a new file: `.png` (as displayed)
-    /// or `.npy` (signed DN, float32, shape (height, width)), at an absolute
-    /// path the daemon itself may write.
+    /// Writes the latest processed frame to a new file `STATE_DIR/NAME.png`
+    /// (as displayed) or `NAME.npy` (signed DN, float32, shape (height,
+    /// width)): the only paths the daemon creates itself; anything else is
+    /// `InvalidPath`.
     async fn snapshot(
         &self,
         path: &str,
         #[zbus(header)] hdr: Header<'_>,
         #[zbus(connection)] conn: &Connection,
     ) -> Result<(), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let uid = caller_uid(conn, &hdr).await;
-        let (path, kind) = validate_output_path(path, &[OutputKind::Png, OutputKind::Npy], uid)?;
-        let snap = self.latest_frame().await?;
-        let p2 = path.clone();
-        tokio::task::spawn_blocking(move || crate::snapshot::write(&p2, kind, &snap))
-            .await
-            .map_err(|e| SdiError::Failed(e.to_string()))?
-            .map_err(|e| SdiError::Failed(format!("{}: {e}", path.display())))?;
-        crate::snapshot::give_to(&path, uid);
-        Ok(())
+        let out = self.create_in_state_dir(path, &[OutputKind::Png, OutputKind::Npy], uid)?;
+        let written = match (out.file.try_clone(), self.latest_frame().await) {
+            (Ok(file), Ok(snap)) => {
+                let kind = out.kind;
+                tokio::task::spawn_blocking(move || crate::snapshot::write_to(file, kind, &snap))
+                    .await
+                    .map_err(|e| SdiError::Failed(e.to_string()))
+                    .and_then(|r| {
+                        r.map_err(|e| SdiError::Failed(format!("{}: {e}", out.path.display())))
+                    })
+            }
+            (Err(e), _) => Err(SdiError::Failed(format!("duplicating a descriptor: {e}"))),
+            (_, Err(e)) => Err(e),
+        };
+        if written.is_err() {
+            out.discard();
+        }
+        written
     }
 
     /// Writes the latest processed frame into `fd`, a new empty file the
@@ -556,7 +621,9 @@ impl Camera {
         &self,
         fd: zbus::zvariant::OwnedFd,
         format: &str,
+        #[zbus(header)] hdr: Header<'_>,
     ) -> Result<(), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
         let kind = client_fd::snapshot_format(format)?;
         let file = client_fd::output_file(fd.into())?;
         let snap = self.latest_frame().await?;

@@ -2,7 +2,9 @@
 
 pub mod camera;
 pub mod client_fd;
+pub mod client_file;
 pub mod errors;
+pub mod fairness;
 pub mod paths;
 
 pub use sdi_api::{BUS_NAME, INTERFACE, OBJECT_PATH};

@@ -1,7 +1,11 @@
-//! Validation of paths clients ask the daemon to write.
+//! What a client may name in the path methods (`Snapshot(s)`,
+//! `StartRecording(s)`): only a new file directly in the daemon's own state
+//! directory, `<state dir>/NAME.ext`. The daemon never resolves any other
+//! client path; everywhere else clients pass a descriptor
+//! ([`super::client_fd`]). Every refusal is the same error, so a path
+//! method tells nothing about files the caller cannot see.
 
-use std::os::unix::fs::MetadataExt;
-use std::path::{Component, Path, PathBuf};
+use std::path::Path;
 
 use super::errors::SdiError;
 
@@ -13,93 +17,73 @@ pub enum OutputKind {
     Recording,
 }
 
-/// Checks `path` before the daemon (possibly root) writes it for the caller
-/// with uid `caller_uid`: non-empty, absolute, no `..`, allowed extension,
-/// outside /proc, /sys and /dev, the file does not exist yet, and its existing
-/// parent directory is writable by the caller.
-pub fn validate_output_path(
-    path: &str,
-    allowed: &[OutputKind],
-    caller_uid: Option<u32>,
-) -> Result<(PathBuf, OutputKind), SdiError> {
-    let bad = |why: &str| SdiError::InvalidPath(format!("'{}': {why}", path.escape_debug()));
-    if path.is_empty() {
-        return Err(bad("empty path"));
-    }
-    let p = Path::new(path);
-    if !p.is_absolute() {
-        return Err(bad(
-            "must be absolute (the daemon has its own working directory)",
-        ));
-    }
-    if p.components().any(|c| matches!(c, Component::ParentDir)) {
-        return Err(bad("must not contain '..'"));
-    }
-    let ext = p.extension().and_then(|e| e.to_str()).unwrap_or("");
-    let kind = match ext.to_ascii_lowercase().as_str() {
-        "png" => OutputKind::Png,
-        "npy" => OutputKind::Npy,
-        "sdirec" => OutputKind::Recording,
-        _ => OutputKind::Png,
-    };
-    let ext_ok = match kind {
-        OutputKind::Png => ext.eq_ignore_ascii_case("png"),
-        _ => true,
-    };
-    if !ext_ok || !allowed.contains(&kind) {
-        let names: Vec<&str> = allowed
-            .iter()
-            .map(|k| match k {
-                OutputKind::Png => ".png",
-                OutputKind::Npy => ".npy",
-                OutputKind::Recording => ".sdirec",
-            })
-            .collect();
-        return Err(bad(&format!(
-            "extension must be one of {}",
-            names.join(", ")
-        )));
-    }
-    for forbidden in ["/proc", "/sys", "/dev"] {
-        if p.starts_with(forbidden) {
-            return Err(bad(&format!("writing under {forbidden} is not allowed")));
+impl OutputKind {
+    fn extension(self) -> &'static str {
+        match self {
+            OutputKind::Png => "png",
+            OutputKind::Npy => "npy",
+            OutputKind::Recording => "sdirec",
         }
     }
-    if let Some(why) = sandbox_hides(p, std::env::var_os("INVOCATION_ID").is_some()) {
-        return Err(bad(&why));
-    }
-    if std::fs::symlink_metadata(p).is_ok() {
-        return Err(bad("file exists (the daemon never overwrites)"));
-    }
-    let parent = p.parent().ok_or_else(|| bad("no parent directory"))?;
-    let meta = std::fs::metadata(parent).map_err(|e| bad(&format!("parent directory: {e}")))?;
-    if !meta.is_dir() {
-        return Err(bad("parent is not a directory"));
-    }
-    if let Some(uid) = caller_uid {
-        let mode = meta.mode();
-        let writable = uid == 0 || (meta.uid() == uid && mode & 0o200 != 0) || mode & 0o002 != 0;
-        if !writable {
-            return Err(bad(&format!(
-                "directory {} is not writable by the caller (uid {uid})",
-                parent.display()
-            )));
-        }
-    }
-    Ok((p.to_owned(), kind))
 }
 
-/// Under systemd (`INVOCATION_ID` set) the unit's `PrivateTmp=yes` gives
-/// sdid its own /tmp and /var/tmp: a file written there would "succeed" and
-/// stay invisible to the caller, so such paths are refused with a hint.
-pub fn sandbox_hides(path: &Path, under_systemd: bool) -> Option<String> {
-    let private = ["/tmp", "/var/tmp"];
-    (under_systemd && private.iter().any(|d| path.starts_with(d))).then(|| {
-        "the service has a private /tmp (PrivateTmp=yes): a file written there would be \
-         invisible to you; let sdictl create the file (sdictl snapshot/record without \
-         --by-path passes a descriptor) or use a path below /var/lib/sdi"
-            .to_owned()
-    })
+/// Longest file name the daemon creates (NAME_MAX).
+pub const MAX_NAME_BYTES: usize = 255;
+
+/// The file name `path` gives inside `state_dir`, if `path` is exactly
+/// `<state_dir>/NAME` (absolute, compared as text, no trailing slash) with a
+/// plain NAME: no `/`, not `.`/`..`, no control characters, at most
+/// [`MAX_NAME_BYTES`], extension one of `allowed` (any case). Pure text:
+/// nothing on disk is looked at.
+pub fn state_dir_name(
+    path: &str,
+    state_dir: &Path,
+    allowed: &[OutputKind],
+) -> Option<(String, OutputKind)> {
+    let dir = state_dir.to_str()?.trim_end_matches('/');
+    if !dir.starts_with('/') {
+        return None;
+    }
+    let name = path.strip_prefix(dir)?.strip_prefix('/')?;
+    let plain = !name.is_empty()
+        && name.len() <= MAX_NAME_BYTES
+        && name != "."
+        && name != ".."
+        && !name.contains('/')
+        && !name.chars().any(char::is_control);
+    if !plain {
+        return None;
+    }
+    let (stem, ext) = name.rsplit_once('.')?;
+    if stem.is_empty() {
+        return None;
+    }
+    let kind = allowed
+        .iter()
+        .copied()
+        .find(|k| ext.eq_ignore_ascii_case(k.extension()))?;
+    Some((name.to_owned(), kind))
+}
+
+/// The one error for every path a path method refuses (whatever the
+/// reason: outside the state directory, existing, unwritable, missing):
+/// says what is allowed and where to go instead.
+pub fn refused(path: &str, state_dir: Option<&Path>, allowed: &[OutputKind]) -> SdiError {
+    let exts: Vec<String> = allowed
+        .iter()
+        .map(|k| format!(".{}", k.extension()))
+        .collect();
+    let place = match state_dir {
+        Some(d) => format!("directly in its state directory {}", d.display()),
+        None => "nowhere (it has no state directory)".to_owned(),
+    };
+    SdiError::InvalidPath(format!(
+        "'{}' refused: by path the daemon creates only a new file NAME{} {place}; \
+         for any other place pass a descriptor (SnapshotToFd, StartRecordingToFd: \
+         sdictl does so without --by-path; the service's /tmp is private, PrivateTmp=yes)",
+        path.escape_debug(),
+        exts.join("|NAME"),
+    ))
 }
 
 #[cfg(test)]
@@ -109,31 +93,57 @@ mod tests {
     #[test]
     fn rejects_bad_paths() {
         let all = [OutputKind::Png, OutputKind::Npy];
+        let dir = Path::new("/var/lib/sdi");
         for bad in [
             "",
             "rel.png",
             "/tmp/../etc/x.png",
-            "/tmp/x.jpg",
+            "/var/lib/sdi/../x.png",
+            "/var/lib/sdi/x.jpg",
+            "/var/lib/sdi/x.sdirec",
             "/proc/x.png",
             "/nonexistent-dir/x.png",
+            "/tmp/x.png",
+            "/var/lib/sdi/x.png/",
+            "/var/lib/sdi/sub/x.png",
+            "/var/lib/sdi//x.png",
+            "/var/lib/sdix.png",
+            "/var/lib/sdi/.png",
+            "/var/lib/sdi/a\nb.png",
+            "var/lib/sdi/x.png",
         ] {
-            assert!(
-                matches!(
-                    validate_output_path(bad, &all, None),
-                    Err(SdiError::InvalidPath(_))
-                ),
-                "{bad}"
-            );
+            assert_eq!(state_dir_name(bad, dir, &all), None, "{bad:?}");
         }
-        let dir = tempfile::tempdir().unwrap();
-        let ok = dir.path().join("a.npy");
-        let (_, kind) = validate_output_path(ok.to_str().unwrap(), &all, Some(0)).unwrap();
-        assert_eq!(kind, OutputKind::Npy);
-        assert!(sandbox_hides(Path::new("/tmp/x.png"), true).is_some());
-        assert!(sandbox_hides(Path::new("/var/tmp/x.png"), true).is_some());
-        assert!(sandbox_hides(Path::new("/tmp/x.png"), false).is_none());
-        assert!(sandbox_hides(Path::new("/var/lib/sdi/x.png"), true).is_none());
-        std::fs::write(&ok, b"x").unwrap();
-        assert!(validate_output_path(ok.to_str().unwrap(), &all, Some(0)).is_err());
+        let long = format!("/var/lib/sdi/{}.png", "x".repeat(MAX_NAME_BYTES));
+        assert_eq!(state_dir_name(&long, dir, &all), None);
+        assert_eq!(
+            state_dir_name("/var/lib/sdi/a.NPY", dir, &all),
+            Some(("a.NPY".to_owned(), OutputKind::Npy))
+        );
+        assert_eq!(
+            state_dir_name("/var/lib/sdi/run.sdirec", dir, &[OutputKind::Recording]),
+            Some(("run.sdirec".to_owned(), OutputKind::Recording))
+        );
+        // A state directory given with a trailing slash.
+        assert_eq!(
+            state_dir_name("/s/a.png", Path::new("/s/"), &all),
+            Some(("a.png".to_owned(), OutputKind::Png))
+        );
+    }
+
+    #[test]
+    fn one_message_for_every_refusal() {
+        let all = [OutputKind::Png, OutputKind::Npy];
+        let dir = Some(Path::new("/var/lib/sdi"));
+        let msg = |p: &str| match refused(p, dir, &all) {
+            SdiError::InvalidPath(m) => m.replacen(&p.escape_debug().to_string(), "P", 1),
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(msg("/etc/shadow.png"), msg("/root/missing/x.png"));
+        assert!(msg("/a\nb.png").contains("PrivateTmp"));
+        match refused("/a\nb.png", dir, &all) {
+            SdiError::InvalidPath(m) => assert!(!m.contains('\n'), "{m}"),
+            other => panic!("{other:?}"),
+        }
     }
 }

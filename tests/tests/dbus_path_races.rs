@@ -1,0 +1,316 @@
+//! The two races of the path methods, attempted against a root sdid by an
+//! unprivileged caller (uid 65534 through `setpriv`) on a private bus:
+//!
+//! 1. a symlink renamed over the new file before the daemon hands it to the
+//!    caller (chown by path would give a root-only file away);
+//! 2. a parent directory swapped between validation and creation (a file
+//!    would land in a root-only directory).
+//!
+//! Each is tried `SDI_RACE_ATTEMPTS` times (default 1,000), stopping at the
+//! first win, which fails the test. Needs root; skipped otherwise.
+
+use std::fs;
+use std::io::{BufRead, BufReader};
+use std::os::unix::fs::{MetadataExt, PermissionsExt};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use sdi_tests::dbus::bin;
+use sdi_tests::process::{runnable_copy, Reaped};
+use sdi_tests::require_dbus;
+
+const CALLER_UID: u32 = 65534;
+
+fn attempts() -> usize {
+    std::env::var("SDI_RACE_ATTEMPTS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1000)
+}
+
+/// A private bus any user may connect to and call anything on.
+fn open_bus(dir: &Path) -> (Reaped, String) {
+    let config = dir.join("bus.conf");
+    fs::write(
+        &config,
+        format!(
+            r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-Bus Bus Configuration 1.0//EN"
+ "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
+<busconfig>
+  <type>session</type>
+  <auth>EXTERNAL</auth>
+  <listen>unix:path={}</listen>
+  <policy context="default">
+    <allow user="*"/>
+    <allow own="*"/>
+    <allow send_destination="*"/>
+    <allow receive_sender="*"/>
+  </policy>
+</busconfig>
+"#,
+            dir.join("bus.sock").display()
+        ),
+    )
+    .unwrap();
+    let mut child = Command::new("dbus-daemon")
+        .arg(format!("--config-file={}", config.display()))
+        .args(["--nofork", "--print-address"])
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("spawn dbus-daemon");
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    (Reaped(child), line.trim().to_owned())
+}
+
+struct Setup {
+    _dir: tempfile::TempDir,
+    root: PathBuf,
+    _bus: Reaped,
+    _sdid: Reaped,
+    address: String,
+    sdictl: PathBuf,
+}
+
+impl Setup {
+    fn new() -> Self {
+        let dir = tempfile::Builder::new()
+            .prefix("sdi-race-")
+            .tempdir_in("/var/tmp")
+            .unwrap();
+        let root = dir.path().to_owned();
+        fs::set_permissions(&root, fs::Permissions::from_mode(0o755)).unwrap();
+        // The state directory: owned by the caller (the worst case: the
+        // attacker may rename anything in it).
+        let state = root.join("state");
+        fs::create_dir(&state).unwrap();
+        std::os::unix::fs::chown(&state, Some(CALLER_UID), Some(CALLER_UID)).unwrap();
+        // Root-only: a victim file and a directory nobody else may write.
+        let secret = root.join("root-only");
+        fs::create_dir(&secret).unwrap();
+        fs::set_permissions(&secret, fs::Permissions::from_mode(0o700)).unwrap();
+        fs::write(secret.join("victim"), b"root's").unwrap();
+        // The caller's own directory.
+        let user = root.join("user");
+        fs::create_dir(&user).unwrap();
+        std::os::unix::fs::chown(&user, Some(CALLER_UID), Some(CALLER_UID)).unwrap();
+        let (bus, address) = open_bus(&root);
+        let sdid = Command::new(bin("sdid"))
+            .args([
+                "--bus-address",
+                &address,
+                "--backend",
+                "sim",
+                "--sink",
+                "y4m",
+            ])
+            .args(["--y4m-path", "-", "--frame-rate-hz", "60"])
+            .args(["--state-dir", state.to_str().unwrap()])
+            .env("RUST_LOG", "warn")
+            .env_remove("INVOCATION_ID")
+            .stdout(Stdio::null())
+            .spawn()
+            .expect("start sdid");
+        let sdictl = runnable_copy(&bin("sdictl"), &root.join("bin"));
+        let s = Self {
+            _dir: dir,
+            root,
+            _bus: bus,
+            _sdid: Reaped(sdid),
+            address,
+            sdictl,
+        };
+        let start = Instant::now();
+        while !s.as_caller(&["get", "mode"]).status.success() {
+            assert!(
+                start.elapsed() < Duration::from_secs(30),
+                "sdid did not come up"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        s
+    }
+
+    /// sdictl on the test bus as uid 65534.
+    fn as_caller(&self, args: &[&str]) -> std::process::Output {
+        let uid = CALLER_UID.to_string();
+        Command::new("setpriv")
+            .args(["--reuid", &uid, "--regid", &uid, "--clear-groups"])
+            .arg(&self.sdictl)
+            .args(["--bus-address", &self.address])
+            .args(args)
+            .output()
+            .expect("run setpriv sdictl")
+    }
+
+    fn state(&self) -> PathBuf {
+        self.root.join("state")
+    }
+
+    fn secret(&self) -> PathBuf {
+        self.root.join("root-only")
+    }
+}
+
+fn skip() -> bool {
+    if !nix::unistd::geteuid().is_root() {
+        eprintln!("SKIPPED: the races need a root sdid (run as root)");
+        return true;
+    }
+    if Command::new("setpriv").arg("--version").output().is_err() {
+        eprintln!("SKIPPED: setpriv is not installed");
+        return true;
+    }
+    false
+}
+
+#[test]
+fn symlink_over_the_new_file_never_gives_a_root_file_away() {
+    require_dbus!();
+    if skip() {
+        return;
+    }
+    let s = Setup::new();
+    let victim = s.secret().join("victim");
+    let state = s.state();
+    let current = Arc::new(AtomicUsize::new(usize::MAX));
+    let stop = Arc::new(AtomicBool::new(false));
+    let swapped = Arc::new(AtomicUsize::new(0));
+    // The attacker: as soon as the daemon's new file appears, rename a
+    // symlink to the victim over it.
+    let racer = {
+        let (current, stop, swapped) = (current.clone(), stop.clone(), swapped.clone());
+        let (state, victim) = (state.clone(), victim.clone());
+        std::thread::spawn(move || {
+            let tmp = state.join(".link");
+            let mut done = usize::MAX;
+            while !stop.load(Ordering::Relaxed) {
+                let i = current.load(Ordering::Relaxed);
+                if i == done || i == usize::MAX {
+                    std::hint::spin_loop();
+                    continue;
+                }
+                let target = state.join(format!("x{i}.npy"));
+                if target
+                    .symlink_metadata()
+                    .is_ok_and(|m| m.file_type().is_file())
+                {
+                    let _ = fs::remove_file(&tmp);
+                    if std::os::unix::fs::symlink(&victim, &tmp).is_ok()
+                        && fs::rename(&tmp, &target).is_ok()
+                    {
+                        swapped.fetch_add(1, Ordering::Relaxed);
+                    }
+                    done = i;
+                }
+            }
+        })
+    };
+    let n = attempts();
+    let (mut tried, mut ok, mut refused) = (0, 0, 0);
+    let mut won = None;
+    for i in 0..n {
+        current.store(i, Ordering::Relaxed);
+        let path = state.join(format!("x{i}.npy"));
+        let out = s.as_caller(&["snapshot", "--by-path", path.to_str().unwrap()]);
+        tried += 1;
+        if out.status.success() {
+            ok += 1;
+        } else {
+            refused += 1;
+        }
+        if fs::metadata(&victim).unwrap().uid() != 0 {
+            won = Some(i);
+            break;
+        }
+    }
+    stop.store(true, Ordering::Relaxed);
+    racer.join().unwrap();
+    let swapped = swapped.load(Ordering::Relaxed);
+    eprintln!(
+        "race 1 (symlink before chown): {tried} attempts, {ok} snapshots written, \
+         {refused} refused, {swapped} symlinks renamed over a new file, won: {won:?}"
+    );
+    assert_eq!(won, None, "the victim was handed to uid {CALLER_UID}");
+    assert_eq!(fs::read(&victim).unwrap(), b"root's");
+    assert!(ok > 0, "no snapshot was ever written: the race was not run");
+    // The files the attacker left alone were handed to the caller.
+    let handed = fs::read_dir(&state)
+        .unwrap()
+        .filter_map(Result::ok)
+        .filter_map(|e| e.path().symlink_metadata().ok())
+        .filter(|m| m.file_type().is_file() && m.uid() == CALLER_UID)
+        .count();
+    eprintln!("race 1: {handed} new files left in place, owned by uid {CALLER_UID}");
+    assert!(
+        handed + swapped >= ok,
+        "{handed} handed + {swapped} swapped < {ok} written"
+    );
+}
+
+#[test]
+fn swapping_the_parent_never_creates_a_file_in_a_root_only_directory() {
+    require_dbus!();
+    if skip() {
+        return;
+    }
+    let s = Setup::new();
+    let state = s.state();
+    let (user, secret) = (s.root.join("user"), s.secret());
+    let stop = Arc::new(AtomicBool::new(false));
+    let flips = Arc::new(AtomicUsize::new(0));
+    // The attacker: `state/sub` flips between the caller's own directory
+    // and the root-only one.
+    let racer = {
+        let (stop, flips) = (stop.clone(), flips.clone());
+        let (state, user, secret) = (state.clone(), user.clone(), secret.clone());
+        std::thread::spawn(move || {
+            let (sub, tmp) = (state.join("sub"), state.join(".sub"));
+            let mut k = 0usize;
+            while !stop.load(Ordering::Relaxed) {
+                let to = if k.is_multiple_of(2) { &user } else { &secret };
+                let _ = fs::remove_file(&tmp);
+                if std::os::unix::fs::symlink(to, &tmp).is_ok() && fs::rename(&tmp, &sub).is_ok() {
+                    k += 1;
+                }
+            }
+            flips.store(k, Ordering::Relaxed);
+        })
+    };
+    let n = attempts();
+    let (mut tried, mut ok, mut refused) = (0, 0, 0);
+    let mut won = None;
+    let landed = |dir: &Path| {
+        fs::read_dir(dir)
+            .unwrap()
+            .filter_map(Result::ok)
+            .any(|e| e.file_name().to_string_lossy().starts_with('y'))
+    };
+    for i in 0..n {
+        let path = state.join("sub").join(format!("y{i}.npy"));
+        let out = s.as_caller(&["snapshot", "--by-path", path.to_str().unwrap()]);
+        tried += 1;
+        if out.status.success() {
+            ok += 1;
+        } else {
+            refused += 1;
+        }
+        if landed(&secret) {
+            won = Some(i);
+            break;
+        }
+    }
+    stop.store(true, Ordering::Relaxed);
+    racer.join().unwrap();
+    eprintln!(
+        "race 2 (parent swap): {tried} attempts, {ok} snapshots written (into the caller's \
+         directory), {refused} refused, {} parent flips, won: {won:?}",
+        flips.load(Ordering::Relaxed)
+    );
+    assert_eq!(won, None, "a file was created in the root-only directory");
+}
