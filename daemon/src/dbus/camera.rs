@@ -29,7 +29,7 @@ use sdi_core::calibration::CalibrationRecord;
 /// Largest number of frames one dark-frame or calibration call may average.
 pub const MAX_AVERAGE_FRAMES: u32 = 10_000;
 /// Largest fixed display range, DN.
-pub const MAX_RANGE_DN: f64 = 1e6;
+pub use sdi_core::display::MAX_RANGE_DN;
 
 /// Fixed facts about this camera, known at start.
 #[derive(Debug, Clone)]
@@ -64,13 +64,6 @@ pub struct Camera {
     change_lock: tokio::sync::Mutex<()>,
     /// Held during dark frames and calibration.
     long_op: Arc<tokio::sync::Mutex<()>>,
-}
-
-fn colormap_name(c: Colormap) -> &'static str {
-    match c {
-        Colormap::Diverging => "diverging",
-        Colormap::Grey => "grey",
-    }
 }
 
 impl From<&DarkStats> for DarkFrameReply {
@@ -373,16 +366,13 @@ impl Camera {
         colormap: &str,
         #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
     ) -> Result<(u64, u64), SdiError> {
-        let c = match colormap {
-            "diverging" => Colormap::Diverging,
-            "grey" | "gray" => Colormap::Grey,
-            other => {
-                return Err(SdiError::OutOfRange(format!(
-                    "unknown colormap '{}': allowed diverging, grey",
-                    other.escape_debug()
-                )))
-            }
-        };
+        let c: Colormap = colormap.parse().map_err(|_| {
+            SdiError::OutOfRange(format!(
+                "unknown colormap '{}': allowed {}",
+                colormap.escape_debug(),
+                Colormap::NAMES.join(", ")
+            ))
+        })?;
         self.set_display(&emitter, |d| d.colormap = c).await
     }
 
@@ -644,7 +634,7 @@ impl Camera {
 
     #[zbus(property)]
     async fn colormap(&self) -> String {
-        colormap_name(self.state().display.colormap).into()
+        self.state().display.colormap.name().into()
     }
 
     /// |DN| at full scale; 0 = symmetric auto range.
