@@ -744,7 +744,12 @@ mod tests {
     #[test]
     fn parse_names() {
         assert_eq!("grey".parse(), Ok(Colormap::Grey));
-        assert!("gray".parse::<Colormap>().is_err());
+        // One parser for the config, sdid, D-Bus and sdictl: "gray" too (issue 14).
+        assert_eq!("gray".parse(), Ok(Colormap::Grey));
+        assert_eq!(Colormap::Grey.name(), "grey");
+        for bad in ["Grey", "GRAY", "jet", ""] {
+            assert!(bad.parse::<Colormap>().is_err(), "{bad}");
+        }
         assert_eq!("12.5".parse(), Ok(DisplayRange::Fixed { max_abs_dn: 12.5 }));
         for bad in ["0", "-3", "NaN", "inf", "x"] {
             assert!(bad.parse::<DisplayRange>().is_err(), "{bad}");
