@@ -117,9 +117,6 @@ mod tests {
         let spec: SensorSpec = path.to_str().unwrap().parse().unwrap();
         assert_eq!(spec.load().unwrap().width, 165);
         std::fs::write(&path, "width = 0").unwrap();
-        assert!(matches!(
-            spec.load(),
-            Err(SensorSpecError::Invalid { .. })
-        ));
+        assert!(matches!(spec.load(), Err(SensorSpecError::Invalid { .. })));
     }
 }

@@ -1,8 +1,8 @@
 use sdi_core::display::Colormap;
 use sdi_core::mode::ModeId;
-use sdi_core::separation::LiveMethod;
 use sdi_core::sensor::capture_range::FRAME_RATE_HZ;
 use sdi_core::sensor::SensorPreset;
+use sdi_core::separation::LiveMethod;
 
 use super::*;
 
@@ -188,7 +188,8 @@ fn adjustments_are_made_and_reported() {
         a[0].to_string(),
         "lights.address = 192.0.2.10 adjusted to 192.0.2.10:5025: no port given: the SCPI port"
     );
-    let (c, a) = validated("[lights]\ndriver = \"scpi-tcp\"\naddress = \"127.0.0.1:5025\"").unwrap();
+    let (c, a) =
+        validated("[lights]\ndriver = \"scpi-tcp\"\naddress = \"127.0.0.1:5025\"").unwrap();
     assert_eq!(c.lights.address, "127.0.0.1:5025");
     assert!(a.is_empty());
     let (c, a) = validated("[display]\nrange_max_abs_dn = 1e9").unwrap();
@@ -218,7 +219,11 @@ fn board_and_lights_sections() {
 fn load_reads_validates_and_names_the_file() {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("sdid.toml");
-    std::fs::write(&path, "frame_rate_hz = 30.0\n[display]\ncolormap = \"gray\"\n").unwrap();
+    std::fs::write(
+        &path,
+        "frame_rate_hz = 30.0\n[display]\ncolormap = \"gray\"\n",
+    )
+    .unwrap();
     let (c, a) = Config::load(Some(&path)).unwrap();
     assert_eq!(c.frame_rate_hz, Some(30.0));
     assert_eq!(c.display.colormap, Colormap::Grey);
@@ -282,7 +287,10 @@ fn clap_parsers_use_the_same_names_and_ranges() {
     assert_eq!(a.colormap, Some(Colormap::Grey));
     assert_eq!(a.backend, Some(BackendKind::Sim));
     let a = Args::try_parse_from(["x", "--colormap", "grey", "--frame-rate-hz", "240"]).unwrap();
-    assert_eq!((a.colormap, a.frame_rate_hz), (Some(Colormap::Grey), Some(240.0)));
+    assert_eq!(
+        (a.colormap, a.frame_rate_hz),
+        (Some(Colormap::Grey), Some(240.0))
+    );
     for bad in [
         &["x", "--colormap", "jet"][..],
         &["x", "--backend", "usb"],

@@ -5,8 +5,8 @@
 use std::fmt;
 
 use sdi_core::display::MAX_RANGE_DN;
-use sdi_core::separation::{BilateralParams, LiveMethod, SeparationError};
 use sdi_core::sensor::capture_range::{self, CaptureRange};
+use sdi_core::separation::{BilateralParams, LiveMethod, SeparationError};
 
 use crate::choice::{BackendKind, LightDriver, SeparationMethod};
 use crate::file::{Config, SeparationSection};

@@ -6,6 +6,7 @@ use std::sync::mpsc;
 
 use clap::Parser;
 use sdi_core::mode::ModeId;
+use sdi_core::sensor::capture_range;
 use sdi_daemon::backend::board::{self as board_backend, BoardBackend, OnUnplug};
 use sdi_daemon::backend::opt8241::init::Roi;
 use sdi_daemon::backend::opt8241::BoardSelector;
@@ -19,7 +20,6 @@ use sdi_daemon::config::{cli, BackendKind, Config, SensorSpec, SinkKind};
 use sdi_daemon::dbus::camera::{Camera, CameraInfo};
 use sdi_daemon::dbus::{BUS_NAME, OBJECT_PATH};
 use sdi_daemon::frame_loop::{Command, FrameLoop};
-use sdi_core::sensor::capture_range;
 use sdi_daemon::modes::{DisplayMap, DisplayRange};
 use sdi_daemon::recording::Calibration;
 use sdi_daemon::sink::loopback::LoopbackSink;
@@ -195,10 +195,7 @@ fn build_backend(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExt
             }
         }
         BackendKind::Sim => {
-            let desc = c
-                .sensor
-                .load()
-                .map_err(|e| format!("sensor {e}"))?;
+            let desc = c.sensor.load().map_err(|e| format!("sensor {e}"))?;
             if let Some(hz) = c.modulation_hz {
                 desc.check_modulation_hz(hz).map_err(|e| e.to_string())?;
             }

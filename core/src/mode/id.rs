@@ -153,8 +153,13 @@ mod tests {
         })
         .unwrap();
         assert_eq!(json.trim(), "mode = \"depth-edge-vertical\"");
-        assert_eq!(toml::from_str::<Wrap>(&json).unwrap().mode, ModeId::DepthEdgeVertical);
-        let bad = toml::from_str::<Wrap>("mode = \"Raw\"").unwrap_err().to_string();
+        assert_eq!(
+            toml::from_str::<Wrap>(&json).unwrap().mode,
+            ModeId::DepthEdgeVertical
+        );
+        let bad = toml::from_str::<Wrap>("mode = \"Raw\"")
+            .unwrap_err()
+            .to_string();
         assert!(bad.contains("valid modes"), "{bad}");
         let err = ModeId::from_name("nope").unwrap_err().to_string();
         assert!(err.contains("depth-edge") && err.contains("nope"));
