@@ -14,28 +14,54 @@ use multiversion::multiversion;
 use crate::image::Image;
 use crate::mode::{ModeOutput, SeparatedChannels};
 
+/// Largest fixed display range, |DN| at full scale.
+pub const MAX_RANGE_DN: f64 = 1e6;
+
 /// Fraction of finite pixels whose |x| lies inside the auto range.
 pub const AUTO_PERCENTILE: f64 = 0.995;
 
-/// Colour scale.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+/// Colour scale, named "diverging" or "grey" ("gray" is accepted too).
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Default,
+    strum::EnumString,
+    strum::Display,
+    strum::IntoStaticStr,
+    strum::VariantNames,
+    strum::EnumIter,
+    strum::EnumMessage,
+)]
+#[strum(
+    serialize_all = "lowercase",
+    parse_err_ty = DisplayParseError,
+    parse_err_fn = unknown_colormap
+)]
 pub enum Colormap {
     /// Negative blue, zero near-white, positive red.
     #[default]
     Diverging,
     /// Black (most negative) to white (most positive), zero mid-grey.
+    #[strum(to_string = "grey", serialize = "gray")]
     Grey,
 }
 
+crate::serde_by_name!(Colormap);
+
 impl Colormap {
-    pub const NAMES: &'static [&'static str] = &["diverging", "grey"];
+    /// The canonical names, as shown and as [`Colormap::name`] gives them.
+    pub const NAMES: &'static [&'static str] = <Self as strum::VariantNames>::VARIANTS;
 
     pub fn name(self) -> &'static str {
-        match self {
-            Colormap::Diverging => "diverging",
-            Colormap::Grey => "grey",
-        }
+        self.into()
     }
+}
+
+fn unknown_colormap(s: &str) -> DisplayParseError {
+    DisplayParseError::Colormap(s.to_owned())
 }
 
 /// Which |DN| maps to the ends of the scale.
@@ -55,17 +81,6 @@ pub enum DisplayParseError {
     Colormap(String),
     #[error("invalid range '{0}'; expected 'auto' or a finite number of DN > 0")]
     Range(String),
-}
-
-impl FromStr for Colormap {
-    type Err = DisplayParseError;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        match s {
-            "diverging" => Ok(Colormap::Diverging),
-            "grey" => Ok(Colormap::Grey),
-            _ => Err(DisplayParseError::Colormap(s.to_owned())),
-        }
-    }
 }
 
 impl FromStr for DisplayRange {
@@ -729,7 +744,12 @@ mod tests {
     #[test]
     fn parse_names() {
         assert_eq!("grey".parse(), Ok(Colormap::Grey));
-        assert!("gray".parse::<Colormap>().is_err());
+        // One parser for the config, sdid, D-Bus and sdictl: "gray" too (issue 14).
+        assert_eq!("gray".parse(), Ok(Colormap::Grey));
+        assert_eq!(Colormap::Grey.name(), "grey");
+        for bad in ["Grey", "GRAY", "jet", ""] {
+            assert!(bad.parse::<Colormap>().is_err(), "{bad}");
+        }
         assert_eq!("12.5".parse(), Ok(DisplayRange::Fixed { max_abs_dn: 12.5 }));
         for bad in ["0", "-3", "NaN", "inf", "x"] {
             assert!(bad.parse::<DisplayRange>().is_err(), "{bad}");

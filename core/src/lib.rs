@@ -12,6 +12,7 @@ pub mod frame;
 pub mod image;
 pub mod mode;
 pub mod modulation;
+pub mod named;
 pub mod npy;
 pub mod pixel_flags;
 pub mod scene;

@@ -17,7 +17,6 @@ pub mod modes;
 pub mod monotonic;
 pub mod photon_transfer;
 pub mod recording;
-pub mod sensor_file;
 pub mod sink;
 pub mod snapshot;
 pub mod stats;

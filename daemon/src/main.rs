@@ -6,6 +6,7 @@ use std::sync::mpsc;
 
 use clap::Parser;
 use sdi_core::mode::ModeId;
+use sdi_core::sensor::capture_range;
 use sdi_daemon::backend::board::{self as board_backend, BoardBackend, OnUnplug};
 use sdi_daemon::backend::opt8241::init::Roi;
 use sdi_daemon::backend::opt8241::BoardSelector;
@@ -15,11 +16,11 @@ use sdi_daemon::backend::status::StatusHandle;
 use sdi_daemon::backend::{Backend, CaptureSettings};
 use sdi_daemon::bus::{self, PrivateBus};
 use sdi_daemon::calibration_store;
-use sdi_daemon::config::Config;
+use sdi_daemon::config::{cli, BackendKind, Config, SensorSpec, SinkKind};
 use sdi_daemon::dbus::camera::{Camera, CameraInfo};
 use sdi_daemon::dbus::{BUS_NAME, OBJECT_PATH};
 use sdi_daemon::frame_loop::{Command, FrameLoop};
-use sdi_daemon::modes::{Colormap, DisplayMap, DisplayRange};
+use sdi_daemon::modes::{DisplayMap, DisplayRange};
 use sdi_daemon::recording::Calibration;
 use sdi_daemon::sink::loopback::LoopbackSink;
 use sdi_daemon::sink::output::Output;
@@ -42,8 +43,8 @@ struct Args {
     #[arg(long, conflicts_with = "session")]
     bus_address: Option<String>,
     /// Frame source: auto (the board if attached, else the simulator), sim, replay or opt8241.
-    #[arg(long)]
-    backend: Option<String>,
+    #[arg(long, value_parser = cli::choice::<BackendKind>())]
+    backend: Option<BackendKind>,
     /// Recording to play (implies --backend replay).
     #[arg(long)]
     replay: Option<PathBuf>,
@@ -51,21 +52,24 @@ struct Args {
     #[arg(long = "loop")]
     looping: bool,
     /// Mode at start.
-    #[arg(long)]
-    mode: Option<String>,
+    #[arg(long, value_parser = cli::choice::<ModeId>())]
+    mode: Option<ModeId>,
     /// Simulator sensor: preset (ti, pmd) or a sensor description file (TOML).
     #[arg(long)]
-    sensor: Option<String>,
-    #[arg(long)]
+    sensor: Option<SensorSpec>,
+    /// Frame rate, Hz [0.1, 240].
+    #[arg(long, value_parser = cli::in_range(capture_range::FRAME_RATE_HZ))]
     frame_rate_hz: Option<f64>,
-    #[arg(long)]
+    /// Exposure per frame, us [1, 1e6].
+    #[arg(long, value_parser = cli::in_range(capture_range::EXPOSURE_US))]
     exposure_us: Option<f64>,
-    #[arg(long)]
+    /// Modulation frequency, Hz [1e3, 100e6].
+    #[arg(long, value_parser = cli::in_range(capture_range::MODULATION_HZ))]
     modulation_hz: Option<f64>,
     /// Output sink: auto (v4l2loopback, else PipeWire, else y4m), loopback,
     /// pipewire or y4m.
-    #[arg(long)]
-    sink: Option<String>,
+    #[arg(long, value_parser = cli::choice::<SinkKind>())]
+    sink: Option<SinkKind>,
     /// y4m fallback target: "-" (stdout) or a FIFO path [default: stdout if
     /// it is a pipe, else $XDG_RUNTIME_DIR/sdid-view.y4m].
     #[arg(long)]
@@ -76,19 +80,20 @@ struct Args {
     state_dir: Option<PathBuf>,
 }
 
+/// The command line's overrides, already typed; validated with the rest after.
 fn apply(args: &Args, c: &mut Config) {
-    if let Some(b) = &args.backend {
-        c.backend = b.clone();
+    if let Some(b) = args.backend {
+        c.backend = b;
     }
     if let Some(p) = &args.replay {
-        c.backend = "replay".into();
+        c.backend = BackendKind::Replay;
         c.replay.path = Some(p.clone());
     }
     if args.looping {
         c.replay.looping = true;
     }
-    if let Some(m) = &args.mode {
-        c.mode = m.clone();
+    if let Some(m) = args.mode {
+        c.mode = m;
     }
     if let Some(s) = &args.sensor {
         c.sensor = s.clone();
@@ -96,8 +101,8 @@ fn apply(args: &Args, c: &mut Config) {
     c.frame_rate_hz = args.frame_rate_hz.or(c.frame_rate_hz);
     c.exposure_us = args.exposure_us.or(c.exposure_us);
     c.modulation_hz = args.modulation_hz.or(c.modulation_hz);
-    if let Some(s) = &args.sink {
-        c.output.sink = s.clone();
+    if let Some(s) = args.sink {
+        c.output.sink = s;
     }
     if let Some(p) = &args.y4m_path {
         c.output.y4m_path = p.clone();
@@ -135,13 +140,7 @@ struct BoardExtras {
 }
 
 fn open_board(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), String> {
-    let on_unplug = OnUnplug::from_name(&c.board.on_unplug).ok_or_else(|| {
-        format!(
-            "unknown [board] on_unplug '{}': use {}",
-            c.board.on_unplug,
-            OnUnplug::NAMES.join(", ")
-        )
-    })?;
+    let on_unplug = c.board.on_unplug;
     let roi = c.board.roi.map(|[x, y, width, height]| Roi {
         x,
         y,
@@ -167,11 +166,11 @@ fn open_board(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras
 }
 
 fn build_backend(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), String> {
-    match c.backend.as_str() {
-        "opt8241" => open_board(c, mode),
-        "auto" => {
+    match c.backend {
+        BackendKind::Opt8241 => open_board(c, mode),
+        BackendKind::Auto => {
             let mut sim = c.clone();
-            sim.backend = "sim".into();
+            sim.backend = BackendKind::Sim;
             match board_backend::board_attached() {
                 Ok(true) => match open_board(c, mode) {
                     Ok(b) => {
@@ -195,8 +194,8 @@ fn build_backend(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExt
                 }
             }
         }
-        "sim" => {
-            let desc = sdi_daemon::sensor_file::load(&c.sensor)?;
+        BackendKind::Sim => {
+            let desc = c.sensor.load().map_err(|e| format!("sensor {e}"))?;
             if let Some(hz) = c.modulation_hz {
                 desc.check_modulation_hz(hz).map_err(|e| e.to_string())?;
             }
@@ -215,7 +214,7 @@ fn build_backend(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExt
                 BoardExtras::default(),
             ))
         }
-        "replay" => {
+        BackendKind::Replay => {
             let path = c
                 .replay
                 .path
@@ -229,10 +228,6 @@ fn build_backend(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExt
             }
             Ok((Box::new(b), BoardExtras::default()))
         }
-        other => Err(format!(
-            "unknown backend '{other}': use {}",
-            sdi_daemon::backend::KINDS.join(", ")
-        )),
     }
 }
 
@@ -279,15 +274,10 @@ fn build_sink(
     fps: f64,
     mode: ModeId,
 ) -> Result<(Box<dyn Sink>, Option<String>), String> {
-    let kind = c.output.sink.as_str();
-    let auto = kind == "auto";
-    if !matches!(kind, "auto" | "loopback" | "pipewire" | "y4m") {
-        return Err(format!(
-            "unknown sink '{kind}': use auto, loopback, pipewire or y4m"
-        ));
-    }
+    let kind = c.output.sink;
+    let auto = kind == SinkKind::Auto;
     let mut passed = Vec::new();
-    if auto || kind == "loopback" {
+    if auto || kind == SinkKind::Loopback {
         match LoopbackSink::open(&c.output.label, &c.output.data_label, width, height, fps) {
             Ok(s) => {
                 tracing::info!(device = %s.info().device, "publishing on v4l2loopback");
@@ -313,7 +303,7 @@ fn build_sink(
             }
         }
     }
-    if auto || kind == "pipewire" {
+    if auto || kind == SinkKind::Pipewire {
         match open_pipewire(width, height, fps, mode) {
             Ok(s) => {
                 let why = auto.then(|| format!("auto: {}; PipeWire reachable", passed.join("; ")));
@@ -342,23 +332,20 @@ fn build_sink(
     ))
 }
 
-fn display_from(c: &Config) -> Result<DisplayMap, String> {
-    let colormap = match c.display.colormap.as_str() {
-        "diverging" => Colormap::Diverging,
-        "grey" | "gray" => Colormap::Grey,
-        o => return Err(format!("unknown colormap '{o}': use diverging or grey")),
-    };
+/// The display mapping of a validated `[display]` section.
+fn display_from(c: &Config) -> DisplayMap {
     let r = c.display.range_max_abs_dn;
     let range = if r == 0.0 {
         DisplayRange::SymmetricAuto
-    } else if r.is_finite() && r > 0.0 {
+    } else {
         DisplayRange::Fixed {
             max_abs_dn: r as f32,
         }
-    } else {
-        return Err(format!("display range {r} must be 0 (auto) or positive"));
     };
-    Ok(DisplayMap { colormap, range })
+    DisplayMap {
+        colormap: c.display.colormap,
+        range,
+    }
 }
 
 async fn connect(args: &Args) -> Result<(zbus::Connection, Option<PrivateBus>), String> {
@@ -409,9 +396,17 @@ async fn wait_for_signal() -> &'static str {
 }
 
 async fn run(args: Args) -> Result<(), String> {
-    let mut config = Config::load(args.config.as_deref()).map_err(|e| e.to_string())?;
+    let (mut config, file) = Config::read(args.config.as_deref()).map_err(|e| e.to_string())?;
     apply(&args, &mut config);
-    let mut mode = ModeId::from_name(&config.mode).map_err(|e| e.to_string())?;
+    // Validated once, here, after the command line's overrides.
+    let adjusted = config.validate().map_err(|e| match &file {
+        Some(path) => format!("{}: {e}", path.display()),
+        None => e.to_string(),
+    })?;
+    for a in adjusted {
+        tracing::warn!("configuration: {a}");
+    }
+    let mut mode = config.mode;
     let (backend, extras) = build_backend(&config, mode)?;
     let backend = with_lights(&config, backend)?;
     if backend.kind() == "replay" && args.mode.is_none() {
@@ -429,8 +424,8 @@ async fn run(args: Args) -> Result<(), String> {
             mode = m;
         }
     }
-    let display = display_from(&config)?;
-    let separation = config.separation.live_method()?;
+    let display = display_from(&config);
+    let separation = config.separation.live_method();
     let sensor = backend.sensor().clone();
     let capture: CaptureSettings = backend.settings();
     let (sink, why) = build_sink(

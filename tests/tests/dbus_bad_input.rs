@@ -120,3 +120,58 @@ async fn flood_of_calls_keeps_frame_rate() {
     assert!(fps > 30.0 * 0.8, "frame rate dropped to {fps}: {s}");
     assert!(s["frames"].as_u64().unwrap() > 30);
 }
+
+/// One frame-rate range (`sdi_core::sensor::capture_range::FRAME_RATE_HZ`):
+/// the D-Bus setter, sdid's command line and sdid.toml accept its upper end
+/// and refuse just past either end (they used to differ: 0.1-240 Hz on the
+/// bus, 0-10000 Hz at start).
+#[test]
+fn one_frame_rate_range_on_the_bus_the_command_line_and_the_file() {
+    require_dbus!();
+    use sdi_core::sensor::capture_range::FRAME_RATE_HZ as R;
+    let (lo, hi) = (R.min, R.max);
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &[]);
+    // The lower end itself is not set on the bus: at 0.1 Hz the call waits
+    // for a frame 10 s away. The file and the command line take it below.
+    let (code, msg) = err(&d.ctl(&["set", "frame-rate", &hi.to_string()]));
+    assert_eq!(code, 0, "{msg}");
+    for bad in [hi + 0.5, lo / 2.0, 1000.0, 10_000.0] {
+        let (code, msg) = err(&d.ctl(&["set", "frame-rate", &bad.to_string()]));
+        assert!(
+            code == 2
+                && msg.contains("org.sdi.Error.OutOfRange")
+                && msg.contains(&format!("[{lo}, {hi}]")),
+            "{bad}: {msg}"
+        );
+    }
+    let (code, msg) = err(&d.ctl(&["set", "frame-rate", "30"]));
+    assert_eq!(code, 0, "{msg}");
+
+    // sdid refuses the same values before it starts: command line and file.
+    let dir = tempfile::tempdir().unwrap();
+    let sdid = |args: &[&str]| {
+        std::process::Command::new(sdi_tests::dbus::bin("sdid"))
+            .args(["--bus-address", &bus.address, "--backend", "sim"])
+            .args(["--sink", "y4m", "--y4m-path", "-"])
+            .args(args)
+            .env("RUST_LOG", "error")
+            .stdout(std::process::Stdio::null())
+            .output()
+            .unwrap()
+    };
+    for bad in [hi + 0.5, lo / 2.0, 1000.0, 10_000.0] {
+        let (code, msg) = err(&sdid(&["--frame-rate-hz", &bad.to_string()]));
+        assert!(
+            code != 0 && msg.contains("frame_rate_hz") && msg.contains(&format!("[{lo}, {hi}]")),
+            "--frame-rate-hz {bad}: {code} {msg}"
+        );
+        let file = dir.path().join("sdid.toml");
+        std::fs::write(&file, format!("frame_rate_hz = {bad:?}\n")).unwrap();
+        let (code, msg) = err(&sdid(&["--config", file.to_str().unwrap()]));
+        assert!(
+            code != 0 && msg.contains("frame_rate_hz") && msg.contains(&format!("[{lo}, {hi}]")),
+            "frame_rate_hz = {bad}: {code} {msg}"
+        );
+    }
+}

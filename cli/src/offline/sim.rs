@@ -8,7 +8,7 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use clap::builder::{PossibleValuesParser, TypedValueParser};
+use clap::builder::PossibleValuesParser;
 use clap::Args;
 use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
@@ -40,8 +40,7 @@ pub struct SimArgs {
     #[arg(long, value_parser = PossibleValuesParser::new(available_scenes()))]
     pub scene: Option<String>,
     /// Difference mode to run.
-    #[arg(long, value_parser = PossibleValuesParser::new(ModeId::names())
-        .try_map(|s| ModeId::from_name(&s)))]
+    #[arg(long, value_parser = sdi_config::cli::choice::<ModeId>())]
     pub mode: ModeId,
     /// Number of output frames to write (1..=10000).
     #[arg(long, value_parser = parse_frames, allow_negative_numbers = true)]
@@ -79,7 +78,7 @@ pub struct SimArgs {
     pub png: Option<PathBuf>,
     /// Colormap of the PNG.
     #[arg(long, default_value = "diverging",
-        value_parser = PossibleValuesParser::new(Colormap::NAMES).try_map(|s| s.parse::<Colormap>()))]
+        value_parser = sdi_config::cli::choice::<Colormap>())]
     pub colormap: Colormap,
     /// Display range of the PNG: 'auto' (robust symmetric) or max |DN| (> 0).
     #[arg(long, default_value = "auto", value_parser = |s: &str| s.parse::<DisplayRange>(), allow_negative_numbers = true)]

@@ -639,7 +639,9 @@ pub fn run(bus: &BusArgs, sysroot: &Path) -> ExitCode {
     let sys = Sys {
         root: sysroot.to_owned(),
     };
-    let config = sdi_daemon::config::Config::load(None).unwrap_or_default();
+    let config = sdi_config::Config::load(None)
+        .map(|(c, _)| c)
+        .unwrap_or_default();
     let mut labels = vec![config.output.label.clone()];
     if !config.output.data_label.is_empty() {
         labels.push(config.output.data_label.clone());

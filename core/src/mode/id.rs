@@ -1,10 +1,28 @@
 //! The list of modes, their names, and the physical setup each one expects.
 
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
-/// Every mode SDI can run.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
+/// Every mode SDI can run, named in kebab-case ("depth-edge"): one table
+/// (strum's) for `FromStr`, `Display`, serde and the list of names.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    Hash,
+    strum::EnumString,
+    strum::Display,
+    strum::IntoStaticStr,
+    strum::VariantNames,
+    strum::EnumIter,
+    strum::EnumMessage,
+)]
+#[strum(
+    serialize_all = "kebab-case",
+    parse_err_ty = UnknownMode,
+    parse_err_fn = unknown_mode
+)]
 pub enum ModeId {
     /// The sensor's difference image as is (dark-frame subtracted).
     Raw,
@@ -24,6 +42,14 @@ pub enum ModeId {
     TwoShot,
     /// Red LS1, blue LS2 as bipolar colour; I+ and I- recovered live (section 6).
     Separation,
+}
+
+crate::serde_by_name!(ModeId);
+
+fn unknown_mode(given: &str) -> UnknownMode {
+    UnknownMode {
+        given: given.to_owned(),
+    }
 }
 
 /// A name that is not a mode; carries the valid names for the error message.
@@ -55,30 +81,15 @@ impl ModeId {
     ];
 
     pub fn name(self) -> &'static str {
-        match self {
-            ModeId::Raw => "raw",
-            ModeId::DirectOnly => "direct-only",
-            ModeId::BipolarColour => "bipolar-colour",
-            ModeId::DepthEdge => "depth-edge",
-            ModeId::DepthEdgeVertical => "depth-edge-vertical",
-            ModeId::SpatialGradient => "spatial-gradient",
-            ModeId::TemporalGradient => "temporal-gradient",
-            ModeId::TwoShot => "two-shot",
-            ModeId::Separation => "separation",
-        }
+        self.into()
     }
 
     pub fn names() -> Vec<&'static str> {
-        Self::ALL.iter().map(|m| m.name()).collect()
+        <Self as strum::VariantNames>::VARIANTS.to_vec()
     }
 
     pub fn from_name(name: &str) -> Result<Self, UnknownMode> {
-        Self::ALL
-            .into_iter()
-            .find(|m| m.name() == name)
-            .ok_or_else(|| UnknownMode {
-                given: name.to_owned(),
-            })
+        name.parse()
     }
 
     pub fn setup(self) -> PhysicalSetup {
@@ -122,28 +133,34 @@ impl ModeId {
     }
 }
 
-impl std::fmt::Display for ModeId {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
-    }
-}
-
-impl std::str::FromStr for ModeId {
-    type Err = UnknownMode;
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        Self::from_name(s)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[derive(Debug, serde::Serialize, serde::Deserialize)]
+    struct Wrap {
+        mode: ModeId,
+    }
 
     #[test]
     fn names_round_trip() {
         for m in ModeId::ALL {
             assert_eq!(ModeId::from_name(m.name()), Ok(m));
         }
+        assert_eq!(ModeId::names().len(), ModeId::ALL.len());
+        let json = toml::to_string(&Wrap {
+            mode: ModeId::DepthEdgeVertical,
+        })
+        .unwrap();
+        assert_eq!(json.trim(), "mode = \"depth-edge-vertical\"");
+        assert_eq!(
+            toml::from_str::<Wrap>(&json).unwrap().mode,
+            ModeId::DepthEdgeVertical
+        );
+        let bad = toml::from_str::<Wrap>("mode = \"Raw\"")
+            .unwrap_err()
+            .to_string();
+        assert!(bad.contains("valid modes"), "{bad}");
         let err = ModeId::from_name("nope").unwrap_err().to_string();
         assert!(err.contains("depth-edge") && err.contains("nope"));
     }

@@ -1,5 +1,6 @@
 //! The ToF pixel: parameters, presets and the Skellam mixing matrix H (section 3).
 
+pub mod capture_range;
 pub mod description;
 mod params;
 mod presets;

@@ -2,6 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::capture_range;
 use super::skellam::SkellamMixing;
 
 /// Everything the readout model D = rho * (eta * (N+ - N-) + n_read) needs
@@ -86,17 +87,18 @@ impl SensorParams {
         check("adc_offset_dn", p.adc_offset_dn, true, "finite")?;
         let fp = p.fixed_pattern_sigma_dn;
         check("fixed_pattern_sigma_dn", fp, fp >= 0.0, ">= 0")?;
-        let e = p.exposure_us;
-        check("exposure_us", e, e > 0.0 && e <= 1e6, "(0, 1e6] us")?;
-        let fr = p.frame_rate_hz;
-        check(
-            "frame_rate_hz",
-            fr,
-            fr > 0.0 && fr <= 10_000.0,
-            "(0, 10000] Hz",
-        )?;
-        let m = p.modulation_hz;
-        check("modulation_hz", m, m > 0.0, "> 0")?;
+        // The capture settings: one range each, shared with sdid (capture_range).
+        for (range, value) in [
+            (capture_range::EXPOSURE_US, p.exposure_us),
+            (capture_range::FRAME_RATE_HZ, p.frame_rate_hz),
+            (capture_range::MODULATION_HZ, p.modulation_hz),
+        ] {
+            range.check(value).map_err(|e| ParamError {
+                name: e.name,
+                value,
+                allowed: range.allowed,
+            })?;
+        }
         Ok(())
     }
 

@@ -9,12 +9,25 @@
 
 use super::SensorParams;
 
-/// Named presets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Named presets: "ti" and "pmd" on command lines and in config files.
+#[derive(
+    Debug,
+    Clone,
+    Copy,
+    PartialEq,
+    Eq,
+    strum::EnumString,
+    strum::Display,
+    strum::IntoStaticStr,
+    strum::VariantNames,
+    strum::EnumIter,
+)]
 pub enum SensorPreset {
     /// TI OPT8241 (320x240, 12-bit signed A-B output).
+    #[strum(serialize = "ti")]
     TiOpt8241,
     /// PMD CamBoard nano (165x120).
+    #[strum(serialize = "pmd")]
     PmdCamBoardNano,
 }
 
@@ -23,14 +36,19 @@ impl SensorPreset {
 
     /// Short name used on command lines and in config files.
     pub fn name(self) -> &'static str {
-        match self {
-            SensorPreset::TiOpt8241 => "ti",
-            SensorPreset::PmdCamBoardNano => "pmd",
-        }
+        self.into()
     }
 
     pub fn from_name(name: &str) -> Option<Self> {
-        Self::ALL.into_iter().find(|p| p.name() == name)
+        name.parse().ok()
+    }
+
+    /// The preset's sensor description file as shipped (`core/sensors/`).
+    pub fn toml(self) -> &'static str {
+        match self {
+            SensorPreset::TiOpt8241 => super::description::TI_TOML,
+            SensorPreset::PmdCamBoardNano => super::description::PMD_TOML,
+        }
     }
 
     pub fn params(self) -> SensorParams {

@@ -37,7 +37,10 @@ impl BilateralParams {
         }
     }
 
-    pub(crate) fn validate(&self) -> Result<(), SeparationError> {
+    /// The one set of bounds of M3's sigmas (the live mode, `sdid.toml` and
+    /// the offline tools): sigma_domain finite and > 0, sigma_range > 0
+    /// (infinity: no range weighting).
+    pub fn validate(&self) -> Result<(), SeparationError> {
         let d = self.sigma_domain_px;
         SeparationError::check("sigma_domain_px", d, d > 0.0, "> 0, finite")?;
         let r = self.sigma_range_dn;

@@ -51,6 +51,26 @@ impl LiveSeparatorConfig {
     }
 }
 
+/// Longest sliding window of the live separator: it holds two images of f64
+/// sums per frame.
+pub const MAX_LIVE_WINDOW_FRAMES: usize = 1000;
+
+impl LiveMethod {
+    /// Refuses parameters the separator cannot run with: M3's sigmas
+    /// ([`BilateralParams::validate`]), a window outside 2..=[`MAX_LIVE_WINDOW_FRAMES`].
+    pub fn validate(&self) -> Result<(), SeparationError> {
+        match *self {
+            LiveMethod::Bilateral(p) => p.validate(),
+            LiveMethod::SlidingWindow { frames } => SeparationError::check(
+                "window_frames",
+                frames as f64,
+                (2..=MAX_LIVE_WINDOW_FRAMES).contains(&frames),
+                "2..=1000",
+            ),
+        }
+    }
+}
+
 impl Default for LiveSeparatorConfig {
     /// M3 with the default sensor preset's H (pipelines built without a sensor).
     fn default() -> Self {

@@ -39,7 +39,9 @@ pub use bilateral::{bilateral_exact, BilateralParams};
 pub use bilateral_grid::{bilateral_grid, BilateralGrid, MAX_LEVELS};
 pub use bilateral_separable::{bilateral_separable, SeparableBilateral};
 pub use error::SeparationError;
-pub use live::{LiveMethod, LiveSeparator, LiveSeparatorConfig, DEFAULT_BILATERAL};
+pub use live::{
+    LiveMethod, LiveSeparator, LiveSeparatorConfig, DEFAULT_BILATERAL, MAX_LIVE_WINDOW_FRAMES,
+};
 pub use local_moments::LocalMoments;
 pub use moments::{MomentSource, Moments, PixelStats};
 pub use pooling::{pool_moments, PoolParams};

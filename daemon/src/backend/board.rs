@@ -43,29 +43,7 @@ pub struct ReconnectCounts {
 }
 
 /// What sdid does while the board is unplugged (`[board] on_unplug`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum OnUnplug {
-    /// Keep the output open with a "no signal" frame until the board is back.
-    #[default]
-    NoSignal,
-    /// The simulator stands in until the board is back.
-    Simulator,
-    /// End sdid cleanly (status 0).
-    Exit,
-}
-
-impl OnUnplug {
-    pub const NAMES: &'static [&'static str] = &["no-signal", "simulator", "exit"];
-
-    pub fn from_name(name: &str) -> Option<Self> {
-        match name {
-            "no-signal" => Some(Self::NoSignal),
-            "simulator" => Some(Self::Simulator),
-            "exit" => Some(Self::Exit),
-            _ => None,
-        }
-    }
-}
+pub use sdi_config::OnUnplug;
 
 /// Integration time of one quad, microseconds: intg_duty_cycle / 64 of the
 /// quad time 1 / (fps * quads * sub frames) (OPT9221.dml; SDK
@@ -527,9 +505,9 @@ mod tests {
     #[test]
     fn on_unplug_names() {
         for n in OnUnplug::NAMES {
-            assert!(OnUnplug::from_name(n).is_some());
+            assert!(n.parse::<OnUnplug>().is_ok());
         }
-        assert_eq!(OnUnplug::from_name("restart"), None);
+        assert!("restart".parse::<OnUnplug>().is_err());
         assert_eq!(OnUnplug::default(), OnUnplug::NoSignal);
     }
 

@@ -10,7 +10,7 @@ pub mod status;
 
 use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
-use sdi_core::sensor::SensorParams;
+use sdi_core::sensor::{capture_range, SensorParams};
 use sdi_core::{Frame, Image};
 
 /// Capture settings a client may change at run time.
@@ -31,10 +31,12 @@ pub struct Limits {
 
 impl Limits {
     /// Broad physical limits of a two-well ToF sensor.
+    /// The capture ranges of `sdi_core::sensor::capture_range`, the same the
+    /// configuration and the command line accept.
     pub const DEFAULT: Limits = Limits {
-        exposure_us: (1.0, 1_000_000.0),
-        frame_rate_hz: (0.1, 240.0),
-        modulation_hz: (1e3, 100e6),
+        exposure_us: capture_range::EXPOSURE_US.bounds(),
+        frame_rate_hz: capture_range::FRAME_RATE_HZ.bounds(),
+        modulation_hz: capture_range::MODULATION_HZ.bounds(),
     };
 }
 
@@ -84,4 +86,4 @@ pub trait Backend: Send {
 }
 
 /// Backends selectable by name ("auto": the board when one is attached, else the simulator).
-pub const KINDS: &[&str] = &["auto", "sim", "replay", "opt8241"];
+pub use sdi_config::BackendKind;

@@ -31,7 +31,7 @@ use sdi_core::calibration::CalibrationRecord;
 /// Largest number of frames one dark-frame or calibration call may average.
 pub const MAX_AVERAGE_FRAMES: u32 = 10_000;
 /// Largest fixed display range, DN.
-pub const MAX_RANGE_DN: f64 = 1e6;
+pub use sdi_core::display::MAX_RANGE_DN;
 
 /// Fixed facts about this camera, known at start.
 #[derive(Debug, Clone)]
@@ -68,13 +68,6 @@ pub struct Camera {
     long_op: Arc<tokio::sync::Mutex<()>>,
     /// Each caller's share of the method calls (one client's flood waits in its own queue).
     fairness: Fairness,
-}
-
-fn colormap_name(c: Colormap) -> &'static str {
-    match c {
-        Colormap::Diverging => "diverging",
-        Colormap::Grey => "grey",
-    }
 }
 
 /// The reply of CaptureDarkFrame (core's statistics, the API's struct).
@@ -398,16 +391,13 @@ impl Camera {
         #[zbus(header)] hdr: Header<'_>,
     ) -> Result<(u64, u64), SdiError> {
         let _turn = self.fairness.turn(&hdr).await;
-        let c = match colormap {
-            "diverging" => Colormap::Diverging,
-            "grey" | "gray" => Colormap::Grey,
-            other => {
-                return Err(SdiError::OutOfRange(format!(
-                    "unknown colormap '{}': allowed diverging, grey",
-                    other.escape_debug()
-                )))
-            }
-        };
+        let c: Colormap = colormap.parse().map_err(|_| {
+            SdiError::OutOfRange(format!(
+                "unknown colormap '{}': allowed {}",
+                colormap.escape_debug(),
+                Colormap::NAMES.join(", ")
+            ))
+        })?;
         self.set_display(&emitter, |d| d.colormap = c).await
     }
 
@@ -710,7 +700,7 @@ impl Camera {
 
     #[zbus(property)]
     async fn colormap(&self) -> String {
-        colormap_name(self.state().display.colormap).into()
+        self.state().display.colormap.name().into()
     }
 
     /// |DN| at full scale; 0 = symmetric auto range.

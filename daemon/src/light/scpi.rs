@@ -23,8 +23,8 @@ use sdi_core::modulation::SourceDrive;
 
 use super::{LightDrive, LightError, LightSource};
 
-/// Default SCPI-raw TCP port.
-pub const SCPI_TCP_PORT: u16 = 5025;
+/// Default SCPI-raw TCP port (the one `[lights] address` gets when it has none).
+pub use sdi_config::SCPI_TCP_PORT;
 /// Longest accepted answer line.
 const MAX_ANSWER_BYTES: usize = 4096;
 
