@@ -31,6 +31,27 @@ pub struct Config {
     pub separation: SeparationConfig,
     pub board: BoardSection,
     pub lights: LightsConfig,
+    pub recording: RecordingConfig,
+}
+
+/// `[recording]`: storage bounds of each recording. The recorder stops
+/// cleanly (end record, `RecordingStopped` signal) at either.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RecordingConfig {
+    /// Largest file, bytes (None: no limit but the free-space floor).
+    pub max_bytes: Option<u64>,
+    /// Free space to leave on the file system, bytes.
+    pub min_free_bytes: u64,
+}
+
+impl Default for RecordingConfig {
+    fn default() -> Self {
+        Self {
+            max_bytes: None,
+            min_free_bytes: 64 << 20,
+        }
+    }
 }
 
 /// `[board]`: the TI OPT8241-CDK.
@@ -191,6 +212,7 @@ impl Default for Config {
             separation: SeparationConfig::default(),
             board: BoardSection::default(),
             lights: LightsConfig::default(),
+            recording: RecordingConfig::default(),
         }
     }
 }

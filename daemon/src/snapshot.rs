@@ -8,7 +8,6 @@ use std::path::Path;
 
 use crate::dbus::paths::OutputKind;
 use crate::frame_loop::SnapshotData;
-use crate::modes;
 
 /// Writes `snap` to a new file at `path`.
 pub fn write(path: &Path, kind: OutputKind, snap: &SnapshotData) -> io::Result<()> {
@@ -26,9 +25,9 @@ pub fn write_to(file: File, kind: OutputKind, snap: &SnapshotData) -> io::Result
                 let mut both = Vec::with_capacity(2 * img.data.len());
                 both.extend_from_slice(&ch.i_plus_electrons.data);
                 both.extend_from_slice(&ch.i_minus_electrons.data);
-                modes::write_npy_f32(&mut w, &[2, img.height, img.width], &both)?
+                sdi_core::npy::write_f32(&mut w, &[2, img.height, img.width], &both)?
             }
-            None => modes::write_npy_f32(&mut w, &[img.height, img.width], &img.data)?,
+            None => sdi_core::npy::write_f32(&mut w, &[img.height, img.width], &img.data)?,
         },
         OutputKind::Png => {
             let mut rgb = vec![0u8; img.width * img.height * 3];

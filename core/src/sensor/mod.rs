@@ -7,6 +7,6 @@ mod skellam;
 
 pub use description::{mixing_with_adc, SensorDescription};
 pub(crate) use params::check;
-pub use params::{ParamError, SensorParams};
+pub use params::{ParamError, SensorParams, FRAME_RATE_RANGE_HZ};
 pub use presets::SensorPreset;
 pub use skellam::SkellamMixing;

@@ -34,6 +34,10 @@ pub struct SensorParams {
     pub modulation_hz: f64,
 }
 
+/// Frame rates a camera runs at, Hz: the one range of the D-Bus
+/// `FrameRate` setting, the backends' limits and replayed recordings.
+pub const FRAME_RATE_RANGE_HZ: (f64, f64) = (0.1, 240.0);
+
 /// A parameter outside its physical range.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{name} = {value} is out of range: expected {allowed}")]

@@ -33,7 +33,7 @@ impl Limits {
     /// Broad physical limits of a two-well ToF sensor.
     pub const DEFAULT: Limits = Limits {
         exposure_us: (1.0, 1_000_000.0),
-        frame_rate_hz: (0.1, 240.0),
+        frame_rate_hz: sdi_core::sensor::FRAME_RATE_RANGE_HZ,
         modulation_hz: (1e3, 100e6),
     };
 }
