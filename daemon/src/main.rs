@@ -561,8 +561,7 @@ async fn run(args: Args) -> Result<(), String> {
     if let Some(rec) = result {
         // within the unit's TimeoutStopSec (15 s), even on frozen storage
         let path = rec.path().display().to_string();
-        match tokio::task::spawn_blocking(move || rec.finish_within(RECORDING_FINISH_TIMEOUT))
-            .await
+        match tokio::task::spawn_blocking(move || rec.finish_within(RECORDING_FINISH_TIMEOUT)).await
         {
             Ok(Ok(s)) => tracing::info!(
                 path,

@@ -106,8 +106,16 @@ fn measure(frames: &[Frame], v2: bool) -> Row {
 fn main() {
     println!(
         "{:<28} {:>9} {:>9} {:>6} {:>10} {:>10} {:>10} {:>10} {:>9} {:>9}",
-        "320x240 frames", "v1 B/fr", "v2 B/fr", "ratio", "v1 enc us", "v2 enc us", "v1 dec us",
-        "v2 dec us", "v1 GB/h", "v2 GB/h"
+        "320x240 frames",
+        "v1 B/fr",
+        "v2 B/fr",
+        "ratio",
+        "v1 enc us",
+        "v2 enc us",
+        "v1 dec us",
+        "v2 dec us",
+        "v1 GB/h",
+        "v2 GB/h"
     );
     for (name, scene, dark, half) in [
         ("static (colour-chart)", "colour-chart", false, false),

@@ -27,10 +27,7 @@ pub struct RecordingFile {
 impl RecordingFile {
     /// Creates `path` (which must not exist) and writes the header.
     pub fn create(path: &Path, header: &Header) -> io::Result<Self> {
-        let file = OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(path)?;
+        let file = OpenOptions::new().write(true).create_new(true).open(path)?;
         Self::from_file(file, header)
     }
 

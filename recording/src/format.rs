@@ -127,7 +127,11 @@ impl Header {
             return Err(bad("sensor.height", h, format!("1..={MAX_SIDE_PX}")));
         }
         if w * h > MAX_PIXELS {
-            return Err(bad("sensor.width*height", w * h, format!("<= {MAX_PIXELS}")));
+            return Err(bad(
+                "sensor.width*height",
+                w * h,
+                format!("<= {MAX_PIXELS}"),
+            ));
         }
         self.sensor.validate().map_err(|e| HeaderError {
             field: "sensor",
@@ -429,10 +433,7 @@ pub fn decode(kind: u8, payload: &[u8], size: (usize, usize)) -> Result<Record, 
                     other => return Err(c.err(format!("unknown compression {other}"))),
                 };
                 if body.len() != body_len {
-                    return Err(c.err(format!(
-                        "body of {} bytes, expected {body_len}",
-                        body.len()
-                    )));
+                    return Err(c.err(format!("body of {} bytes, expected {body_len}", body.len())));
                 }
                 let (s, sat) = body.split_at(px * sample_bytes);
                 let dn = match samples {
@@ -526,7 +527,9 @@ mod tests {
 
     #[test]
     fn integral_frames_are_stored_as_i16_bit_exact() {
-        let dn: Vec<f32> = (0..500).map(|i| ((i * 37) % 8191) as f32 - 4095.0).collect();
+        let dn: Vec<f32> = (0..500)
+            .map(|i| ((i * 37) % 8191) as f32 - 4095.0)
+            .collect();
         let (samples, back) = round_trip(dn.clone());
         assert_eq!(samples, SAMPLES_I16);
         assert_bits_eq(&back.dn.data, &dn);

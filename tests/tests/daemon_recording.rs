@@ -122,7 +122,11 @@ fn max_bytes_stops_the_recording_cleanly() {
     let d = Daemon::start(&bus, &["--config", config.to_str().unwrap()]);
     let rec = dir.path().join("m.sdirec");
     let out = d.ctl(&["record", rec.to_str().unwrap()]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let start = std::time::Instant::now();
     loop {
         let r = d.ctl(&["get", "recording"]);
@@ -133,7 +137,10 @@ fn max_bytes_stops_the_recording_cleanly() {
         std::thread::sleep(Duration::from_millis(100));
     }
     let s = stats(&d);
-    let why = s["recording_stopped"].as_str().unwrap_or_default().to_owned();
+    let why = s["recording_stopped"]
+        .as_str()
+        .unwrap_or_default()
+        .to_owned();
     assert!(why.contains("max_bytes"), "{s}");
     let len = std::fs::metadata(&rec).unwrap().len();
     assert!(len <= max_bytes, "{len} bytes > {max_bytes}");
@@ -144,7 +151,10 @@ fn max_bytes_stops_the_recording_cleanly() {
     let stop = d.ctl(&["stop"]);
     assert!(!stop.status.success());
     let err = String::from_utf8_lossy(&stop.stderr);
-    assert!(err.contains("RecordingStopped") && err.contains("max_bytes"), "{err}");
+    assert!(
+        err.contains("RecordingStopped") && err.contains("max_bytes"),
+        "{err}"
+    );
 }
 
 /// A recording whose header is out of range is refused by `sdid --replay`
@@ -190,6 +200,9 @@ fn replay_refuses_out_of_range_headers() {
         assert!(!out.status.success(), "{value}: {err}");
         assert_ne!(out.status.code(), Some(101), "panicked: {err}");
         let name = value.split('"').nth(1).unwrap();
-        assert!(err.contains(name) && err.contains("out of range"), "{value}: {err}");
+        assert!(
+            err.contains(name) && err.contains("out of range"),
+            "{value}: {err}"
+        );
     }
 }

@@ -18,9 +18,9 @@ use super::errors::{check_range, invalid_mode, SdiError};
 use super::paths::{validate_output_path, OutputKind};
 use crate::backend::{BackendError, CaptureSettings, Limits};
 use crate::calibration_store;
+use crate::config::RecordingConfig;
 use crate::frame_loop::{Command, DarkStats, FrameMark};
 use crate::modes::{Colormap, DisplayMap, DisplayRange};
-use crate::config::RecordingConfig;
 use crate::recording::{Calibration, Header as RecHeader, RecordingWriter, StopCause};
 use crate::sink::SinkInfo;
 use crate::stats::Stats;
@@ -329,13 +329,13 @@ impl Camera {
             return; // stopped by a client meanwhile
         }
         let frames = match self.ask(Command::StopRecording).await {
-            Ok(Some(w)) => tokio::task::spawn_blocking(move || {
-                w.finish_within(RECORDING_FINISH_TIMEOUT)
-            })
-            .await
-            .ok()
-            .and_then(Result::ok)
-            .map_or(0, |s| s.frames),
+            Ok(Some(w)) => {
+                tokio::task::spawn_blocking(move || w.finish_within(RECORDING_FINISH_TIMEOUT))
+                    .await
+                    .ok()
+                    .and_then(Result::ok)
+                    .map_or(0, |s| s.frames)
+            }
             _ => 0,
         };
         let reason = format!(
@@ -349,7 +349,8 @@ impl Camera {
         });
         let _ = self.recording_changed(emitter).await;
         let _ = self.stats_changed(emitter).await;
-        let _ = Self::recording_stopped(emitter, &label.display().to_string(), &reason, frames).await;
+        let _ =
+            Self::recording_stopped(emitter, &label.display().to_string(), &reason, frames).await;
     }
 
     /// The latest processed frame, waiting up to 2 s for the first one.
@@ -739,7 +740,7 @@ impl Camera {
     }
 
     /// {frames, fps, latency_us, latency_max_us, dropped_view, dropped_recording,
-    /// device_available, device_state}; emitted about once a second.
+    /// device_available, device_state, recording_stopped}; emitted about once a second.
     #[zbus(property)]
     async fn stats(&self) -> sdi_api::Stats {
         let s = *self.stats.borrow();

@@ -56,7 +56,10 @@ pub enum StopCause {
     #[error("the recording reached [recording] max_bytes = {max_bytes}")]
     MaxBytes { max_bytes: u64 },
     #[error("free space fell to {free_bytes} bytes, below [recording] min_free_bytes = {min_free_bytes}")]
-    FreeSpace { free_bytes: u64, min_free_bytes: u64 },
+    FreeSpace {
+        free_bytes: u64,
+        min_free_bytes: u64,
+    },
     #[error("the disk is full: {0}")]
     DiskFull(String),
     #[error("write error: {0}")]
@@ -120,7 +123,9 @@ impl RecordingWriter {
         let (done_tx, done) = mpsc::channel();
         let (ended_tx, ended) = oneshot::channel();
         let counters = Arc::new(Counters::default());
-        counters.bytes.store(file.bytes_written(), Ordering::Relaxed);
+        counters
+            .bytes
+            .store(file.bytes_written(), Ordering::Relaxed);
         let queued = Arc::new(AtomicU64::new(0));
         let (c, q) = (counters.clone(), queued.clone());
         std::thread::Builder::new()
@@ -223,11 +228,7 @@ impl Drop for RecordingWriter {
 }
 
 /// Checks the limits for a record of `len` bytes about to be written.
-fn check_limits(
-    file: &RecordingFile,
-    len: u64,
-    limits: &RecordingConfig,
-) -> Result<(), StopCause> {
+fn check_limits(file: &RecordingFile, len: u64, limits: &RecordingConfig) -> Result<(), StopCause> {
     if let Some(max_bytes) = limits.max_bytes {
         if file.bytes_written() + len + END_RECORD_BYTES > max_bytes {
             return Err(StopCause::MaxBytes { max_bytes });
