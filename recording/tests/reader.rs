@@ -161,7 +161,8 @@ fn with_header(h: &Header) -> Vec<u8> {
 
 #[test]
 fn out_of_range_headers_are_refused_with_the_field_named() {
-    let cases: Vec<(&str, Box<dyn Fn(&mut Header)>)> = vec![
+    type Edit = Box<dyn Fn(&mut Header)>;
+    let cases: Vec<(&str, Edit)> = vec![
         ("sensor.width", Box::new(|h| h.sensor.width = 100_000)),
         ("sensor.height", Box::new(|h| h.sensor.height = 0)),
         ("frame_rate_hz", Box::new(|h| h.frame_rate_hz = 0.0)),
