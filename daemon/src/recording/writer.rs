@@ -292,3 +292,130 @@ fn run(
     let _ = ended.send(cause);
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sdi_core::sensor::SensorPreset;
+    use sdi_recording::{Calibration, Record, RecordingReader};
+    use std::io::Read;
+
+    fn header(w: usize, h: usize) -> Header {
+        let mut sensor = SensorPreset::TiOpt8241.params();
+        sensor.width = w;
+        sensor.height = h;
+        Header {
+            format_version: 2,
+            mode: "raw".into(),
+            backend: "sim".into(),
+            exposure_us: sensor.exposure_us,
+            frame_rate_hz: sensor.frame_rate_hz,
+            modulation_hz: sensor.modulation_hz,
+            sensor,
+            started_unix_s: 0.0,
+            calibration: Calibration::default(),
+        }
+    }
+
+    fn noisy_frame(w: usize, h: usize, seq: u64) -> Frame {
+        let mut f = Frame::new(w, h);
+        let mut x = seq.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        for v in &mut f.dn.data {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            *v = (x % 4096) as f32 - 2048.0;
+        }
+        f.sequence = seq;
+        f
+    }
+
+    /// Storage that takes nothing (a FIFO nobody reads: writes block, as on
+    /// a frozen file system): pushing never blocks, frames that do not fit
+    /// the queue are dropped, finishing gives up after its time-out, and
+    /// once the storage drains the recording completes with an end record.
+    #[test]
+    fn frozen_storage_never_blocks_the_pusher_and_finishing_is_bounded() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("frozen");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::from_bits_truncate(0o600)).unwrap();
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&fifo)
+            .unwrap();
+        let limits = RecordingConfig {
+            max_bytes: None,
+            min_free_bytes: 0,
+        };
+        let (w, h) = (64, 48);
+        let rec = RecordingWriter::from_file(file, &fifo, &header(w, h), limits).unwrap();
+        for seq in 1..=500 {
+            rec.push_frame("raw", &noisy_frame(w, h, seq));
+        }
+        let dropped = rec.counters().dropped.load(Ordering::Relaxed);
+        assert!(
+            dropped >= 500 - QUEUE_FRAMES as u64 - 32,
+            "{dropped} dropped"
+        );
+        match rec.finish_within(Duration::from_millis(200)) {
+            Err(FinishError::TimedOut { queued, .. }) => assert!(queued > 0),
+            other => panic!("{other:?}"),
+        }
+        // Thaw: read everything; the recorder finishes and closes the file.
+        let mut bytes = Vec::new();
+        std::fs::File::open(&fifo)
+            .unwrap()
+            .read_to_end(&mut bytes)
+            .unwrap();
+        let mut r = RecordingReader::new(std::io::Cursor::new(bytes)).unwrap();
+        let recs: Vec<Record> = r.by_ref().collect();
+        assert_eq!(r.damaged_tail(), None);
+        let frames = recs
+            .iter()
+            .filter(|x| matches!(x, Record::Frame { .. }))
+            .count() as u64;
+        assert_eq!(
+            recs.last(),
+            Some(&Record::End {
+                frames,
+                dropped: 500 - frames
+            })
+        );
+    }
+
+    /// The size limit stops the recorder by itself with an end record and
+    /// a [`StopCause`], and the file stays within the limit.
+    #[test]
+    fn max_bytes_ends_the_recording_with_a_cause() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.sdirec");
+        let limits = RecordingConfig {
+            max_bytes: Some(40_000),
+            min_free_bytes: 0,
+        };
+        let (w, h) = (64, 48);
+        let mut rec = RecordingWriter::create(&path, &header(w, h), limits).unwrap();
+        let ended = rec.take_ended().unwrap();
+        let mut seq = 0;
+        while !rec.ended() && seq < 10_000 {
+            seq += 1;
+            if !rec.push_frame("raw", &noisy_frame(w, h, seq)) {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        assert_eq!(
+            ended.blocking_recv(),
+            Ok(StopCause::MaxBytes { max_bytes: 40_000 })
+        );
+        let summary = rec.finish_within(Duration::from_secs(10)).unwrap();
+        assert!(std::fs::metadata(&path).unwrap().len() <= 40_000);
+        let mut r = RecordingReader::open(&path).unwrap();
+        let recs: Vec<Record> = r.by_ref().collect();
+        assert_eq!(r.damaged_tail(), None);
+        assert!(summary.frames >= 1);
+        assert!(
+            matches!(recs.last(), Some(Record::End { frames, .. }) if *frames == summary.frames)
+        );
+    }
+}
