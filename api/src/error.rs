@@ -25,6 +25,10 @@ pub enum SdiError {
     NotRecording(String),
     /// Snapshot before the first frame.
     NoFrame(String),
+    /// The daemon stopped the recording by itself: `[recording] max_bytes`
+    /// reached, free space below `min_free_bytes`, or the disk full. Every
+    /// frame written before stays readable; the message says why.
+    RecordingStopped(String),
     /// Anything else (I/O while writing a file, ...).
     Failed(String),
 }

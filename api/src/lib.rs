@@ -5,6 +5,7 @@
 //! every error is a variant of [`SdiError`]. `daemon/dbus/org.sdi.Camera1.xml`
 //! is the served introspection, checked by `tests/tests/dbus_api.rs`.
 
+pub mod board_ids;
 pub mod bus;
 pub mod error;
 pub mod proxy;

@@ -71,4 +71,8 @@ pub trait Camera1 {
     fn recording(&self) -> zbus::Result<String>;
     #[zbus(property)]
     fn stats(&self) -> zbus::Result<Stats>;
+    /// The daemon stopped a recording by itself (size limit, free-space
+    /// floor, disk full); `reason` says which.
+    #[zbus(signal)]
+    fn recording_stopped(&self, path: &str, reason: &str, frames: u64) -> zbus::Result<()>;
 }

@@ -26,6 +26,9 @@ pub struct Stats {
     pub device_available: bool,
     /// The backend's own words on its state ("" when it has none).
     pub device_state: String,
+    /// Why the daemon last stopped a recording by itself (size limit, free
+    /// space, disk full); "" when it has not.
+    pub recording_stopped: String,
 }
 
 /// `CaptureDarkFrame`'s reply: statistics of the averaged dark frames.

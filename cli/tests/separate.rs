@@ -15,7 +15,7 @@ use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::{mixing_with_adc, SensorPreset};
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
-use sdi_daemon::recording::{Calibration, Header, RecordingWriter};
+use sdi_recording::{Calibration, Header, RecordingFile};
 
 fn ok(o: &Output) {
     assert!(
@@ -144,7 +144,8 @@ fn small_sensor() -> sdi_core::sensor::SensorParams {
 }
 
 /// A recording in sdid's format of `n` raw snapshot frames with a dark
-/// frame record, written through the daemon's own writer.
+/// frame record, written through the format's own file writer (the one
+/// sdid's recorder thread uses).
 fn make_recording(path: &Path, n: usize) {
     let sensor = small_sensor();
     let mut sim = Simulator::new(SimConfig::new(
@@ -163,7 +164,7 @@ fn make_recording(path: &Path, n: usize) {
         started_unix_s: 0.0,
         calibration: Calibration::default(),
     };
-    let w = RecordingWriter::create(path, &header).unwrap();
+    let mut w = RecordingFile::create(path, &header).unwrap();
     let mut frame = Frame::new(sensor.width, sensor.height);
     let mut dark = Image::<f32>::new(sensor.width, sensor.height);
     for _ in 0..16 {
@@ -172,29 +173,27 @@ fn make_recording(path: &Path, n: usize) {
             *d += v / 16.0;
         }
     }
-    assert!(w.push_dark(16, &dark));
+    w.encode_dark(16, &dark);
+    w.write_encoded().unwrap();
     let light = Illumination::snapshot(sensor.modulation_hz);
     for _ in 0..n {
         sim.capture(&light, &mut frame);
-        // The writer queue holds 64 frames; wait rather than drop.
-        while !w.push_frame("raw", &frame) {
-            std::thread::sleep(std::time::Duration::from_millis(5));
-        }
+        w.encode_frame("raw", &frame);
+        w.write_encoded().unwrap();
     }
-    let summary = w.finish().unwrap();
-    let _ = summary;
+    w.finish(n as u64, 0).unwrap();
 }
 
 /// Frames of a recording, dark-subtracted, as an .npy (N, H, W).
 fn recording_to_npy(rec: &Path, npy: &Path) -> usize {
-    let reader = sdi_daemon::recording::RecordingReader::open(rec).unwrap();
+    let reader = sdi_recording::RecordingReader::open(rec).unwrap();
     let mut dark: Option<Image<f32>> = None;
     let mut data = Vec::new();
     let (mut n, mut w, mut h) = (0, 0, 0);
     for r in reader {
         match r {
-            sdi_daemon::recording::Record::Dark { dn, .. } => dark = Some(dn),
-            sdi_daemon::recording::Record::Frame { frame, .. } => {
+            sdi_recording::Record::Dark { dn, .. } => dark = Some(dn),
+            sdi_recording::Record::Frame { frame, .. } => {
                 let d = dark.as_ref().unwrap();
                 data.extend(frame.dn.data.iter().zip(&d.data).map(|(a, b)| a - b));
                 (w, h) = (frame.width(), frame.height());

@@ -35,6 +35,7 @@ pub struct Config {
     pub separation: SeparationSection,
     pub board: BoardSection,
     pub lights: LightsSection,
+    pub recording: RecordingSection,
 }
 
 impl Default for Config {
@@ -53,6 +54,7 @@ impl Default for Config {
             separation: SeparationSection::default(),
             board: BoardSection::default(),
             lights: LightsSection::default(),
+            recording: RecordingSection::default(),
         }
     }
 }
@@ -166,6 +168,26 @@ impl Default for LightsSection {
             gpio_chip: PathBuf::from("/dev/gpiochip0"),
             ls1_line: 0,
             ls2_line: 1,
+        }
+    }
+}
+
+/// `[recording]`: storage bounds of each recording. The recorder stops
+/// cleanly (end record, `RecordingStopped` signal) at either.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RecordingSection {
+    /// Largest file, bytes (None: no limit but the free-space floor).
+    pub max_bytes: Option<u64>,
+    /// Free space to leave on the file system, bytes.
+    pub min_free_bytes: u64,
+}
+
+impl Default for RecordingSection {
+    fn default() -> Self {
+        Self {
+            max_bytes: None,
+            min_free_bytes: 64 << 20,
         }
     }
 }

@@ -15,8 +15,8 @@ use std::path::{Path, PathBuf};
 
 pub use choice::{BackendKind, LightDriver, OnUnplug, SeparationMethod, SinkKind, UnknownName};
 pub use file::{
-    BoardSection, Config, DisplaySection, LightsSection, OutputSection, ReplaySection,
-    SeparationSection,
+    BoardSection, Config, DisplaySection, LightsSection, OutputSection, RecordingSection,
+    ReplaySection, SeparationSection,
 };
 pub use sensor_spec::{SensorSpec, SensorSpecError};
 pub use validate::{Adjustment, Invalid, SCPI_TCP_PORT};

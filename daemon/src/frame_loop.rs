@@ -18,7 +18,7 @@ use crate::job::{Running, Settling};
 use crate::modes::{self, DisplayMap, ModeOutput, Pipeline, PipelineConfig};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
 use crate::photon_transfer::PtcJob;
-use crate::recording::{Calibration, RecordingWriter, Summary};
+use crate::recording::{Calibration, RecordingWriter};
 use crate::sink::output::Output;
 use crate::stats::{Stats, StatsWindow};
 use sdi_core::calibration::PhotonTransferFit;
@@ -80,7 +80,8 @@ pub enum Command {
     PhotonTransfer(u32, Reply<Result<PhotonTransferFit, String>>),
     Snapshot(Reply<Option<SnapshotData>>),
     StartRecording(Box<RecordingWriter>, Reply<()>),
-    StopRecording(Reply<Option<std::io::Result<Summary>>>),
+    /// Hands the recorder back; the caller finishes it (off this thread).
+    StopRecording(Reply<Option<RecordingWriter>>),
     Shutdown,
 }
 
@@ -213,8 +214,9 @@ impl FrameLoop {
         );
     }
 
-    /// Runs until `Shutdown` or until every command sender is gone; finalizes any recording.
-    pub fn run(mut self, commands: Receiver<Command>) -> Option<std::io::Result<Summary>> {
+    /// Runs until `Shutdown` or until every command sender is gone; returns
+    /// the recorder, if any, for the caller to finish (off this thread).
+    pub fn run(mut self, commands: Receiver<Command>) -> Option<RecordingWriter> {
         let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
         let mut frame = Frame::new(w, h);
         let mut stalled = false;
@@ -222,7 +224,7 @@ impl FrameLoop {
             loop {
                 match commands.try_recv() {
                     Ok(Command::Shutdown) | Err(TryRecvError::Disconnected) => {
-                        return self.recorder.take().map(RecordingWriter::finish);
+                        return self.recorder.take();
                     }
                     Ok(cmd) => self.handle(cmd),
                     Err(TryRecvError::Empty) => break,
@@ -455,13 +457,12 @@ impl FrameLoop {
                 if let Some((frames, dn)) = &self.dark {
                     rec.push_dark(*frames, dn);
                 }
-                if let Some(old) = self.recorder.replace(*rec) {
-                    let _ = old.finish();
-                }
+                // a replaced recorder finishes on its own thread
+                drop(self.recorder.replace(*rec));
                 let _ = reply.send(());
             }
             Command::StopRecording(reply) => {
-                let _ = reply.send(self.recorder.take().map(RecordingWriter::finish));
+                let _ = reply.send(self.recorder.take());
             }
             Command::Shutdown => {}
         }

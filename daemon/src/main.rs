@@ -395,6 +395,10 @@ async fn wait_for_signal() -> &'static str {
     }
 }
 
+/// Longest wait for the recorder to finish at shutdown (the unit's
+/// TimeoutStopSec is 15 s).
+const RECORDING_FINISH_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+
 async fn run(args: Args) -> Result<(), String> {
     let (mut config, file) = Config::read(args.config.as_deref()).map_err(|e| e.to_string())?;
     apply(&args, &mut config);
@@ -450,6 +454,7 @@ async fn run(args: Args) -> Result<(), String> {
         sensor: sensor.clone(),
         state_dir: calibration_store::state_dir(args.state_dir.as_deref()),
         status: extras.status,
+        recording: config.recording,
     };
     let stored = info.state_dir.as_deref().and_then(|dir| {
         calibration_store::load(dir, &sensor.model, &info.device)
@@ -548,14 +553,20 @@ async fn run(args: Args) -> Result<(), String> {
         .await
         .map_err(|e| e.to_string())?
         .map_err(|_| "frame loop panicked".to_string())?;
-    match result {
-        Some(Ok(s)) => tracing::info!(
-            frames = s.frames,
-            dropped = s.dropped,
-            "recording finalized"
-        ),
-        Some(Err(e)) => tracing::error!("finalizing recording: {e}"),
-        None => {}
+    if let Some(rec) = result {
+        // within the unit's TimeoutStopSec (15 s), even on frozen storage
+        let path = rec.path().display().to_string();
+        match tokio::task::spawn_blocking(move || rec.finish_within(RECORDING_FINISH_TIMEOUT)).await
+        {
+            Ok(Ok(s)) => tracing::info!(
+                path,
+                frames = s.frames,
+                dropped = s.dropped,
+                "recording finalized"
+            ),
+            Ok(Err(e)) => tracing::error!(path, "recording abandoned at shutdown: {e}"),
+            Err(e) => tracing::error!(path, "recording abandoned at shutdown: {e}"),
+        }
     }
     drop(conn);
     drop(private_bus);

@@ -14,12 +14,3 @@ pub fn illumination(mode: ModeId, frame_index: u64, carrier_hz: f64) -> Illumina
 pub fn default_scene(mode: ModeId) -> SceneSpec {
     mode.default_scene()
 }
-
-/// Writes a float32 `.npy` array.
-pub fn write_npy_f32<W: std::io::Write>(
-    w: &mut W,
-    shape: &[usize],
-    data: &[f32],
-) -> std::io::Result<()> {
-    sdi_core::npy::write_f32(w, shape, data)
-}

@@ -7,7 +7,6 @@ use std::io::{self, BufWriter, Write};
 
 use crate::dbus::paths::OutputKind;
 use crate::frame_loop::SnapshotData;
-use crate::modes;
 
 /// Writes `snap` into `file` (e.g. a descriptor a client passed), then syncs it.
 pub fn write_to(file: File, kind: OutputKind, snap: &SnapshotData) -> io::Result<()> {
@@ -19,9 +18,9 @@ pub fn write_to(file: File, kind: OutputKind, snap: &SnapshotData) -> io::Result
                 let mut both = Vec::with_capacity(2 * img.data.len());
                 both.extend_from_slice(&ch.i_plus_electrons.data);
                 both.extend_from_slice(&ch.i_minus_electrons.data);
-                modes::write_npy_f32(&mut w, &[2, img.height, img.width], &both)?
+                sdi_core::npy::write_f32(&mut w, &[2, img.height, img.width], &both)?
             }
-            None => modes::write_npy_f32(&mut w, &[img.height, img.width], &img.data)?,
+            None => sdi_core::npy::write_f32(&mut w, &[img.height, img.width], &img.data)?,
         },
         OutputKind::Png => {
             let mut rgb = vec![0u8; img.width * img.height * 3];

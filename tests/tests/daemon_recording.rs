@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use sdi_daemon::recording::{Record, RecordingReader};
+use sdi_recording::{Record, RecordingReader};
 use sdi_tests::dbus::{stats, Bus, Daemon};
 use sdi_tests::require_dbus;
 
@@ -106,4 +106,103 @@ fn kill_9_loses_at_most_the_frame_in_flight_and_replays() {
         .ctl(&["snapshot", snap.to_str().unwrap()])
         .status
         .success());
+}
+
+/// `[recording] max_bytes` stops the recording cleanly: an end record, no
+/// file past the limit, `Recording` cleared, `Stats.recording_stopped` set,
+/// and the next StopRecording says why (org.sdi.Error.RecordingStopped).
+#[test]
+fn max_bytes_stops_the_recording_cleanly() {
+    require_dbus!();
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("sdid.toml");
+    let max_bytes = 600_000u64;
+    std::fs::write(&config, format!("[recording]\nmax_bytes = {max_bytes}\n")).unwrap();
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &["--config", config.to_str().unwrap()]);
+    let rec = dir.path().join("m.sdirec");
+    let out = d.ctl(&["record", rec.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let start = std::time::Instant::now();
+    loop {
+        let r = d.ctl(&["get", "recording"]);
+        if String::from_utf8_lossy(&r.stdout).trim().is_empty() {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(30), "still recording");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let s = stats(&d);
+    let why = s["recording_stopped"]
+        .as_str()
+        .unwrap_or_default()
+        .to_owned();
+    assert!(why.contains("max_bytes"), "{s}");
+    let len = std::fs::metadata(&rec).unwrap().len();
+    assert!(len <= max_bytes, "{len} bytes > {max_bytes}");
+    let (frames, ended, damaged) = read_all(&rec);
+    assert!(ended, "no end record");
+    assert!(damaged.is_none(), "{damaged:?}");
+    assert!(frames >= 2, "{frames} frames");
+    let stop = d.ctl(&["stop"]);
+    assert!(!stop.status.success());
+    let err = String::from_utf8_lossy(&stop.stderr);
+    assert!(
+        err.contains("RecordingStopped") && err.contains("max_bytes"),
+        "{err}"
+    );
+}
+
+/// A recording whose header is out of range is refused by `sdid --replay`
+/// with the field named and a non-zero exit, at once (no allocation of the
+/// claimed size, no endless wait for a frame).
+#[test]
+fn replay_refuses_out_of_range_headers() {
+    require_dbus!();
+    let dir = tempfile::tempdir().unwrap();
+    let bus = Bus::start();
+    for (field, value) in [
+        ("\"width\":320", "\"width\":100000"),
+        ("\"frame_rate_hz\":30.0", "\"frame_rate_hz\":0.0"),
+        ("\"frame_rate_hz\":30.0", "\"frame_rate_hz\":-1.0"),
+        ("\"frame_rate_hz\":30.0", "\"frame_rate_hz\":1e-300"),
+    ] {
+        let mut sensor = sdi_core::sensor::SensorPreset::TiOpt8241.params();
+        sensor.frame_rate_hz = 30.0;
+        let header = sdi_recording::Header {
+            format_version: 2,
+            mode: "raw".into(),
+            backend: "sim".into(),
+            exposure_us: sensor.exposure_us,
+            frame_rate_hz: 30.0,
+            modulation_hz: sensor.modulation_hz,
+            sensor,
+            started_unix_s: 1.7e9,
+            calibration: Default::default(),
+        };
+        let json = serde_json::to_string(&header).unwrap();
+        assert!(json.contains(field), "{json}");
+        let json = json.replace(field, value);
+        let mut bytes = sdi_recording::format::FILE_MAGIC.to_vec();
+        bytes.extend_from_slice(&(json.len() as u32).to_le_bytes());
+        bytes.extend_from_slice(json.as_bytes());
+        bytes.extend_from_slice(&crc32fast::hash(json.as_bytes()).to_le_bytes());
+        let path = dir.path().join("bad.sdirec");
+        std::fs::write(&path, &bytes).unwrap();
+        let out = Daemon::command(&bus, &[], &["--replay", path.to_str().unwrap()])
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{value}: {err}");
+        assert_ne!(out.status.code(), Some(101), "panicked: {err}");
+        let name = value.split('"').nth(1).unwrap();
+        assert!(
+            err.contains(name) && err.contains("out of range"),
+            "{value}: {err}"
+        );
+    }
 }

@@ -14,7 +14,7 @@ use std::os::unix::net::UnixStream;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 
-use sdi_daemon::recording::{Record, RecordingReader};
+use sdi_recording::{Record, RecordingReader};
 use sdi_tests::dbus::{Bus, Daemon};
 use sdi_tests::process::stdout_of;
 use sdi_tests::require_dbus;

@@ -7,7 +7,7 @@
 //! simulator scene, each exposure's signal level), frame by frame: no frame
 //! is guessed to be "late enough".
 
-use sdi_daemon::recording::{Record, RecordingReader};
+use sdi_recording::{Record, RecordingReader};
 use sdi_tests::dbus::{Bus, Daemon};
 use sdi_tests::require_dbus;
 

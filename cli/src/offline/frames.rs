@@ -10,7 +10,7 @@ use std::path::Path;
 
 use sdi_core::sensor::SensorParams;
 use sdi_core::{Frame, Image};
-use sdi_daemon::recording::{Record, RecordingReader};
+use sdi_recording::{format::is_recording_magic, Record, RecordingReader};
 
 use crate::exit::CliError;
 
@@ -246,7 +246,7 @@ impl FrameInput {
         let n = File::open(path)
             .and_then(|mut f| f.read(&mut magic))
             .map_err(|e| runtime(path, e))?;
-        if n == 8 && &magic == b"SDIREC01" {
+        if n == 8 && is_recording_magic(&magic) {
             let reader = RecordingReader::open(path)
                 .map_err(|e| CliError::Usage(format!("'{}': {e}", path.display())))?;
             let header = reader.header().clone();

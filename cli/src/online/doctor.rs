@@ -536,7 +536,7 @@ async fn daemon(bus: &BusArgs) -> (Check, Option<serde_json::Map<String, Json>>)
 
 /// USB boards of `udev/board-ids` in sysfs: (mode, speed in Mb/s, sysfs name).
 fn boards(sys: &Sys) -> Vec<(&'static str, String, String)> {
-    let ids = sdi_daemon::backend::opt8241::ids::board_ids();
+    let ids = sdi_api::board_ids::board_ids();
     let mut out = Vec::new();
     let Ok(entries) = std::fs::read_dir(sys.path("/sys/bus/usb/devices")) else {
         return out;

@@ -67,7 +67,7 @@ impl From<sdi_api::SdiError> for OnlineError {
             E::Busy(m) => OnlineError::Busy(text(m)),
             E::DeviceUnavailable(m) => OnlineError::Device(text(m)),
             E::NotRecording(m) | E::NoFrame(m) => OnlineError::Nothing(text(m)),
-            E::Failed(m) => OnlineError::Failed(text(m)),
+            E::Failed(m) | E::RecordingStopped(m) => OnlineError::Failed(text(m)),
         }
     }
 }

@@ -1,43 +1,45 @@
 //! `sdictl export rec.sdirec out.npy`: a recording's frames as one float32
 //! array of shape (frames, height, width), in DN, dark frame not subtracted.
+//! Streams: one frame in memory at a time, whatever the length.
 
 use std::fs::OpenOptions;
-use std::io::{BufWriter, Write};
+use std::io::BufWriter;
 use std::path::Path;
 
-use sdi_daemon::recording::{Record, RecordingReader};
+use sdi_recording::{Record, RecordingReader};
 
 use super::errors::OnlineError;
+use crate::offline::frames::NpyOut;
 
 pub fn run(recording: &Path, out: &Path, json: bool) -> Result<(), OnlineError> {
-    let reader = RecordingReader::open(recording)
+    let mut reader = RecordingReader::open(recording)
         .map_err(|e| OnlineError::Invalid(format!("{}: {e}", recording.display())))?;
     let header = reader.header().clone();
     let (w, h) = (header.sensor.width, header.sensor.height);
-    let mut reader = reader;
-    let mut data: Vec<f32> = Vec::new();
-    let mut frames = 0usize;
-    let mut skipped = 0usize;
-    for rec in reader.by_ref() {
-        if let Record::Frame { frame, .. } = rec {
-            if frame.width() == w && frame.height() == h {
-                data.extend_from_slice(&frame.dn.data);
-                frames += 1;
-            } else {
-                skipped += 1;
-            }
-        }
-    }
-    let damaged = reader.damaged_tail().map(str::to_owned);
+    let failed = |e: std::io::Error| OnlineError::Failed(format!("{}: {e}", out.display()));
     let file = OpenOptions::new()
         .write(true)
         .create_new(true)
         .open(out)
-        .map_err(|e| OnlineError::Failed(format!("{}: {e}", out.display())))?;
-    let mut wtr = BufWriter::new(file);
-    sdi_daemon::modes::write_npy_f32(&mut wtr, &[frames, h, w], &data)
-        .and_then(|()| wtr.flush())
-        .map_err(|e| OnlineError::Failed(format!("{}: {e}", out.display())))?;
+        .map_err(failed)?;
+    let write = |reader: &mut RecordingReader<_>| -> std::io::Result<usize> {
+        let mut npy = NpyOut::new(BufWriter::new(file), &[h, w])?;
+        for rec in reader.by_ref() {
+            if let Record::Frame { frame, .. } = rec {
+                npy.push(&frame.dn.data)?;
+            }
+        }
+        let frames = npy.count();
+        npy.finish(false)?;
+        Ok(frames)
+    };
+    let frames = write(&mut reader).map_err(|e| {
+        let _ = std::fs::remove_file(out);
+        failed(e)
+    })?;
+    // The reader refuses frames of another size than the header's.
+    let skipped = 0usize;
+    let damaged = reader.damaged_tail().map(str::to_owned);
     if json {
         println!(
             "{}",

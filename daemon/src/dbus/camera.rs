@@ -20,9 +20,10 @@ use super::fairness::Fairness;
 use super::paths::OutputKind;
 use crate::backend::{BackendError, CaptureSettings, Limits};
 use crate::calibration_store;
+use crate::config::RecordingSection;
 use crate::frame_loop::{Command, DarkStats, FrameMark};
 use crate::modes::{Colormap, DisplayMap, DisplayRange};
-use crate::recording::{Calibration, Header as RecHeader, RecordingWriter};
+use crate::recording::{Calibration, Header as RecHeader, RecordingWriter, StopCause};
 use crate::sink::SinkInfo;
 use crate::stats::Stats;
 use sdi_api::{CalibrationReply, DarkFrameReply, RecordingReply};
@@ -45,7 +46,13 @@ pub struct CameraInfo {
     pub state_dir: Option<PathBuf>,
     /// Live backend state (the board: unplugged, simulator standing in).
     pub status: Option<crate::backend::status::StatusHandle>,
+    /// Storage bounds of recordings.
+    pub recording: RecordingSection,
 }
+
+/// Longest a StopRecording call waits for storage to take the rest of the
+/// recording (the recorder thread goes on after that).
+pub const RECORDING_FINISH_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// State changed by clients.
 #[derive(Debug, Clone)]
@@ -54,6 +61,9 @@ struct State {
     capture: CaptureSettings,
     display: DisplayMap,
     recording: Option<PathBuf>,
+    /// Why the daemon last stopped a recording by itself; reported once by
+    /// the next StopRecording, and in Stats.
+    recording_stopped: Option<String>,
 }
 
 pub struct Camera {
@@ -106,6 +116,7 @@ impl Camera {
                 capture,
                 display,
                 recording: None,
+                recording_stopped: None,
             }),
             commands: Mutex::new(commands),
             stats,
@@ -263,7 +274,9 @@ impl Camera {
         &self,
         label: PathBuf,
         emitter: &SignalEmitter<'_>,
-        open: impl FnOnce(&RecHeader) -> std::io::Result<RecordingWriter> + Send + 'static,
+        open: impl FnOnce(&RecHeader, RecordingSection) -> std::io::Result<RecordingWriter>
+            + Send
+            + 'static,
     ) -> Result<(), SdiError> {
         let _guard = self.change_lock.lock().await;
         let st = self.state();
@@ -274,15 +287,34 @@ impl Camera {
             )));
         }
         let header = self.recording_header(&st);
-        let writer = tokio::task::spawn_blocking(move || open(&header))
+        let limits = self.info.recording;
+        let mut writer = tokio::task::spawn_blocking(move || open(&header, limits))
             .await
             .map_err(|e| SdiError::Failed(e.to_string()))?
             .map_err(|e| SdiError::InvalidPath(format!("{}: {e}", label.display())))?;
+        let ended = writer.take_ended();
         self.ask(|tx| Command::StartRecording(Box::new(writer), tx))
             .await?;
         tracing::info!(path = ?label, "recording started");
-        self.update(|s| s.recording = Some(label));
+        self.update(|s| {
+            s.recording = Some(label.clone());
+            s.recording_stopped = None;
+        });
         let _ = self.recording_changed(emitter).await;
+        if let Some(ended) = ended {
+            let server = emitter.connection().object_server().clone();
+            let path = emitter.path().to_owned();
+            tokio::spawn(async move {
+                let Ok(cause) = ended.await else { return };
+                if let Ok(iface) = server.interface::<_, Camera>(path).await {
+                    iface
+                        .get()
+                        .await
+                        .recording_ended(label, cause, iface.signal_emitter())
+                        .await;
+                }
+            });
+        }
         Ok(())
     }
 
@@ -295,6 +327,38 @@ impl Camera {
         uid: Option<u32>,
     ) -> Result<client_file::StateDirFile, SdiError> {
         client_file::create(self.info.state_dir.as_deref(), path, allowed, uid)
+    }
+
+    /// The recorder stopped by itself: take it from the frame loop, clear
+    /// the Recording property, emit `RecordingStopped` and Stats at once.
+    async fn recording_ended(&self, label: PathBuf, cause: StopCause, emitter: &SignalEmitter<'_>) {
+        let _guard = self.change_lock.lock().await;
+        if self.state().recording.as_ref() != Some(&label) {
+            return; // stopped by a client meanwhile
+        }
+        let frames = match self.ask(Command::StopRecording).await {
+            Ok(Some(w)) => {
+                tokio::task::spawn_blocking(move || w.finish_within(RECORDING_FINISH_TIMEOUT))
+                    .await
+                    .ok()
+                    .and_then(Result::ok)
+                    .map_or(0, |s| s.frames)
+            }
+            _ => 0,
+        };
+        let reason = format!(
+            "recording {} stopped after {frames} frames: {cause}",
+            label.display()
+        );
+        tracing::error!(path = ?label, frames, "{reason}");
+        self.update(|s| {
+            s.recording = None;
+            s.recording_stopped = Some(reason.clone());
+        });
+        let _ = self.recording_changed(emitter).await;
+        let _ = self.stats_changed(emitter).await;
+        let _ =
+            Self::recording_stopped(emitter, &label.display().to_string(), &reason, frames).await;
     }
 
     /// The latest processed frame, waiting up to 2 s for the first one.
@@ -518,8 +582,8 @@ impl Camera {
         };
         let l2 = label.clone();
         let started = self
-            .begin_recording(label, &emitter, move |header| {
-                RecordingWriter::from_file(file, &l2, header)
+            .begin_recording(label, &emitter, move |header, limits| {
+                RecordingWriter::from_file(file, &l2, header, limits)
             })
             .await;
         if started.is_err() {
@@ -542,8 +606,8 @@ impl Camera {
         let label = PathBuf::from(recording_label(label)?);
         let file = client_fd::output_file(fd.into())?;
         let l2 = label.clone();
-        self.begin_recording(label, &emitter, move |header| {
-            RecordingWriter::from_file(file, &l2, header)
+        self.begin_recording(label, &emitter, move |header, limits| {
+            RecordingWriter::from_file(file, &l2, header, limits)
         })
         .await
     }
@@ -557,14 +621,24 @@ impl Camera {
         let _turn = self.fairness.turn(&hdr).await;
         let _guard = self.change_lock.lock().await;
         let Some(path) = self.state().recording else {
-            return Err(SdiError::NotRecording("no recording in progress".into()));
+            let mut stopped = None;
+            self.update(|s| stopped = s.recording_stopped.take());
+            return Err(match stopped {
+                Some(why) => SdiError::RecordingStopped(why),
+                None => SdiError::NotRecording("no recording in progress".into()),
+            });
         };
-        let summary = self.ask(Command::StopRecording).await?;
+        let writer = self.ask(Command::StopRecording).await?;
         self.update(|s| s.recording = None);
         let _ = self.recording_changed(&emitter).await;
-        let summary = summary
-            .ok_or_else(|| SdiError::NotRecording("no recording in progress".into()))?
-            .map_err(|e| SdiError::Failed(format!("finishing {}: {e}", path.display())))?;
+        let writer =
+            writer.ok_or_else(|| SdiError::NotRecording("no recording in progress".into()))?;
+        // The recorder thread writes the rest; the frame loop goes on meanwhile.
+        let summary =
+            tokio::task::spawn_blocking(move || writer.finish_within(RECORDING_FINISH_TIMEOUT))
+                .await
+                .map_err(|e| SdiError::Failed(e.to_string()))?
+                .map_err(|e| SdiError::Failed(format!("{}: {e}", path.display())))?;
         tracing::info!(path = ?path, frames = summary.frames, dropped = summary.dropped, "recording stopped");
         Ok(RecordingReply {
             path: path.display().to_string(),
@@ -722,7 +796,7 @@ impl Camera {
     }
 
     /// {frames, fps, latency_us, latency_max_us, dropped_view, dropped_recording,
-    /// device_available, device_state}; emitted about once a second.
+    /// device_available, device_state, recording_stopped}; emitted about once a second.
     #[zbus(property)]
     async fn stats(&self) -> sdi_api::Stats {
         let s = *self.stats.borrow();
@@ -739,6 +813,17 @@ impl Camera {
             dropped_recording: s.dropped_recording,
             device_available,
             device_state,
+            recording_stopped: self.state().recording_stopped.unwrap_or_default(),
         }
     }
+
+    /// The daemon stopped a recording by itself (size limit, free-space
+    /// floor, disk full); `reason` says which. Every frame written stays readable.
+    #[zbus(signal)]
+    async fn recording_stopped(
+        emitter: &SignalEmitter<'_>,
+        path: &str,
+        reason: &str,
+        frames: u64,
+    ) -> zbus::Result<()>;
 }

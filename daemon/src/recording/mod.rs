@@ -1,9 +1,7 @@
-//! Crash-safe recordings of raw sensor frames with their metadata.
+//! Recordings of raw sensor frames: the format is `sdi-recording`'s; here
+//! the daemon's recorder thread that writes them.
 
-pub mod format;
-pub mod reader;
 pub mod writer;
 
-pub use format::{Calibration, Header, Record};
-pub use reader::{ReadError, RecordingReader};
-pub use writer::{RecordingWriter, Summary};
+pub use sdi_recording::{format, Calibration, Header, ReadError, Record, RecordingReader};
+pub use writer::{FinishError, RecordingWriter, StopCause, Summary};

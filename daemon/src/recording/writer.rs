@@ -1,22 +1,30 @@
-//! Appends records to a recording on its own thread behind a bounded queue:
-//! the frame loop never waits on the disk; frames that do not fit are counted
-//! as dropped.
+//! sdid's recorder: a thread appending records ([`RecordingFile`]) behind a
+//! bounded queue. The frame loop never waits on the disk: frames that do
+//! not fit the queue are counted as dropped, and finishing (draining the
+//! queue, end record, fsync) happens on the recorder thread while the
+//! caller waits at most a given time. The recorder stops by itself, with an
+//! end record and a [`StopCause`], at `[recording] max_bytes`, at the
+//! free-space floor `min_free_bytes`, or when the disk is full.
 
-use std::fs::{File, OpenOptions};
-use std::io::{self, Write};
+use std::fs::File;
+use std::io;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::{self, sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::Arc;
-use std::thread::JoinHandle;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use sdi_core::{Frame, Image};
+use sdi_recording::{Header, RecordingFile};
+use tokio::sync::oneshot;
 
-use super::format::{self, Header};
+use crate::config::RecordingSection;
 
 /// Frames queued between the frame loop and the disk.
 pub const QUEUE_FRAMES: usize = 64;
+/// Bytes of an end record (magic, kind, length, 16-byte payload, CRC):
+/// kept free below `max_bytes` so a limited recording still ends cleanly.
+const END_RECORD_BYTES: u64 = 4 + 1 + 4 + 16 + 4;
 
 enum Msg {
     Frame { mode: &'static str, frame: Frame },
@@ -28,6 +36,10 @@ enum Msg {
 pub struct Counters {
     pub written: AtomicU64,
     pub dropped: AtomicU64,
+    /// Bytes in the file (whole records).
+    pub bytes: AtomicU64,
+    /// Set when the recorder stopped by itself ([`StopCause`]).
+    pub ended: AtomicBool,
 }
 
 /// What a finished recording contains.
@@ -35,6 +47,44 @@ pub struct Counters {
 pub struct Summary {
     pub frames: u64,
     pub dropped: u64,
+    pub bytes: u64,
+}
+
+/// Why the recorder stopped before it was asked to.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum StopCause {
+    #[error("the recording reached [recording] max_bytes = {max_bytes}")]
+    MaxBytes { max_bytes: u64 },
+    #[error("free space fell to {free_bytes} bytes, below [recording] min_free_bytes = {min_free_bytes}")]
+    FreeSpace {
+        free_bytes: u64,
+        min_free_bytes: u64,
+    },
+    #[error("the disk is full: {0}")]
+    DiskFull(String),
+    #[error("write error: {0}")]
+    Io(String),
+}
+
+impl StopCause {
+    fn of(e: &io::Error) -> Self {
+        if e.raw_os_error() == Some(libc::ENOSPC) || e.raw_os_error() == Some(libc::EDQUOT) {
+            StopCause::DiskFull(e.to_string())
+        } else {
+            StopCause::Io(e.to_string())
+        }
+    }
+}
+
+/// Why [`RecordingWriter::finish_within`] gave no summary.
+#[derive(Debug, thiserror::Error)]
+pub enum FinishError {
+    #[error("finishing the recording: {0}")]
+    Io(#[from] io::Error),
+    #[error("storage did not finish the recording within {waited:?}: {queued} queued frames and the end record are still being written in the background")]
+    TimedOut { waited: Duration, queued: u64 },
+    #[error("the recorder thread died")]
+    Died,
 }
 
 /// Handle to a recording in progress.
@@ -42,38 +92,55 @@ pub struct RecordingWriter {
     path: PathBuf,
     tx: Option<SyncSender<Msg>>,
     counters: Arc<Counters>,
-    thread: Option<JoinHandle<io::Result<()>>>,
+    /// The thread's result once it has written the end record and synced.
+    done: Receiver<io::Result<()>>,
+    /// Fires once if the recorder stops by itself.
+    ended: Option<oneshot::Receiver<StopCause>>,
+    queued: Arc<AtomicU64>,
 }
 
 impl RecordingWriter {
     /// Creates `path` (which must not exist), writes the header and starts the writer thread.
-    pub fn create(path: &Path, header: &Header) -> io::Result<Self> {
-        let file = OpenOptions::new().write(true).create_new(true).open(path)?;
-        Self::from_file(file, path, header)
+    pub fn create(path: &Path, header: &Header, limits: RecordingSection) -> io::Result<Self> {
+        let file = RecordingFile::create(path, header)?;
+        Self::start(file, path, limits)
     }
 
     /// Records into `file`, an empty file opened for writing by someone else
     /// (a client passing its descriptor over D-Bus); `label` names it in
     /// status output only and is never opened.
-    pub fn from_file(mut file: File, label: &Path, header: &Header) -> io::Result<Self> {
-        let json = serde_json::to_vec(header).map_err(io::Error::other)?;
-        let mut head = Vec::with_capacity(json.len() + 16);
-        head.extend_from_slice(format::FILE_MAGIC);
-        head.extend_from_slice(&(json.len() as u32).to_le_bytes());
-        head.extend_from_slice(&json);
-        head.extend_from_slice(&crc32fast::hash(&json).to_le_bytes());
-        file.write_all(&head)?;
+    pub fn from_file(
+        file: File,
+        label: &Path,
+        header: &Header,
+        limits: RecordingSection,
+    ) -> io::Result<Self> {
+        Self::start(RecordingFile::from_file(file, header)?, label, limits)
+    }
+
+    fn start(file: RecordingFile, label: &Path, limits: RecordingSection) -> io::Result<Self> {
         let (tx, rx) = sync_channel(QUEUE_FRAMES);
+        let (done_tx, done) = mpsc::channel();
+        let (ended_tx, ended) = oneshot::channel();
         let counters = Arc::new(Counters::default());
-        let c = counters.clone();
-        let thread = std::thread::Builder::new()
+        counters
+            .bytes
+            .store(file.bytes_written(), Ordering::Relaxed);
+        let queued = Arc::new(AtomicU64::new(0));
+        let (c, q) = (counters.clone(), queued.clone());
+        std::thread::Builder::new()
             .name("sdid-recorder".into())
-            .spawn(move || run(file, rx, c))?;
+            .spawn(move || {
+                let r = run(file, rx, &c, &q, limits, ended_tx);
+                let _ = done_tx.send(r);
+            })?;
         Ok(Self {
             path: label.to_owned(),
             tx: Some(tx),
             counters,
-            thread: Some(thread),
+            done,
+            ended: Some(ended),
+            queued,
         })
     }
 
@@ -83,6 +150,16 @@ impl RecordingWriter {
 
     pub fn counters(&self) -> &Arc<Counters> {
         &self.counters
+    }
+
+    /// True once the recorder stopped by itself (limit, disk full).
+    pub fn ended(&self) -> bool {
+        self.counters.ended.load(Ordering::Relaxed)
+    }
+
+    /// The notice of the recorder stopping by itself; taken once.
+    pub fn take_ended(&mut self) -> Option<oneshot::Receiver<StopCause>> {
+        self.ended.take()
     }
 
     /// Queues a sensor frame; never blocks. Returns false (and counts a drop) when the queue is full.
@@ -102,9 +179,15 @@ impl RecordingWriter {
     }
 
     fn push(&self, msg: Msg) -> bool {
+        if self.ended() {
+            return false;
+        }
         let Some(tx) = &self.tx else { return false };
         match tx.try_send(msg) {
-            Ok(()) => true,
+            Ok(()) => {
+                self.queued.fetch_add(1, Ordering::Relaxed);
+                true
+            }
             Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
                 self.counters.dropped.fetch_add(1, Ordering::Relaxed);
                 false
@@ -112,70 +195,231 @@ impl RecordingWriter {
         }
     }
 
-    /// Flushes the queue, writes the end record, syncs and closes the file.
-    pub fn finish(mut self) -> io::Result<Summary> {
-        self.finish_inner()
-    }
-
-    fn finish_inner(&mut self) -> io::Result<Summary> {
-        self.tx = None;
-        if let Some(t) = self.thread.take() {
-            t.join()
-                .map_err(|_| io::Error::other("recorder thread panicked"))??;
-        }
-        Ok(Summary {
+    fn summary(&self) -> Summary {
+        Summary {
             frames: self.counters.written.load(Ordering::Relaxed),
             dropped: self.counters.dropped.load(Ordering::Relaxed),
-        })
+            bytes: self.counters.bytes.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Closes the queue and waits up to `timeout` for the recorder thread
+    /// to write what is queued and the end record and to sync. On time-out
+    /// the thread goes on alone (the file is closed when it is done).
+    pub fn finish_within(mut self, timeout: Duration) -> Result<Summary, FinishError> {
+        self.tx = None;
+        match self.done.recv_timeout(timeout) {
+            Ok(r) => r.map(|()| self.summary()).map_err(FinishError::Io),
+            Err(mpsc::RecvTimeoutError::Timeout) => Err(FinishError::TimedOut {
+                waited: timeout,
+                queued: self.queued.load(Ordering::Relaxed),
+            }),
+            Err(mpsc::RecvTimeoutError::Disconnected) => Err(FinishError::Died),
+        }
     }
 }
 
+/// Dropping a writer closes its queue; the thread finishes the file on its
+/// own (never on the dropping thread).
 impl Drop for RecordingWriter {
     fn drop(&mut self) {
-        if self.thread.is_some() {
-            let _ = self.finish_inner();
-        }
+        self.tx = None;
     }
 }
 
-fn write_record(file: &mut File, kind: u8, payload: &[u8], buf: &mut Vec<u8>) -> io::Result<()> {
-    buf.clear();
-    buf.extend_from_slice(format::RECORD_MAGIC);
-    buf.push(kind);
-    buf.extend_from_slice(&(payload.len() as u32).to_le_bytes());
-    buf.extend_from_slice(payload);
-    buf.extend_from_slice(&format::record_crc(kind, payload).to_le_bytes());
-    // One write per record: after it returns the record is in the kernel's
-    // page cache and survives the death of this process.
-    file.write_all(buf)
-}
-
-fn run(mut file: File, rx: Receiver<Msg>, counters: Arc<Counters>) -> io::Result<()> {
-    let mut payload = Vec::new();
-    let mut buf = Vec::new();
-    let mut last_sync = Instant::now();
-    while let Ok(msg) = rx.recv() {
-        match msg {
-            Msg::Frame { mode, frame } => {
-                format::encode_frame(mode, &frame, &mut payload);
-                write_record(&mut file, format::KIND_FRAME, &payload, &mut buf)?;
-                counters.written.fetch_add(1, Ordering::Relaxed);
-            }
-            Msg::Dark { frames, dn } => {
-                format::encode_dark(frames, &dn, &mut payload);
-                write_record(&mut file, format::KIND_DARK, &payload, &mut buf)?;
-            }
-        }
-        if last_sync.elapsed() > Duration::from_secs(1) {
-            file.sync_data()?;
-            last_sync = Instant::now();
+/// Checks the limits for a record of `len` bytes about to be written.
+fn check_limits(
+    file: &RecordingFile,
+    len: u64,
+    limits: &RecordingSection,
+) -> Result<(), StopCause> {
+    if let Some(max_bytes) = limits.max_bytes {
+        if file.bytes_written() + len + END_RECORD_BYTES > max_bytes {
+            return Err(StopCause::MaxBytes { max_bytes });
         }
     }
-    format::encode_end(
-        counters.written.load(Ordering::Relaxed),
-        counters.dropped.load(Ordering::Relaxed),
-        &mut payload,
-    );
-    write_record(&mut file, format::KIND_END, &payload, &mut buf)?;
-    file.sync_all()
+    if limits.min_free_bytes > 0 {
+        // fstatvfs: about a microsecond, cheap next to encoding a frame
+        let free_bytes = file.free_bytes().map_err(|e| StopCause::of(&e))?;
+        if free_bytes < limits.min_free_bytes.saturating_add(len) {
+            return Err(StopCause::FreeSpace {
+                free_bytes,
+                min_free_bytes: limits.min_free_bytes,
+            });
+        }
+    }
+    Ok(())
+}
+
+fn run(
+    mut file: RecordingFile,
+    rx: Receiver<Msg>,
+    counters: &Counters,
+    queued: &AtomicU64,
+    limits: RecordingSection,
+    ended: oneshot::Sender<StopCause>,
+) -> io::Result<()> {
+    let stop = loop {
+        let Ok(msg) = rx.recv() else { break None };
+        queued.fetch_sub(1, Ordering::Relaxed);
+        let (len, is_frame) = match &msg {
+            Msg::Frame { mode, frame } => (file.encode_frame(mode, frame), true),
+            Msg::Dark { frames, dn } => (file.encode_dark(*frames, dn), false),
+        };
+        if let Err(cause) = check_limits(&file, len as u64, &limits) {
+            break Some(cause);
+        }
+        if let Err(e) = file.write_encoded().and_then(|()| file.sync_if_due()) {
+            break Some(StopCause::of(&e));
+        }
+        counters
+            .bytes
+            .store(file.bytes_written(), Ordering::Relaxed);
+        if is_frame {
+            counters.written.fetch_add(1, Ordering::Relaxed);
+        }
+    };
+    let written = counters.written.load(Ordering::Relaxed);
+    let Some(cause) = stop else {
+        let dropped = counters.dropped.load(Ordering::Relaxed);
+        return file.finish(written, dropped);
+    };
+    counters.ended.store(true, Ordering::Relaxed);
+    drop(rx);
+    let dropped = counters.dropped.load(Ordering::Relaxed);
+    tracing::error!(frames = written, "recording stopped: {cause}");
+    // Every whole record stays readable; the end record may not fit a full disk.
+    let end = file.finish(written, dropped);
+    if let Err(e) = &end {
+        tracing::warn!("recording has no end record: {e}");
+    }
+    let _ = ended.send(cause);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sdi_core::sensor::SensorPreset;
+    use sdi_recording::{Calibration, Record, RecordingReader};
+    use std::io::Read;
+
+    fn header(w: usize, h: usize) -> Header {
+        let mut sensor = SensorPreset::TiOpt8241.params();
+        sensor.width = w;
+        sensor.height = h;
+        Header {
+            format_version: 2,
+            mode: "raw".into(),
+            backend: "sim".into(),
+            exposure_us: sensor.exposure_us,
+            frame_rate_hz: sensor.frame_rate_hz,
+            modulation_hz: sensor.modulation_hz,
+            sensor,
+            started_unix_s: 0.0,
+            calibration: Calibration::default(),
+        }
+    }
+
+    fn noisy_frame(w: usize, h: usize, seq: u64) -> Frame {
+        let mut f = Frame::new(w, h);
+        let mut x = seq.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        for v in &mut f.dn.data {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            *v = (x % 4096) as f32 - 2048.0;
+        }
+        f.sequence = seq;
+        f
+    }
+
+    /// Storage that takes nothing (a FIFO nobody reads: writes block, as on
+    /// a frozen file system): pushing never blocks, frames that do not fit
+    /// the queue are dropped, finishing gives up after its time-out, and
+    /// once the storage drains the recording completes with an end record.
+    #[test]
+    fn frozen_storage_never_blocks_the_pusher_and_finishing_is_bounded() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("frozen");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::from_bits_truncate(0o600)).unwrap();
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&fifo)
+            .unwrap();
+        let limits = RecordingSection {
+            max_bytes: None,
+            min_free_bytes: 0,
+        };
+        let (w, h) = (64, 48);
+        let rec = RecordingWriter::from_file(file, &fifo, &header(w, h), limits).unwrap();
+        for seq in 1..=500 {
+            rec.push_frame("raw", &noisy_frame(w, h, seq));
+        }
+        let dropped = rec.counters().dropped.load(Ordering::Relaxed);
+        assert!(
+            dropped >= 500 - QUEUE_FRAMES as u64 - 32,
+            "{dropped} dropped"
+        );
+        match rec.finish_within(Duration::from_millis(200)) {
+            Err(FinishError::TimedOut { queued, .. }) => assert!(queued > 0),
+            other => panic!("{other:?}"),
+        }
+        // Thaw: read everything; the recorder finishes and closes the file.
+        let mut bytes = Vec::new();
+        std::fs::File::open(&fifo)
+            .unwrap()
+            .read_to_end(&mut bytes)
+            .unwrap();
+        let mut r = RecordingReader::new(std::io::Cursor::new(bytes)).unwrap();
+        let recs: Vec<Record> = r.by_ref().collect();
+        assert_eq!(r.damaged_tail(), None);
+        let frames = recs
+            .iter()
+            .filter(|x| matches!(x, Record::Frame { .. }))
+            .count() as u64;
+        assert_eq!(
+            recs.last(),
+            Some(&Record::End {
+                frames,
+                dropped: 500 - frames
+            })
+        );
+    }
+
+    /// The size limit stops the recorder by itself with an end record and
+    /// a [`StopCause`], and the file stays within the limit.
+    #[test]
+    fn max_bytes_ends_the_recording_with_a_cause() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.sdirec");
+        let limits = RecordingSection {
+            max_bytes: Some(40_000),
+            min_free_bytes: 0,
+        };
+        let (w, h) = (64, 48);
+        let mut rec = RecordingWriter::create(&path, &header(w, h), limits).unwrap();
+        let ended = rec.take_ended().unwrap();
+        let mut seq = 0;
+        while !rec.ended() && seq < 10_000 {
+            seq += 1;
+            if !rec.push_frame("raw", &noisy_frame(w, h, seq)) {
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        assert_eq!(
+            ended.blocking_recv(),
+            Ok(StopCause::MaxBytes { max_bytes: 40_000 })
+        );
+        let summary = rec.finish_within(Duration::from_secs(10)).unwrap();
+        assert!(std::fs::metadata(&path).unwrap().len() <= 40_000);
+        let mut r = RecordingReader::open(&path).unwrap();
+        let recs: Vec<Record> = r.by_ref().collect();
+        assert_eq!(r.damaged_tail(), None);
+        assert!(summary.frames >= 1);
+        assert!(
+            matches!(recs.last(), Some(Record::End { frames, .. }) if *frames == summary.frames)
+        );
+    }
 }

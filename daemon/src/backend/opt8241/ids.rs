@@ -1,7 +1,7 @@
 //! USB identity of the TI OPT8241-CDK ("TintinCDK" in TI's Voxel SDK).
 //!
-//! Kept in one place: `udev/board-ids` lists the same IDs for the udev rules,
-//! and a unit test checks that both agree.
+//! Kept in one place: `udev/board-ids` lists the same IDs for the udev rules
+//! (parsed by `sdi_api::board_ids`), and a unit test checks that both agree.
 
 /// Texas Instruments.
 pub const VENDOR_ID: u16 = 0x0451;
@@ -13,24 +13,7 @@ pub const PRODUCT_ID_UVC: u16 = 0x9106;
 /// Interface carrying the bulk IN endpoint in bulk mode.
 pub const INTERFACE: u8 = 0;
 
-/// The `udev/board-ids` file, for tools that generate rules from it.
-pub const BOARD_IDS_FILE: &str = include_str!("../../../../udev/board-ids");
-
-/// (vendor, product, mode) triples parsed from [`BOARD_IDS_FILE`].
-pub fn board_ids() -> Vec<(u16, u16, &'static str)> {
-    BOARD_IDS_FILE
-        .lines()
-        .map(str::trim)
-        .filter(|l| !l.is_empty() && !l.starts_with('#'))
-        .filter_map(|l| {
-            // Columns: vendor product mode description...
-            let mut cols = l.split_whitespace();
-            let vendor = u16::from_str_radix(cols.next()?, 16).ok()?;
-            let product = u16::from_str_radix(cols.next()?, 16).ok()?;
-            Some((vendor, product, cols.next()?))
-        })
-        .collect()
-}
+pub use sdi_api::board_ids::{board_ids, BOARD_IDS_FILE};
 
 #[cfg(test)]
 mod tests {

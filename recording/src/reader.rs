@@ -1,10 +1,13 @@
 //! Reads recordings back, tolerating a torn last record (a killed writer).
+//! Nothing in the file is trusted: the header is validated
+//! ([`Header::validate`]) and no record may be larger than the largest
+//! frame of the header's size, so memory stays bounded by the frame size.
 
 use std::fs::File;
 use std::io::{self, BufReader, Read};
 use std::path::Path;
 
-use super::format::{self, Header, Record};
+use crate::format::{self, Header, HeaderError, Record};
 
 /// Why a recording cannot be opened.
 #[derive(Debug, thiserror::Error)]
@@ -15,12 +18,18 @@ pub enum ReadError {
     BadMagic,
     #[error("corrupt recording header: {0}")]
     BadHeader(String),
+    #[error(transparent)]
+    OutOfRange(#[from] HeaderError),
 }
 
 /// Sequential reader over a recording's records.
 pub struct RecordingReader<R> {
     input: R,
     header: Header,
+    /// Width and height every frame record must have.
+    size: (usize, usize),
+    /// Largest payload accepted (from the header's frame size).
+    max_payload: usize,
     /// Set when reading stopped at a torn or corrupt record instead of a clean end.
     damaged_tail: Option<String>,
     finished: bool,
@@ -48,13 +57,15 @@ fn read_exact_or_eof<R: Read>(r: &mut R, buf: &mut [u8]) -> io::Result<usize> {
 impl<R: Read> RecordingReader<R> {
     pub fn new(mut input: R) -> Result<Self, ReadError> {
         let mut magic = [0u8; 8];
-        if read_exact_or_eof(&mut input, &mut magic)? != 8 || &magic != format::FILE_MAGIC {
-            return Err(ReadError::BadMagic);
-        }
+        let version = match (read_exact_or_eof(&mut input, &mut magic)?, &magic) {
+            (8, m) if m == format::FILE_MAGIC => format::FORMAT_VERSION,
+            (8, m) if m == format::FILE_MAGIC_V1 => 1,
+            _ => return Err(ReadError::BadMagic),
+        };
         let mut len = [0u8; 4];
         input.read_exact(&mut len)?;
         let len = u32::from_le_bytes(len);
-        if len > 1 << 20 {
+        if len > format::MAX_HEADER_BYTES {
             return Err(ReadError::BadHeader(format!("header of {len} bytes")));
         }
         let mut json = vec![0u8; len as usize];
@@ -64,10 +75,19 @@ impl<R: Read> RecordingReader<R> {
         if u32::from_le_bytes(crc) != crc32fast::hash(&json) {
             return Err(ReadError::BadHeader("checksum mismatch".into()));
         }
-        let header =
+        let header: Header =
             serde_json::from_slice(&json).map_err(|e| ReadError::BadHeader(e.to_string()))?;
+        if header.format_version != version {
+            return Err(ReadError::BadHeader(format!(
+                "format_version {} in a version-{version} file",
+                header.format_version
+            )));
+        }
+        header.validate()?;
         Ok(Self {
             input,
+            size: (header.sensor.width, header.sensor.height),
+            max_payload: header.max_payload_bytes(),
             header,
             damaged_tail: None,
             finished: false,
@@ -116,8 +136,11 @@ impl<R: Read> RecordingReader<R> {
         }
         let kind = head[4];
         let len = u32::from_le_bytes([head[5], head[6], head[7], head[8]]);
-        if len > format::MAX_RECORD_BYTES {
-            return Err(format!("record length {len} too large"));
+        if len as usize > self.max_payload {
+            return Err(format!(
+                "record length {len} exceeds {} (the largest frame record of this size)",
+                self.max_payload
+            ));
         }
         let mut payload = vec![0u8; len as usize + 4];
         let n = read_exact_or_eof(&mut self.input, &mut payload).map_err(|e| e.to_string())?;
@@ -129,7 +152,7 @@ impl<R: Read> RecordingReader<R> {
         if crc != format::record_crc(kind, &payload) {
             return Err("record checksum mismatch".into());
         }
-        format::decode(kind, &payload)
+        format::decode(kind, &payload, self.size)
             .map(Some)
             .map_err(|e| e.to_string())
     }
