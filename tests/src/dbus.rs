@@ -60,8 +60,19 @@ impl Bus {
     /// Like [`Bus::start`] with extra dbus-daemon arguments (e.g.
     /// `--address=unix:abstract=NAME`, a socket no mount namespace hides).
     pub fn start_with(extra: &[&str]) -> Self {
+        Self::spawn(&["--session", "--nopidfile"], extra)
+    }
+
+    /// A bus with its own configuration file (a system-like policy, a
+    /// socket any user may reach).
+    pub fn start_config(config: &Path) -> Self {
+        Self::spawn(&[&format!("--config-file={}", config.display())], &[])
+    }
+
+    fn spawn(kind: &[&str], extra: &[&str]) -> Self {
         let mut child = Command::new("dbus-daemon")
-            .args(["--session", "--nofork", "--nopidfile", "--print-address=1"])
+            .args(kind)
+            .args(["--nofork", "--print-address=1"])
             .args(extra)
             .stdout(Stdio::piped())
             .spawn()
@@ -81,6 +92,26 @@ impl Drop for Bus {
         let _ = self.child.kill();
         let _ = self.child.wait();
     }
+}
+
+/// A connection to `address` and an untyped proxy of sdid's camera object,
+/// for calls the typed `sdi_api` proxy cannot make (wrong arguments, raw
+/// error names).
+pub async fn raw_camera_proxy(address: &str) -> (zbus::Connection, zbus::Proxy<'static>) {
+    let conn = zbus::connection::Builder::address(address)
+        .expect("bus address")
+        .build()
+        .await
+        .expect("connect to the bus");
+    let proxy = zbus::Proxy::new(
+        &conn,
+        "org.sdi.Daemon",
+        "/org/sdi/Camera0",
+        "org.sdi.Camera1",
+    )
+    .await
+    .expect("camera proxy");
+    (conn, proxy)
 }
 
 /// A running `sdid` on a [`Bus`], killed on drop.

@@ -60,19 +60,7 @@ async fn flood_of_calls_keeps_frame_rate() {
     require_dbus!();
     let bus = Bus::start();
     let d = Daemon::start(&bus, &[]);
-    let conn = zbus::connection::Builder::address(bus.address.as_str())
-        .unwrap()
-        .build()
-        .await
-        .unwrap();
-    let proxy = zbus::Proxy::new(
-        &conn,
-        "org.sdi.Daemon",
-        "/org/sdi/Camera0",
-        "org.sdi.Camera1",
-    )
-    .await
-    .unwrap();
+    let (_conn, proxy) = sdi_tests::dbus::raw_camera_proxy(&bus.address).await;
     let modes = ["raw", "depth-edge", "bogus", "bipolar-colour"];
     let mut calls = Vec::new();
     for i in 0..1000usize {

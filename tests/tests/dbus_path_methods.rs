@@ -12,19 +12,7 @@ use sdi_tests::require_dbus;
 
 /// Calls `method(path)` and returns the D-Bus error (name, message), or None.
 async fn call(address: &str, method: &str, path: &str) -> Option<(String, String)> {
-    let conn = zbus::connection::Builder::address(address)
-        .unwrap()
-        .build()
-        .await
-        .unwrap();
-    let proxy = zbus::Proxy::new(
-        &conn,
-        "org.sdi.Daemon",
-        "/org/sdi/Camera0",
-        "org.sdi.Camera1",
-    )
-    .await
-    .unwrap();
+    let (_conn, proxy) = sdi_tests::dbus::raw_camera_proxy(address).await;
     let r = if method == "StopRecording" {
         proxy.call_method(method, &()).await.map(|_| ())
     } else {

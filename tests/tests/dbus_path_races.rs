@@ -10,7 +10,6 @@
 //! first win, which fails the test. Needs root; skipped otherwise.
 
 use std::fs;
-use std::io::{BufRead, BufReader};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -18,7 +17,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use sdi_tests::dbus::bin;
+use sdi_tests::dbus::{bin, Bus};
 use sdi_tests::process::{runnable_copy, Reaped};
 use sdi_tests::require_dbus;
 
@@ -32,7 +31,7 @@ fn attempts() -> usize {
 }
 
 /// A private bus any user may connect to and call anything on.
-fn open_bus(dir: &Path) -> (Reaped, String) {
+fn open_bus(dir: &Path) -> Bus {
     let config = dir.join("bus.conf");
     fs::write(
         &config,
@@ -55,23 +54,13 @@ fn open_bus(dir: &Path) -> (Reaped, String) {
         ),
     )
     .unwrap();
-    let mut child = Command::new("dbus-daemon")
-        .arg(format!("--config-file={}", config.display()))
-        .args(["--nofork", "--print-address"])
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("spawn dbus-daemon");
-    let mut line = String::new();
-    BufReader::new(child.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    (Reaped(child), line.trim().to_owned())
+    Bus::start_config(&config)
 }
 
 struct Setup {
     _dir: tempfile::TempDir,
     root: PathBuf,
-    _bus: Reaped,
+    _bus: Bus,
     _sdid: Reaped,
     address: String,
     sdictl: PathBuf,
@@ -99,7 +88,8 @@ impl Setup {
         let user = root.join("user");
         fs::create_dir(&user).unwrap();
         std::os::unix::fs::chown(&user, Some(CALLER_UID), Some(CALLER_UID)).unwrap();
-        let (bus, address) = open_bus(&root);
+        let bus = open_bus(&root);
+        let address = bus.address.clone();
         let sdid = Command::new(bin("sdid"))
             .args([
                 "--bus-address",

@@ -6,11 +6,11 @@
 //! without touching the host. The daemon owning `org.sdi.Daemon` runs as
 //! root; the users talk to it with `busctl` through `runuser`.
 
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
+use sdi_tests::dbus::Bus;
 use sdi_tests::process::{must, repo_root, run, Reaped};
 use sdi_tests::vm;
 
@@ -22,7 +22,7 @@ const GUEST: &str = "sdi-guest";
 
 /// A private bus with the system bus's deny-by-default policy plus SDI's.
 struct SystemLikeBus {
-    _daemon: Reaped,
+    _daemon: Bus,
     address: String,
 }
 
@@ -46,21 +46,10 @@ impl SystemLikeBus {
             );
         let config_path = dir.join("system.conf");
         std::fs::write(&config_path, config).unwrap();
-        let mut child = Command::new("dbus-daemon")
-            .arg(format!("--config-file={}", config_path.display()))
-            .args(["--nofork", "--print-address"])
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("spawn dbus-daemon");
-        let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
-        let address = line.trim().to_owned();
-        assert!(!address.is_empty(), "dbus-daemon printed no address");
+        let bus = Bus::start_config(&config_path);
         Self {
-            _daemon: Reaped(child),
-            address,
+            address: bus.address.clone(),
+            _daemon: bus,
         }
     }
 
