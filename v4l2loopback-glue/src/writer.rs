@@ -51,8 +51,17 @@ enum Io {
     /// still held. Both 0.12.7 and 0.15 accept QBUF of any allocated
     /// output buffer at any time, and round-robin over `MMAP_BUFFERS`
     /// leaves the last three frames untouched while readers copy them.
+    ///
+    /// A reader's REQBUFS with fewer buffers shrinks 0.12.7's ring for
+    /// everyone (`dev->used_buffers`), and QBUF of our index `i` then marks
+    /// the driver's buffer `i % used_buffers` as the newest frame: filling our
+    /// own mapping of `i` would publish whatever that buffer held frames ago
+    /// (a frame of the previous mode after a switch, seen by GStreamer's
+    /// v4l2src). So each frame goes into the memory QUERYBUF names for `i`
+    /// now, found among `offsets` (the mmap offset of each of `maps`).
     Mmap {
         maps: Vec<sys::Mapping>,
+        offsets: Vec<u32>,
         next: usize,
     },
     Write {
@@ -276,10 +285,14 @@ impl LoopbackWriter {
         };
         self.io = match cfg.io {
             IoMethod::Mmap => match self.map_buffers() {
-                Ok(maps) => {
+                Ok((maps, offsets)) => {
                     self.io_method = IoMethod::Mmap;
                     self.features.buffers = maps.len() as u32;
-                    Io::Mmap { maps, next: 0 }
+                    Io::Mmap {
+                        maps,
+                        offsets,
+                        next: 0,
+                    }
                 }
                 Err(GlueError::DeviceGone { op }) => return Err(GlueError::DeviceGone { op }),
                 Err(_) => self.write_io(),
@@ -312,7 +325,8 @@ impl LoopbackWriter {
         }
     }
 
-    fn map_buffers(&self) -> Result<Vec<sys::Mapping>, GlueError> {
+    /// The driver's output buffers mapped, with the mmap offset of each.
+    fn map_buffers(&self) -> Result<(Vec<sys::Mapping>, Vec<u32>), GlueError> {
         let fd = self.file.as_fd();
         let mut req = sys::v4l2_requestbuffers {
             count: MMAP_BUFFERS,
@@ -346,9 +360,12 @@ impl LoopbackWriter {
                         ),
                     });
                 }
-                sys::Mapping::new(fd, buf.length as usize, buf.mmap_offset()).map_err(err("mmap"))
+                let map = sys::Mapping::new(fd, buf.length as usize, buf.mmap_offset())
+                    .map_err(err("mmap"))?;
+                Ok((map, buf.mmap_offset()))
             })
-            .collect()
+            .collect::<Result<Vec<_>, GlueError>>()
+            .map(|v| v.into_iter().unzip())
     }
 
     /// Subscribes to the client-usage event where the module has it.
@@ -495,11 +512,33 @@ impl LoopbackWriter {
             }
         };
         match io {
-            Io::Mmap { maps, next } => {
+            Io::Mmap {
+                maps,
+                offsets,
+                next,
+            } => {
                 let fd = file.as_fd();
-                let index = *next;
+                let query = |index: usize| -> Result<Option<usize>, GlueError> {
+                    let mut buf = sys::v4l2_buffer {
+                        index: index as u32,
+                        type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
+                        memory: sys::V4L2_MEMORY_MMAP,
+                        ..Default::default()
+                    };
+                    sys::querybuf(fd, &mut buf).map_err(err("VIDIOC_QUERYBUF"))?;
+                    Ok(offsets.iter().position(|&o| o == buf.mmap_offset()))
+                };
+                // Past the end of a shrunk ring, start again at 0: each driver
+                // buffer is then refilled only every used_buffers frames, the
+                // longest a reader can hold one.
+                let mut index = *next;
+                let mut target = query(index)?.unwrap_or(index);
+                if target != index {
+                    index = 0;
+                    target = query(0)?.unwrap_or(0);
+                }
                 *next = (index + 1) % maps.len();
-                fill(&mut maps[index].as_mut_slice()[..bytes])?;
+                fill(&mut maps[target].as_mut_slice()[..bytes])?;
                 let mut buf = sys::v4l2_buffer {
                     index: index as u32,
                     type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
