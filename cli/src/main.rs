@@ -1,70 +1,10 @@
-//! sdictl: command-line control of the SDI daemon, and offline tools.
-//!
-//! Each subcommand lives in its own module; adding one is a variant here and a
-//! line in `main`'s dispatch.
-
-mod atomic_file;
-mod exit;
-mod offline;
-mod online;
+//! sdictl: command-line control of the SDI daemon, and offline tools. The
+//! commands live in the library ([`sdi_cli::run`]).
 
 use std::process::ExitCode;
 
-use clap::{CommandFactory, Parser, Subcommand};
-
-#[derive(Debug, Parser)]
-#[command(
-    name = "sdictl",
-    version,
-    about = "Snapshot difference imaging control and offline tools"
-)]
-struct Cli {
-    #[command(flatten)]
-    bus: online::BusArgs,
-    #[command(subcommand)]
-    command: Command,
-}
-
-#[derive(Debug, Subcommand)]
-enum Command {
-    /// Simulate a scene through a mode pipeline and write the frames (.npy) and one display frame (.png).
-    Sim(offline::sim::SimArgs),
-    /// Separate I+ and I- offline from a recording (.sdirec) or an .npy stack (section 6: M1, M2, M3, Skellam ML).
-    Separate(offline::separate::SeparateArgs),
-    /// Offline reports on simulator data.
-    #[command(subcommand)]
-    Report(Report),
-    #[command(flatten)]
-    Online(online::OnlineCommand),
-    /// Print shell completions (bash, zsh, fish, elvish, powershell).
-    Completions { shell: clap_complete::Shell },
-    /// Print the man page (roff) generated from these definitions.
-    Man,
-}
-
-#[derive(Debug, Subcommand)]
-enum Report {
-    /// Error against run time of every separation estimator (I+, I- recovery).
-    Separation(offline::report::SeparationReportArgs),
-    /// Variance against intensity, snapshot vs two-shot, and the ratio of the low-light intercepts (section 5.5).
-    Noise(offline::noise_report::NoiseReportArgs),
-}
+use clap::Parser;
 
 fn main() -> ExitCode {
-    let cli = Cli::parse();
-    let result = match cli.command {
-        Command::Sim(args) => offline::sim::run(args),
-        Command::Separate(args) => offline::separate::run(args),
-        Command::Report(Report::Noise(args)) => offline::noise_report::run(&args),
-        Command::Report(Report::Separation(args)) => offline::report::run_cli(&args),
-        Command::Online(cmd) => return online::run(cmd, cli.bus),
-        Command::Completions { shell } => {
-            clap_complete::generate(shell, &mut Cli::command(), "sdictl", &mut std::io::stdout());
-            Ok(())
-        }
-        Command::Man => clap_mangen::Man::new(Cli::command())
-            .render(&mut std::io::stdout())
-            .map_err(|e| exit::CliError::Runtime(e.to_string())),
-    };
-    exit::report(result)
+    sdi_cli::run(sdi_cli::Cli::parse())
 }

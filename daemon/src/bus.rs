@@ -39,3 +39,48 @@ impl Drop for PrivateBus {
         let _ = self.child.wait();
     }
 }
+
+/// The bus sdid serves on.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum BusChoice {
+    /// The system bus (the installed service).
+    System,
+    /// The session bus; a private one is started when none exists.
+    Session,
+    /// The bus at this address.
+    Address(String),
+}
+
+/// Connects to the chosen bus; the private bus started for
+/// [`BusChoice::Session`], if any, lives as long as the returned handle.
+pub async fn connect(choice: &BusChoice) -> Result<(zbus::Connection, Option<PrivateBus>), String> {
+    let mut private = None;
+    let builder = match choice {
+        BusChoice::Address(a) => zbus::connection::Builder::address(a.as_str()),
+        BusChoice::Session => {
+            let addr = match session_address() {
+                Some(a) => a,
+                None => {
+                    let p = PrivateBus::spawn().map_err(|e| {
+                        format!("no session bus and cannot start dbus-daemon: {e} (install dbus)")
+                    })?;
+                    eprintln!(
+                        "sdid: no session bus found; started a private one:\n  export DBUS_SESSION_BUS_ADDRESS='{}'\n(sdictl --session finds it automatically)",
+                        p.address
+                    );
+                    let a = p.address.clone();
+                    private = Some(p);
+                    a
+                }
+            };
+            zbus::connection::Builder::address(addr.as_str())
+        }
+        BusChoice::System => zbus::connection::Builder::system(),
+    }
+    .map_err(|e| e.to_string())?;
+    let conn = builder
+        .build()
+        .await
+        .map_err(|e| format!("connecting to D-Bus: {e}"))?;
+    Ok((conn, private))
+}

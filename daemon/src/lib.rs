@@ -4,6 +4,7 @@
 //! Data flows one way: backend -> frame_loop (pipeline) -> sink / recording;
 //! D-Bus talks to the frame loop only through its command channel.
 
+pub mod args;
 pub mod backend;
 pub mod bus;
 pub mod calibration_store;
@@ -13,10 +14,12 @@ pub mod dbus;
 pub mod frame_loop;
 pub mod job;
 pub mod light;
+pub mod logging;
 pub mod modes;
 pub mod monotonic;
 pub mod photon_transfer;
 pub mod recording;
 pub mod sink;
 pub mod snapshot;
+pub mod startup;
 pub mod stats;

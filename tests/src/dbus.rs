@@ -1,10 +1,9 @@
 //! Helpers for D-Bus integration tests: a private `dbus-daemon` per test,
-//! the built `sdid` on it, and `sdictl` pointed at it.
+//! `sdid` on it, and `sdictl` pointed at it.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
-use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 /// `target/<profile>` of the running test binary.
@@ -17,24 +16,43 @@ fn target_dir() -> PathBuf {
         .to_owned()
 }
 
-/// Path of a workspace binary, built once per test process (cargo is a no-op when fresh).
+/// Path of `sdid` or `sdictl` for a test, under its real name.
+///
+/// Design: the tests need the programs as separate processes (exit codes,
+/// signals, stderr, other users, the VM guest, activation and unit files),
+/// and they must not run `cargo build` from inside themselves. Cargo builds
+/// the bins of the package under test before its integration tests, but
+/// only those: so this package has `test_sdid` and `test_sdictl`
+/// (src/bin/), thin shells over the same library entry points as
+/// `daemon/src/main.rs` and `cli/src/main.rs` (`sdi_daemon::startup::run`,
+/// `sdi_cli::run`). They need their own names (two bins called `sdid` in
+/// one workspace collide in target/). Activation files and unit sandboxes
+/// name the program `sdid`, so each test gets a hard link (or a copy) with
+/// the real name in `target/<profile>/sdi-tests-bin/`.
 pub fn bin(name: &str) -> PathBuf {
-    static BUILT: OnceLock<()> = OnceLock::new();
-    BUILT.get_or_init(|| {
-        let dir = target_dir();
-        let release = dir.file_name().is_some_and(|n| n == "release");
-        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
-        let mut cmd = Command::new(cargo);
-        cmd.args(["build", "-q", "-p", "sdi-daemon", "-p", "sdi-cli", "--bins"]);
-        // Same profile as `cargo test` (opt-level 2), so its binaries are reused.
-        cmd.args(["--profile", if release { "release" } else { "test" }]);
-        if let Some(root) = dir.parent() {
-            cmd.env("CARGO_TARGET_DIR", root);
-        }
-        let status = cmd.status().expect("run cargo build");
-        assert!(status.success(), "building sdid/sdictl failed");
-    });
-    target_dir().join(name)
+    let built = format!("test_{name}");
+    let source = std::env::var_os(format!("CARGO_BIN_EXE_{built}"))
+        .map(PathBuf::from)
+        .unwrap_or_else(|| target_dir().join(&built));
+    assert!(
+        source.is_file(),
+        "{} is missing: run the tests through `cargo test -p sdi-tests`, which builds it",
+        source.display()
+    );
+    let dir = target_dir().join("sdi-tests-bin");
+    std::fs::create_dir_all(&dir).expect("create target/<profile>/sdi-tests-bin");
+    let named = dir.join(name);
+    // A link to a fresh temporary name renamed over the old one: parallel
+    // tests never see a half-written program.
+    let tmp = dir.join(format!(".{name}.{}", std::process::id()));
+    let _ = std::fs::remove_file(&tmp);
+    if std::fs::hard_link(&source, &tmp).is_err() {
+        std::fs::copy(&source, &tmp).expect("copy the test program");
+    }
+    std::fs::rename(&tmp, &named).expect("name the test program");
+    // rename(2) does nothing when both names are links to one file.
+    let _ = std::fs::remove_file(&tmp);
+    named
 }
 
 /// True when `dbus-daemon` is installed.

@@ -5,6 +5,7 @@ pub mod board;
 pub mod opt8241;
 pub mod pacer;
 pub mod replay;
+pub mod select;
 pub mod sim;
 pub mod status;
 

@@ -7,6 +7,7 @@ pub mod loopback;
 pub mod output;
 #[cfg(feature = "pipewire")]
 pub mod pipewire;
+pub mod select;
 pub mod y4m;
 
 use crate::modes::{DisplayMap, ModeId, ModeOutput};
