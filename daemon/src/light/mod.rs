@@ -126,7 +126,7 @@ pub enum LightError {
     Gpio {
         chip: String,
         #[source]
-        source: std::io::Error,
+        source: gpiocdev::Error,
     },
 }
 
