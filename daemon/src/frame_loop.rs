@@ -296,7 +296,7 @@ impl FrameLoop {
                 }
             }
             if self.stats.frame(t0.elapsed()) {
-                let mut s = self.stats.current;
+                let mut s = self.stats.current.clone();
                 s.dropped_view = self.output.dropped();
                 s.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
                     r.counters()

@@ -1,23 +1,11 @@
-//! Frame-loop statistics published to D-Bus.
+//! Frame-loop statistics published to D-Bus. The `Stats` property has one
+//! definition, [`sdi_api::Stats`]: the frame loop fills its timing and drop
+//! counters, the D-Bus object the device state and the recorder's stop
+//! reason.
 
 use std::time::{Duration, Instant};
 
-/// A snapshot of the frame loop's health.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Stats {
-    /// Frames captured since start.
-    pub frames: u64,
-    /// Frames per second over the last window.
-    pub fps: f64,
-    /// Mean capture-to-output processing time over the last window, microseconds.
-    pub latency_us: f64,
-    /// Worst processing time over the last window, microseconds.
-    pub latency_max_us: f64,
-    /// Frames the view output skipped (reader too slow).
-    pub dropped_view: u64,
-    /// Frames the recorder could not queue.
-    pub dropped_recording: u64,
-}
+pub use sdi_api::Stats;
 
 /// Accumulates per-frame timings into windows of about one second.
 pub struct StatsWindow {

@@ -4,6 +4,7 @@
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 /// `target/<profile>` of the running test binary.
@@ -30,6 +31,26 @@ fn target_dir() -> PathBuf {
 /// name the program `sdid`, so each test gets a hard link (or a copy) with
 /// the real name in `target/<profile>/sdi-tests-bin/`.
 pub fn bin(name: &str) -> PathBuf {
+    assert!(PROGRAMS.contains(&name), "no test program {name}");
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    // Both at once: `make install` in a test takes the directory of one and
+    // installs both.
+    DIR.get_or_init(|| {
+        let dir = target_dir().join("sdi-tests-bin");
+        std::fs::create_dir_all(&dir).expect("create target/<profile>/sdi-tests-bin");
+        for program in PROGRAMS {
+            link_program(program, &dir);
+        }
+        dir
+    })
+    .join(name)
+}
+
+/// The programs [`bin`] provides.
+const PROGRAMS: [&str; 2] = ["sdid", "sdictl"];
+
+/// Links the bin `test_<name>` as `dir/<name>`.
+fn link_program(name: &str, dir: &Path) {
     let built = format!("test_{name}");
     let source = std::env::var_os(format!("CARGO_BIN_EXE_{built}"))
         .map(PathBuf::from)
@@ -39,9 +60,6 @@ pub fn bin(name: &str) -> PathBuf {
         "{} is missing: run the tests through `cargo test -p sdi-tests`, which builds it",
         source.display()
     );
-    let dir = target_dir().join("sdi-tests-bin");
-    std::fs::create_dir_all(&dir).expect("create target/<profile>/sdi-tests-bin");
-    let named = dir.join(name);
     // A link to a fresh temporary name renamed over the old one: parallel
     // tests never see a half-written program.
     let tmp = dir.join(format!(".{name}.{}", std::process::id()));
@@ -49,10 +67,9 @@ pub fn bin(name: &str) -> PathBuf {
     if std::fs::hard_link(&source, &tmp).is_err() {
         std::fs::copy(&source, &tmp).expect("copy the test program");
     }
-    std::fs::rename(&tmp, &named).expect("name the test program");
+    std::fs::rename(&tmp, dir.join(name)).expect("name the test program");
     // rename(2) does nothing when both names are links to one file.
     let _ = std::fs::remove_file(&tmp);
-    named
 }
 
 /// True when `dbus-daemon` is installed.

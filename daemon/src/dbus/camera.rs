@@ -799,21 +799,15 @@ impl Camera {
     /// device_available, device_state, recording_stopped}; emitted about once a second.
     #[zbus(property)]
     async fn stats(&self) -> sdi_api::Stats {
-        let s = *self.stats.borrow();
         let (device_available, device_state) = match self.info.status.as_ref().map(|h| h.get()) {
             Some(st) => (st.available, st.detail),
             None => (true, String::new()),
         };
         sdi_api::Stats {
-            frames: s.frames,
-            fps: s.fps,
-            latency_us: s.latency_us,
-            latency_max_us: s.latency_max_us,
-            dropped_view: s.dropped_view,
-            dropped_recording: s.dropped_recording,
             device_available,
             device_state,
             recording_stopped: self.state().recording_stopped.unwrap_or_default(),
+            ..self.stats.borrow().clone()
         }
     }
 
