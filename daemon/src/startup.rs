@@ -193,9 +193,7 @@ pub async fn serve(
         .map_err(|e| StartError::FrameLoop(e.to_string()))?;
     tracing::info!(backend = %info.backend, device = %info.device, mode = mode.name(), "frame loop started");
 
-    let (conn, private_bus) = bus::connect(&options.bus)
-        .await
-        .map_err(StartError::Bus)?;
+    let (conn, private_bus) = bus::connect(&options.bus).await.map_err(StartError::Bus)?;
     let camera = Camera::new(
         info,
         mode,
