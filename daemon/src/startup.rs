@@ -213,7 +213,11 @@ pub async fn serve(
     match conn
         .request_name_with_flags(BUS_NAME, RequestNameFlags::DoNotQueue.into())
         .await
-        .map_err(|e| StartError::Bus(format!("requesting {BUS_NAME}: {e}")))?
+        .map_err(|e| match e {
+            // zbus reports RequestNameReply::Exists as this error.
+            zbus::Error::NameTaken => StartError::NameTaken,
+            e => StartError::Bus(format!("requesting {BUS_NAME}: {e}")),
+        })?
     {
         RequestNameReply::PrimaryOwner | RequestNameReply::AlreadyOwner => {}
         _ => return Err(StartError::NameTaken),

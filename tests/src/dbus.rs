@@ -29,7 +29,8 @@ fn target_dir() -> PathBuf {
 /// `sdi_cli::run`). They need their own names (two bins called `sdid` in
 /// one workspace collide in target/). Activation files and unit sandboxes
 /// name the program `sdid`, so each test gets a hard link (or a copy) with
-/// the real name in `target/<profile>/sdi-tests-bin/`.
+/// the real name in `target/<profile>/sdi-tests-bin/`. The library entry
+/// itself runs in the test process in `tests/tests/daemon_in_process.rs`.
 pub fn bin(name: &str) -> PathBuf {
     assert!(PROGRAMS.contains(&name), "no test program {name}");
     static DIR: OnceLock<PathBuf> = OnceLock::new();
