@@ -217,8 +217,7 @@ pub async fn serve(
             // zbus reports RequestNameReply::Exists as this error.
             zbus::Error::NameTaken => StartError::NameTaken,
             e => StartError::Bus(format!("requesting {BUS_NAME}: {e}")),
-        })?
-    {
+        })? {
         RequestNameReply::PrimaryOwner | RequestNameReply::AlreadyOwner => {}
         _ => return Err(StartError::NameTaken),
     }

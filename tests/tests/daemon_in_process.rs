@@ -14,11 +14,13 @@ use sdi_tests::require_dbus;
 
 /// The simulator at 30 Hz into a y4m FIFO nobody reads, on `bus`.
 fn options(bus: &Bus, dir: &std::path::Path, fifo: &str) -> StartOptions {
-    let mut config = Config::default();
-    config.backend = BackendKind::Sim;
-    config.mode = ModeId::DepthEdge;
-    config.frame_rate_hz = Some(30.0);
-    config.exposure_us = Some(2000.0);
+    let mut config = Config {
+        backend: BackendKind::Sim,
+        mode: ModeId::DepthEdge,
+        frame_rate_hz: Some(30.0),
+        exposure_us: Some(2000.0),
+        ..Config::default()
+    };
     config.output.sink = SinkKind::Y4m;
     config.output.y4m_path = dir.join(fifo).display().to_string();
     config.validate().expect("a valid configuration");
@@ -60,7 +62,10 @@ fn serve_runs_in_process_and_stops_on_its_stop_future() {
                 .await
                 .unwrap()
             {
-                assert!(start.elapsed() < Duration::from_secs(30), "sdid did not come up");
+                assert!(
+                    start.elapsed() < Duration::from_secs(30),
+                    "sdid did not come up"
+                );
                 tokio::time::sleep(Duration::from_millis(50)).await;
             }
             let cam = sdi_api::Camera1Proxy::builder(&conn)
@@ -77,7 +82,10 @@ fn serve_runs_in_process_and_stops_on_its_stop_future() {
                 tokio::time::sleep(Duration::from_millis(100)).await;
             }
             // A second sdid on the same bus: a typed error, the first serves on.
-            let second = serve(options(&bus, dir.path(), "second.y4m"), std::future::pending());
+            let second = serve(
+                options(&bus, dir.path(), "second.y4m"),
+                std::future::pending(),
+            );
             let second = second.await;
             assert!(
                 matches!(second, Err(StartError::NameTaken)),
