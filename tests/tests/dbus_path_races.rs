@@ -282,7 +282,10 @@ fn vm_races_against_a_root_sdid_without_systemd() {
         clients::export_binaries();
         let t = Instant::now();
         if vm::run_test_in_vm("vm_races_against_a_root_sdid_without_systemd", 900) {
-            eprintln!("VM race run: {:.0} s including boot", t.elapsed().as_secs_f64());
+            eprintln!(
+                "VM race run: {:.0} s including boot",
+                t.elapsed().as_secs_f64()
+            );
         }
         return;
     }

@@ -101,7 +101,10 @@ impl Sdid {
         };
         let t0 = Instant::now();
         while !d.ctl(&["get", "mode"]).status.success() {
-            assert!(t0.elapsed() < Duration::from_secs(30), "sdid did not come up");
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "sdid did not come up"
+            );
             std::thread::sleep(Duration::from_millis(100));
         }
         d
@@ -255,7 +258,11 @@ fn open_fds(pid: u32) -> usize {
 async fn probe_once(probe: &sdi_api::Camera1Proxy<'_>, k: usize) -> [Duration; 2] {
     let t = Instant::now();
     probe
-        .set_mode(if k.is_multiple_of(4) { "raw" } else { "depth-edge" })
+        .set_mode(if k.is_multiple_of(4) {
+            "raw"
+        } else {
+            "depth-edge"
+        })
         .await
         .expect("the other client's SetMode");
     let set_mode = t.elapsed();
@@ -286,7 +293,10 @@ async fn probe_until(
 fn summary(latencies: &[Duration]) -> String {
     let mut ms: Vec<f64> = latencies.iter().map(|d| d.as_secs_f64() * 1e3).collect();
     ms.sort_by(f64::total_cmp);
-    let at = |q: f64| ms.get(((ms.len() as f64 - 1.0) * q).round() as usize).copied();
+    let at = |q: f64| {
+        ms.get(((ms.len() as f64 - 1.0) * q).round() as usize)
+            .copied()
+    };
     format!(
         "{} calls, max {:.0} ms, 99th percentile {:.0} ms, median {:.0} ms",
         ms.len(),
@@ -525,8 +535,17 @@ async fn soak_clients_come_and_go_memory_and_descriptors_stay_flat() {
     assert!(alive, "sdid died");
     assert!(!log.contains("panicked"), "sdid panicked:\n{log}");
     let errors = tally.errors.lock().unwrap();
-    assert!(errors.is_empty(), "{} client errors: {errors:#?}", errors.len());
-    for counter in [&t.mode_switches, &t.snapshots, &t.recordings, &t.reader_sessions] {
+    assert!(
+        errors.is_empty(),
+        "{} client errors: {errors:#?}",
+        errors.len()
+    );
+    for counter in [
+        &t.mode_switches,
+        &t.snapshots,
+        &t.recordings,
+        &t.reader_sessions,
+    ] {
         assert!(counter.load(Ordering::Relaxed) > 0, "a worker never ran");
     }
 
