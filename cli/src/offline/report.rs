@@ -106,6 +106,8 @@ pub enum ReportError {
     Plot(String),
     #[error("dark frame: {0}")]
     Dark(String),
+    #[error("the simulator produced no frame")]
+    NoFrames,
 }
 
 /// One table row.
@@ -185,26 +187,26 @@ impl TruthSums {
 /// computes, writes the files, then prints (the table, or with `json` the
 /// JSON document). Unknown scenes are usage errors, the rest runtime errors.
 pub fn run_cli(args: &SeparationReportArgs, json: bool) -> Result<(), CliError> {
-    let mut names = vec!["separation.tsv"];
-    let report = if args.input.is_some() {
-        // Measured data: no plot (as before), the table and its JSON.
-        if json {
-            names.push("separation.json");
-        }
-        let files = ReportFiles::create(&args.out, &names)?;
-        let report = run_measured(args)?;
-        (report, files)
-    } else {
-        let (name, scene) = scene_of(args)?;
-        names.push("separation.svg");
-        if json {
-            names.push("separation.json");
-        }
-        let files = ReportFiles::create(&args.out, &names)?;
-        let report = run(args, &name, scene).map_err(|e| CliError::Runtime(e.to_string()))?;
-        (report, files)
+    let scene = match args.input {
+        Some(_) => None,
+        None => Some(scene_of(args)?),
     };
-    publish(report.0, report.1, json)
+    let mut names = vec!["separation.tsv"];
+    // Measured data has no plot (as before).
+    if scene.is_some() {
+        names.push("separation.svg");
+    }
+    if json {
+        names.push("separation.json");
+    }
+    let files = ReportFiles::create(&args.out, &names)?;
+    let report = match scene {
+        None => run_measured(args)?,
+        Some((name, scene)) => {
+            run(args, &name, scene).map_err(|e| CliError::Runtime(e.to_string()))?
+        }
+    };
+    publish(report, files, json)
 }
 
 /// The scene `--scene` names (default: colour-chart when built in, else flat-field).
@@ -353,7 +355,7 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
     }
 
     // Single-frame estimators on the first frame, against its own truth.
-    let (one, truth) = first.ok_or(ReportError::Plot("no frame".into()))?;
+    let (one, truth) = first.ok_or(ReportError::NoFrames)?;
     let one = &one;
     let truth = &truth;
     // M3's range scale from the frame itself (robust MAD), never from the truth.
