@@ -3,7 +3,7 @@
 //! channel polled between frames, replies go out on one-shot channels, and
 //! outputs and recordings sit behind bounded non-blocking queues.
 
-use std::sync::mpsc::{Receiver, TryRecvError};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, TryRecvError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -12,6 +12,7 @@ use sdi_core::separation::{LiveMethod, LiveSeparatorConfig};
 use sdi_core::{Frame, Image};
 use tokio::sync::{oneshot, watch};
 
+use crate::backend::pacer::Pacer;
 use crate::backend::{Backend, BackendError, CaptureSettings};
 use crate::dark_capture::{DarkCapture, DarkJob};
 use crate::job::{Running, Settling};
@@ -35,6 +36,9 @@ pub struct SnapshotData {
 }
 
 pub type Reply<T> = oneshot::Sender<T>;
+
+/// Wait before trying a failed capture again.
+const STALL_RETRY: Duration = Duration::from_millis(200);
 
 /// Refusal of a second dark capture or calibration while one runs.
 const JOB_RUNNING: &str = "a dark-frame capture or calibration is already running";
@@ -220,15 +224,12 @@ impl FrameLoop {
         let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
         let mut frame = Frame::new(w, h);
         let mut stalled = false;
+        let mut pacer = Pacer::new();
+        // After a failed capture, the next attempt is not before this.
+        let mut retry_at = Instant::now();
         loop {
-            loop {
-                match commands.try_recv() {
-                    Ok(Command::Shutdown) | Err(TryRecvError::Disconnected) => {
-                        return self.recorder.take();
-                    }
-                    Ok(cmd) => self.handle(cmd),
-                    Err(TryRecvError::Empty) => break,
-                }
+            if !self.wait_turn(&commands, &pacer, retry_at) {
+                return self.recorder.take();
             }
             let carrier_hz = self.backend.settings().modulation_hz;
             let lit = self.job.is_none()
@@ -245,6 +246,8 @@ impl FrameLoop {
             } else {
                 sdi_core::modulation::Illumination::dark(carrier_hz)
             };
+            let paced = self.backend.paced_rate_hz();
+            let captured_at = Instant::now();
             match self.backend.capture(&illumination, &mut frame) {
                 Ok(()) => stalled = false,
                 Err(e) => {
@@ -252,6 +255,11 @@ impl FrameLoop {
                         tracing::warn!("backend: {e}; showing no-signal");
                         stalled = true;
                     }
+                    self.stats.stalled(match e {
+                        BackendError::EndOfStream => "end of recording",
+                        BackendError::Unavailable(_) => "device unavailable",
+                        BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
+                    });
                     if let Some(job) = self.job.take() {
                         job.fail(&mut *self.backend, e);
                     }
@@ -259,9 +267,13 @@ impl FrameLoop {
                     self.answer_pending_snapshots();
                     self.answer_marks_while_stalled();
                     self.output.send_no_signal();
-                    std::thread::sleep(Duration::from_millis(200));
+                    self.stats_tx.send_replace(self.stats.current);
+                    retry_at = Instant::now() + STALL_RETRY;
                     continue;
                 }
+            }
+            if let Some(rate_hz) = paced {
+                pacer.tick(rate_hz, captured_at);
             }
             let t0 = Instant::now();
             let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
@@ -304,6 +316,41 @@ impl FrameLoop {
                         .load(std::sync::atomic::Ordering::Relaxed)
                 });
                 self.stats_tx.send_replace(s);
+            }
+        }
+    }
+
+    /// Handles commands until the next capture is due: at once for a source
+    /// with its own frame clock, when the pacer says for the others, and at
+    /// once whenever a command waits for a frame (a setting change, a
+    /// snapshot), so no call waits for a slow frame clock. Not before
+    /// `retry_at` (after a failed capture) unless a command waits. False on
+    /// `Shutdown` or when every sender is gone.
+    fn wait_turn(&mut self, commands: &Receiver<Command>, pacer: &Pacer, retry_at: Instant) -> bool {
+        loop {
+            loop {
+                match commands.try_recv() {
+                    Ok(Command::Shutdown) | Err(TryRecvError::Disconnected) => return false,
+                    Ok(cmd) => self.handle(cmd),
+                    Err(TryRecvError::Empty) => break,
+                }
+            }
+            if !self.pending_marks.is_empty() || !self.pending_snapshots.is_empty() {
+                return true;
+            }
+            let now = Instant::now();
+            let due = self
+                .backend
+                .paced_rate_hz()
+                .map_or(Duration::ZERO, |rate_hz| pacer.remaining(rate_hz, now))
+                .max(retry_at.saturating_duration_since(now));
+            if due.is_zero() {
+                return true;
+            }
+            match commands.recv_timeout(due) {
+                Ok(Command::Shutdown) | Err(RecvTimeoutError::Disconnected) => return false,
+                Ok(cmd) => self.handle(cmd),
+                Err(RecvTimeoutError::Timeout) => return true,
             }
         }
     }

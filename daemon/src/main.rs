@@ -493,7 +493,7 @@ async fn run(args: Args) -> Result<(), String> {
         capture,
         display,
         cmd_tx.clone(),
-        stats_rx.clone(),
+        stats_rx,
         cal_rx,
     );
     conn.object_server()
@@ -517,9 +517,9 @@ async fn run(args: Args) -> Result<(), String> {
     }
     tracing::info!(name = BUS_NAME, path = OBJECT_PATH, "serving D-Bus API");
 
-    // Stats change signals, about once a second.
+    // Stats change signals, about once a second while they change (the frame
+    // rate decays to 0 when frames stop, without a new frame to say so).
     let stats_conn = conn.clone();
-    let mut stats_watch = stats_rx;
     let stats_task = tokio::spawn(async move {
         let Ok(iface) = stats_conn
             .object_server()
@@ -528,11 +528,13 @@ async fn run(args: Args) -> Result<(), String> {
         else {
             return;
         };
+        let mut last = None;
         loop {
             tokio::time::sleep(std::time::Duration::from_secs(1)).await;
-            if stats_watch.has_changed().unwrap_or(false) {
-                stats_watch.borrow_and_update();
-                let cam = iface.get().await;
+            let cam = iface.get().await;
+            let now = cam.current_stats();
+            if last.as_ref() != Some(&now) {
+                last = Some(now);
                 let _ = cam.stats_changed(iface.signal_emitter()).await;
             }
         }

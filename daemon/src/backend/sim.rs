@@ -7,14 +7,12 @@ use sdi_core::sensor::SensorParams;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::Frame;
 
-use super::pacer::Pacer;
 use super::{Backend, BackendError, CaptureSettings};
 use crate::modes;
 
 pub struct SimBackend {
     sim: Simulator,
     scene: SceneSpec,
-    pacer: Pacer,
     seed: u64,
 }
 
@@ -25,7 +23,6 @@ impl SimBackend {
         Ok(Self {
             sim,
             scene,
-            pacer: Pacer::new(),
             seed,
         })
     }
@@ -85,12 +82,15 @@ impl Backend for SimBackend {
         }
     }
 
+    fn paced_rate_hz(&self) -> Option<f64> {
+        Some(self.sim.params().frame_rate_hz)
+    }
+
     fn capture(
         &mut self,
         illumination: &Illumination,
         frame: &mut Frame,
     ) -> Result<(), BackendError> {
-        self.pacer.wait(self.sim.params().frame_rate_hz);
         self.sim.capture(illumination, frame);
         Ok(())
     }

@@ -246,6 +246,40 @@ impl Camera {
     }
 }
 
+impl Camera {
+    /// The Stats property as of now (the frame rate decays to 0 when frames stop).
+    pub fn current_stats(&self) -> sdi_api::Stats {
+        let s = *self.stats.borrow();
+        let now = std::time::Instant::now();
+        let (mut device_available, mut device_state) =
+            match self.info.status.as_ref().map(|h| h.get()) {
+                Some(st) => (st.available, st.detail),
+                None => (true, String::new()),
+            };
+        if let Some(why) = s.stalled {
+            device_available = false;
+            if device_state.is_empty() {
+                device_state = format!("no frames: {why}");
+            }
+        }
+        let st = self.state();
+        sdi_api::Stats {
+            frames: s.frames,
+            fps: s.fps_at(now, st.capture.frame_rate_hz),
+            last_frame_age_s: s
+                .last_frame_at
+                .map_or(-1.0, |t| (now - t).as_secs_f64()),
+            latency_us: s.latency_us,
+            latency_max_us: s.latency_max_us,
+            dropped_view: s.dropped_view,
+            dropped_recording: s.dropped_recording,
+            device_available,
+            device_state,
+            recording_stopped: st.recording_stopped.unwrap_or_default(),
+        }
+    }
+}
+
 /// Recording and snapshot steps shared by the path and descriptor methods.
 impl Camera {
     fn recording_header(&self, st: &State) -> RecHeader {
@@ -795,26 +829,12 @@ impl Camera {
             .unwrap_or_default()
     }
 
-    /// {frames, fps, latency_us, latency_max_us, dropped_view, dropped_recording,
-    /// device_available, device_state, recording_stopped}; emitted about once a second.
+    /// {frames, fps, last_frame_age_s, latency_us, latency_max_us, dropped_view,
+    /// dropped_recording, device_available, device_state, recording_stopped};
+    /// emitted about once a second while it changes.
     #[zbus(property)]
     async fn stats(&self) -> sdi_api::Stats {
-        let s = *self.stats.borrow();
-        let (device_available, device_state) = match self.info.status.as_ref().map(|h| h.get()) {
-            Some(st) => (st.available, st.detail),
-            None => (true, String::new()),
-        };
-        sdi_api::Stats {
-            frames: s.frames,
-            fps: s.fps,
-            latency_us: s.latency_us,
-            latency_max_us: s.latency_max_us,
-            dropped_view: s.dropped_view,
-            dropped_recording: s.dropped_recording,
-            device_available,
-            device_state,
-            recording_stopped: self.state().recording_stopped.unwrap_or_default(),
-        }
+        self.current_stats()
     }
 
     /// The daemon stopped a recording by itself (size limit, free-space
