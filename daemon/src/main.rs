@@ -2,6 +2,7 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::time::Duration;
 use std::sync::mpsc;
 
 use clap::Parser;
@@ -380,11 +381,16 @@ async fn connect(args: &Args) -> Result<(zbus::Connection, Option<PrivateBus>), 
     Ok((conn, private))
 }
 
+/// Waits for SIGTERM, SIGINT or SIGHUP. Each shuts down cleanly (a running
+/// recording gets its end record): SIGHUP comes when the terminal of
+/// `sdid --session` closes; the configuration is read at start only
+/// (`systemctl restart sdid` applies a changed one).
 async fn wait_for_signal() -> &'static str {
     use tokio::signal::unix::{signal, SignalKind};
-    let (Ok(mut term), Ok(mut int)) = (
+    let (Ok(mut term), Ok(mut int), Ok(mut hup)) = (
         signal(SignalKind::terminate()),
         signal(SignalKind::interrupt()),
+        signal(SignalKind::hangup()),
     ) else {
         std::future::pending::<()>().await;
         return "";
@@ -392,12 +398,21 @@ async fn wait_for_signal() -> &'static str {
     tokio::select! {
         _ = term.recv() => "SIGTERM",
         _ = int.recv() => "SIGINT",
+        _ = hup.recv() => "SIGHUP",
     }
 }
 
-/// Longest wait for the recorder to finish at shutdown (the unit's
-/// TimeoutStopSec is 15 s).
-const RECORDING_FINISH_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(5);
+/// Shutdown stays within the unit's TimeoutStopSec (15 s) whatever hangs:
+/// releasing the bus name, the frame loop (a source stuck in a read), the
+/// recorder (frozen storage). What does not finish in time is abandoned,
+/// and the log says what.
+const NAME_RELEASE_TIMEOUT: Duration = Duration::from_secs(2);
+const FRAME_LOOP_STOP_TIMEOUT: Duration = Duration::from_secs(5);
+const RECORDING_FINISH_TIMEOUT: Duration = Duration::from_secs(5);
+
+fn already_owned() -> String {
+    format!("{BUS_NAME} is already owned: is another sdid running?")
+}
 
 async fn run(args: Args) -> Result<(), String> {
     let (mut config, file) = Config::read(args.config.as_deref()).map_err(|e| e.to_string())?;
@@ -409,6 +424,20 @@ async fn run(args: Args) -> Result<(), String> {
     })?;
     for a in adjusted {
         tracing::warn!("configuration: {a}");
+    }
+    // On the bus, and sure the name is free, before touching the device or
+    // a sink: a second sdid must not write into the first one's FIFO or
+    // take its board. (The name itself is requested once the object is
+    // served, so a client that sees it can call at once.)
+    let (conn, private_bus) = connect(&args).await?;
+    let owned = zbus::fdo::DBusProxy::new(&conn)
+        .await
+        .map_err(|e| format!("asking the bus about {BUS_NAME}: {e}"))?
+        .name_has_owner(BUS_NAME.try_into().map_err(|e| format!("{e}"))?)
+        .await
+        .map_err(|e| format!("asking the bus about {BUS_NAME}: {e}"))?;
+    if owned {
+        return Err(already_owned());
     }
     let mut mode = config.mode;
     let (backend, extras) = build_backend(&config, mode)?;
@@ -486,7 +515,6 @@ async fn run(args: Args) -> Result<(), String> {
         .map_err(|e| e.to_string())?;
     tracing::info!(backend = %info.backend, device = %info.device, mode = mode.name(), "frame loop started");
 
-    let (conn, private_bus) = connect(&args).await?;
     let camera = Camera::new(
         info,
         mode,
@@ -509,11 +537,7 @@ async fn run(args: Args) -> Result<(), String> {
         .map_err(|e| format!("requesting {BUS_NAME}: {e}"))?
     {
         RequestNameReply::PrimaryOwner | RequestNameReply::AlreadyOwner => {}
-        _ => {
-            return Err(format!(
-                "{BUS_NAME} is already owned: is another sdid running?"
-            ))
-        }
+        _ => return Err(already_owned()),
     }
     tracing::info!(name = BUS_NAME, path = OBJECT_PATH, "serving D-Bus API");
 
@@ -549,12 +573,47 @@ async fn run(args: Args) -> Result<(), String> {
     };
     tracing::info!("{why}: shutting down");
     stats_task.abort();
-    let _ = conn.release_name(BUS_NAME).await;
-    let _ = cmd_tx.send(Command::Shutdown);
-    let result = tokio::task::spawn_blocking(move || loop_thread.join())
+    let recording = match conn
+        .object_server()
+        .interface::<_, Camera>(OBJECT_PATH)
         .await
-        .map_err(|e| e.to_string())?
-        .map_err(|_| "frame loop panicked".to_string())?;
+    {
+        Ok(iface) => iface
+            .get()
+            .await
+            .recording_path()
+            .map(|p| p.display().to_string())
+            .unwrap_or_default(),
+        Err(_) => String::new(),
+    };
+    if tokio::time::timeout(NAME_RELEASE_TIMEOUT, conn.release_name(BUS_NAME))
+        .await
+        .is_err()
+    {
+        tracing::warn!("releasing {BUS_NAME} took over {NAME_RELEASE_TIMEOUT:?}; going on");
+    }
+    let _ = cmd_tx.send(Command::Shutdown);
+    let joined = tokio::time::timeout(
+        FRAME_LOOP_STOP_TIMEOUT,
+        tokio::task::spawn_blocking(move || loop_thread.join()),
+    )
+    .await;
+    let result = match joined {
+        Ok(r) => r
+            .map_err(|e| e.to_string())?
+            .map_err(|_| "frame loop panicked".to_string())?,
+        Err(_) => {
+            let lost = if recording.is_empty() {
+                String::new()
+            } else {
+                format!(", and the recording {recording:?} without its end record")
+            };
+            tracing::error!(
+                "the frame loop did not stop within {FRAME_LOOP_STOP_TIMEOUT:?} (the source is stuck); abandoning it{lost}"
+            );
+            None
+        }
+    };
     if let Some(rec) = result {
         // within the unit's TimeoutStopSec (15 s), even on frozen storage
         let path = rec.path().display().to_string();
@@ -589,12 +648,16 @@ fn main() -> ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    match rt.block_on(run(args)) {
+    let code = match rt.block_on(run(args)) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             tracing::error!("{e}");
             eprintln!("sdid: {e}");
             ExitCode::FAILURE
         }
-    }
+    };
+    // A blocking task abandoned at shutdown (a stuck join or finish) must
+    // not hold the exit.
+    rt.shutdown_timeout(Duration::from_millis(100));
+    code
 }

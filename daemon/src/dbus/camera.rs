@@ -247,6 +247,11 @@ impl Camera {
 }
 
 impl Camera {
+    /// The file being recorded to, if any.
+    pub fn recording_path(&self) -> Option<PathBuf> {
+        self.state().recording
+    }
+
     /// The Stats property as of now (the frame rate decays to 0 when frames stop).
     pub fn current_stats(&self) -> sdi_api::Stats {
         let s = *self.stats.borrow();
