@@ -307,9 +307,15 @@ fn recording_bounds_are_validated() {
     let (c, a) = validated("[recording]\nmax_bytes = 600000\nmin_free_bytes = 0").unwrap();
     assert_eq!(c.recording.max_bytes, Some(600_000));
     assert!(a.is_empty());
-    assert_eq!(invalid_key("[recording]\nmax_bytes = 0"), "recording.max_bytes");
+    assert_eq!(
+        invalid_key("[recording]\nmax_bytes = 0"),
+        "recording.max_bytes"
+    );
     let (c, a) = validated("[recording]\nmax_bytes = 1000").unwrap();
-    assert_eq!(c.recording.max_bytes, Some(crate::validate::MIN_RECORDING_BYTES));
+    assert_eq!(
+        c.recording.max_bytes,
+        Some(crate::validate::MIN_RECORDING_BYTES)
+    );
     assert_eq!(a[0].key, "recording.max_bytes");
     assert_eq!(
         invalid_key("[recording]\nmin_free_bytes = 9223372036854775807"),

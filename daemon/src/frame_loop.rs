@@ -326,7 +326,12 @@ impl FrameLoop {
     /// snapshot), so no call waits for a slow frame clock. Not before
     /// `retry_at` (after a failed capture) unless a command waits. False on
     /// `Shutdown` or when every sender is gone.
-    fn wait_turn(&mut self, commands: &Receiver<Command>, pacer: &Pacer, retry_at: Instant) -> bool {
+    fn wait_turn(
+        &mut self,
+        commands: &Receiver<Command>,
+        pacer: &Pacer,
+        retry_at: Instant,
+    ) -> bool {
         loop {
             loop {
                 match commands.try_recv() {

@@ -2,8 +2,8 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Duration;
 use std::sync::mpsc;
+use std::time::Duration;
 
 use clap::Parser;
 use sdi_core::mode::ModeId;

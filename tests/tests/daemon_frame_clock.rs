@@ -37,10 +37,16 @@ fn calls_do_not_wait_on_a_slow_frame_clock() {
     let snap = dir.path().join("s.npy");
     worst = worst.max(timed(&d, &["snapshot", snap.to_str().unwrap()]));
     eprintln!("slowest call at 0.1 fps: {worst:?}");
-    assert!(worst < Duration::from_secs(2), "a call took {worst:?} at 0.1 fps");
+    assert!(
+        worst < Duration::from_secs(2),
+        "a call took {worst:?} at 0.1 fps"
+    );
     // Back to 60 fps: at once, and frames come at 60 fps right away.
     let to_fast = timed(&d, &["set", "frame-rate", "60"]);
-    assert!(to_fast < Duration::from_secs(2), "back to 60 fps took {to_fast:?}");
+    assert!(
+        to_fast < Duration::from_secs(2),
+        "back to 60 fps took {to_fast:?}"
+    );
     let f0 = stats(&d)["frames"].as_u64().unwrap();
     std::thread::sleep(Duration::from_millis(1500));
     let f1 = stats(&d)["frames"].as_u64().unwrap();
@@ -57,7 +63,11 @@ fn stats_go_to_zero_when_a_replay_ends() {
         let bus = Bus::start();
         let d = Daemon::start(&bus, &[]);
         let out = d.ctl(&["record", rec.to_str().unwrap(), "--seconds", "0.5"]);
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
     let bus = Bus::start();
     let d = Daemon::start(&bus, &["--replay", rec.to_str().unwrap()]);
@@ -71,13 +81,19 @@ fn stats_go_to_zero_when_a_replay_ends() {
         if ended {
             eprintln!("{s}");
             assert!(
-                s["device_state"].as_str().unwrap_or_default().contains("end of recording"),
+                s["device_state"]
+                    .as_str()
+                    .unwrap_or_default()
+                    .contains("end of recording"),
                 "{s}"
             );
             assert!(s["last_frame_age_s"].as_f64().unwrap_or(-1.0) >= 0.0, "{s}");
             break;
         }
-        assert!(t0.elapsed() < Duration::from_secs(10), "stats still say {s}");
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "stats still say {s}"
+        );
         std::thread::sleep(Duration::from_millis(200));
     }
 }

@@ -62,7 +62,10 @@ fn spawn_on_fifo(bus: &Bus, runtime_dir: &Path, log: &Path) -> Daemon {
 fn wait_answering(d: &Daemon) {
     let t0 = Instant::now();
     while !d.ctl(&["get", "mode"]).status.success() {
-        assert!(t0.elapsed() < Duration::from_secs(30), "sdid did not come up");
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "sdid did not come up"
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
 }
@@ -77,7 +80,11 @@ fn sighup_finishes_the_recording_and_says_so() {
     wait_answering(&d);
     let rec = dir.path().join("h.sdirec");
     let out = d.ctl(&["record", rec.to_str().unwrap()]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     std::thread::sleep(Duration::from_millis(700));
     let status = d.signal(libc::SIGHUP);
     assert!(status.success(), "sdid exit {status:?}");
@@ -92,7 +99,10 @@ fn sighup_finishes_the_recording_and_says_so() {
 /// Pids of the children of `pid` (all its threads).
 fn children(pid: u32) -> Vec<u32> {
     let mut out = Vec::new();
-    for task in std::fs::read_dir(format!("/proc/{pid}/task")).into_iter().flatten() {
+    for task in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .into_iter()
+        .flatten()
+    {
         let Ok(task) = task else { continue };
         if let Ok(s) = std::fs::read_to_string(task.path().join("children")) {
             out.extend(s.split_whitespace().filter_map(|p| p.parse::<u32>().ok()));
@@ -129,15 +139,24 @@ fn kill_9_takes_the_private_session_bus_along() {
     let mut address = None;
     let mut line = String::new();
     while address.is_none() && err.read_line(&mut line).unwrap_or(0) > 0 {
-        if let Some(rest) = line.trim().strip_prefix("export DBUS_SESSION_BUS_ADDRESS='") {
+        if let Some(rest) = line
+            .trim()
+            .strip_prefix("export DBUS_SESSION_BUS_ADDRESS='")
+        {
             address = Some(rest.trim_end_matches('\'').to_owned());
         }
         line.clear();
     }
     let address = address.expect("sdid announced no private bus");
     let t0 = Instant::now();
-    while !sdi_tests::dbus::sdictl(&address, &["get", "mode"]).status.success() {
-        assert!(t0.elapsed() < Duration::from_secs(30), "sdid did not come up");
+    while !sdi_tests::dbus::sdictl(&address, &["get", "mode"])
+        .status
+        .success()
+    {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "sdid did not come up"
+        );
         std::thread::sleep(Duration::from_millis(100));
     }
     let bus_pids = children(child.id());
@@ -161,7 +180,9 @@ fn kill_9_takes_the_private_session_bus_along() {
         std::thread::sleep(Duration::from_millis(50));
     }
     assert!(
-        !sdi_tests::dbus::sdictl(&address, &["get", "mode"]).status.success(),
+        !sdi_tests::dbus::sdictl(&address, &["get", "mode"])
+            .status
+            .success(),
         "the private bus at {address} still answers"
     );
 }
@@ -178,7 +199,11 @@ fn sigterm_is_bounded_when_the_source_hangs() {
         let bus = Bus::start();
         let d = Daemon::start(&bus, &[]);
         let out = d.ctl(&["record", rec.to_str().unwrap(), "--seconds", "0.5"]);
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
     let bytes = std::fs::read(&rec).unwrap();
     let fifo = dir.path().join("stuck.sdirec");
@@ -187,7 +212,10 @@ fn sigterm_is_bounded_when_the_source_hangs() {
     let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
     let fifo2 = fifo.clone();
     let feeder = std::thread::spawn(move || {
-        let mut w = std::fs::OpenOptions::new().write(true).open(&fifo2).unwrap();
+        let mut w = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&fifo2)
+            .unwrap();
         let _ = w.write_all(&bytes[..bytes.len() / 2]);
         let _ = done_rx.recv();
     });
@@ -208,7 +236,10 @@ fn sigterm_is_bounded_when_the_source_hangs() {
     let _ = feeder.join();
     let text = std::fs::read_to_string(&log).unwrap();
     eprintln!("SIGTERM to exit with a hung source: {took:?} ({status:?})");
-    assert!(took < Duration::from_secs(12), "shutdown took {took:?}\n{text}");
+    assert!(
+        took < Duration::from_secs(12),
+        "shutdown took {took:?}\n{text}"
+    );
     assert!(text.contains("did not stop within"), "{text}");
 }
 
@@ -246,13 +277,19 @@ fn a_second_instance_leaves_the_first_ones_fifo_alone() {
         if let Some(s) = second.child.try_wait().unwrap() {
             break s;
         }
-        assert!(t0.elapsed() < Duration::from_secs(20), "the second sdid kept running");
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the second sdid kept running"
+        );
         std::thread::sleep(Duration::from_millis(50));
     };
     assert!(!status.success());
     let text = std::fs::read_to_string(&log).unwrap();
     assert!(text.contains("already owned"), "{text}");
-    assert!(!text.contains("y4m"), "the second sdid opened its sink:\n{text}");
+    assert!(
+        !text.contains("y4m"),
+        "the second sdid opened its sink:\n{text}"
+    );
     let stream = collector.join().unwrap();
     drop(first);
     // One header, then whole frames only.
@@ -263,7 +300,11 @@ fn a_second_instance_leaves_the_first_ones_fifo_alone() {
     let whole = body.len() / frame;
     assert!(whole >= 10, "{whole} frames");
     for i in 0..whole {
-        assert_eq!(&body[i * frame..i * frame + 6], b"FRAME\n", "frame {i} misaligned");
+        assert_eq!(
+            &body[i * frame..i * frame + 6],
+            b"FRAME\n",
+            "frame {i} misaligned"
+        );
     }
 }
 
@@ -278,7 +319,11 @@ fn an_unchanged_light_travel_warning_is_logged_once() {
     wait_answering(&d);
     for us in ["1000", "1500", "2000"] {
         let out = d.ctl(&["set", "exposure-us", us]);
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
     drop(d);
     let text = std::fs::read_to_string(&log).unwrap();

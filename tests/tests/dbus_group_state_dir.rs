@@ -48,7 +48,9 @@ fn open_bus(dir: &Path) -> Bus {
 #[test]
 fn group_members_write_by_path_into_a_root_group_state_dir() {
     require_dbus!();
-    if !nix::unistd::geteuid().is_root() || Command::new("setpriv").arg("--version").output().is_err() {
+    if !nix::unistd::geteuid().is_root()
+        || Command::new("setpriv").arg("--version").output().is_err()
+    {
         eprintln!("SKIPPED: needs root and setpriv");
         return;
     }
@@ -89,7 +91,10 @@ fn group_members_write_by_path_into_a_root_group_state_dir() {
         };
         let t0 = Instant::now();
         while !as_member(&["get", "mode"]).status.success() {
-            assert!(t0.elapsed() < Duration::from_secs(30), "sdid did not come up");
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "sdid did not come up"
+            );
             std::thread::sleep(Duration::from_millis(100));
         }
         let png = state.join("member.png");

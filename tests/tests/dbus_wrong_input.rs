@@ -24,8 +24,14 @@ async fn a_wrong_signature_is_refused_and_changes_nothing() {
     let (_conn, proxy) = raw_camera_proxy(&d.address).await;
     let wrong: [(&str, zbus::Result<zbus::Message>); 4] = [
         ("SetMode(u)", proxy.call_method("SetMode", &(7u32,)).await),
-        ("SetFrameRate(s)", proxy.call_method("SetFrameRate", &("fast",)).await),
-        ("SetExposureUs()", proxy.call_method("SetExposureUs", &()).await),
+        (
+            "SetFrameRate(s)",
+            proxy.call_method("SetFrameRate", &("fast",)).await,
+        ),
+        (
+            "SetExposureUs()",
+            proxy.call_method("SetExposureUs", &()).await,
+        ),
         (
             "CaptureDarkFrame(uu)",
             proxy.call_method("CaptureDarkFrame", &(1u32, 2u32)).await,

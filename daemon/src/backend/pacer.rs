@@ -53,7 +53,10 @@ mod tests {
         p.tick(0.1, t0);
         assert_eq!(p.remaining(0.1, t0), Duration::from_secs(10));
         // Back to 60 Hz: due one 60 Hz period after the last capture, not 10 s.
-        assert_eq!(p.remaining(60.0, t0 + Duration::from_millis(20)), Duration::ZERO);
+        assert_eq!(
+            p.remaining(60.0, t0 + Duration::from_millis(20)),
+            Duration::ZERO
+        );
         assert!(p.remaining(60.0, t0) <= Duration::from_millis(17));
     }
 

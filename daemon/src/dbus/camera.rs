@@ -271,9 +271,7 @@ impl Camera {
         sdi_api::Stats {
             frames: s.frames,
             fps: s.fps_at(now, st.capture.frame_rate_hz),
-            last_frame_age_s: s
-                .last_frame_at
-                .map_or(-1.0, |t| (now - t).as_secs_f64()),
+            last_frame_age_s: s.last_frame_at.map_or(-1.0, |t| (now - t).as_secs_f64()),
             latency_us: s.latency_us,
             latency_max_us: s.latency_max_us,
             dropped_view: s.dropped_view,
