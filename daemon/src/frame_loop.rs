@@ -248,6 +248,7 @@ impl FrameLoop {
             };
             let paced = self.backend.paced_rate_hz();
             let captured_at = Instant::now();
+            let captured_at_us = monotonic_now_us();
             match self.backend.capture(&illumination, &mut frame) {
                 Ok(()) => stalled = false,
                 Err(e) => {
@@ -277,6 +278,11 @@ impl FrameLoop {
             }
             let t0 = Instant::now();
             let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
+            if paced.is_some() {
+                // Captured when this loop's clock said (or a command asked),
+                // not on the source's own even spacing.
+                frame.timestamp_us = captured_at_us;
+            }
             frame.timestamp_us = self
                 .clock
                 .map(frame.timestamp_us, period_us, monotonic_now_us());
