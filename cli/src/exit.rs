@@ -1,6 +1,9 @@
 //! Errors of a subcommand and the exit status each maps to.
 
+use std::io::Write;
 use std::process::ExitCode;
+
+use crate::stdout::StdoutError;
 
 /// What went wrong, and whose fault it is.
 #[derive(Debug, thiserror::Error)]
@@ -12,6 +15,10 @@ pub enum CliError {
     /// The command was valid but could not be carried out (I/O...): exit status 1.
     #[error("{0}")]
     Runtime(String),
+    /// The reader of stdout went away: the command stops quietly, exit status 0
+    /// (`stdout.rs`).
+    #[error("stdout is closed")]
+    StdoutClosed,
 }
 
 impl CliError {
@@ -19,6 +26,16 @@ impl CliError {
         match self {
             CliError::Usage(_) => 2,
             CliError::Runtime(_) => 1,
+            CliError::StdoutClosed => 0,
+        }
+    }
+}
+
+impl From<StdoutError> for CliError {
+    fn from(e: StdoutError) -> Self {
+        match e {
+            StdoutError::Closed => CliError::StdoutClosed,
+            StdoutError::Failed(_) => CliError::Runtime(e.to_string()),
         }
     }
 }
@@ -26,9 +43,10 @@ impl CliError {
 /// Prints the error, if any, and turns it into the process exit status.
 pub fn report(result: Result<(), CliError>) -> ExitCode {
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) | Err(CliError::StdoutClosed) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e}");
+            // Not eprintln!: a closed or full stderr must not panic either.
+            let _ = writeln!(std::io::stderr(), "error: {e}");
             ExitCode::from(e.exit_code())
         }
     }

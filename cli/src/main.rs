@@ -7,6 +7,8 @@ mod atomic_file;
 mod exit;
 mod offline;
 mod online;
+mod output_name;
+mod stdout;
 
 use std::process::ExitCode;
 
@@ -52,19 +54,27 @@ enum Report {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    let json = cli.bus.json;
     let result = match cli.command {
-        Command::Sim(args) => offline::sim::run(args),
-        Command::Separate(args) => offline::separate::run(args),
-        Command::Report(Report::Noise(args)) => offline::noise_report::run(&args),
-        Command::Report(Report::Separation(args)) => offline::report::run_cli(&args),
+        Command::Sim(args) => offline::sim::run(args, json),
+        Command::Separate(args) => offline::separate::run(args, json),
+        Command::Report(Report::Noise(args)) => offline::noise_report::run(&args, json),
+        Command::Report(Report::Separation(args)) => offline::report::run_cli(&args, json),
         Command::Online(cmd) => return online::run(cmd, cli.bus),
+        // Both generators write to memory first: clap_complete panics on a
+        // failed write, and stdout.rs says what a failed stdout means.
         Command::Completions { shell } => {
-            clap_complete::generate(shell, &mut Cli::command(), "sdictl", &mut std::io::stdout());
-            Ok(())
+            let mut text = Vec::new();
+            clap_complete::generate(shell, &mut Cli::command(), "sdictl", &mut text);
+            stdout::write_all(&text).map_err(exit::CliError::from)
         }
-        Command::Man => clap_mangen::Man::new(Cli::command())
-            .render(&mut std::io::stdout())
-            .map_err(|e| exit::CliError::Runtime(e.to_string())),
+        Command::Man => {
+            let mut text = Vec::new();
+            clap_mangen::Man::new(Cli::command())
+                .render(&mut text)
+                .map_err(|e| exit::CliError::Runtime(e.to_string()))
+                .and_then(|()| stdout::write_all(&text).map_err(exit::CliError::from))
+        }
     };
     exit::report(result)
 }

@@ -40,3 +40,27 @@ fn intercept_ratio_is_two_within_its_uncertainty() {
         assert!(out.join("noise.svg").exists() && out.join("noise.tsv").exists());
     }
 }
+
+/// `--json`: the fits and the ratio as one JSON object; the files are
+/// written first.
+#[test]
+fn json_summary() {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("noise-report-json");
+    let _ = std::fs::remove_dir_all(&dir);
+    let o = Command::new(env!("CARGO_BIN_EXE_sdictl"))
+        .args([
+            "report", "noise", "--frames", "10", "--levels", "4", "--json", "--out",
+        ])
+        .arg(&dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["frames_per_level"], 10);
+    assert_eq!(v["levels"], 4);
+    for scheme in ["snapshot", "two_shot"] {
+        assert!(v[scheme]["intercept_dn2"].as_f64().is_some(), "{v}");
+    }
+    assert!(v["intercept_ratio"].as_f64().unwrap() > 0.0);
+    assert!(dir.join("noise.svg").exists() && dir.join("noise.tsv").exists());
+}

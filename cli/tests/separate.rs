@@ -604,3 +604,75 @@ fn report_separation_on_measured_frames_uses_ls_only_frames_as_truth() {
         assert!(b.abs() < 0.05, "{k} = {b}");
     }
 }
+
+/// Outputs and the input are compared as files, not strings: `--sigma`
+/// naming `--out` through `..`, or `--out` naming the input through a
+/// symlinked directory, is refused before anything is written. `--json`
+/// gives the summary as one JSON object.
+#[test]
+fn same_file_is_refused_and_json_summary() {
+    let dir = scratch("separate", "same-file");
+    let input = dir.join("in.npy");
+    ok(&sdictl(&[
+        "sim",
+        "--mode",
+        "raw",
+        "--frames",
+        "3",
+        "--sensor",
+        "pmd",
+        "--out",
+        s(&input),
+    ]));
+    std::fs::create_dir(dir.join("sub")).unwrap();
+    std::os::unix::fs::symlink(&dir, dir.join("link")).unwrap();
+    let out = dir.join("s.npy");
+    for (flag, other) in [
+        ("--sigma", dir.join("sub/../s.npy")),
+        ("--flags", dir.join("link/s.npy")),
+    ] {
+        let o = sdictl(&[
+            "separate",
+            "--method",
+            "m1",
+            "--in",
+            s(&input),
+            "--out",
+            s(&out),
+            flag,
+            s(&other),
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{flag}");
+        assert!(String::from_utf8_lossy(&o.stderr).contains("same file"));
+        assert!(!out.exists(), "{flag}");
+    }
+    let o = sdictl(&[
+        "separate",
+        "--method",
+        "m1",
+        "--in",
+        s(&input),
+        "--out",
+        s(&dir.join("link/in.npy")),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(load(&input).0, [3, 120, 165], "the input is untouched");
+
+    let o = sdictl(&[
+        "separate",
+        "--method",
+        "m1",
+        "--in",
+        s(&input),
+        "--out",
+        s(&out),
+        "--json",
+    ]);
+    ok(&o);
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["frames_in"], 3);
+    assert_eq!(v["outputs"], 1);
+    assert_eq!(v["method"], "m1");
+    assert_eq!(v["out"], s(&out));
+    assert!(v["gain_dn_per_electron"].as_f64().unwrap() > 0.0);
+}

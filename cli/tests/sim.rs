@@ -211,3 +211,78 @@ fn unwritable_output_fails_without_leftovers() {
     assert_eq!(left, vec!["blocker".to_string(), "png-dir".to_string()]);
     assert!(entries(&dir.join("png-dir")).is_empty());
 }
+
+/// Two outputs that are one file however spelled (`..`, a symlinked
+/// directory) are refused before anything is written: the PNG used to
+/// replace the .npy.
+#[test]
+fn same_file_through_dot_dot_or_symlink_is_refused() {
+    let dir = scratch("sim", "same-file");
+    std::fs::create_dir(dir.join("sub")).unwrap();
+    std::os::unix::fs::symlink(dir.join("sub"), dir.join("link")).unwrap();
+    let s = |p: std::path::PathBuf| p.to_str().unwrap().to_owned();
+    let out = s(dir.join("f.npy"));
+    for (flag, other) in [
+        ("--png", s(dir.join("sub/../f.npy"))),
+        ("--truth", s(dir.join("./f.npy"))),
+        ("--two-shot-frames", s(dir.join("link/../f.npy"))),
+    ] {
+        let o = sdictl(&[
+            "sim", "--mode", "two-shot", "--frames", "2", "--out", &out, flag, &other,
+        ]);
+        assert_eq!(o.status.code(), Some(2), "{flag}: {}", stderr(&o));
+        assert!(stderr(&o).contains("same file"), "{flag}: {}", stderr(&o));
+        let mut left = entries(&dir);
+        left.sort();
+        assert_eq!(left, ["link", "sub"], "{flag}");
+    }
+    let o = sdictl(&[
+        "sim",
+        "--mode",
+        "raw",
+        "--frames",
+        "1",
+        "--out",
+        &s(dir.join("sub/f.npy")),
+        "--png",
+        &s(dir.join("link/f.npy")),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(entries(&dir.join("sub")).is_empty());
+}
+
+/// `--json`: the summary is one JSON object on stdout.
+#[test]
+fn json_summary() {
+    let dir = scratch("sim", "json");
+    let (out, png) = (dir.join("f.npy"), dir.join("f.png"));
+    let o = sdictl(&[
+        "--json",
+        "sim",
+        "--mode",
+        "raw",
+        "--scene",
+        "flat-field",
+        "--frames",
+        "2",
+        "--sensor",
+        "pmd",
+        "--out",
+        out.to_str().unwrap(),
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["frames"], 2);
+    assert_eq!(
+        (v["width"].as_u64(), v["height"].as_u64()),
+        (Some(165), Some(120))
+    );
+    assert_eq!(v["mode"], "raw");
+    assert_eq!(v["scene"], "flat-field");
+    assert_eq!(v["out"], out.to_str().unwrap());
+    assert_eq!(v["png"], png.to_str().unwrap());
+    assert!(v["png_max_abs_dn"].as_f64().unwrap() > 0.0);
+    assert!(v["truth"].is_null());
+}

@@ -7,19 +7,23 @@
 //!    would land in a root-only directory).
 //!
 //! Each is tried `SDI_RACE_ATTEMPTS` times (default 1,000), stopping at the
-//! first win, which fails the test. Needs root; skipped otherwise.
+//! first win, which fails the test. On the host the tests need root and are
+//! skipped otherwise; `vm_races_against_a_root_sdid_without_systemd` runs
+//! both inside the QEMU VM (root, no systemd, no sandbox: as in a container
+//! or under `sudo sdid`), whatever the host user.
 
 use std::fs;
+use std::io::{BufRead, BufReader, Write};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{ChildStdin, ChildStdout, Command, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use sdi_tests::dbus::{bin, Bus};
 use sdi_tests::process::{runnable_copy, Reaped};
-use sdi_tests::require_dbus;
+use sdi_tests::{clients, require_dbus, vm};
 
 const CALLER_UID: u32 = 65534;
 
@@ -57,6 +61,42 @@ fn open_bus(dir: &Path) -> Bus {
     Bus::start_config(&config)
 }
 
+/// The sdid and sdictl under test: built here on the host; inside the VM
+/// (read-only root, no cargo) the ones the host built and exported.
+struct Binaries {
+    sdid: PathBuf,
+    sdictl: PathBuf,
+}
+
+impl Binaries {
+    fn here() -> Self {
+        if vm::in_vm() {
+            Self {
+                sdid: clients::exe("SDID"),
+                sdictl: clients::exe("SDICTL"),
+            }
+        } else {
+            Self {
+                sdid: bin("sdid"),
+                sdictl: bin("sdictl"),
+            }
+        }
+    }
+}
+
+/// How the attacker calls `Snapshot(path)`.
+enum Client {
+    /// `sdictl snapshot --by-path`, a process per attempt (on the host).
+    Sdictl,
+    /// One `path_caller` process for every attempt (in the VM, where a
+    /// process start under TCG costs far more than the call).
+    Persistent {
+        _child: Reaped,
+        stdin: ChildStdin,
+        stdout: BufReader<ChildStdout>,
+    },
+}
+
 struct Setup {
     _dir: tempfile::TempDir,
     root: PathBuf,
@@ -64,6 +104,7 @@ struct Setup {
     _sdid: Reaped,
     address: String,
     sdictl: PathBuf,
+    client: Client,
 }
 
 impl Setup {
@@ -90,7 +131,15 @@ impl Setup {
         std::os::unix::fs::chown(&user, Some(CALLER_UID), Some(CALLER_UID)).unwrap();
         let bus = open_bus(&root);
         let address = bus.address.clone();
-        let sdid = Command::new(bin("sdid"))
+        let bins = Binaries::here();
+        // Under TCG the small sensor at a lower rate leaves the VM's two
+        // CPUs to the caller and the attacker.
+        let (fps, sensor): (&str, &[&str]) = if vm::in_vm() {
+            ("15", &["--sensor", "pmd"])
+        } else {
+            ("60", &[])
+        };
+        let sdid = Command::new(&bins.sdid)
             .args([
                 "--bus-address",
                 &address,
@@ -99,31 +148,78 @@ impl Setup {
                 "--sink",
                 "y4m",
             ])
-            .args(["--y4m-path", "-", "--frame-rate-hz", "60"])
+            .args(["--y4m-path", "-", "--frame-rate-hz", fps])
+            .args(sensor)
             .args(["--state-dir", state.to_str().unwrap()])
             .env("RUST_LOG", "warn")
             .env_remove("INVOCATION_ID")
             .stdout(Stdio::null())
             .spawn()
             .expect("start sdid");
-        let sdictl = runnable_copy(&bin("sdictl"), &root.join("bin"));
-        let s = Self {
+        let sdictl = runnable_copy(&bins.sdictl, &root.join("bin"));
+        let mut s = Self {
             _dir: dir,
             root,
             _bus: bus,
             _sdid: Reaped(sdid),
             address,
             sdictl,
+            client: Client::Sdictl,
         };
         let start = Instant::now();
         while !s.as_caller(&["get", "mode"]).status.success() {
             assert!(
-                start.elapsed() < Duration::from_secs(30),
+                start.elapsed() < Duration::from_secs(60),
                 "sdid did not come up"
             );
             std::thread::sleep(Duration::from_millis(100));
         }
+        if vm::in_vm() {
+            s.client = s.persistent_client();
+        }
         s
+    }
+
+    /// `path_caller` on the test bus as uid 65534.
+    fn persistent_client(&self) -> Client {
+        let program = runnable_copy(
+            Path::new(env!("CARGO_BIN_EXE_path_caller")),
+            &self.root.join("bin"),
+        );
+        let uid = CALLER_UID.to_string();
+        let mut child = Command::new("setpriv")
+            .args(["--reuid", &uid, "--regid", &uid, "--clear-groups"])
+            .arg(program)
+            .arg(&self.address)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .spawn()
+            .expect("run setpriv path_caller");
+        let stdin = child.stdin.take().expect("path_caller stdin");
+        let stdout = BufReader::new(child.stdout.take().expect("path_caller stdout"));
+        Client::Persistent {
+            _child: Reaped(child),
+            stdin,
+            stdout,
+        }
+    }
+
+    /// `Snapshot(path)` as uid 65534; true when the daemon wrote it.
+    fn snapshot_by_path(&mut self, path: &Path) -> bool {
+        let path = path.to_str().expect("a UTF-8 test path");
+        match &mut self.client {
+            Client::Sdictl => self
+                .as_caller(&["snapshot", "--by-path", path])
+                .status
+                .success(),
+            Client::Persistent { stdin, stdout, .. } => {
+                writeln!(stdin, "{path}").expect("write to path_caller");
+                let mut reply = String::new();
+                stdout.read_line(&mut reply).expect("read path_caller");
+                assert!(!reply.is_empty(), "path_caller exited");
+                reply.trim() == "ok"
+            }
+        }
     }
 
     /// sdictl on the test bus as uid 65534.
@@ -165,7 +261,49 @@ fn symlink_over_the_new_file_never_gives_a_root_file_away() {
     if skip() {
         return;
     }
-    let s = Setup::new();
+    race_symlink_over_the_new_file();
+}
+
+#[test]
+fn swapping_the_parent_never_creates_a_file_in_a_root_only_directory() {
+    require_dbus!();
+    if skip() {
+        return;
+    }
+    race_parent_swap();
+}
+
+/// Both races against a root sdid in the VM: no systemd, no unit sandbox,
+/// all capabilities (CAP_CHOWN included), the attacker an unprivileged uid.
+#[test]
+fn vm_races_against_a_root_sdid_without_systemd() {
+    if !vm::in_vm() {
+        // Built on the host: the VM's root is read-only.
+        clients::export_binaries();
+        let t = Instant::now();
+        if vm::run_test_in_vm("vm_races_against_a_root_sdid_without_systemd", 900) {
+            eprintln!(
+                "VM race run: {:.0} s including boot",
+                t.elapsed().as_secs_f64()
+            );
+        }
+        return;
+    }
+    require_dbus!();
+    assert!(!skip(), "the VM runs the test as root, with setpriv");
+    // No systemd in the guest: PID 1 is the VM's own init.
+    let init = fs::read_to_string("/proc/1/comm").unwrap_or_default();
+    assert!(!init.trim().contains("systemd"), "PID 1 is {init}");
+    let t = Instant::now();
+    race_symlink_over_the_new_file();
+    eprintln!("race 1 in the VM: {:.0} s", t.elapsed().as_secs_f64());
+    let t = Instant::now();
+    race_parent_swap();
+    eprintln!("race 2 in the VM: {:.0} s", t.elapsed().as_secs_f64());
+}
+
+fn race_symlink_over_the_new_file() {
+    let mut s = Setup::new();
     let victim = s.secret().join("victim");
     let state = s.state();
     let current = Arc::new(AtomicUsize::new(usize::MAX));
@@ -182,7 +320,8 @@ fn symlink_over_the_new_file_never_gives_a_root_file_away() {
             while !stop.load(Ordering::Relaxed) {
                 let i = current.load(Ordering::Relaxed);
                 if i == done || i == usize::MAX {
-                    std::hint::spin_loop();
+                    // Nothing in flight: leave the CPU to the daemon.
+                    std::thread::yield_now();
                     continue;
                 }
                 let target = state.join(format!("x{i}.npy"));
@@ -207,9 +346,8 @@ fn symlink_over_the_new_file_never_gives_a_root_file_away() {
     for i in 0..n {
         current.store(i, Ordering::Relaxed);
         let path = state.join(format!("x{i}.npy"));
-        let out = s.as_caller(&["snapshot", "--by-path", path.to_str().unwrap()]);
         tried += 1;
-        if out.status.success() {
+        if s.snapshot_by_path(&path) {
             ok += 1;
         } else {
             refused += 1;
@@ -243,13 +381,8 @@ fn symlink_over_the_new_file_never_gives_a_root_file_away() {
     );
 }
 
-#[test]
-fn swapping_the_parent_never_creates_a_file_in_a_root_only_directory() {
-    require_dbus!();
-    if skip() {
-        return;
-    }
-    let s = Setup::new();
+fn race_parent_swap() {
+    let mut s = Setup::new();
     let state = s.state();
     let (user, secret) = (s.root.join("user"), s.secret());
     let stop = Arc::new(AtomicBool::new(false));
@@ -283,9 +416,8 @@ fn swapping_the_parent_never_creates_a_file_in_a_root_only_directory() {
     };
     for i in 0..n {
         let path = state.join("sub").join(format!("y{i}.npy"));
-        let out = s.as_caller(&["snapshot", "--by-path", path.to_str().unwrap()]);
         tried += 1;
-        if out.status.success() {
+        if s.snapshot_by_path(&path) {
             ok += 1;
         } else {
             refused += 1;

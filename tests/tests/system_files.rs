@@ -1,7 +1,7 @@
 //! The system-integration files in `udev/` and `make install`, checked on
 //! the host: the rules are generated from the one list of board IDs, the
 //! systemd unit passes `systemd-analyze verify` and its exposure score stays
-//! at or below 2.5, the names used across unit, activation file and policy
+//! at or below 1.4 (2.5 with the SCPI network drop-in), the names used across unit, activation file and policy
 //! agree, and install/uninstall put every file in place and take it away.
 
 use std::fs;
@@ -11,8 +11,11 @@ use std::process::{Command, Output};
 
 use sdi_tests::process::{must, repo_root, run};
 
-/// Goal of the issue for `systemd-analyze security`.
-const MAX_EXPOSURE: f64 = 2.5;
+/// `systemd-analyze security` of the unit as shipped: no higher than the
+/// 1.4 it reached (the hardening goal was 2.5).
+const MAX_EXPOSURE: f64 = 1.4;
+/// With the SCPI-over-TCP drop-in, which opens IP sockets (1.7 when set).
+const MAX_EXPOSURE_WITH_NETWORK: f64 = 2.5;
 
 /// A fresh scratch directory for one test.
 fn scratch(name: &str) -> PathBuf {
@@ -113,7 +116,7 @@ fn unit_passes_systemd_analyze_verify() {
 }
 
 #[test]
-fn unit_exposure_score_is_at_most_2_5() {
+fn unit_exposure_score_is_at_most_1_4() {
     if !have_systemd_analyze() {
         return;
     }
@@ -134,7 +137,7 @@ fn unit_exposure_score_is_at_most_2_5() {
 /// The shipped SCPI-over-TCP drop-in (`udev/systemd/sdid.service.d/`),
 /// merged with the unit as systemd does: it still verifies, opens IP
 /// sockets and an allow list, keeps the other families closed, and the
-/// exposure stays within the goal.
+/// exposure stays within the hardening goal of 2.5.
 #[test]
 fn scpi_network_drop_in_opens_ip_only() {
     if !have_systemd_analyze() {
@@ -172,7 +175,10 @@ fn scpi_network_drop_in_opens_ip_only() {
     assert!(line("IPAddressDeny=").contains("allow list"), "{text}");
     let score = exposure_score(&text);
     println!("systemd-analyze security with the SCPI drop-in: exposure {score}");
-    assert!(score <= MAX_EXPOSURE, "exposure {score} > {MAX_EXPOSURE}");
+    assert!(
+        score <= MAX_EXPOSURE_WITH_NETWORK,
+        "exposure {score} > {MAX_EXPOSURE_WITH_NETWORK}"
+    );
     fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -30,6 +30,16 @@ const SIM_FRAMES: usize = 12;
 const MAX_BUFFERS: u32 = 10;
 const ROUND_TRIP_FPS: u32 = 15;
 
+/// The writer's ring on the loaded module, and the round-trip rate that
+/// gives readers the same 0.6 s of slack: 0.12.x gets a ring of 4 (see
+/// `MMAP_BUFFERS_UNLOCKED_QUEUE` in the glue's writer), so 5 fps there.
+fn ring_and_fps() -> (u32, u32) {
+    let locked =
+        ModuleVersion::of_loaded_module().is_ok_and(ModuleVersion::has_locked_buffer_queue);
+    let ring = if locked { MAX_BUFFERS } else { 4 };
+    (ring, ROUND_TRIP_FPS * (ring - 1) / (MAX_BUFFERS - 1))
+}
+
 const NODES: [(u32, &str); 6] = [
     (20, "sdi-grey"),
     (21, "sdi-y16"),
@@ -64,17 +74,18 @@ fn check_round_trip(
     reads: u32,
     tmp: &Path,
 ) {
+    let (ring, fps) = ring_and_fps();
     let cfg = LoopbackFormat {
         width: W,
         height: H,
         format,
-        fps: ROUND_TRIP_FPS,
+        fps,
         io,
     };
     let writer = LoopbackWriter::open(dev(nr), cfg).unwrap();
     assert_eq!(writer.io_method(), io, "{format}: io method");
     if io == IoMethod::Mmap {
-        assert_eq!(writer.features().buffers, MAX_BUFFERS, "{format}: ring");
+        assert_eq!(writer.features().buffers, ring, "{format}: ring");
     }
     let card = checksum(writer.no_signal_frame());
     let (patterns, expected) = sim.patterns(format);
@@ -175,6 +186,100 @@ fn v4l_read(path: &Path, cfg: &LoopbackFormat, frames: usize) -> Vec<u8> {
         data.extend_from_slice(&buf[..n]);
     }
     data
+}
+
+/// A reader that asks for 2 buffers shrinks the module's ring for everyone
+/// (`used_buffers`, 0.12.7 and 0.15 alike), and the writer must still
+/// publish each new frame (docs/loopback.md: before the fix it filled its
+/// own mapping of buffer i while the module marked buffer i % 2, so readers
+/// got frames up to 10 old). The writer stamps a counter into each frame;
+/// the module hands a reader at most `used_buffers` (2) frames behind the
+/// newest, or the previous one again when it re-sends (sustain_framerate).
+/// So every dequeued counter is >= the one before and at most 2 behind the
+/// newest frame written before the reader asked: exact, whatever the load.
+/// The writer holds still while the reader's REQBUFS shrinks the ring:
+/// 0.12.7 unlinks buffers there without its lock, and a QBUF in that window
+/// is a kernel BUG (see `MMAP_BUFFERS_UNLOCKED_QUEUE` in the glue).
+fn check_small_reader_ring(nr: u32) {
+    use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+    use std::sync::Arc;
+    use v4l::io::traits::CaptureStream;
+    let cfg = LoopbackFormat {
+        width: W,
+        height: H,
+        format: PixelFormat::Grey,
+        fps: 30,
+        io: IoMethod::Mmap,
+    };
+    let mut writer = LoopbackWriter::open(dev(nr), cfg).unwrap();
+    let (written, stop) = (
+        Arc::new(AtomicU32::new(0)),
+        Arc::new(AtomicBool::new(false)),
+    );
+    // hold: asked to pause; held: the writer is between frames, paused.
+    let (hold, held) = (
+        Arc::new(AtomicBool::new(false)),
+        Arc::new(AtomicBool::new(false)),
+    );
+    let bg = {
+        let (written, stop) = (Arc::clone(&written), Arc::clone(&stop));
+        let (hold, held) = (Arc::clone(&hold), Arc::clone(&held));
+        std::thread::spawn(move || {
+            let mut frame = vec![0u8; cfg.frame_bytes()];
+            for k in 1u32.. {
+                while hold.load(Ordering::SeqCst) && !stop.load(Ordering::SeqCst) {
+                    held.store(true, Ordering::SeqCst);
+                    std::thread::sleep(Duration::from_millis(5));
+                }
+                held.store(false, Ordering::SeqCst);
+                if stop.load(Ordering::SeqCst) {
+                    break;
+                }
+                frame[..4].copy_from_slice(&k.to_le_bytes());
+                writer
+                    .write(
+                        v4l2loopback_glue::Input::Packed(&frame),
+                        u64::from(k) * 33_333,
+                    )
+                    .unwrap();
+                written.store(k, Ordering::SeqCst);
+                std::thread::sleep(Duration::from_millis(20));
+            }
+        })
+    };
+    let t0 = std::time::Instant::now();
+    while !loopback::advertises_capture(&dev(nr)) {
+        assert!(t0.elapsed() < Duration::from_secs(10), "no capture side");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    hold.store(true, Ordering::SeqCst);
+    while !held.load(Ordering::SeqCst) {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let device = v4l::Device::with_path(dev(nr)).unwrap();
+    let mut stream =
+        v4l::io::mmap::Stream::with_buffers(&device, v4l::buffer::Type::VideoCapture, 2).unwrap();
+    hold.store(false, Ordering::SeqCst);
+    stream.set_timeout(Duration::from_secs(10));
+    let (mut last, mut max_lag) = (0u32, 0u32);
+    for i in 0..60 {
+        let newest = written.load(Ordering::SeqCst);
+        let (buf, _) = stream.next().unwrap();
+        let got = u32::from_le_bytes([buf[0], buf[1], buf[2], buf[3]]);
+        assert!(got >= last, "frame {i}: counter {got} after {last}");
+        if i > 0 {
+            assert!(
+                got + 2 >= newest,
+                "frame {i}: counter {got}, but {newest} was written before the reader asked"
+            );
+            max_lag = max_lag.max(newest.saturating_sub(got));
+        }
+        last = got;
+    }
+    drop(stream);
+    stop.store(true, Ordering::SeqCst);
+    bg.join().unwrap();
+    eprintln!("ok: 2-buffer reader: 60 frames in order, at most {max_lag} behind the writer");
 }
 
 /// ffmpeg reading `node` until killed, frames discarded.
@@ -350,6 +455,7 @@ fn module_checks(build: ModuleBuild, sim: &SimFrames, tmp: &Path) {
         check_round_trip(sim, format, nr, IoMethod::Mmap, 2, tmp);
         check_round_trip(sim, format, nr, IoMethod::Write, 1, tmp);
     }
+    check_small_reader_ring(20);
 
     // the view profile, streaming, for the remaining clients
     let writer = LoopbackWriter::open(&view.path, LoopbackFormat::view(30)).unwrap();

@@ -72,6 +72,13 @@ impl ModuleVersion {
         self >= Self::new(0, 13, 0)
     }
 
+    /// 0.15+: a REQBUFS rebuilds the buffer queue under the module's list
+    /// lock (`prepare_buffer_queue`), so a reader's REQBUFS may race our
+    /// QBUF. 0.12.7 unlinks buffers with no lock (see [`crate::LoopbackWriter`]).
+    pub fn has_locked_buffer_queue(self) -> bool {
+        self >= Self::new(0, 15, 0)
+    }
+
     /// 0.15+: renumbered control ioctls.
     pub fn has_new_control_ioctls(self) -> bool {
         self >= Self::new(0, 15, 0)

@@ -23,6 +23,16 @@ use crate::GlueError;
 /// Not more than 10: OpenCV's V4L2 capture indexes a fixed array of 10
 /// buffers by the index the driver hands out (it failed on a 32-buffer ring).
 const MMAP_BUFFERS: u32 = 10;
+/// The ring we ask of modules without a locked buffer queue (0.12.x): as
+/// many as the common readers ask for (Chromium, Firefox, OpenCV and
+/// GStreamer's v4l2src all ask 4; ffmpeg asks more), so none of them
+/// shrinks it. 0.12.7's REQBUFS shrinks the shared ring to a reader's count
+/// and unlinks the surplus buffers from its output list without the
+/// device lock; our QBUF of one of them in that window is a kernel BUG
+/// (`list_del` corruption in `buffer_written`, a panic in the VM). The
+/// ring never grows back on 0.12.7 anyway, so after the first such reader
+/// it was 4 whatever we asked (docs/loopback.md).
+const MMAP_BUFFERS_UNLOCKED_QUEUE: u32 = 4;
 /// Driver name reported by VIDIOC_QUERYCAP.
 const LOOPBACK_DRIVER: &str = "v4l2 loopback";
 
@@ -87,7 +97,8 @@ pub struct DriverFeatures {
     /// writer comes round the ring again gets a torn frame. With the
     /// default `max_buffers=2` that happens as soon as a reader lags one
     /// frame period (seen under load in the VM); load the module with
-    /// `max_buffers=10` (udev/modprobe.d does) to give readers 9 periods.
+    /// `max_buffers=10` (udev/modprobe.d does) to give readers 9 periods
+    /// (3 on 0.12.x, where the writer asks for 4: `MMAP_BUFFERS_UNLOCKED_QUEUE`).
     pub buffers: u32,
 }
 
@@ -329,7 +340,14 @@ impl LoopbackWriter {
     fn map_buffers(&self) -> Result<(Vec<sys::Mapping>, Vec<u32>), GlueError> {
         let fd = self.file.as_fd();
         let mut req = sys::v4l2_requestbuffers {
-            count: MMAP_BUFFERS,
+            count: if self
+                .version
+                .is_some_and(ModuleVersion::has_locked_buffer_queue)
+            {
+                MMAP_BUFFERS
+            } else {
+                MMAP_BUFFERS_UNLOCKED_QUEUE
+            },
             type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
             memory: sys::V4L2_MEMORY_MMAP,
             ..Default::default()

@@ -3,6 +3,7 @@
 pub mod frames;
 pub mod noise_report;
 pub mod report;
+pub mod report_files;
 pub mod sensor_arg;
 pub mod separate;
 pub mod sim;

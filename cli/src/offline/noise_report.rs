@@ -18,7 +18,9 @@ use sdi_core::sensor::SensorDescription;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::Frame;
 
+use super::report_files::ReportFiles;
 use crate::exit::CliError;
+use crate::stdout::outln;
 
 #[derive(Debug, Args)]
 pub struct NoiseReportArgs {
@@ -72,8 +74,10 @@ fn wells_total(sim: &Simulator) -> f64 {
 }
 
 /// Runs the simulation and the fits.
-pub fn run(args: &NoiseReportArgs) -> Result<(), CliError> {
+/// With `json`, the summary on stdout is one JSON object.
+pub fn run(args: &NoiseReportArgs, json: bool) -> Result<(), CliError> {
     let t0 = std::time::Instant::now();
+    let files = ReportFiles::create(&args.out, &["noise.tsv", "noise.svg"])?;
     let mut sensor = args.sensor.params();
     // Noise statistics do not depend on the frame size: a small frame is enough.
     sensor.width = sensor.width.min(64);
@@ -148,51 +152,83 @@ pub fn run(args: &NoiseReportArgs) -> Result<(), CliError> {
         linear_fit(&s.electrons, &s.variance_dn2).map_err(|e| CliError::Runtime(e.to_string()))
     };
     let (fs, ft) = (fit(&snap)?, fit(&two)?);
-    std::fs::create_dir_all(&args.out)
-        .map_err(|e| CliError::Runtime(format!("cannot create '{}': {e}", args.out.display())))?;
     let mut tsv = String::from("scheme\twell_electrons\tvariance_dn2\n");
     for (name, s) in [("snapshot", &snap), ("two-shot", &two)] {
         for (x, v) in s.electrons.iter().zip(&s.variance_dn2) {
             tsv += &format!("{name}\t{x:.3}\t{v:.5}\n");
         }
     }
-    let tsv_path = args.out.join("noise.tsv");
-    std::fs::write(&tsv_path, tsv)
-        .map_err(|e| CliError::Runtime(format!("cannot write '{}': {e}", tsv_path.display())))?;
-    let svg = args.out.join("noise.svg");
-    plot(&svg, &sensor.model, &snap, &fs, &two, &ft)
-        .map_err(|e| CliError::Runtime(format!("plot '{}': {e}", svg.display())))?;
+    files.write("noise.tsv", tsv.as_bytes())?;
+    let mut svg = String::new();
+    plot(&mut svg, &sensor.model, &snap, &fs, &two, &ft)
+        .map_err(|e| CliError::Runtime(format!("plot: {e}")))?;
+    files.write("noise.svg", svg.as_bytes())?;
+    let written = files.commit()?;
+    let (tsv_path, svg_path) = (&written[0], &written[1]);
     let g = sensor.gain_dn_per_electron();
-    println!(
-        "noise report: {} ({}x{} px, {} frames per level, {} levels, {:.1} s)",
+    let (r, se) = ratio_with_se(ft.intercept, ft.intercept_se, fs.intercept, fs.intercept_se);
+    let seconds = t0.elapsed().as_secs_f64();
+    if json {
+        let fit_json = |f: &LinearFit| {
+            serde_json::json!({
+                "intercept_dn2": f.intercept,
+                "intercept_se_dn2": f.intercept_se,
+                "slope_dn2_per_electron": f.slope,
+                "slope_se_dn2_per_electron": f.slope_se,
+            })
+        };
+        outln!(
+            "{}",
+            serde_json::json!({
+                "sensor": sensor.model,
+                "width": sensor.width,
+                "height": sensor.height,
+                "frames_per_level": n,
+                "levels": levels,
+                "seconds": seconds,
+                "model_slope_dn2_per_electron": g * g,
+                "model_read_variance_dn2": sensor.read_variance_dn2(),
+                "snapshot": fit_json(&fs),
+                "two_shot": fit_json(&ft),
+                "intercept_ratio": r,
+                "intercept_ratio_se": se,
+                "tsv": tsv_path.display().to_string(),
+                "svg": svg_path.display().to_string(),
+            })
+        )?;
+        return Ok(());
+    }
+    outln!(
+        "noise report: {} ({}x{} px, {} frames per level, {} levels, {seconds:.1} s)",
         sensor.model,
         sensor.width,
         sensor.height,
         n,
         levels,
-        t0.elapsed().as_secs_f64()
-    );
-    println!(
+    )?;
+    outln!(
         "model: slope g^2 = {:.6} DN^2/electron, read variance {:.3} DN^2 (+ 1/12 ADC rounding)",
         g * g,
         sensor.read_variance_dn2()
-    );
+    )?;
     for (name, f) in [("snapshot", &fs), ("two-shot", &ft)] {
-        println!(
+        outln!(
             "{name:<9} variance = ({:.4} +- {:.4}) DN^2 + ({:.6} +- {:.6}) DN^2/electron * I",
-            f.intercept, f.intercept_se, f.slope, f.slope_se
-        );
+            f.intercept,
+            f.intercept_se,
+            f.slope,
+            f.slope_se
+        )?;
     }
-    println!("wrote {} and {}", svg.display(), tsv_path.display());
-    let (r, se) = ratio_with_se(ft.intercept, ft.intercept_se, fs.intercept, fs.intercept_se);
-    println!(
+    outln!("wrote {} and {}", svg_path.display(), tsv_path.display())?;
+    outln!(
         "low-light intercept ratio two-shot/snapshot: {r:.3} +- {se:.3} (paper: 1.97 PMD, 1.99 +- 0.37 TI)"
-    );
+    )?;
     Ok(())
 }
 
 fn plot(
-    path: &std::path::Path,
+    svg: &mut String,
     model: &str,
     snap: &Series,
     fs: &LinearFit,
@@ -210,7 +246,7 @@ fn plot(
         .iter()
         .chain(&two.variance_dn2)
         .fold(1.0f64, |a, &b| a.max(b));
-    let root = SVGBackend::new(path, (800, 560)).into_drawing_area();
+    let root = SVGBackend::with_string(svg, (800, 560)).into_drawing_area();
     root.fill(&WHITE).map_err(pe)?;
     let mut chart = ChartBuilder::on(&root)
         .caption(

@@ -7,12 +7,21 @@
 //! Relative RMSE per pixel = sqrt(mean over pixels (est - truth)^2) / mean
 //! truth; per patch, the same over the 24 patch means (estimate averaged over
 //! each patch against the truth averaged over it).
+//!
+//! The truth is per frame (the simulator's expected wells behind each
+//! capture): M1 over N frames is compared with the mean of its N frames'
+//! truths, the single-frame estimators with the first frame's, so a moving
+//! scene (fan-pellets) is measured against what was in front of the sensor.
+//! Frames stream through one buffer (running sums, Welford): memory does not
+//! grow with `--max-frames`. The files are written before anything is
+//! printed, and `--json` prints the same document as separation.json.
 
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use plotters::prelude::*;
 use sdi_core::calibration::DarkCalibration;
+use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::modulation::Illumination;
 use sdi_core::scene::ColourChart;
 use sdi_core::scene::SceneSpec;
@@ -25,6 +34,14 @@ use sdi_core::separation::{
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
 
+use super::report_files::ReportFiles;
+use crate::exit::CliError;
+use crate::stdout::outln;
+
+/// Most frames `--max-frames` accepts: M1's error at 100,000 frames is far
+/// below the simulator's own model error, and the run takes hours.
+pub const MAX_REPORT_FRAMES: usize = 100_000;
+
 /// Arguments of `sdictl report separation`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct SeparationReportArgs {
@@ -34,8 +51,8 @@ pub struct SeparationReportArgs {
     /// Directory for the plot (separation.svg) and the table (separation.tsv).
     #[arg(long, default_value = ".")]
     pub out: PathBuf,
-    /// Largest N for M1.
-    #[arg(long, default_value_t = 1000)]
+    /// Largest N for M1 (2..=100000: M1 needs two frames for a variance).
+    #[arg(long, default_value_t = 1000, value_parser = parse_max_frames, allow_negative_numbers = true)]
     pub max_frames: usize,
     /// Simulator seed.
     #[arg(long, default_value_t = 1)]
@@ -46,9 +63,6 @@ pub struct SeparationReportArgs {
     /// Exposure per frame, microseconds [default: the sensor's].
     #[arg(long, value_parser = parse_exposure_us)]
     pub exposure_us: Option<f64>,
-    /// Also write the table as JSON (separation.json).
-    #[arg(long)]
-    pub json: bool,
     /// Measured data instead of the simulator: frames with both sources on
     /// (.sdirec or .npy, DN, dark-subtracted); needs --truth-plus and --truth-minus.
     #[arg(long = "in", requires_all = ["truth_plus", "truth_minus"])]
@@ -59,6 +73,15 @@ pub struct SeparationReportArgs {
     /// Frames with LS2 alone: I- = -mean / g.
     #[arg(long, requires = "input")]
     pub truth_minus: Option<PathBuf>,
+}
+
+fn parse_max_frames(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (2..=MAX_REPORT_FRAMES).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "expected a whole number from 2 to {MAX_REPORT_FRAMES} (M1 needs at least 2 frames for a variance)"
+        )),
+    }
 }
 
 fn parse_exposure_us(s: &str) -> Result<f64, String> {
@@ -79,10 +102,12 @@ pub enum ReportError {
     Separation(#[from] SeparationError),
     #[error("calibration: {0}")]
     Calibration(#[from] sdi_core::calibration::CalibrationError),
-    #[error("writing {0}: {1}")]
-    Io(PathBuf, std::io::Error),
     #[error("plot: {0}")]
     Plot(String),
+    #[error("dark frame: {0}")]
+    Dark(String),
+    #[error("the simulator produced no frame")]
+    NoFrames,
 }
 
 /// One table row.
@@ -109,27 +134,124 @@ struct Truth {
     patch: Option<Vec<Option<usize>>>,
 }
 
-/// The subcommand: unknown scenes are usage errors, the rest runtime errors.
-pub fn run_cli(args: &SeparationReportArgs) -> Result<(), crate::exit::CliError> {
-    use crate::exit::CliError;
-    if args.input.is_some() {
-        return run_measured(args).map(|_| ());
-    }
-    run(args).map(|_| ()).map_err(|e| match e {
-        ReportError::UnknownScene(..) => CliError::Usage(e.to_string()),
-        _ => CliError::Runtime(e.to_string()),
-    })
+/// What a report found, before it is written or printed.
+struct Report {
+    scene: String,
+    model: String,
+    width: usize,
+    height: usize,
+    /// How the truth was taken, for the table's header.
+    truth: &'static str,
+    rows: Vec<Row>,
 }
 
-/// Runs the report and writes `separation.svg` and `separation.tsv` to `args.out`.
-pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
+/// Running per-pixel sums of the simulator's truth over frames.
+struct TruthSums {
+    plus: Vec<f64>,
+    minus: Vec<f64>,
+    frames: usize,
+}
+
+impl TruthSums {
+    fn new(pixels: usize) -> Self {
+        Self {
+            plus: vec![0.0; pixels],
+            minus: vec![0.0; pixels],
+            frames: 0,
+        }
+    }
+
+    fn push(&mut self, e: &sdi_core::simulator::WellExpectation) {
+        for (s, &v) in self.plus.iter_mut().zip(&e.i_plus_electrons.data) {
+            *s += f64::from(v);
+        }
+        for (s, &v) in self.minus.iter_mut().zip(&e.i_minus_electrons.data) {
+            *s += f64::from(v);
+        }
+        self.frames += 1;
+    }
+
+    /// The mean truth so far (exact for a static scene: N copies of an f32
+    /// sum exactly in f64).
+    fn mean(&self, patch: &Option<Vec<Option<usize>>>) -> Truth {
+        let n = self.frames.max(1) as f64;
+        Truth {
+            plus: self.plus.iter().map(|s| s / n).collect(),
+            minus: self.minus.iter().map(|s| s / n).collect(),
+            patch: patch.clone(),
+        }
+    }
+}
+
+/// The subcommand: checks the arguments and creates the output files,
+/// computes, writes the files, then prints (the table, or with `json` the
+/// JSON document). Unknown scenes are usage errors, the rest runtime errors.
+pub fn run_cli(args: &SeparationReportArgs, json: bool) -> Result<(), CliError> {
+    let scene = match args.input {
+        Some(_) => None,
+        None => Some(scene_of(args)?),
+    };
+    let mut names = vec!["separation.tsv"];
+    // Measured data has no plot (as before).
+    if scene.is_some() {
+        names.push("separation.svg");
+    }
+    if json {
+        names.push("separation.json");
+    }
+    let files = ReportFiles::create(&args.out, &names)?;
+    let report = match scene {
+        None => run_measured(args)?,
+        Some((name, scene)) => {
+            run(args, &name, scene).map_err(|e| CliError::Runtime(e.to_string()))?
+        }
+    };
+    publish(report, files, json)
+}
+
+/// The scene `--scene` names (default: colour-chart when built in, else flat-field).
+fn scene_of(args: &SeparationReportArgs) -> Result<(String, SceneSpec), CliError> {
     let name = match &args.scene {
         Some(s) => s.clone(),
         None if SceneSpec::NAMES.contains(&"colour-chart") => "colour-chart".into(),
         None => "flat-field".into(),
     };
-    let scene = SceneSpec::from_name(&name)
-        .ok_or_else(|| ReportError::UnknownScene(name.clone(), SceneSpec::NAMES.join(", ")))?;
+    let scene = SceneSpec::from_name(&name).ok_or_else(|| {
+        CliError::Usage(
+            ReportError::UnknownScene(name.clone(), SceneSpec::NAMES.join(", ")).to_string(),
+        )
+    })?;
+    Ok((name, scene))
+}
+
+/// Writes the files, then prints.
+fn publish(report: Report, files: ReportFiles, json: bool) -> Result<(), CliError> {
+    files.write("separation.tsv", tsv(&report.rows).as_bytes())?;
+    if files.contains("separation.svg") {
+        let mut svg = String::new();
+        plot(&mut svg, &report.scene, &report.rows)
+            .map_err(|e| CliError::Runtime(e.to_string()))?;
+        files.write("separation.svg", svg.as_bytes())?;
+    }
+    let doc = json_doc(&report);
+    if json {
+        let text = serde_json::to_string_pretty(&doc)
+            .map_err(|e| CliError::Runtime(format!("JSON: {e}")))?;
+        files.write("separation.json", text.as_bytes())?;
+    }
+    let written = files.commit()?;
+    if json {
+        outln!("{doc}")?;
+        return Ok(());
+    }
+    print_table(&report)?;
+    let names: Vec<String> = written.iter().map(|p| p.display().to_string()).collect();
+    outln!("wrote {}", names.join(", "))?;
+    Ok(())
+}
+
+/// Runs the report on the simulator (frames streamed, constant memory in N).
+fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Report, ReportError> {
     let mut sensor = args.sensor.params();
     if let Some(e) = args.exposure_us {
         sensor.exposure_us = e;
@@ -143,29 +265,20 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
 
     // 100 dark frames, averaged and subtracted before separating (section 6).
     let dark = Illumination::dark(sensor.modulation_hz);
-    let mut darks = Vec::with_capacity(100);
+    let mut darks = DarkAccumulator::new(w, ht);
     for _ in 0..100 {
         sim.capture(&dark, &mut frame);
-        darks.push(frame.clone());
+        darks
+            .push(&frame)
+            .map_err(|e| ReportError::Dark(e.to_string()))?;
     }
-    let dark_cal = DarkCalibration::from_frames(&darks)?;
-    drop(darks);
+    let dark_cal = DarkCalibration::from_accumulator(&darks)?;
 
     let light = Illumination::snapshot(sensor.modulation_hz);
     let n_max = args.max_frames.max(2);
-    let mut frames = Vec::with_capacity(n_max);
-    for _ in 0..n_max {
-        sim.capture(&light, &mut frame);
-        dark_cal.subtract(&mut frame)?;
-        frames.push(frame.clone());
-    }
-    let e = sim.last_expectation();
     let chart = (name == "colour-chart").then(|| ColourChart::new(w, ht, 1.0, 1.0));
-    let truth = Truth {
-        plus: e.i_plus_electrons.data.iter().map(|&v| v as f64).collect(),
-        minus: e.i_minus_electrons.data.iter().map(|&v| v as f64).collect(),
-        patch: chart.map(|c| (0..w * ht).map(|i| c.patch_at(i % w, i / w)).collect()),
-    };
+    let patch: Option<Vec<Option<usize>>> =
+        chart.map(|c| (0..w * ht).map(|i| c.patch_at(i % w, i / w)).collect());
     let with_read = UnmixOptions::default();
     let no_read = UnmixOptions {
         subtract_read_noise: false,
@@ -177,7 +290,8 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
     };
     let mut rows = Vec::new();
 
-    // M1 over N frames (time: per pushed frame, plus the final inversion).
+    // M1 over N frames (time: per pushed frame, plus the final inversion),
+    // one accumulator read out at each N.
     let mut ns: Vec<usize> = [10, 30, 100, 300, 1000, 3000]
         .into_iter()
         .filter(|&n| n <= n_max)
@@ -185,15 +299,28 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
     if ns.last() != Some(&n_max) {
         ns.push(n_max);
     }
-    for &n in &ns {
-        let t0 = Instant::now();
-        let mut acc = Welford::new(w, ht);
-        for f in &frames[..n] {
-            acc.push(f)?;
+    let mut acc = Welford::new(w, ht);
+    let mut truths = TruthSums::new(w * ht);
+    let mut push_time = Duration::ZERO;
+    let mut first: Option<(Frame, Truth)> = None;
+    for n in 1..=n_max {
+        sim.capture(&light, &mut frame);
+        dark_cal.subtract(&mut frame)?;
+        truths.push(sim.last_expectation());
+        if first.is_none() {
+            first = Some((frame.clone(), truths.mean(&patch)));
         }
+        let t0 = Instant::now();
+        acc.push(&frame)?;
+        push_time += t0.elapsed();
+        if !ns.contains(&n) {
+            continue;
+        }
+        let truth = truths.mean(&patch);
+        let t0 = Instant::now();
         let m = acc.moments()?;
         let sep = unmix(&m, &h, with_read)?;
-        let ms = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
+        let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
         let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
         r.floor = Some(m1_floor(&truth, &h, n));
         rows.push(r);
@@ -227,8 +354,10 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
         }
     }
 
-    // Single-frame estimators on the first frame.
-    let one = &frames[0];
+    // Single-frame estimators on the first frame, against its own truth.
+    let (one, truth) = first.ok_or(ReportError::NoFrames)?;
+    let one = &one;
+    let truth = &truth;
     // M3's range scale from the frame itself (robust MAD), never from the truth.
     let noise_dn = noise_sigma(one);
     for radius in [1usize, 2, 4] {
@@ -245,7 +374,7 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
             "M2 auto",
             format!("smooth r={radius}"),
             &sep,
-            &truth,
+            truth,
             ms,
         ));
     }
@@ -254,7 +383,7 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
             let p = BilateralParams::new(sd, k * noise_dn);
             let params = format!("sd={sd} sr={k}sigma");
             let (sep, ms) = median_of_3(|| Ok(unmix(&bilateral_exact(one, p)?, &h, with_read)?))?;
-            rows.push(row("M3 exact", params.clone(), &sep, &truth, ms));
+            rows.push(row("M3 exact", params.clone(), &sep, truth, ms));
             // The fast variants as the daemon runs them: buffers kept, f32 unmix.
             let mut out = Separated::default();
             let mut separable = SeparableBilateral::new();
@@ -266,7 +395,7 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
                     &mut out,
                 )?)
             })?;
-            rows.push(row("M3 separable", params.clone(), &out, &truth, ms));
+            rows.push(row("M3 separable", params.clone(), &out, truth, ms));
             let mut grid = BilateralGrid::new();
             let ((), ms) = median_of_3(|| {
                 Ok(unmix_local_into(
@@ -276,29 +405,21 @@ pub fn run(args: &SeparationReportArgs) -> Result<Vec<Row>, ReportError> {
                     &mut out,
                 )?)
             })?;
-            rows.push(row("M3 grid", params, &out, &truth, ms));
+            rows.push(row("M3 grid", params, &out, truth, ms));
         }
     }
-
-    print_table(&name, &sensor.model, w, ht, &rows);
-    std::fs::create_dir_all(&args.out).map_err(|e| ReportError::Io(args.out.clone(), e))?;
-    write_tsv(&args.out.join("separation.tsv"), &rows)?;
-    if args.json {
-        write_json(
-            &args.out.join("separation.json"),
-            &name,
-            &sensor.model,
-            &rows,
-        )?;
-    }
-    let svg = args.out.join("separation.svg");
-    plot(&svg, &name, &rows)?;
-    println!(
-        "wrote {} and {}",
-        svg.display(),
-        args.out.join("separation.tsv").display()
-    );
-    Ok(rows)
+    Ok(Report {
+        scene: name.to_owned(),
+        model: sensor.model.clone(),
+        width: w,
+        height: ht,
+        truth: if sim.scene_is_static() {
+            "the simulator's expected wells"
+        } else {
+            "per frame (moving scene): M1 against the mean over its N frames, single-frame estimators against the first frame's"
+        },
+        rows,
+    })
 }
 
 /// The last result of three runs and their median wall time, ms (the
@@ -392,10 +513,12 @@ fn row(method: &'static str, params: String, sep: &Separated, t: &Truth, ms: f64
     }
 }
 
-fn print_table(scene: &str, model: &str, w: usize, h: usize, rows: &[Row]) {
-    println!("separation report: scene {scene}, {w}x{h}, sensor {model}, dark-frame subtracted");
-    println!("relative RMSE per pixel (rmse), per patch mean (patch), M1's sampling floor per pixel (floor)");
-    println!(
+fn print_table(r: &Report) -> Result<(), CliError> {
+    let (scene, model, w, h, rows) = (&r.scene, &r.model, r.width, r.height, &r.rows);
+    outln!("separation report: scene {scene}, {w}x{h}, sensor {model}, dark-frame subtracted")?;
+    outln!("truth: {}", r.truth)?;
+    outln!("relative RMSE per pixel (rmse), per patch mean (patch), M1's sampling floor per pixel (floor)")?;
+    outln!(
         "{:<13} {:<22} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>15} {:>10}",
         "method",
         "params",
@@ -407,13 +530,13 @@ fn print_table(scene: &str, model: &str, w: usize, h: usize, rows: &[Row]) {
         "patch I-",
         "floor I+/I-",
         "ms/frame"
-    );
+    )?;
     let pct = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{:.2}%", 100.0 * v));
     for r in rows {
         let floor = r.floor.map_or("-".to_string(), |(a, b)| {
             format!("{:.2}/{:.2}%", 100.0 * a, 100.0 * b)
         });
-        println!(
+        outln!(
             "{:<13} {:<22} {:>8.2}% {:>+8.2}% {:>8.2}% {:>+8.2}% {:>9} {:>9} {:>15} {:>10.3}",
             r.method,
             r.params,
@@ -425,9 +548,10 @@ fn print_table(scene: &str, model: &str, w: usize, h: usize, rows: &[Row]) {
             pct(r.patch_minus),
             floor,
             r.ms_per_frame
-        );
+        )?;
     }
-    println!("{}", ordering(rows));
+    outln!("{}", ordering(rows))?;
+    Ok(())
 }
 
 /// The paper's ordering M1 < M2 < M3: best M1 (largest N, plain), best M2
@@ -468,7 +592,9 @@ pub fn ordering(rows: &[Row]) -> String {
     )
 }
 
-fn write_json(path: &Path, scene: &str, model: &str, rows: &[Row]) -> Result<(), ReportError> {
+/// The report as JSON (separation.json, and stdout with `--json`).
+fn json_doc(report: &Report) -> serde_json::Value {
+    let rows = &report.rows;
     let order = ordering(rows);
     let rows: Vec<serde_json::Value> = rows
         .iter()
@@ -488,12 +614,18 @@ fn write_json(path: &Path, scene: &str, model: &str, rows: &[Row]) -> Result<(),
             })
         })
         .collect();
-    let doc = serde_json::json!({"scene": scene, "sensor": model, "ordering": order, "rows": rows});
-    std::fs::write(path, serde_json::to_string_pretty(&doc).unwrap_or_default())
-        .map_err(|e| ReportError::Io(path.to_path_buf(), e))
+    serde_json::json!({
+        "scene": report.scene,
+        "sensor": report.model,
+        "width": report.width,
+        "height": report.height,
+        "truth": report.truth,
+        "ordering": order,
+        "rows": rows,
+    })
 }
 
-fn write_tsv(path: &Path, rows: &[Row]) -> Result<(), ReportError> {
+fn tsv(rows: &[Row]) -> String {
     let mut s = String::from("method\tparams\trel_rmse_plus\trel_bias_plus\trel_rmse_minus\trel_bias_minus\tpatch_rmse_plus\tpatch_rmse_minus\tfloor_plus\tfloor_minus\tms_per_frame\n");
     let opt = |v: Option<f64>| v.map_or("NA".to_string(), |v| format!("{v:.6}"));
     for r in rows {
@@ -512,11 +644,11 @@ fn write_tsv(path: &Path, rows: &[Row]) -> Result<(), ReportError> {
             r.ms_per_frame
         );
     }
-    std::fs::write(path, s).map_err(|e| ReportError::Io(path.to_path_buf(), e))
+    s
 }
 
 /// Error (mean of the I+ and I- relative RMSE) against time per frame, log-log.
-fn plot(path: &Path, scene: &str, rows: &[Row]) -> Result<(), ReportError> {
+fn plot(svg: &mut String, scene: &str, rows: &[Row]) -> Result<(), ReportError> {
     let err = |r: &Row| 0.5 * (r.rmse_plus + r.rmse_minus);
     let pe = |e: DrawingAreaErrorKind<_>| ReportError::Plot(e.to_string());
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
@@ -528,7 +660,7 @@ fn plot(path: &Path, scene: &str, rows: &[Row]) -> Result<(), ReportError> {
     }
     let (x0, x1) = ((x0 * 0.5).max(1e-4), (x1 * 2.0).max(1e-3));
     let (y0, y1) = ((y0 * 0.5).max(1e-4), (y1 * 2.0).max(1e-3));
-    let root = SVGBackend::new(path, (900, 600)).into_drawing_area();
+    let root = SVGBackend::with_string(svg, (900, 600)).into_drawing_area();
     root.fill(&WHITE).map_err(pe)?;
     let mut chart = ChartBuilder::on(&root)
         .caption(
@@ -595,31 +727,38 @@ fn plot(path: &Path, scene: &str, rows: &[Row]) -> Result<(), ReportError> {
     Ok(())
 }
 
-/// Reads up to `max` frames of a recording or .npy (dark subtracted as recorded).
-fn read_frames(
+/// Streams up to `max` frames of a recording or .npy (dark subtracted as
+/// recorded) through `each`; the number of frames and the input's description.
+fn stream_frames(
     path: &Path,
     max: usize,
-) -> Result<(Vec<Frame>, super::frames::InputInfo), crate::exit::CliError> {
+    mut each: impl FnMut(&Frame) -> Result<(), CliError>,
+) -> Result<(usize, super::frames::InputInfo), CliError> {
     let (mut input, info) = super::frames::FrameInput::open(path)?;
     let mut frame = Frame::new(info.width, info.height);
-    let mut out = Vec::new();
-    while out.len() < max && input.next_frame(path, &mut frame)? {
-        out.push(frame.clone());
+    let mut n = 0;
+    while n < max && input.next_frame(path, &mut frame)? {
+        each(&frame)?;
+        n += 1;
     }
-    if out.is_empty() {
-        return Err(crate::exit::CliError::Usage(format!(
+    if n == 0 {
+        return Err(CliError::Usage(format!(
             "'{}' holds no frames",
             path.display()
         )));
     }
-    Ok((out, info))
+    Ok((n, info))
 }
 
-/// Per-pixel mean over frames (unusable samples skipped), DN.
-fn mean_dn(frames: &[Frame]) -> Vec<f64> {
-    let n = frames[0].dn.data.len();
-    let (mut s, mut k) = (vec![0.0; n], vec![0u32; n]);
-    for f in frames {
+/// Per-pixel mean over up to `max` frames (unusable samples skipped), DN,
+/// and the frame size.
+fn mean_dn(path: &Path, max: usize) -> Result<(Vec<f64>, usize, usize), CliError> {
+    let (mut s, mut k) = (Vec::new(), Vec::new());
+    let (_, info) = stream_frames(path, max, |f| {
+        let n = f.dn.data.len();
+        if s.is_empty() {
+            (s, k) = (vec![0.0; n], vec![0u32; n]);
+        }
         for i in 0..n {
             let v = f.dn.data[i];
             if v.is_finite() && f.saturated.data[i] == 0 {
@@ -627,21 +766,23 @@ fn mean_dn(frames: &[Frame]) -> Vec<f64> {
                 k[i] += 1;
             }
         }
-    }
-    s.iter()
+        Ok(())
+    })?;
+    let mean = s
+        .iter()
         .zip(&k)
         .map(|(s, &k)| if k > 0 { s / f64::from(k) } else { 0.0 })
-        .collect()
+        .collect();
+    Ok((mean, info.width, info.height))
 }
 
 /// `report separation` on measured data: the truth is the mean of the
 /// LS1-only and LS2-only frames through g (I+ = mean / g, I- = -mean / g,
 /// or +mean / g when LS2 was driven in phase);
 /// M1 over N frames, pooled M1, M2 auto and M3 (separable, range scale from
-/// the frame) on the both-sources frames.
-pub fn run_measured(args: &SeparationReportArgs) -> Result<Vec<Row>, crate::exit::CliError> {
-    use crate::exit::CliError;
-    let rt = |e: ReportError| CliError::Runtime(e.to_string());
+/// the frame) on the both-sources frames. Every input streams (constant
+/// memory in N).
+fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
     let us = |e: SeparationError| CliError::Usage(e.to_string());
     let (Some(input), Some(tp), Some(tm)) = (&args.input, &args.truth_plus, &args.truth_minus)
     else {
@@ -649,18 +790,34 @@ pub fn run_measured(args: &SeparationReportArgs) -> Result<Vec<Row>, crate::exit
             "--in needs --truth-plus and --truth-minus".into(),
         ));
     };
-    let n_max = args.max_frames.clamp(2, 100_000);
-    let (frames, info) = read_frames(input, n_max)?;
-    let (plus, _) = read_frames(tp, n_max)?;
-    let (minus, _) = read_frames(tm, n_max)?;
-    let (w, ht) = (frames[0].width(), frames[0].height());
-    for f in [&plus[0], &minus[0]] {
-        if f.width() != w || f.height() != ht {
-            return Err(CliError::Usage(
-                "the truth frames differ in size from --in".into(),
-            ));
-        }
+    let n_max = args.max_frames.clamp(2, MAX_REPORT_FRAMES);
+    let (mean_plus, wp, hp) = mean_dn(tp, n_max)?;
+    let (mean_minus, wm, hm) = mean_dn(tm, n_max)?;
+    // M1's accumulator over the both-sources frames, timed per push; the
+    // first frame kept for the single-frame estimators.
+    let mut acc: Option<Welford> = None;
+    let mut first: Option<Frame> = None;
+    let mut push_time = Duration::ZERO;
+    let (n, info) = stream_frames(input, n_max, |f| {
+        let a = acc.get_or_insert_with(|| Welford::new(f.width(), f.height()));
+        let t0 = Instant::now();
+        a.push(f).map_err(us)?;
+        push_time += t0.elapsed();
+        first.get_or_insert_with(|| f.clone());
+        Ok(())
+    })?;
+    let (w, ht) = (info.width, info.height);
+    if (wp, hp) != (w, ht) || (wm, hm) != (w, ht) {
+        return Err(CliError::Usage(
+            "the truth frames differ in size from --in".into(),
+        ));
     }
+    let (Some(acc), Some(one)) = (acc, first) else {
+        return Err(CliError::Usage(format!(
+            "'{}' holds no frames",
+            input.display()
+        )));
+    };
     // A recording's own sensor wins; an .npy uses --sensor.
     let sensor = info.sensor.is_none().then_some(&args.sensor);
     let h = super::separate::choose_mixing(None, sensor, &info)?.h;
@@ -668,7 +825,6 @@ pub fn run_measured(args: &SeparationReportArgs) -> Result<Vec<Row>, crate::exit
     // LS2 alone lands in I- (negative D) when driven out of phase, as in the
     // snapshot; two-shot's B frames drive it in phase (positive D). The
     // pooled sign tells which.
-    let mean_minus = mean_dn(&minus);
     let sign = if mean_minus.iter().sum::<f64>() > 0.0 {
         eprintln!("note: --truth-minus frames are positive (LS2 driven in phase, as two-shot's B frames): I- = +mean / g");
         1.0
@@ -676,22 +832,17 @@ pub fn run_measured(args: &SeparationReportArgs) -> Result<Vec<Row>, crate::exit
         -1.0
     };
     let truth = Truth {
-        plus: mean_dn(&plus).iter().map(|m| m / g).collect(),
+        plus: mean_plus.iter().map(|m| m / g).collect(),
         minus: mean_minus.iter().map(|m| sign * m / g).collect(),
         patch: None,
     };
     let opts = UnmixOptions::default();
     let mut rows = Vec::new();
-    let n = frames.len();
     if n >= 2 {
         let t0 = Instant::now();
-        let mut acc = Welford::new(w, ht);
-        for f in &frames {
-            acc.push(f).map_err(us)?;
-        }
         let m = acc.moments().map_err(us)?;
         let sep = unmix(&m, &h, opts).map_err(us)?;
-        let ms = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
+        let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
         let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
         r.floor = Some(m1_floor(&truth, &h, n));
         rows.push(r);
@@ -699,7 +850,7 @@ pub fn run_measured(args: &SeparationReportArgs) -> Result<Vec<Row>, crate::exit
         let sep = unmix(&pooled, &h, opts).map_err(us)?;
         rows.push(row("M1 pooled", format!("N={n}"), &sep, &truth, ms));
     }
-    let one = &frames[0];
+    let one = &one;
     let t0 = Instant::now();
     let seg = auto_segment(one, SegmentParams::default()).map_err(us)?;
     let m = segment_moments(one, &seg.labels, Some(&seg.interior)).map_err(us)?;
@@ -722,12 +873,12 @@ pub fn run_measured(args: &SeparationReportArgs) -> Result<Vec<Row>, crate::exit
             ms,
         ));
     }
-    let name = format!("measured {}", input.display());
-    print_table(&name, "measured", w, ht, &rows);
-    std::fs::create_dir_all(&args.out).map_err(|e| rt(ReportError::Io(args.out.clone(), e)))?;
-    write_tsv(&args.out.join("separation.tsv"), &rows).map_err(rt)?;
-    if args.json {
-        write_json(&args.out.join("separation.json"), &name, "measured", &rows).map_err(rt)?;
-    }
-    Ok(rows)
+    Ok(Report {
+        scene: format!("measured {}", input.display()),
+        model: "measured".into(),
+        width: w,
+        height: ht,
+        truth: "the mean of the LS1-only and LS2-only frames through g",
+        rows,
+    })
 }

@@ -37,6 +37,8 @@ use super::frames::{FrameInput, InputInfo, NpyOut};
 use super::sensor_arg::parse_sensor;
 use crate::atomic_file::AtomicFile;
 use crate::exit::CliError;
+use crate::output_name::{refuse_same, OutputName};
+use crate::stdout::outln;
 
 /// Longest temporal window.
 pub const MAX_WINDOW: usize = 4096;
@@ -217,17 +219,25 @@ struct Outputs {
 
 impl Outputs {
     fn open(args: &SeparateArgs, w: usize, h: usize) -> Result<Self, CliError> {
-        let mut paths = vec![&args.out];
-        paths.extend(args.sigma.iter());
-        paths.extend(args.flags.iter());
-        for (i, a) in paths.iter().enumerate() {
-            if paths[..i].contains(a) || *a == &args.input {
-                return Err(CliError::Usage(format!(
-                    "'{}' is given twice (input and outputs must differ)",
-                    a.display()
-                )));
-            }
+        // Input and outputs are compared as directory entries, however spelled.
+        let flagged: Vec<(&str, &Path)> = [
+            ("--out", Some(args.out.as_path())),
+            ("--sigma", args.sigma.as_deref()),
+            ("--flags", args.flags.as_deref()),
+        ]
+        .into_iter()
+        .filter_map(|(flag, p)| p.map(|p| (flag, p)))
+        .collect();
+        let mut names = vec![OutputName::of(&args.input)?];
+        for (_, p) in &flagged {
+            names.push(OutputName::create_dir_of(p)?);
         }
+        let entries: Vec<_> = std::iter::once(("--in", args.input.as_path()))
+            .chain(flagged.iter().copied())
+            .zip(&names)
+            .map(|((flag, p), n)| (flag, p, n))
+            .collect();
+        refuse_same(&entries)?;
         let mut files = Vec::new();
         let mut open = |p: &PathBuf, tail: &[usize]| -> Result<NpyOut, CliError> {
             if p.is_dir() {
@@ -364,9 +374,27 @@ pub struct SeparateSummary {
 }
 
 /// Runs `sdictl separate`.
-pub fn run(args: SeparateArgs) -> Result<(), CliError> {
+/// With `json`, the summary on stdout is one JSON object.
+pub fn run(args: SeparateArgs, json: bool) -> Result<(), CliError> {
     let s = separate(&args)?;
-    println!(
+    if json {
+        outln!(
+            "{}",
+            serde_json::json!({
+                "frames_in": s.frames_in,
+                "outputs": s.outputs,
+                "method": args.method.to_possible_value().map(|v| v.get_name().to_owned()),
+                "seconds": s.seconds,
+                "gain_dn_per_electron": s.h.gain_dn_per_electron,
+                "read_variance_dn2": s.h.read_variance_dn2,
+                "out": args.out.display().to_string(),
+                "sigma": args.sigma.as_ref().map(|p| p.display().to_string()),
+                "flags": args.flags.as_ref().map(|p| p.display().to_string()),
+            })
+        )?;
+        return Ok(());
+    }
+    outln!(
         "separated {} frames ({:?}) into {} output{} in {:.2} s; H: gain {:.6} DN/electron, read variance {:.4} DN^2; wrote {}",
         s.frames_in,
         args.method,
@@ -376,7 +404,7 @@ pub fn run(args: SeparateArgs) -> Result<(), CliError> {
         s.h.gain_dn_per_electron,
         s.h.read_variance_dn2,
         args.out.display()
-    );
+    )?;
     Ok(())
 }
 

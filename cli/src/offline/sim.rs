@@ -24,6 +24,8 @@ use sdi_core::{Frame, Image};
 
 use crate::atomic_file::AtomicFile;
 use crate::exit::CliError;
+use crate::output_name::{refuse_same, OutputName};
+use crate::stdout::outln;
 
 /// Most output frames one run may write.
 pub const MAX_FRAMES: usize = 10_000;
@@ -128,31 +130,34 @@ fn io_error(what: &str, path: &Path, e: impl std::fmt::Display) -> CliError {
     CliError::Runtime(format!("{what} '{}': {e}", path.display()))
 }
 
-/// Creates the file's directory if needed and refuses a destination that is a
-/// directory, so the final renames cannot fail half-way.
-fn prepare_destination(path: &Path) -> Result<(), CliError> {
-    if path.is_dir() {
-        return Err(io_error("cannot write", path, "is a directory"));
-    }
-    ensure_parent_dir(path)
-}
-
-fn ensure_parent_dir(path: &Path) -> Result<(), CliError> {
-    match path.parent() {
-        Some(dir) if !dir.as_os_str().is_empty() => {
-            std::fs::create_dir_all(dir).map_err(|e| io_error("cannot create directory", dir, e))
-        }
-        _ => Ok(()),
-    }
+/// Creates each output's directory and refuses two outputs that are the
+/// same file (by directory inode and name, `output_name.rs`), before any
+/// frame is simulated.
+fn check_outputs(args: &SimArgs) -> Result<(), CliError> {
+    let flagged: Vec<(&str, &Path)> = [
+        ("--out", Some(args.out.as_path())),
+        ("--png", args.png.as_deref()),
+        ("--truth", args.truth.as_deref()),
+        ("--two-shot-frames", args.two_shot_frames.as_deref()),
+    ]
+    .into_iter()
+    .filter_map(|(flag, p)| p.map(|p| (flag, p)))
+    .collect();
+    let names = flagged
+        .iter()
+        .map(|(_, p)| OutputName::create_dir_of(p))
+        .collect::<Result<Vec<_>, _>>()?;
+    let entries: Vec<_> = flagged
+        .iter()
+        .zip(&names)
+        .map(|((flag, p), n)| (*flag, *p, n))
+        .collect();
+    refuse_same(&entries)
 }
 
 /// Runs `sdictl sim`.
-pub fn run(args: SimArgs) -> Result<(), CliError> {
-    if args.png.as_deref() == Some(args.out.as_path()) {
-        return Err(CliError::Usage(
-            "--out and --png must be different files".into(),
-        ));
-    }
+/// With `json`, the summary on stdout is one JSON object.
+pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
     let scene = match &args.scene {
         Some(name) => SceneSpec::from_name(name).ok_or_else(|| {
             CliError::Usage(format!(
@@ -180,14 +185,16 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
     }
     let mut sim = Simulator::new(config).map_err(|e| CliError::Usage(e.to_string()))?;
     let (w, h) = (sim.params().width, sim.params().height);
+    if args.two_shot_frames.is_some() && args.mode != ModeId::TwoShot {
+        return Err(CliError::Usage(
+            "--two-shot-frames needs --mode two-shot".into(),
+        ));
+    }
 
-    prepare_destination(&args.out)?;
+    check_outputs(&args)?;
     let npy_file = AtomicFile::new(&args.out).map_err(|e| io_error("bad output", &args.out, e))?;
     let png_file = match &args.png {
-        Some(p) => {
-            prepare_destination(p)?;
-            Some(AtomicFile::new(p).map_err(|e| io_error("bad output", p, e))?)
-        }
+        Some(p) => Some(AtomicFile::new(p).map_err(|e| io_error("bad output", p, e))?),
         None => None,
     };
     let tmp = npy_file.tmp_path().to_path_buf();
@@ -202,11 +209,6 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
     };
     let mut npy =
         NpyF32Writer::new(writer, shape).map_err(|e| io_error("cannot write", &tmp, e))?;
-    if args.two_shot_frames.is_some() && args.mode != ModeId::TwoShot {
-        return Err(CliError::Usage(
-            "--two-shot-frames needs --mode two-shot".into(),
-        ));
-    }
     let mut extras = super::sim_truth::Extras::open(
         args.truth.as_deref(),
         args.two_shot_frames.as_deref(),
@@ -306,22 +308,42 @@ pub fn run(args: SimArgs) -> Result<(), CliError> {
         png.commit()
             .map_err(|e| io_error("cannot write", path, e))?;
     }
-    println!(
-        "wrote {} frames of {w}x{h} ({} on scene {}, {} dark frames averaged) to {}{}",
-        args.frames,
-        args.mode,
-        sim.config().scene.name(),
-        dark.frames(),
-        args.out.display(),
-        match &args.png {
-            Some(p) => format!(
-                "; display frame (+-{:.1} DN) to {}",
-                display.max_abs_dn(&last),
-                p.display()
-            ),
-            None => String::new(),
-        }
-    );
+    let scene_name = sim.config().scene.name();
+    let display_max_abs_dn = args.png.as_ref().map(|_| display.max_abs_dn(&last));
+    if json {
+        let path = |p: Option<&Path>| p.map(|p| p.display().to_string());
+        outln!(
+            "{}",
+            serde_json::json!({
+                "frames": args.frames,
+                "width": w,
+                "height": h,
+                "mode": args.mode.to_string(),
+                "scene": scene_name,
+                "dark_frames": dark.frames(),
+                "out": args.out.display().to_string(),
+                "png": path(args.png.as_deref()),
+                "png_max_abs_dn": display_max_abs_dn,
+                "truth": path(args.truth.as_deref()),
+                "two_shot_frames": path(args.two_shot_frames.as_deref()),
+            })
+        )?;
+    } else {
+        outln!(
+            "wrote {} frames of {w}x{h} ({} on scene {scene_name}, {} dark frames averaged) to {}{}",
+            args.frames,
+            args.mode,
+            dark.frames(),
+            args.out.display(),
+            match (&args.png, display_max_abs_dn) {
+                (Some(p), Some(max)) => format!(
+                    "; display frame (+-{max:.1} DN) to {}",
+                    p.display()
+                ),
+                _ => String::new(),
+            }
+        )?;
+    }
     Ok(())
 }
 

@@ -12,6 +12,7 @@
 //! Everything is read from sysfs/procfs under `--sysroot` (default `/`, a
 //! test points it at a fake tree) and from `modinfo`, `id` and `pw-dump`.
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode, Stdio};
 use std::time::{Duration, Instant};
@@ -19,6 +20,7 @@ use std::time::{Duration, Instant};
 use serde_json::{json, Value as Json};
 
 use super::BusArgs;
+use crate::stdout::outln;
 
 /// Outcome of one check.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -635,6 +637,30 @@ fn pipewire(label: &str) -> Check {
 }
 
 /// Runs every check; exit status 0 only when none fails.
+fn print_checks(checks: &[Check], ok: bool, json: bool) -> Result<(), crate::stdout::StdoutError> {
+    if json {
+        let list: Vec<Json> = checks.iter().map(Check::json).collect();
+        outln!("{}", json!({ "ok": ok, "checks": list }))?;
+    } else {
+        for c in checks {
+            outln!("[{:>4}] {:<12} {}", c.status.tag(), c.id, c.summary)?;
+            if let (Some(fix), Status::Fail | Status::Warn) = (&c.fix, c.status) {
+                outln!("       {:<12} fix: {fix}", "")?;
+            }
+        }
+        let fails = checks.iter().filter(|c| c.status == Status::Fail).count();
+        outln!(
+            "{}",
+            if ok {
+                "nothing blocks the SDI camera".to_owned()
+            } else {
+                format!("{fails} problem(s) block the SDI camera")
+            }
+        )?;
+    }
+    Ok(())
+}
+
 pub fn run(bus: &BusArgs, sysroot: &Path) -> ExitCode {
     let sys = Sys {
         root: sysroot.to_owned(),
@@ -677,25 +703,11 @@ pub fn run(bus: &BusArgs, sysroot: &Path) -> ExitCode {
     checks.push(pipewire(labels[0]));
 
     let ok = !checks.iter().any(|c| c.status == Status::Fail);
-    if bus.json {
-        let list: Vec<Json> = checks.iter().map(Check::json).collect();
-        println!("{}", json!({ "ok": ok, "checks": list }));
-    } else {
-        for c in &checks {
-            println!("[{:>4}] {:<12} {}", c.status.tag(), c.id, c.summary);
-            if let (Some(fix), Status::Fail | Status::Warn) = (&c.fix, c.status) {
-                println!("       {:<12} fix: {fix}", "");
-            }
-        }
-        let fails = checks.iter().filter(|c| c.status == Status::Fail).count();
-        println!(
-            "{}",
-            if ok {
-                "nothing blocks the SDI camera".to_owned()
-            } else {
-                format!("{fails} problem(s) block the SDI camera")
-            }
-        );
+    // A closed stdout still leaves the verdict in the exit status; any
+    // other failure to print is an error (stdout.rs).
+    if let Err(crate::stdout::StdoutError::Failed(e)) = print_checks(&checks, ok, bus.json) {
+        let _ = writeln!(std::io::stderr(), "error: cannot write to stdout: {e}");
+        return ExitCode::from(1);
     }
     if ok {
         ExitCode::SUCCESS

@@ -9,7 +9,11 @@
 //! | 4 | busy (another dark-frame/calibration/recording) |
 //! | 5 | device unavailable |
 //! | 6 | nothing to do: not recording, no frame yet |
+//!
+//! A closed stdout (the reader went away) ends a command quietly with 0
+//! (`stdout.rs`).
 
+use std::io::Write;
 use std::process::ExitCode;
 
 #[derive(Debug, thiserror::Error)]
@@ -26,6 +30,18 @@ pub enum OnlineError {
     Nothing(String),
     #[error("{0}")]
     Failed(String),
+    /// The reader of stdout went away: stop quietly, exit status 0.
+    #[error("stdout is closed")]
+    StdoutClosed,
+}
+
+impl From<crate::stdout::StdoutError> for OnlineError {
+    fn from(e: crate::stdout::StdoutError) -> Self {
+        match e {
+            crate::stdout::StdoutError::Closed => OnlineError::StdoutClosed,
+            crate::stdout::StdoutError::Failed(_) => OnlineError::Failed(e.to_string()),
+        }
+    }
 }
 
 impl OnlineError {
@@ -37,6 +53,7 @@ impl OnlineError {
             OnlineError::Busy(_) => 4,
             OnlineError::Device(_) => 5,
             OnlineError::Nothing(_) => 6,
+            OnlineError::StdoutClosed => 0,
         }
     }
 
@@ -49,6 +66,7 @@ impl OnlineError {
             OnlineError::Busy(_) => "busy",
             OnlineError::Device(_) => "device-unavailable",
             OnlineError::Nothing(_) => "nothing-to-do",
+            OnlineError::StdoutClosed => "stdout-closed",
         }
     }
 }
@@ -116,15 +134,17 @@ impl From<zbus::Error> for OnlineError {
 /// Prints the error (as JSON when asked) and maps it to the exit status.
 pub fn report(result: Result<(), OnlineError>, json: bool) -> ExitCode {
     match result {
-        Ok(()) => ExitCode::SUCCESS,
+        Ok(()) | Err(OnlineError::StdoutClosed) => ExitCode::SUCCESS,
         Err(e) => {
+            // Already failing: a stdout or stderr that cannot take the
+            // message changes nothing (and must not panic).
             if json {
-                println!(
+                let _ = crate::stdout::outln!(
                     "{}",
                     serde_json::json!({"error": e.kind(), "message": e.to_string()})
                 );
             }
-            eprintln!("error: {e}");
+            let _ = writeln!(std::io::stderr(), "error: {e}");
             ExitCode::from(e.exit_code())
         }
     }

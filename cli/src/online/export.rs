@@ -10,6 +10,7 @@ use sdi_recording::{Record, RecordingReader};
 
 use super::errors::OnlineError;
 use crate::offline::frames::NpyOut;
+use crate::stdout::outln;
 
 pub fn run(recording: &Path, out: &Path, json: bool) -> Result<(), OnlineError> {
     let mut reader = RecordingReader::open(recording)
@@ -41,13 +42,13 @@ pub fn run(recording: &Path, out: &Path, json: bool) -> Result<(), OnlineError> 
     let skipped = 0usize;
     let damaged = reader.damaged_tail().map(str::to_owned);
     if json {
-        println!(
+        outln!(
             "{}",
             serde_json::json!({"frames": frames, "width": w, "height": h, "mode": header.mode,
                 "skipped": skipped, "damaged_tail": damaged})
-        );
+        )?;
     } else {
-        println!("{frames} frames of {w}x{h} -> {}", out.display());
+        outln!("{frames} frames of {w}x{h} -> {}", out.display())?;
         if let Some(d) = damaged {
             eprintln!("note: the recording ends in a damaged record ({d}); every complete frame was exported");
         }

@@ -16,6 +16,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{json, Value as Json};
 use zbus::zvariant::OwnedValue;
 
+use crate::stdout::outln;
 pub use errors::OnlineError;
 use new_file::NewFile;
 use sdi_api::{Camera1Proxy, SdiError};
@@ -320,16 +321,17 @@ async fn with_progress<T>(
     Ok(r?)
 }
 
-fn print_dict(d: &HashMap<String, OwnedValue>, json: bool) {
+fn print_dict(d: &HashMap<String, OwnedValue>, json: bool) -> Result<(), OnlineError> {
     if json {
-        println!("{}", dict_json(d));
+        outln!("{}", dict_json(d))?;
     } else {
         let mut keys: Vec<_> = d.keys().collect();
         keys.sort();
         for k in keys {
-            println!("{k}: {}", to_json(&d[k]));
+            outln!("{k}: {}", to_json(&d[k]))?;
         }
     }
+    Ok(())
 }
 
 async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError> {
@@ -339,7 +341,7 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
         OnlineCommand::Status => {
             let p = all_properties(&cam).await?;
             if json {
-                println!("{}", Json::Object(p));
+                outln!("{}", Json::Object(p))?;
             } else {
                 for key in [
                     "Mode",
@@ -358,7 +360,7 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                     "Stats",
                 ] {
                     if let Some(v) = p.get(key) {
-                        println!("{key:>13}: {v}");
+                        outln!("{key:>13}: {v}")?;
                     }
                 }
             }
@@ -368,23 +370,23 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
             let modes = p.get("Modes").cloned().unwrap_or(Json::Null);
             let current = p.get("Mode").cloned().unwrap_or(Json::Null);
             if json {
-                println!("{}", json!({"modes": modes, "current": current}));
+                outln!("{}", json!({"modes": modes, "current": current}))?;
             } else if let Json::Array(list) = modes {
                 for m in list {
                     let mark = if m == current { "*" } else { " " };
-                    println!("{mark} {}", m.as_str().unwrap_or(""));
+                    outln!("{mark} {}", m.as_str().unwrap_or(""))?;
                 }
             }
         }
         OnlineCommand::SetMode { mode } => {
             let (sequence, timestamp_us) = cam.set_mode(&mode).await?;
             if json {
-                println!(
+                outln!(
                     "{}",
                     json!({"mode": mode, "first_sequence": sequence, "first_timestamp_us": timestamp_us})
-                );
+                )?;
             } else {
-                println!("{mode} from frame {sequence} (timestamp {timestamp_us} us)");
+                outln!("{mode} from frame {sequence} (timestamp {timestamp_us} us)")?;
             }
         }
         OnlineCommand::Get { property } => {
@@ -399,11 +401,11 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                 ))
             })?;
             if json {
-                println!("{}", json!({ name: v }));
+                outln!("{}", json!({ name: v }))?;
             } else {
                 match v {
-                    Json::String(s) => println!("{s}"),
-                    other => println!("{other}"),
+                    Json::String(s) => outln!("{s}")?,
+                    other => outln!("{other}")?,
                 }
             }
         }
@@ -423,12 +425,12 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                 }
             };
             if json {
-                println!(
+                outln!(
                     "{}",
                     json!({ name: value, "first_sequence": sequence, "first_timestamp_us": timestamp_us })
-                );
+                )?;
             } else {
-                println!("{name} = {value} from frame {sequence} (timestamp {timestamp_us} us)");
+                outln!("{name} = {value} from frame {sequence} (timestamp {timestamp_us} us)")?;
             }
         }
         OnlineCommand::DarkFrame { frames } => {
@@ -440,13 +442,13 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                 cam.capture_dark_frame(frames),
             )
             .await?;
-            print_dict(&wire_dict(&d)?, json);
+            print_dict(&wire_dict(&d)?, json)?;
         }
         OnlineCommand::Calibrate { frames } => {
             // Dark frames, then 5 photon-transfer levels of frames + 1 each.
             let total = frames.saturating_mul(6).saturating_add(5);
             let d = with_progress(&cam, total, "calibrating", json, cam.calibrate(frames)).await?;
-            print_dict(&wire_dict(&d)?, json);
+            print_dict(&wire_dict(&d)?, json)?;
         }
         OnlineCommand::Record {
             path,
@@ -469,9 +471,9 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
             match seconds {
                 None => {
                     if json {
-                        println!("{}", json!({"recording": path}));
+                        outln!("{}", json!({"recording": path}))?;
                     } else {
-                        println!("recording to {path}; stop with `sdictl stop`");
+                        outln!("recording to {path}; stop with `sdictl stop`")?;
                     }
                 }
                 Some(s) => {
@@ -483,13 +485,13 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                     }
                     pb.finish_and_clear();
                     let d = cam.stop_recording().await?;
-                    print_dict(&wire_dict(&d)?, json);
+                    print_dict(&wire_dict(&d)?, json)?;
                 }
             }
         }
         OnlineCommand::Stop => {
             let d = cam.stop_recording().await?;
-            print_dict(&wire_dict(&d)?, json);
+            print_dict(&wire_dict(&d)?, json)?;
         }
         OnlineCommand::Snapshot { path, by_path } => {
             let path = absolute(&path)?;
@@ -502,33 +504,37 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                 out.commit()?;
             }
             if json {
-                println!("{}", json!({"snapshot": path}));
+                outln!("{}", json!({"snapshot": path}))?;
             } else {
-                println!("{path}");
+                outln!("{path}")?;
             }
         }
         OnlineCommand::Monitor { count } => {
             let mut stream = cam.receive_stats_changed().await;
             let mut n = 0u64;
             if !json {
-                println!(
+                outln!(
                     "{:>10} {:>8} {:>12} {:>12} {:>8}",
-                    "frames", "fps", "latency_us", "max_us", "dropped"
-                );
+                    "frames",
+                    "fps",
+                    "latency_us",
+                    "max_us",
+                    "dropped"
+                )?;
             }
             while let Some(change) = stream.next().await {
                 let s = change.get().await?;
                 if json {
-                    println!("{}", dict_json(&wire_dict(&s)?));
+                    outln!("{}", dict_json(&wire_dict(&s)?))?;
                 } else {
-                    println!(
+                    outln!(
                         "{:>10} {:>8.2} {:>12.0} {:>12.0} {:>8}",
                         s.frames,
                         s.fps,
                         s.latency_us,
                         s.latency_max_us,
                         s.dropped_view + s.dropped_recording
-                    );
+                    )?;
                 }
                 n += 1;
                 if count.is_some_and(|c| n >= c) {

@@ -36,14 +36,26 @@ impl DarkCalibration {
                 got_h: e.got_h,
             })?;
         }
-        let got = acc.as_ref().map_or(0, |a| a.frames() as usize);
-        let Some(acc) = acc.filter(|a| a.frames() >= 2) else {
+        match acc {
+            Some(acc) => Self::from_accumulator(&acc),
+            None => Err(CalibrationError::TooFew {
+                what: "dark frames",
+                needed: 2,
+                got: 0,
+            }),
+        }
+    }
+
+    /// The same from frames already summed (N >= 2), so a caller can stream
+    /// them through one buffer.
+    pub fn from_accumulator(acc: &DarkAccumulator) -> Result<Self, CalibrationError> {
+        if acc.frames() < 2 {
             return Err(CalibrationError::TooFew {
                 what: "dark frames",
                 needed: 2,
-                got,
+                got: acc.frames() as usize,
             });
-        };
+        }
         let (width, height) = acc.size();
         // Pixels with two or more valid samples, with their mean and variance.
         let good: Vec<(usize, f64, f64)> = (0..width * height)
