@@ -12,8 +12,11 @@ use zbus::zvariant::{DeserializeDict, OwnedValue, SerializeDict, Type, Value};
 pub struct Stats {
     /// Frames captured since start.
     pub frames: u64,
-    /// Frames per second over the last window.
+    /// Frames per second over the last window; 0 once frames stop (no
+    /// frame for three frame periods, at least 2 s, or the source stalled).
     pub fps: f64,
+    /// Seconds since the last frame was captured; -1 before the first.
+    pub last_frame_age_s: f64,
     /// Mean capture-to-output processing time over the last window, microseconds.
     pub latency_us: f64,
     /// Worst processing time over the last window, microseconds.
@@ -22,7 +25,8 @@ pub struct Stats {
     pub dropped_view: u64,
     /// Frames the recorder could not queue.
     pub dropped_recording: u64,
-    /// False while the board is unplugged and nothing stands in.
+    /// False while the source delivers no frames: the board unplugged and
+    /// nothing standing in, a replay at its end, a failing capture.
     pub device_available: bool,
     /// The backend's own words on its state ("" when it has none).
     pub device_state: String,

@@ -19,7 +19,7 @@ pub use file::{
     ReplaySection, SeparationSection,
 };
 pub use sensor_spec::{SensorSpec, SensorSpecError};
-pub use validate::{Adjustment, Invalid, SCPI_TCP_PORT};
+pub use validate::{Adjustment, Invalid, MAX_MIN_FREE_BYTES, MIN_RECORDING_BYTES, SCPI_TCP_PORT};
 
 /// Default configuration file.
 pub const DEFAULT_PATH: &str = "/etc/sdi/sdid.toml";

@@ -301,3 +301,26 @@ fn clap_parsers_use_the_same_names_and_ranges() {
         assert!(Args::try_parse_from(bad).is_err(), "{bad:?}");
     }
 }
+
+#[test]
+fn recording_bounds_are_validated() {
+    let (c, a) = validated("[recording]\nmax_bytes = 600000\nmin_free_bytes = 0").unwrap();
+    assert_eq!(c.recording.max_bytes, Some(600_000));
+    assert!(a.is_empty());
+    assert_eq!(
+        invalid_key("[recording]\nmax_bytes = 0"),
+        "recording.max_bytes"
+    );
+    let (c, a) = validated("[recording]\nmax_bytes = 1000").unwrap();
+    assert_eq!(
+        c.recording.max_bytes,
+        Some(crate::validate::MIN_RECORDING_BYTES)
+    );
+    assert_eq!(a[0].key, "recording.max_bytes");
+    assert_eq!(
+        invalid_key("[recording]\nmin_free_bytes = 9223372036854775807"),
+        "recording.min_free_bytes"
+    );
+    // Negative numbers are refused when parsed.
+    assert!(toml::from_str::<Config>("[recording]\nmax_bytes = -1").is_err());
+}

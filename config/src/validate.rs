@@ -15,6 +15,13 @@ use crate::file::{Config, SeparationSection};
 /// `[lights] address` without one.
 pub const SCPI_TCP_PORT: u16 = 5025;
 
+/// The smallest `[recording] max_bytes`: room for the header, one
+/// uncompressed 320 x 240 i16 frame and the end record.
+pub const MIN_RECORDING_BYTES: u64 = 256 << 10;
+/// The largest `[recording] min_free_bytes` (1 EiB): a floor above it
+/// (e.g. a negative number written as an unsigned one) refuses every recording.
+pub const MAX_MIN_FREE_BYTES: u64 = 1 << 60;
+
 /// A setting that cannot be used as given.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{key}: {reason}")]
@@ -131,6 +138,33 @@ impl Config {
             };
             invalid(key, e.to_string())
         })?;
+
+        if let Some(max) = self.recording.max_bytes {
+            if max == 0 {
+                return Err(invalid(
+                    "recording.max_bytes",
+                    "0 would end every recording at once; leave it out for no limit",
+                ));
+            }
+            if max < MIN_RECORDING_BYTES {
+                self.recording.max_bytes = Some(MIN_RECORDING_BYTES);
+                adjusted.push(Adjustment {
+                    key: "recording.max_bytes",
+                    given: max.to_string(),
+                    used: MIN_RECORDING_BYTES.to_string(),
+                    why: "the smallest recording: header, a frame and the end record",
+                });
+            }
+        }
+        if self.recording.min_free_bytes > MAX_MIN_FREE_BYTES {
+            return Err(invalid(
+                "recording.min_free_bytes",
+                format!(
+                    "{} bytes is more than any file system offers (at most {MAX_MIN_FREE_BYTES}); 0 turns the floor off",
+                    self.recording.min_free_bytes
+                ),
+            ));
+        }
 
         let l = &mut self.lights;
         match l.driver {

@@ -5,7 +5,10 @@ use std::process::{Child, Command, Stdio};
 
 pub use sdi_api::bus::{private_bus_file, session_address};
 
-/// A `dbus-daemon --session` this process started; killed on drop.
+/// A `dbus-daemon --session` this process started; killed on drop, and by
+/// the kernel when sdid dies any other way (kill -9, a crash): it runs under
+/// `setpriv --pdeathsig KILL` (util-linux), which sets PR_SET_PDEATHSIG and
+/// execs it, so no `unsafe` pre-exec hook is needed here.
 pub struct PrivateBus {
     child: Child,
     pub address: String,
@@ -13,11 +16,32 @@ pub struct PrivateBus {
 
 impl PrivateBus {
     pub fn spawn() -> std::io::Result<Self> {
-        let mut child = Command::new("dbus-daemon")
-            .args(["--session", "--nofork", "--nopidfile", "--print-address=1"])
-            .stdout(Stdio::piped())
-            .stdin(Stdio::null())
-            .spawn()?;
+        const DBUS: [&str; 5] = [
+            "dbus-daemon",
+            "--session",
+            "--nofork",
+            "--nopidfile",
+            "--print-address=1",
+        ];
+        let spawn = |program: &str, args: &[&str]| {
+            Command::new(program)
+                .args(args)
+                .stdout(Stdio::piped())
+                .stdin(Stdio::null())
+                .spawn()
+        };
+        let mut with_pdeathsig = vec!["--pdeathsig", "KILL", "--"];
+        with_pdeathsig.extend(DBUS);
+        let mut child = match spawn("setpriv", &with_pdeathsig) {
+            Ok(c) => c,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+                tracing::warn!(
+                    "setpriv (util-linux) not found: the private bus outlives sdid if it is killed"
+                );
+                spawn(DBUS[0], &DBUS[1..])?
+            }
+            Err(e) => return Err(e),
+        };
         let mut line = String::new();
         if let Some(out) = child.stdout.take() {
             BufReader::new(out).read_line(&mut line)?;

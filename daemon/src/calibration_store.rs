@@ -47,12 +47,29 @@ pub fn load(dir: &Path, model: &str, serial: &str) -> io::Result<Option<Calibrat
     Ok(read_store(dir)?.get(model, serial).cloned())
 }
 
+/// Where an unreadable store is kept aside when a new one replaces it.
+pub const UNREADABLE_NAME: &str = "calibration.toml.unreadable";
+
 /// Adds or replaces `record` in the store, atomically: a fresh temporary file
 /// (`tempfile`, O_EXCL, random name) in `dir`, flushed, renamed over the
-/// store, then the directory flushed.
+/// store, then the directory flushed. A store that cannot be parsed does not
+/// block this: it is kept aside as [`UNREADABLE_NAME`] (the log says so) and
+/// a new store holds `record`.
 pub fn save(dir: &Path, record: CalibrationRecord) -> io::Result<PathBuf> {
     std::fs::create_dir_all(dir)?;
-    let mut store = read_store(dir)?;
+    let mut store = match read_store(dir) {
+        Ok(store) => store,
+        Err(e) if e.kind() == io::ErrorKind::InvalidData => {
+            let aside = dir.join(UNREADABLE_NAME);
+            std::fs::rename(dir.join(FILE_NAME), &aside)?;
+            tracing::warn!(
+                path = %aside.display(),
+                "the stored calibrations could not be read ({e}); kept aside, a new store replaces them"
+            );
+            CalibrationStore::default()
+        }
+        Err(e) => return Err(e),
+    };
     store.upsert(record);
     let text = store
         .to_toml()
@@ -95,5 +112,28 @@ mod tests {
         .unwrap();
         assert_eq!(load(dir.path(), "m", "s").unwrap(), Some(rec));
         assert_eq!(state_dir(Some(Path::new("/x"))), Some(PathBuf::from("/x")));
+    }
+
+    #[test]
+    fn a_garbage_store_is_kept_aside_and_replaced() {
+        let dir = tempfile::tempdir().unwrap();
+        let garbage = b"\xff\x00 this is [not toml";
+        std::fs::write(dir.path().join(FILE_NAME), garbage).unwrap();
+        assert!(load(dir.path(), "m", "s").is_err());
+        let fit = PhotonTransferFit {
+            gain_dn_per_electron: 0.05,
+            gain_se: 0.001,
+            read_variance_dn2: 15.0,
+            read_variance_se_dn2: 0.1,
+            reduced_chi2: 1.0,
+            points: 5,
+        };
+        let rec = CalibrationRecord::from_fit("m", "s", &fit, 4.0, 30);
+        save(dir.path(), rec.clone()).unwrap();
+        assert_eq!(load(dir.path(), "m", "s").unwrap(), Some(rec));
+        assert_eq!(
+            std::fs::read(dir.path().join(UNREADABLE_NAME)).unwrap(),
+            garbage
+        );
     }
 }

@@ -3,7 +3,7 @@
 //! channel polled between frames, replies go out on one-shot channels, and
 //! outputs and recordings sit behind bounded non-blocking queues.
 
-use std::sync::mpsc::{Receiver, TryRecvError};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, TryRecvError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -12,6 +12,7 @@ use sdi_core::separation::{LiveMethod, LiveSeparatorConfig};
 use sdi_core::{Frame, Image};
 use tokio::sync::{oneshot, watch};
 
+use crate::backend::pacer::Pacer;
 use crate::backend::{Backend, BackendError, CaptureSettings};
 use crate::dark_capture::{DarkCapture, DarkJob};
 use crate::job::{Running, Settling};
@@ -20,7 +21,7 @@ use crate::monotonic::{monotonic_now_us, MonotonicClock};
 use crate::photon_transfer::PtcJob;
 use crate::recording::{Calibration, RecordingWriter};
 use crate::sink::output::Output;
-use crate::stats::{Stats, StatsWindow};
+use crate::stats::{LoopStats, StatsWindow};
 use sdi_core::calibration::PhotonTransferFit;
 use sdi_core::sensor::SkellamMixing;
 
@@ -35,6 +36,9 @@ pub struct SnapshotData {
 }
 
 pub type Reply<T> = oneshot::Sender<T>;
+
+/// Wait before trying a failed capture again.
+const STALL_RETRY: Duration = Duration::from_millis(200);
 
 /// Refusal of a second dark capture or calibration while one runs.
 const JOB_RUNNING: &str = "a dark-frame capture or calibration is already running";
@@ -127,7 +131,7 @@ pub struct FrameLoop {
     job: Option<ActiveJob>,
     last: Option<Arc<ModeOutput>>,
     stats: StatsWindow,
-    stats_tx: watch::Sender<Stats>,
+    stats_tx: watch::Sender<LoopStats>,
     calibration_tx: watch::Sender<Calibration>,
     /// Estimator and H of the separation mode.
     separation: LiveSeparatorConfig,
@@ -158,7 +162,7 @@ impl FrameLoop {
         mode: ModeId,
         display: DisplayMap,
         output: Output,
-        stats_tx: watch::Sender<Stats>,
+        stats_tx: watch::Sender<LoopStats>,
         calibration_tx: watch::Sender<Calibration>,
     ) -> Self {
         let separation = LiveSeparatorConfig {
@@ -220,15 +224,12 @@ impl FrameLoop {
         let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
         let mut frame = Frame::new(w, h);
         let mut stalled = false;
+        let mut pacer = Pacer::new();
+        // After a failed capture, the next attempt is not before this.
+        let mut retry_at = Instant::now();
         loop {
-            loop {
-                match commands.try_recv() {
-                    Ok(Command::Shutdown) | Err(TryRecvError::Disconnected) => {
-                        return self.recorder.take();
-                    }
-                    Ok(cmd) => self.handle(cmd),
-                    Err(TryRecvError::Empty) => break,
-                }
+            if !self.wait_turn(&commands, &pacer, retry_at) {
+                return self.recorder.take();
             }
             let carrier_hz = self.backend.settings().modulation_hz;
             let lit = self.job.is_none()
@@ -245,6 +246,9 @@ impl FrameLoop {
             } else {
                 sdi_core::modulation::Illumination::dark(carrier_hz)
             };
+            let paced = self.backend.paced_rate_hz();
+            let captured_at = Instant::now();
+            let captured_at_us = monotonic_now_us();
             match self.backend.capture(&illumination, &mut frame) {
                 Ok(()) => stalled = false,
                 Err(e) => {
@@ -252,6 +256,11 @@ impl FrameLoop {
                         tracing::warn!("backend: {e}; showing no-signal");
                         stalled = true;
                     }
+                    self.stats.stalled(match e {
+                        BackendError::EndOfStream => "end of recording",
+                        BackendError::Unavailable(_) => "device unavailable",
+                        BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
+                    });
                     if let Some(job) = self.job.take() {
                         job.fail(&mut *self.backend, e);
                     }
@@ -259,12 +268,21 @@ impl FrameLoop {
                     self.answer_pending_snapshots();
                     self.answer_marks_while_stalled();
                     self.output.send_no_signal();
-                    std::thread::sleep(Duration::from_millis(200));
+                    self.stats_tx.send_replace(self.stats.current.clone());
+                    retry_at = Instant::now() + STALL_RETRY;
                     continue;
                 }
             }
+            if let Some(rate_hz) = paced {
+                pacer.tick(rate_hz, captured_at);
+            }
             let t0 = Instant::now();
             let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
+            if paced.is_some() {
+                // Captured when this loop's clock said (or a command asked),
+                // not on the source's own even spacing.
+                frame.timestamp_us = captured_at_us;
+            }
             frame.timestamp_us = self
                 .clock
                 .map(frame.timestamp_us, period_us, monotonic_now_us());
@@ -297,13 +315,53 @@ impl FrameLoop {
             }
             if self.stats.frame(t0.elapsed()) {
                 let mut s = self.stats.current.clone();
-                s.dropped_view = self.output.dropped();
-                s.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
+                s.counters.dropped_view = self.output.dropped();
+                s.counters.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
                     r.counters()
                         .dropped
                         .load(std::sync::atomic::Ordering::Relaxed)
                 });
                 self.stats_tx.send_replace(s);
+            }
+        }
+    }
+
+    /// Handles commands until the next capture is due: at once for a source
+    /// with its own frame clock, when the pacer says for the others, and at
+    /// once whenever a command waits for a frame (a setting change, a
+    /// snapshot), so no call waits for a slow frame clock. Not before
+    /// `retry_at` (after a failed capture) unless a command waits. False on
+    /// `Shutdown` or when every sender is gone.
+    fn wait_turn(
+        &mut self,
+        commands: &Receiver<Command>,
+        pacer: &Pacer,
+        retry_at: Instant,
+    ) -> bool {
+        loop {
+            loop {
+                match commands.try_recv() {
+                    Ok(Command::Shutdown) | Err(TryRecvError::Disconnected) => return false,
+                    Ok(cmd) => self.handle(cmd),
+                    Err(TryRecvError::Empty) => break,
+                }
+            }
+            if !self.pending_marks.is_empty() || !self.pending_snapshots.is_empty() {
+                return true;
+            }
+            let now = Instant::now();
+            let due = self
+                .backend
+                .paced_rate_hz()
+                .map_or(Duration::ZERO, |rate_hz| pacer.remaining(rate_hz, now))
+                .max(retry_at.saturating_duration_since(now));
+            if due.is_zero() {
+                return true;
+            }
+            match commands.recv_timeout(due) {
+                Ok(Command::Shutdown) | Err(RecvTimeoutError::Disconnected) => return false,
+                Ok(cmd) => self.handle(cmd),
+                Err(RecvTimeoutError::Timeout) => return true,
             }
         }
     }

@@ -4,7 +4,9 @@
 //! anywhere and may restart (the simulator rebuilds itself for a new mode's
 //! scene); each start is anchored to the monotonic time of its first frame,
 //! never earlier than one frame period after the last timestamp sent, and the
-//! backend's own spacing is kept in between.
+//! backend's own spacing is kept in between. Sources the frame loop paces
+//! (simulator, replay) are stamped with the monotonic time of their capture
+//! instead, which this mapping passes through unchanged.
 
 /// Maps backend timestamps onto the monotonic timeline, microseconds.
 #[derive(Debug, Default)]

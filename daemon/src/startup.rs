@@ -1,6 +1,6 @@
 //! Start-up as a library function: opens the backend and the sink from a
 //! validated configuration, starts the frame loop, serves the D-Bus API and
-//! shuts down in order on SIGTERM/SIGINT (or when the board is unplugged
+//! shuts down in order on SIGTERM/SIGINT/SIGHUP (or when the board is unplugged
 //! with `on_unplug = "exit"`). `sdid`'s `main` only parses the command line
 //! ([`crate::args`]), installs logging and calls [`run`].
 
@@ -22,7 +22,7 @@ use crate::modes::{DisplayMap, DisplayRange, ModeId};
 use crate::recording::{Calibration, RecordingReader};
 use crate::sink::output::Output;
 use crate::sink::select as sink_select;
-use crate::stats::Stats;
+use crate::stats::LoopStats;
 
 /// Everything sdid needs to start, parsed and validated.
 #[derive(Debug, Clone)]
@@ -56,18 +56,26 @@ pub enum StartError {
     FrameLoop(String),
 }
 
-/// Longest wait for the recorder to finish at shutdown (the unit's
-/// TimeoutStopSec is 15 s).
+/// Shutdown stays within the unit's TimeoutStopSec (15 s) whatever hangs:
+/// releasing the bus name, the frame loop (a source stuck in a read), the
+/// recorder (frozen storage). What does not finish in time is abandoned,
+/// and the log says what.
+const NAME_RELEASE_TIMEOUT: Duration = Duration::from_secs(2);
+const FRAME_LOOP_STOP_TIMEOUT: Duration = Duration::from_secs(5);
 const RECORDING_FINISH_TIMEOUT: Duration = Duration::from_secs(5);
 
-/// Runs sdid on its own runtime until SIGTERM or SIGINT.
+/// Runs sdid on its own runtime until SIGTERM, SIGINT or SIGHUP.
 pub fn run(options: StartOptions) -> Result<(), StartError> {
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
         .build()
         .map_err(StartError::Runtime)?;
-    rt.block_on(serve(options, wait_for_signal()))
+    let result = rt.block_on(serve(options, wait_for_signal()));
+    // A blocking task abandoned at shutdown (a stuck join or finish) must
+    // not hold the exit.
+    rt.shutdown_timeout(Duration::from_millis(100));
+    result
 }
 
 /// The process exit code for [`run`]'s result; an error is logged and
@@ -106,11 +114,16 @@ fn recorded_mode(c: &Config) -> Option<ModeId> {
     ModeId::from_name(&reader.header().mode).ok()
 }
 
+/// Waits for SIGTERM, SIGINT or SIGHUP. Each shuts down cleanly (a running
+/// recording gets its end record): SIGHUP comes when the terminal of
+/// `sdid --session` closes; the configuration is read at start only
+/// (`systemctl restart sdid` applies a changed one).
 async fn wait_for_signal() -> &'static str {
     use tokio::signal::unix::{signal, SignalKind};
-    let (Ok(mut term), Ok(mut int)) = (
+    let (Ok(mut term), Ok(mut int), Ok(mut hup)) = (
         signal(SignalKind::terminate()),
         signal(SignalKind::interrupt()),
+        signal(SignalKind::hangup()),
     ) else {
         std::future::pending::<()>().await;
         return "";
@@ -118,6 +131,7 @@ async fn wait_for_signal() -> &'static str {
     tokio::select! {
         _ = term.recv() => "SIGTERM",
         _ = int.recv() => "SIGINT",
+        _ = hup.recv() => "SIGHUP",
     }
 }
 
@@ -127,6 +141,24 @@ pub async fn serve(
     stop: impl std::future::Future<Output = &'static str>,
 ) -> Result<(), StartError> {
     let config = options.config;
+    // On the bus, and sure the name is free, before touching the device or
+    // a sink: a second sdid must not write into the first one's FIFO or
+    // take its board. (The name itself is requested once the object is
+    // served, so a client that sees it can call at once.)
+    let (conn, private_bus) = bus::connect(&options.bus).await.map_err(StartError::Bus)?;
+    let owned = zbus::fdo::DBusProxy::new(&conn)
+        .await
+        .map_err(|e| StartError::Bus(format!("asking the bus about {BUS_NAME}: {e}")))?
+        .name_has_owner(
+            BUS_NAME
+                .try_into()
+                .map_err(|e| StartError::Bus(format!("{e}")))?,
+        )
+        .await
+        .map_err(|e| StartError::Bus(format!("asking the bus about {BUS_NAME}: {e}")))?;
+    if owned {
+        return Err(StartError::NameTaken);
+    }
     let mut mode = config.mode;
     let (backend, extras) = backend_select::open(&config, mode).map_err(StartError::Backend)?;
     if backend.kind() == "replay" && !options.mode_given {
@@ -169,7 +201,7 @@ pub async fn serve(
             .ok()
             .flatten()
     });
-    let (stats_tx, stats_rx) = watch::channel(Stats::default());
+    let (stats_tx, stats_rx) = watch::channel(LoopStats::default());
     let (cal_tx, cal_rx) = watch::channel(Calibration::default());
     let (cmd_tx, cmd_rx) = mpsc::channel::<Command>();
     let mut frame_loop = FrameLoop::new(backend, mode, display, output, stats_tx, cal_tx)
@@ -193,14 +225,13 @@ pub async fn serve(
         .map_err(|e| StartError::FrameLoop(e.to_string()))?;
     tracing::info!(backend = %info.backend, device = %info.device, mode = mode.name(), "frame loop started");
 
-    let (conn, private_bus) = bus::connect(&options.bus).await.map_err(StartError::Bus)?;
     let camera = Camera::new(
         info,
         mode,
         capture,
         display,
         cmd_tx.clone(),
-        stats_rx.clone(),
+        stats_rx,
         cal_rx,
     );
     conn.object_server()
@@ -223,9 +254,9 @@ pub async fn serve(
     }
     tracing::info!(name = BUS_NAME, path = OBJECT_PATH, "serving D-Bus API");
 
-    // Stats change signals, about once a second.
+    // Stats change signals, about once a second while they change (the frame
+    // rate decays to 0 when frames stop, without a new frame to say so).
     let stats_conn = conn.clone();
-    let mut stats_watch = stats_rx;
     let stats_task = tokio::spawn(async move {
         let Ok(iface) = stats_conn
             .object_server()
@@ -234,11 +265,13 @@ pub async fn serve(
         else {
             return;
         };
+        let mut last = None;
         loop {
             tokio::time::sleep(Duration::from_secs(1)).await;
-            if stats_watch.has_changed().unwrap_or(false) {
-                stats_watch.borrow_and_update();
-                let cam = iface.get().await;
+            let cam = iface.get().await;
+            let now = cam.current_stats();
+            if last.as_ref() != Some(&now) {
+                last = Some(now);
                 let _ = cam.stats_changed(iface.signal_emitter()).await;
             }
         }
@@ -253,12 +286,47 @@ pub async fn serve(
     };
     tracing::info!("{why}: shutting down");
     stats_task.abort();
-    let _ = conn.release_name(BUS_NAME).await;
-    let _ = cmd_tx.send(Command::Shutdown);
-    let result = tokio::task::spawn_blocking(move || loop_thread.join())
+    let recording = match conn
+        .object_server()
+        .interface::<_, Camera>(OBJECT_PATH)
         .await
-        .map_err(|e| StartError::FrameLoop(e.to_string()))?
-        .map_err(|_| StartError::FrameLoop("frame loop panicked".into()))?;
+    {
+        Ok(iface) => iface
+            .get()
+            .await
+            .recording_path()
+            .map(|p| p.display().to_string())
+            .unwrap_or_default(),
+        Err(_) => String::new(),
+    };
+    if tokio::time::timeout(NAME_RELEASE_TIMEOUT, conn.release_name(BUS_NAME))
+        .await
+        .is_err()
+    {
+        tracing::warn!("releasing {BUS_NAME} took over {NAME_RELEASE_TIMEOUT:?}; going on");
+    }
+    let _ = cmd_tx.send(Command::Shutdown);
+    let joined = tokio::time::timeout(
+        FRAME_LOOP_STOP_TIMEOUT,
+        tokio::task::spawn_blocking(move || loop_thread.join()),
+    )
+    .await;
+    let result = match joined {
+        Ok(r) => r
+            .map_err(|e| StartError::FrameLoop(e.to_string()))?
+            .map_err(|_| StartError::FrameLoop("frame loop panicked".into()))?,
+        Err(_) => {
+            let lost = if recording.is_empty() {
+                String::new()
+            } else {
+                format!(", and the recording {recording:?} without its end record")
+            };
+            tracing::error!(
+                "the frame loop did not stop within {FRAME_LOOP_STOP_TIMEOUT:?} (the source is stuck); abandoning it{lost}"
+            );
+            None
+        }
+    };
     if let Some(rec) = result {
         // within the unit's TimeoutStopSec (15 s), even on frozen storage
         let path = rec.path().display().to_string();

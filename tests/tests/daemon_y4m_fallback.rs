@@ -20,9 +20,13 @@ impl Drop for Killed {
 }
 
 fn spawn_sdid(bus: &Bus, runtime_dir: &Path, stdout: Stdio) -> Killed {
+    spawn_sdid_at(bus, runtime_dir, stdout, "30")
+}
+
+fn spawn_sdid_at(bus: &Bus, runtime_dir: &Path, stdout: Stdio, frame_rate_hz: &str) -> Killed {
     let child = Command::new(bin("sdid"))
         .args(["--bus-address", &bus.address, "--sink", "y4m"])
-        .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
+        .args(["--frame-rate-hz", frame_rate_hz, "--exposure-us", "2000"])
         .env("RUST_LOG", "warn")
         .env("XDG_RUNTIME_DIR", runtime_dir)
         .env_remove("INVOCATION_ID")
@@ -88,4 +92,29 @@ fn stdout_pipe_gets_the_stream() {
     d.0.stdout.as_mut().unwrap().read_exact(&mut head).unwrap();
     assert_eq!(&head, b"YUV4MPEG2");
     assert!(!dir.path().join("sdid-view.y4m").exists());
+}
+
+/// A reader that opens the FIFO right after the previous one closed (within
+/// one frame period) gets the YUV4MPEG2 header first, like every reader:
+/// `timeout 0.3 cat FIFO >/dev/null; sleep 0.02; head -c 9 FIFO`, 10 times,
+/// at 5 fps (a frame period of 200 ms; the 20 ms are for the daemon to see
+/// the reader go, which on an idle machine takes microseconds).
+#[test]
+fn every_new_fifo_reader_gets_the_header() {
+    require_dbus!();
+    let bus = Bus::start();
+    let dir = tempfile::tempdir().unwrap();
+    let _d = spawn_sdid_at(&bus, dir.path(), Stdio::null(), "5");
+    let fifo = dir.path().join("sdid-view.y4m");
+    let script = format!(
+        "timeout 0.3 cat '{f}' >/dev/null; sleep 0.02; head -c 9 '{f}'",
+        f = fifo.display()
+    );
+    let mut heads = Vec::new();
+    for _ in 0..10 {
+        let out = Command::new("sh").args(["-c", &script]).output().unwrap();
+        heads.push(String::from_utf8_lossy(&out.stdout).into_owned());
+    }
+    let bad = heads.iter().filter(|h| *h != "YUV4MPEG2").count();
+    assert_eq!(bad, 0, "{bad} of 10 readers got no header first: {heads:?}");
 }

@@ -408,6 +408,14 @@ impl Backend for BoardBackend {
         }
     }
 
+    /// The stand-in simulator is paced like any simulator; the board has its own clock.
+    fn paced_rate_hz(&self) -> Option<f64> {
+        match &self.stand_in {
+            Some(sim) if !self.board.is_connected() => sim.paced_rate_hz(),
+            _ => None,
+        }
+    }
+
     fn capture(
         &mut self,
         illumination: &Illumination,

@@ -1,5 +1,6 @@
 //! Frame sources behind one trait: the simulator, recordings, and the real
-//! board. A backend delivers sensor frames, paced at its frame rate.
+//! board. A backend delivers sensor frames; the frame loop paces those
+//! without a frame clock of their own ([`pacer`]).
 
 pub mod board;
 pub mod opt8241;
@@ -69,7 +70,14 @@ pub trait Backend: Send {
     fn configure(&mut self, settings: &CaptureSettings) -> Result<(), BackendError>;
     /// The mode changed: backends that model the scene or drive lights adapt.
     fn set_mode(&mut self, _mode: ModeId) {}
-    /// Blocks until the next frame is ready and writes it into `frame`.
+    /// The rate at which the frame loop must pace captures, for sources
+    /// without a frame clock of their own (the simulator, a replay); `None`
+    /// when `capture` itself waits for the device's next frame.
+    fn paced_rate_hz(&self) -> Option<f64> {
+        None
+    }
+    /// Writes the next frame into `frame`: at once for a paced source
+    /// ([`Backend::paced_rate_hz`]), else blocking until the device has one.
     fn capture(
         &mut self,
         illumination: &Illumination,

@@ -8,7 +8,6 @@ use sdi_core::modulation::Illumination;
 use sdi_core::sensor::SensorParams;
 use sdi_core::{Frame, Image};
 
-use super::pacer::Pacer;
 use super::{Backend, BackendError, CaptureSettings};
 use crate::recording::{Header, Record, RecordingReader};
 
@@ -18,7 +17,6 @@ pub struct ReplayBackend {
     reader: RecordingReader<BufReader<File>>,
     header: Header,
     settings: CaptureSettings,
-    pacer: Pacer,
     /// Dark frame stored in the recording, if any.
     dark: Option<(u32, Image<f32>)>,
     frames_read: u64,
@@ -40,7 +38,6 @@ impl ReplayBackend {
             reader,
             header,
             settings,
-            pacer: Pacer::new(),
             dark: None,
             frames_read: 0,
         })
@@ -106,12 +103,15 @@ impl Backend for ReplayBackend {
         Ok(())
     }
 
+    fn paced_rate_hz(&self) -> Option<f64> {
+        Some(self.settings.frame_rate_hz)
+    }
+
     fn capture(
         &mut self,
         _illumination: &Illumination,
         frame: &mut Frame,
     ) -> Result<(), BackendError> {
-        self.pacer.wait(self.settings.frame_rate_hz);
         *frame = self.next_frame()?;
         Ok(())
     }

@@ -7,36 +7,48 @@ use sdi_core::sensor::SensorParams;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::Frame;
 
-use super::pacer::Pacer;
 use super::{Backend, BackendError, CaptureSettings};
 use crate::modes;
 
 pub struct SimBackend {
     sim: Simulator,
     scene: SceneSpec,
-    pacer: Pacer,
     seed: u64,
+    /// The light-travel warning last logged: logged again only when it changes.
+    light_travel: Option<String>,
 }
 
 impl SimBackend {
     pub fn new(sensor: SensorParams, mode: ModeId, seed: u64) -> Result<Self, BackendError> {
         let scene = modes::default_scene(mode);
         let sim = build(sensor, scene.clone(), seed)?;
-        Ok(Self {
+        let mut b = Self {
             sim,
             scene,
-            pacer: Pacer::new(),
             seed,
-        })
+            light_travel: None,
+        };
+        b.warn_light_travel();
+        Ok(b)
+    }
+
+    /// Logs the light-travel warning of the current scene and carrier, once
+    /// per change (not at every SetMode or setting that leaves it as it was).
+    fn warn_light_travel(&mut self) {
+        let w = sdi_core::simulator::light_travel::light_travel_warning(
+            &self.scene,
+            self.sim.params().modulation_hz,
+        );
+        if w != self.light_travel {
+            if let Some(text) = &w {
+                tracing::warn!("{text}");
+            }
+            self.light_travel = w;
+        }
     }
 }
 
 fn build(sensor: SensorParams, scene: SceneSpec, seed: u64) -> Result<Simulator, BackendError> {
-    if let Some(w) =
-        sdi_core::simulator::light_travel::light_travel_warning(&scene, sensor.modulation_hz)
-    {
-        tracing::warn!("{w}");
-    }
     let mut config = SimConfig::new(sensor, scene);
     config.seed = seed;
     Simulator::new(config).map_err(|e| BackendError::OutOfRange(e.to_string()))
@@ -71,6 +83,7 @@ impl Backend for SimBackend {
         sensor.modulation_hz = s.modulation_hz;
         self.seed = self.seed.wrapping_add(1);
         self.sim = build(sensor, self.scene.clone(), self.seed)?;
+        self.warn_light_travel();
         Ok(())
     }
 
@@ -81,8 +94,13 @@ impl Backend for SimBackend {
             if let Ok(sim) = build(self.sim.params().clone(), scene.clone(), self.seed) {
                 self.sim = sim;
                 self.scene = scene;
+                self.warn_light_travel();
             }
         }
+    }
+
+    fn paced_rate_hz(&self) -> Option<f64> {
+        Some(self.sim.params().frame_rate_hz)
     }
 
     fn capture(
@@ -90,7 +108,6 @@ impl Backend for SimBackend {
         illumination: &Illumination,
         frame: &mut Frame,
     ) -> Result<(), BackendError> {
-        self.pacer.wait(self.sim.params().frame_rate_hz);
         self.sim.capture(illumination, frame);
         Ok(())
     }

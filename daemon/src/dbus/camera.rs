@@ -25,7 +25,7 @@ use crate::frame_loop::{Command, DarkStats, FrameMark};
 use crate::modes::{Colormap, DisplayMap, DisplayRange};
 use crate::recording::{Calibration, Header as RecHeader, RecordingWriter, StopCause};
 use crate::sink::SinkInfo;
-use crate::stats::Stats;
+use crate::stats::LoopStats;
 use sdi_api::{CalibrationReply, DarkFrameReply, RecordingReply};
 use sdi_core::calibration::CalibrationRecord;
 
@@ -70,7 +70,7 @@ pub struct Camera {
     info: CameraInfo,
     state: Mutex<State>,
     commands: Mutex<Sender<Command>>,
-    stats: watch::Receiver<Stats>,
+    stats: watch::Receiver<LoopStats>,
     calibration: watch::Receiver<Calibration>,
     /// Serializes mode and setting changes (zbus runs calls concurrently).
     change_lock: tokio::sync::Mutex<()>,
@@ -106,7 +106,7 @@ impl Camera {
         capture: CaptureSettings,
         display: DisplayMap,
         commands: Sender<Command>,
-        stats: watch::Receiver<Stats>,
+        stats: watch::Receiver<LoopStats>,
         calibration: watch::Receiver<Calibration>,
     ) -> Self {
         Self {
@@ -243,6 +243,39 @@ impl Camera {
         })?;
         let r = self.ask(|tx| Command::CaptureDark(frames, tx)).await?;
         r.map_err(|e| SdiError::DeviceUnavailable(e.to_string()))
+    }
+}
+
+impl Camera {
+    /// The file being recorded to, if any.
+    pub fn recording_path(&self) -> Option<PathBuf> {
+        self.state().recording
+    }
+
+    /// The Stats property as of now (the frame rate decays to 0 when frames stop).
+    pub fn current_stats(&self) -> sdi_api::Stats {
+        let s = self.stats.borrow().clone();
+        let now = std::time::Instant::now();
+        let (mut device_available, mut device_state) =
+            match self.info.status.as_ref().map(|h| h.get()) {
+                Some(st) => (st.available, st.detail),
+                None => (true, String::new()),
+            };
+        if let Some(why) = s.stalled {
+            device_available = false;
+            if device_state.is_empty() {
+                device_state = format!("no frames: {why}");
+            }
+        }
+        let st = self.state();
+        sdi_api::Stats {
+            fps: s.fps_at(now, st.capture.frame_rate_hz),
+            last_frame_age_s: s.last_frame_at.map_or(-1.0, |t| (now - t).as_secs_f64()),
+            device_available,
+            device_state,
+            recording_stopped: st.recording_stopped.unwrap_or_default(),
+            ..s.counters
+        }
     }
 }
 
@@ -795,20 +828,12 @@ impl Camera {
             .unwrap_or_default()
     }
 
-    /// {frames, fps, latency_us, latency_max_us, dropped_view, dropped_recording,
-    /// device_available, device_state, recording_stopped}; emitted about once a second.
+    /// {frames, fps, last_frame_age_s, latency_us, latency_max_us, dropped_view,
+    /// dropped_recording, device_available, device_state, recording_stopped};
+    /// emitted about once a second while it changes.
     #[zbus(property)]
     async fn stats(&self) -> sdi_api::Stats {
-        let (device_available, device_state) = match self.info.status.as_ref().map(|h| h.get()) {
-            Some(st) => (st.available, st.detail),
-            None => (true, String::new()),
-        };
-        sdi_api::Stats {
-            device_available,
-            device_state,
-            recording_stopped: self.state().recording_stopped.unwrap_or_default(),
-            ..self.stats.borrow().clone()
-        }
+        self.current_stats()
     }
 
     /// The daemon stopped a recording by itself (size limit, free-space

@@ -131,6 +131,10 @@ impl Backend for LitBackend {
         self.inner.replays()
     }
 
+    fn paced_rate_hz(&self) -> Option<f64> {
+        self.inner.paced_rate_hz()
+    }
+
     fn take_dark_frame(&mut self) -> Option<(u32, Image<f32>)> {
         self.inner.take_dark_frame()
     }

@@ -1,10 +1,19 @@
 //! Fallback sink when no v4l2loopback device exists: a YUV4MPEG2 (C444)
 //! stream on stdout or into a FIFO, which `ffplay`/`ffmpeg` read directly.
+//!
+//! Every reader of the FIFO gets the stream header first. A FIFO keeps one
+//! pipe while any end is open, so a reader that opens after the last one
+//! closed but before the next write would join the old pipe mid-stream; a
+//! watcher thread per connection sees the last reader go (POLLERR on the
+//! write end) and closes the pipe at once, so the next reader gets a new
+//! connection, and with it the header.
 
 use std::fs::File;
 use std::io::{self, Write};
+use std::os::fd::AsFd;
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
+use std::sync::{Arc, Mutex, MutexGuard};
 
 use super::{Sink, SinkError, SinkInfo};
 use crate::modes::{DisplayMap, ModeOutput};
@@ -16,8 +25,56 @@ enum Target {
     /// A FIFO opened (non-blocking) whenever a reader is present.
     Fifo {
         path: PathBuf,
-        file: Option<File>,
+        reader: Arc<Mutex<Option<FifoReader>>>,
+        /// Connections made so far (names each one for its watcher).
+        connections: u64,
     },
+}
+
+/// The write end of the FIFO while readers are connected.
+struct FifoReader {
+    file: File,
+    header_sent: bool,
+    connection: u64,
+}
+
+fn lock(m: &Mutex<Option<FifoReader>>) -> MutexGuard<'_, Option<FifoReader>> {
+    match m.lock() {
+        Ok(g) => g,
+        Err(p) => p.into_inner(),
+    }
+}
+
+/// Closes connection `connection` as soon as its last reader has gone
+/// (POLLERR on `probe`, a second descriptor of its write end), so no later
+/// reader joins it mid-stream. Ends when the writer gave the connection up
+/// or the sink is gone.
+fn watch_readers(shared: Arc<Mutex<Option<FifoReader>>>, probe: File, connection: u64) {
+    use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+    loop {
+        let mut fds = [PollFd::new(probe.as_fd(), PollFlags::empty())];
+        let gone = match poll(&mut fds, PollTimeout::from(500u16)) {
+            Ok(0) => false,
+            Ok(_) => fds[0]
+                .revents()
+                .is_some_and(|r| r.intersects(PollFlags::POLLERR | PollFlags::POLLHUP)),
+            Err(nix::errno::Errno::EINTR) => continue,
+            Err(_) => true,
+        };
+        let mut current = lock(&shared);
+        let ours = current.as_ref().is_some_and(|r| r.connection == connection);
+        if gone && ours {
+            // Both write descriptors closed under the lock: the pipe (and
+            // any partial frame in it) is gone before the writer reopens.
+            *current = None;
+            drop(probe);
+            tracing::info!("y4m reader went away");
+            return;
+        }
+        if !ours || Arc::strong_count(&shared) == 1 {
+            return;
+        }
+    }
 }
 
 pub struct Y4mSink {
@@ -114,8 +171,13 @@ impl Y4mSink {
                     Err(e) => return Err(e.into()),
                 }
             }
-            Target::Fifo { path, file } => {
-                if file.is_none() {
+            Target::Fifo {
+                path,
+                reader,
+                connections,
+            } => {
+                let mut current = lock(reader);
+                if current.is_none() {
                     // O_NONBLOCK: fails with ENXIO while nobody reads, which we skip.
                     match std::fs::OpenOptions::new()
                         .write(true)
@@ -124,26 +186,36 @@ impl Y4mSink {
                     {
                         Ok(f) => {
                             set_blocking(&f)?;
-                            *file = Some(f);
-                            self.header_sent = false;
+                            let probe = f.try_clone()?;
+                            *connections += 1;
+                            let (shared, connection) = (reader.clone(), *connections);
+                            std::thread::Builder::new()
+                                .name("sdid-y4m-watch".into())
+                                .spawn(move || watch_readers(shared, probe, connection))?;
+                            *current = Some(FifoReader {
+                                file: f,
+                                header_sent: false,
+                                connection,
+                            });
                             tracing::info!(path = %path.display(), "y4m reader connected");
                         }
                         Err(e) if e.raw_os_error() == Some(libc::ENXIO) => return Ok(()),
                         Err(e) => return Err(e.into()),
                     }
                 }
-                if let Some(f) = file {
-                    let r = (|| {
-                        if !self.header_sent {
-                            f.write_all(header.as_bytes())?;
+                if let Some(r) = current.as_mut() {
+                    let result = (|| {
+                        if !r.header_sent {
+                            r.file.write_all(header.as_bytes())?;
+                            r.header_sent = true;
                         }
-                        f.write_all(&self.out)
+                        r.file.write_all(&self.out)
                     })();
-                    match r {
-                        Ok(()) => self.header_sent = true,
+                    match result {
+                        Ok(()) => {}
                         Err(e) if e.kind() == io::ErrorKind::BrokenPipe => {
                             tracing::info!(path = %path.display(), "y4m reader went away");
-                            *file = None;
+                            *current = None;
                         }
                         Err(e) => return Err(e.into()),
                     }
@@ -197,7 +269,8 @@ fn fifo(path: &Path) -> io::Result<Target> {
     }
     Ok(Target::Fifo {
         path: path.to_owned(),
-        file: None,
+        reader: Arc::new(Mutex::new(None)),
+        connections: 0,
     })
 }
 

@@ -1,0 +1,332 @@
+//! How sdid starts and ends: SIGHUP finishes a recording like SIGTERM; a
+//! private session bus dies with `sdid --session` even on kill -9; shutdown
+//! stays bounded when the source hangs; a second instance exits before it
+//! touches a sink; a warning that does not change is logged once.
+
+use std::io::{BufRead, BufReader, Read, Write};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use sdi_recording::{Record, RecordingReader};
+use sdi_tests::dbus::{bin, Bus, Daemon};
+use sdi_tests::require_dbus;
+
+/// Frames and whether the end record is there.
+fn frames_and_end(path: &Path) -> (usize, bool) {
+    let mut frames = 0;
+    let mut ended = false;
+    for rec in RecordingReader::open(path).unwrap() {
+        match rec {
+            Record::Frame { .. } => frames += 1,
+            Record::End { .. } => ended = true,
+            Record::Dark { .. } => {}
+        }
+    }
+    (frames, ended)
+}
+
+/// Starts sdid on `bus` with stderr to `log` (RUST_LOG=info).
+fn spawn_logged(bus: &Bus, extra: &[&str], log: &Path) -> Daemon {
+    let child = Daemon::command(bus, &[], extra)
+        .env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).unwrap())
+        .spawn()
+        .expect("start sdid");
+    Daemon {
+        child,
+        address: bus.address.clone(),
+    }
+}
+
+/// Starts sdid on `bus` streaming y4m into the default FIFO of
+/// `runtime_dir`, with stderr to `log` (RUST_LOG=info).
+fn spawn_on_fifo(bus: &Bus, runtime_dir: &Path, log: &Path) -> Daemon {
+    let child = Command::new(bin("sdid"))
+        .args(["--bus-address", &bus.address, "--sink", "y4m"])
+        .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
+        .env("RUST_LOG", "info")
+        .env("XDG_RUNTIME_DIR", runtime_dir)
+        .env_remove("INVOCATION_ID")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(log).unwrap())
+        .spawn()
+        .expect("start sdid");
+    Daemon {
+        child,
+        address: bus.address.clone(),
+    }
+}
+
+fn wait_answering(d: &Daemon) {
+    let t0 = Instant::now();
+    while !d.ctl(&["get", "mode"]).status.success() {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "sdid did not come up"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+#[test]
+fn sighup_finishes_the_recording_and_says_so() {
+    require_dbus!();
+    let bus = Bus::start();
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("sdid.log");
+    let mut d = spawn_logged(&bus, &[], &log);
+    wait_answering(&d);
+    let rec = dir.path().join("h.sdirec");
+    let out = d.ctl(&["record", rec.to_str().unwrap()]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    std::thread::sleep(Duration::from_millis(700));
+    let status = d.signal(libc::SIGHUP);
+    assert!(status.success(), "sdid exit {status:?}");
+    let (frames, ended) = frames_and_end(&rec);
+    assert!(ended, "no end record after SIGHUP");
+    assert!(frames >= 5, "{frames} frames");
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(text.contains("SIGHUP: shutting down"), "{text}");
+    assert!(text.contains("recording finalized"), "{text}");
+}
+
+/// Pids of the children of `pid` (all its threads).
+fn children(pid: u32) -> Vec<u32> {
+    let mut out = Vec::new();
+    for task in std::fs::read_dir(format!("/proc/{pid}/task"))
+        .into_iter()
+        .flatten()
+    {
+        let Ok(task) = task else { continue };
+        if let Ok(s) = std::fs::read_to_string(task.path().join("children")) {
+            out.extend(s.split_whitespace().filter_map(|p| p.parse::<u32>().ok()));
+        }
+    }
+    out
+}
+
+/// Whether `pid` still runs (a zombie waiting for a reaper does not).
+fn running(pid: u32) -> bool {
+    match std::fs::read_to_string(format!("/proc/{pid}/stat")) {
+        Ok(stat) => stat
+            .rsplit_once(')')
+            .is_some_and(|(_, rest)| !rest.trim_start().starts_with('Z')),
+        Err(_) => false,
+    }
+}
+
+#[test]
+fn kill_9_takes_the_private_session_bus_along() {
+    require_dbus!();
+    let runtime = tempfile::tempdir().unwrap();
+    let mut child = Command::new(bin("sdid"))
+        .args(["--session", "--sink", "y4m", "--y4m-path", "-"])
+        .env_remove("DBUS_SESSION_BUS_ADDRESS")
+        .env("XDG_RUNTIME_DIR", runtime.path())
+        .env("RUST_LOG", "warn")
+        .env_remove("INVOCATION_ID")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start sdid --session");
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut address = None;
+    let mut line = String::new();
+    while address.is_none() && err.read_line(&mut line).unwrap_or(0) > 0 {
+        if let Some(rest) = line
+            .trim()
+            .strip_prefix("export DBUS_SESSION_BUS_ADDRESS='")
+        {
+            address = Some(rest.trim_end_matches('\'').to_owned());
+        }
+        line.clear();
+    }
+    let address = address.expect("sdid announced no private bus");
+    let t0 = Instant::now();
+    while !sdi_tests::dbus::sdictl(&address, &["get", "mode"])
+        .status
+        .success()
+    {
+        assert!(
+            t0.elapsed() < Duration::from_secs(30),
+            "sdid did not come up"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let bus_pids = children(child.id());
+    assert!(!bus_pids.is_empty(), "no dbus-daemon child");
+    // SAFETY: plain kill(2) on our own child's pid.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGKILL);
+    }
+    let _ = child.wait();
+    let t0 = Instant::now();
+    while bus_pids.iter().any(|&p| running(p)) {
+        if t0.elapsed() > Duration::from_secs(5) {
+            for &p in &bus_pids {
+                // SAFETY: cleaning up the leaked bus this test started.
+                unsafe {
+                    libc::kill(p as i32, libc::SIGKILL);
+                }
+            }
+            panic!("the private dbus-daemon {bus_pids:?} outlived sdid by 5 s");
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    assert!(
+        !sdi_tests::dbus::sdictl(&address, &["get", "mode"])
+            .status
+            .success(),
+        "the private bus at {address} still answers"
+    );
+}
+
+/// A replay from a FIFO whose writer stops mid-recording: the source hangs
+/// in a read (as on frozen storage). SIGTERM still ends sdid well within the
+/// unit's TimeoutStopSec (15 s), and the log says what was abandoned.
+#[test]
+fn sigterm_is_bounded_when_the_source_hangs() {
+    require_dbus!();
+    let dir = tempfile::tempdir().unwrap();
+    let rec = dir.path().join("src.sdirec");
+    {
+        let bus = Bus::start();
+        let d = Daemon::start(&bus, &[]);
+        let out = d.ctl(&["record", rec.to_str().unwrap(), "--seconds", "0.5"]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let bytes = std::fs::read(&rec).unwrap();
+    let fifo = dir.path().join("stuck.sdirec");
+    nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::from_bits_truncate(0o600)).unwrap();
+    // Writes the first half of the recording, then holds the FIFO open.
+    let (done_tx, done_rx) = std::sync::mpsc::channel::<()>();
+    let fifo2 = fifo.clone();
+    let feeder = std::thread::spawn(move || {
+        let mut w = std::fs::OpenOptions::new()
+            .write(true)
+            .open(&fifo2)
+            .unwrap();
+        let _ = w.write_all(&bytes[..bytes.len() / 2]);
+        let _ = done_rx.recv();
+    });
+    let bus = Bus::start();
+    let log = dir.path().join("sdid.log");
+    let mut d = spawn_logged(
+        &bus,
+        &["--replay", fifo.to_str().unwrap(), "--mode", "raw"],
+        &log,
+    );
+    wait_answering(&d);
+    // Let it play what there is and hang in the read that follows.
+    std::thread::sleep(Duration::from_secs(2));
+    let t0 = Instant::now();
+    let status = d.signal(libc::SIGTERM);
+    let took = t0.elapsed();
+    let _ = done_tx.send(());
+    let _ = feeder.join();
+    let text = std::fs::read_to_string(&log).unwrap();
+    eprintln!("SIGTERM to exit with a hung source: {took:?} ({status:?})");
+    assert!(
+        took < Duration::from_secs(12),
+        "shutdown took {took:?}\n{text}"
+    );
+    assert!(text.contains("did not stop within"), "{text}");
+}
+
+/// A second sdid on the same bus exits at once, before it opens a sink:
+/// the first one's FIFO reader sees one well-formed stream.
+#[test]
+fn a_second_instance_leaves_the_first_ones_fifo_alone() {
+    require_dbus!();
+    let bus = Bus::start();
+    let dir = tempfile::tempdir().unwrap();
+    let fifo = dir.path().join("sdid-view.y4m");
+    let first = spawn_on_fifo(&bus, dir.path(), &dir.path().join("first.log"));
+    wait_answering(&first);
+    let reader = std::fs::File::open(&fifo).unwrap();
+    let (w, h) = (320usize, 240usize);
+    // Reads 2 s of stream in the background.
+    let collector = std::thread::spawn(move || {
+        let mut r = reader;
+        let mut buf = Vec::new();
+        let mut chunk = vec![0u8; 1 << 16];
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(2) {
+            match r.read(&mut chunk) {
+                Ok(0) | Err(_) => break,
+                Ok(n) => buf.extend_from_slice(&chunk[..n]),
+            }
+        }
+        buf
+    });
+    std::thread::sleep(Duration::from_millis(300));
+    let log = dir.path().join("second.log");
+    let mut second = spawn_on_fifo(&bus, dir.path(), &log);
+    let t0 = Instant::now();
+    let status = loop {
+        if let Some(s) = second.child.try_wait().unwrap() {
+            break s;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(20),
+            "the second sdid kept running"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(!status.success());
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(text.contains("already owned"), "{text}");
+    assert!(
+        !text.contains("y4m"),
+        "the second sdid opened its sink:\n{text}"
+    );
+    let stream = collector.join().unwrap();
+    drop(first);
+    // One header, then whole frames only.
+    let header_end = stream.iter().position(|&b| b == b'\n').unwrap() + 1;
+    assert!(stream.starts_with(b"YUV4MPEG2"));
+    let frame = 6 + 3 * w * h;
+    let body = &stream[header_end..];
+    let whole = body.len() / frame;
+    assert!(whole >= 10, "{whole} frames");
+    for i in 0..whole {
+        assert_eq!(
+            &body[i * frame..i * frame + 6],
+            b"FRAME\n",
+            "frame {i} misaligned"
+        );
+    }
+}
+
+#[test]
+fn an_unchanged_light_travel_warning_is_logged_once() {
+    require_dbus!();
+    let bus = Bus::start();
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("sdid.log");
+    // depth-edge's scene is deep enough for the warning at 12 MHz.
+    let d = spawn_logged(&bus, &["--mode", "depth-edge"], &log);
+    wait_answering(&d);
+    for us in ["1000", "1500", "2000"] {
+        let out = d.ctl(&["set", "exposure-us", us]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    drop(d);
+    let text = std::fs::read_to_string(&log).unwrap();
+    let n = text.matches("light travel").count();
+    assert_eq!(n, 1, "{n} light-travel warnings:\n{text}");
+}

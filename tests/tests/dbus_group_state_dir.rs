@@ -1,0 +1,123 @@
+//! `sdictl snapshot --by-path` and `record --by-path` into the service's
+//! state directory as it is installed (root:sdi, 0750 by the unit's
+//! StateDirectoryMode, or 0770): a member of the group who does not own
+//! the directory is served, whatever the group bits (the daemon creates the
+//! file itself; no writability check of the caller's). Root sdid, caller
+//! uid 65534 in group 4242 through `setpriv`; skipped unless root.
+
+use std::fs;
+use std::os::unix::fs::{MetadataExt, PermissionsExt};
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use sdi_tests::dbus::{bin, Bus};
+use sdi_tests::process::{runnable_copy, Reaped};
+use sdi_tests::require_dbus;
+
+const CALLER_UID: u32 = 65534;
+const GROUP_GID: u32 = 4242;
+
+/// A private bus any user may connect to and call anything on.
+fn open_bus(dir: &Path) -> Bus {
+    let config = dir.join("bus.conf");
+    fs::write(
+        &config,
+        format!(
+            r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-Bus Bus Configuration 1.0//EN"
+ "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
+<busconfig>
+  <type>session</type>
+  <auth>EXTERNAL</auth>
+  <listen>unix:path={}</listen>
+  <policy context="default">
+    <allow user="*"/>
+    <allow own="*"/>
+    <allow send_destination="*"/>
+    <allow receive_sender="*"/>
+  </policy>
+</busconfig>
+"#,
+            dir.join("bus.sock").display()
+        ),
+    )
+    .unwrap();
+    Bus::start_config(&config)
+}
+
+#[test]
+fn group_members_write_by_path_into_a_root_group_state_dir() {
+    require_dbus!();
+    if !nix::unistd::geteuid().is_root()
+        || Command::new("setpriv").arg("--version").output().is_err()
+    {
+        eprintln!("SKIPPED: needs root and setpriv");
+        return;
+    }
+    for mode in [0o750, 0o770] {
+        let dir = tempfile::Builder::new()
+            .prefix("sdi-group-")
+            .tempdir_in("/var/tmp")
+            .unwrap();
+        let root = dir.path();
+        fs::set_permissions(root, fs::Permissions::from_mode(0o755)).unwrap();
+        let state = root.join("state");
+        fs::create_dir(&state).unwrap();
+        std::os::unix::fs::chown(&state, Some(0), Some(GROUP_GID)).unwrap();
+        fs::set_permissions(&state, fs::Permissions::from_mode(mode)).unwrap();
+        let bus = open_bus(root);
+        let _sdid = Reaped(
+            Command::new(bin("sdid"))
+                .args(["--bus-address", &bus.address, "--backend", "sim"])
+                .args(["--sink", "y4m", "--y4m-path", "-", "--frame-rate-hz", "30"])
+                .args(["--state-dir", state.to_str().unwrap()])
+                .env("RUST_LOG", "warn")
+                .env_remove("INVOCATION_ID")
+                .stdout(Stdio::null())
+                .spawn()
+                .expect("start sdid"),
+        );
+        let sdictl = runnable_copy(&bin("sdictl"), &root.join("bin"));
+        let as_member = |args: &[&str]| {
+            let uid = CALLER_UID.to_string();
+            Command::new("setpriv")
+                .args(["--reuid", &uid, "--regid", &uid])
+                .args(["--groups", &GROUP_GID.to_string()])
+                .arg(&sdictl)
+                .args(["--bus-address", &bus.address])
+                .args(args)
+                .output()
+                .expect("run setpriv sdictl")
+        };
+        let t0 = Instant::now();
+        while !as_member(&["get", "mode"]).status.success() {
+            assert!(
+                t0.elapsed() < Duration::from_secs(30),
+                "sdid did not come up"
+            );
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let png = state.join("member.png");
+        let out = as_member(&["snapshot", "--by-path", png.to_str().unwrap()]);
+        assert!(
+            out.status.success(),
+            "{mode:o}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert_eq!(fs::metadata(&png).unwrap().uid(), CALLER_UID, "{mode:o}");
+        let rec = state.join("member.sdirec");
+        let out = as_member(&[
+            "record",
+            "--by-path",
+            rec.to_str().unwrap(),
+            "--seconds",
+            "0.3",
+        ]);
+        assert!(
+            out.status.success(),
+            "{mode:o}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert!(fs::metadata(&rec).unwrap().len() > 0, "{mode:o}");
+    }
+}
