@@ -105,6 +105,34 @@ impl Bus {
         Self::spawn(&[&format!("--config-file={}", config.display())], &[])
     }
 
+    /// A bus in `dir` (`bus.conf`, `bus.sock`) any user may connect to and
+    /// call anything on: for tests where another uid attacks a root sdid.
+    pub fn start_open(dir: &Path) -> Self {
+        let config = dir.join("bus.conf");
+        std::fs::write(
+            &config,
+            format!(
+                r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-Bus Bus Configuration 1.0//EN"
+ "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
+<busconfig>
+  <type>session</type>
+  <auth>EXTERNAL</auth>
+  <listen>unix:path={}</listen>
+  <policy context="default">
+    <allow user="*"/>
+    <allow own="*"/>
+    <allow send_destination="*"/>
+    <allow receive_sender="*"/>
+  </policy>
+</busconfig>
+"#,
+                dir.join("bus.sock").display()
+            ),
+        )
+        .expect("write bus.conf");
+        Self::start_config(&config)
+    }
+
     fn spawn(kind: &[&str], extra: &[&str]) -> Self {
         let mut child = Command::new("dbus-daemon")
             .args(kind)

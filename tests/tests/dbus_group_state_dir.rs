@@ -7,7 +7,6 @@
 
 use std::fs;
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
-use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -17,33 +16,6 @@ use sdi_tests::require_dbus;
 
 const CALLER_UID: u32 = 65534;
 const GROUP_GID: u32 = 4242;
-
-/// A private bus any user may connect to and call anything on.
-fn open_bus(dir: &Path) -> Bus {
-    let config = dir.join("bus.conf");
-    fs::write(
-        &config,
-        format!(
-            r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-Bus Bus Configuration 1.0//EN"
- "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
-<busconfig>
-  <type>session</type>
-  <auth>EXTERNAL</auth>
-  <listen>unix:path={}</listen>
-  <policy context="default">
-    <allow user="*"/>
-    <allow own="*"/>
-    <allow send_destination="*"/>
-    <allow receive_sender="*"/>
-  </policy>
-</busconfig>
-"#,
-            dir.join("bus.sock").display()
-        ),
-    )
-    .unwrap();
-    Bus::start_config(&config)
-}
 
 #[test]
 fn group_members_write_by_path_into_a_root_group_state_dir() {
@@ -65,7 +37,7 @@ fn group_members_write_by_path_into_a_root_group_state_dir() {
         fs::create_dir(&state).unwrap();
         std::os::unix::fs::chown(&state, Some(0), Some(GROUP_GID)).unwrap();
         fs::set_permissions(&state, fs::Permissions::from_mode(mode)).unwrap();
-        let bus = open_bus(root);
+        let bus = Bus::start_open(root);
         let _sdid = Reaped(
             Command::new(bin("sdid"))
                 .args(["--bus-address", &bus.address, "--backend", "sim"])

@@ -34,33 +34,6 @@ fn attempts() -> usize {
         .unwrap_or(1000)
 }
 
-/// A private bus any user may connect to and call anything on.
-fn open_bus(dir: &Path) -> Bus {
-    let config = dir.join("bus.conf");
-    fs::write(
-        &config,
-        format!(
-            r#"<!DOCTYPE busconfig PUBLIC "-//freedesktop//DTD D-Bus Bus Configuration 1.0//EN"
- "http://www.freedesktop.org/standards/dbus/1.0/busconfig.dtd">
-<busconfig>
-  <type>session</type>
-  <auth>EXTERNAL</auth>
-  <listen>unix:path={}</listen>
-  <policy context="default">
-    <allow user="*"/>
-    <allow own="*"/>
-    <allow send_destination="*"/>
-    <allow receive_sender="*"/>
-  </policy>
-</busconfig>
-"#,
-            dir.join("bus.sock").display()
-        ),
-    )
-    .unwrap();
-    Bus::start_config(&config)
-}
-
 /// The sdid and sdictl under test: built here on the host; inside the VM
 /// (read-only root, no cargo) the ones the host built and exported.
 struct Binaries {
@@ -129,7 +102,7 @@ impl Setup {
         let user = root.join("user");
         fs::create_dir(&user).unwrap();
         std::os::unix::fs::chown(&user, Some(CALLER_UID), Some(CALLER_UID)).unwrap();
-        let bus = open_bus(&root);
+        let bus = Bus::start_open(&root);
         let address = bus.address.clone();
         let bins = Binaries::here();
         // Under TCG the small sensor at a lower rate leaves the VM's two
