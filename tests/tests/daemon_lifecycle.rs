@@ -325,6 +325,15 @@ fn an_unchanged_light_travel_warning_is_logged_once() {
             String::from_utf8_lossy(&out.stderr)
         );
     }
+    // Nor when a mode with another scene comes and goes.
+    for mode in ["raw", "depth-edge", "raw", "depth-edge"] {
+        let out = d.ctl(&["set-mode", mode]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
     drop(d);
     let text = std::fs::read_to_string(&log).unwrap();
     let n = text.matches("light travel").count();

@@ -1,5 +1,7 @@
 //! The simulator backend: the physically faithful sensor model of sdi-core.
 
+use std::collections::VecDeque;
+
 use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
 use sdi_core::scene::SceneSpec;
@@ -10,12 +12,17 @@ use sdi_core::Frame;
 use super::{Backend, BackendError, CaptureSettings};
 use crate::modes;
 
+/// Distinct light-travel warnings remembered (each scene and carrier gives
+/// one; a sweep of modulation frequencies must not grow memory).
+const LIGHT_TRAVEL_REMEMBERED: usize = 16;
+
 pub struct SimBackend {
     sim: Simulator,
     scene: SceneSpec,
     seed: u64,
-    /// The light-travel warning last logged: logged again only when it changes.
-    light_travel: Option<String>,
+    /// The light-travel warnings logged lately: a mode switch back and forth
+    /// (the depth-edge scene and another) does not log the same one again.
+    light_travel_logged: VecDeque<String>,
 }
 
 impl SimBackend {
@@ -26,24 +33,28 @@ impl SimBackend {
             sim,
             scene,
             seed,
-            light_travel: None,
+            light_travel_logged: VecDeque::new(),
         };
         b.warn_light_travel();
         Ok(b)
     }
 
-    /// Logs the light-travel warning of the current scene and carrier, once
-    /// per change (not at every SetMode or setting that leaves it as it was).
+    /// Logs the light-travel warning of the current scene and carrier unless
+    /// one of the last [`LIGHT_TRAVEL_REMEMBERED`] logged was the same text
+    /// (not at every SetMode: the soak test saw 8,000 lines in 2 minutes).
     fn warn_light_travel(&mut self) {
-        let w = sdi_core::simulator::light_travel::light_travel_warning(
+        let Some(text) = sdi_core::simulator::light_travel::light_travel_warning(
             &self.scene,
             self.sim.params().modulation_hz,
-        );
-        if w != self.light_travel {
-            if let Some(text) = &w {
-                tracing::warn!("{text}");
+        ) else {
+            return;
+        };
+        if !self.light_travel_logged.contains(&text) {
+            tracing::warn!("{text}");
+            if self.light_travel_logged.len() == LIGHT_TRAVEL_REMEMBERED {
+                self.light_travel_logged.pop_front();
             }
-            self.light_travel = w;
+            self.light_travel_logged.push_back(text);
         }
     }
 }
