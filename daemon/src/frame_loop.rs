@@ -38,6 +38,9 @@ pub struct SnapshotData {
 pub type Reply<T> = oneshot::Sender<T>;
 
 /// Wait before trying a failed capture again.
+/// Longest a command waiting for a frame waits for a paced source's frame
+/// clock; beyond it the frame is captured at once (slow frame rates).
+const MAX_COMMAND_WAIT: Duration = Duration::from_millis(100);
 const STALL_RETRY: Duration = Duration::from_millis(200);
 
 /// Refusal of a second dark capture or calibration while one runs.
@@ -328,8 +331,10 @@ impl FrameLoop {
 
     /// Handles commands until the next capture is due: at once for a source
     /// with its own frame clock, when the pacer says for the others, and at
-    /// once whenever a command waits for a frame (a setting change, a
-    /// snapshot), so no call waits for a slow frame clock. Not before
+    /// once when a command waits for a frame (a setting change, a snapshot)
+    /// and the clock is more than [`MAX_COMMAND_WAIT`] away, so no call waits
+    /// for a slow frame clock while at 10 Hz and faster commands add no
+    /// frames (the published rate stays the configured one). Not before
     /// `retry_at` (after a failed capture) unless a command waits. False on
     /// `Shutdown` or when every sender is gone.
     fn wait_turn(
@@ -346,15 +351,20 @@ impl FrameLoop {
                     Err(TryRecvError::Empty) => break,
                 }
             }
-            if !self.pending_marks.is_empty() || !self.pending_snapshots.is_empty() {
-                return true;
-            }
+            let waiting = !self.pending_marks.is_empty() || !self.pending_snapshots.is_empty();
             let now = Instant::now();
-            let due = self
+            let clock = self
                 .backend
                 .paced_rate_hz()
-                .map_or(Duration::ZERO, |rate_hz| pacer.remaining(rate_hz, now))
-                .max(retry_at.saturating_duration_since(now));
+                .map_or(Duration::ZERO, |rate_hz| pacer.remaining(rate_hz, now));
+            if waiting && clock > MAX_COMMAND_WAIT {
+                return true;
+            }
+            let due = clock.max(if waiting {
+                Duration::ZERO
+            } else {
+                retry_at.saturating_duration_since(now)
+            });
             if due.is_zero() {
                 return true;
             }
