@@ -252,8 +252,10 @@ impl FrameLoop {
             let paced = self.backend.paced_rate_hz();
             let captured_at = Instant::now();
             let captured_at_us = monotonic_now_us();
-            match self.backend.capture(&illumination, &mut frame) {
-                Ok(()) => stalled = false,
+            // The first frame after a stall publishes Stats at once: a client
+            // must not read "device unavailable" for half a window more.
+            let resumed = match self.backend.capture(&illumination, &mut frame) {
+                Ok(()) => std::mem::replace(&mut stalled, false),
                 Err(e) => {
                     if !stalled {
                         tracing::warn!("backend: {e}; showing no-signal");
@@ -275,7 +277,7 @@ impl FrameLoop {
                     retry_at = Instant::now() + STALL_RETRY;
                     continue;
                 }
-            }
+            };
             if let Some(rate_hz) = paced {
                 pacer.tick(rate_hz, captured_at);
             }
@@ -316,7 +318,7 @@ impl FrameLoop {
                     self.answer_pending_snapshots();
                 }
             }
-            if self.stats.frame(t0.elapsed()) {
+            if self.stats.frame(t0.elapsed()) || resumed {
                 let mut s = self.stats.current.clone();
                 s.counters.dropped_view = self.output.dropped();
                 s.counters.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
