@@ -308,3 +308,38 @@ macro_rules! require_dbus {
         }
     };
 }
+
+/// Sends `calls` SetMode calls (cycling through four modes) on `conn`
+/// without waiting for the replies: the flood of the fair-share tests.
+pub async fn send_set_mode_flood(conn: &zbus::Connection, calls: usize) {
+    let modes = ["depth-edge", "raw", "bipolar-colour", "two-shot"];
+    for i in 0..calls {
+        let msg = zbus::Message::method_call("/org/sdi/Camera0", "SetMode")
+            .expect("SetMode call")
+            .destination("org.sdi.Daemon")
+            .expect("destination")
+            .interface("org.sdi.Camera1")
+            .expect("interface")
+            .build(&(modes[i % modes.len()],))
+            .expect("SetMode body");
+        conn.send(&msg).await.expect("send SetMode");
+    }
+}
+
+/// Records `seconds` of the simulator into `rec` with a daemon of its own
+/// on a bus of its own (a recording to replay), and stops both.
+pub fn record_sim(rec: &Path, seconds: f64) {
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &[]);
+    let out = d.ctl(&[
+        "record",
+        &rec.to_string_lossy(),
+        "--seconds",
+        &seconds.to_string(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

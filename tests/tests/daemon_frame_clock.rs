@@ -59,16 +59,7 @@ fn stats_go_to_zero_when_a_replay_ends() {
     require_dbus!();
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("short.sdirec");
-    {
-        let bus = Bus::start();
-        let d = Daemon::start(&bus, &[]);
-        let out = d.ctl(&["record", rec.to_str().unwrap(), "--seconds", "0.5"]);
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    }
+    sdi_tests::dbus::record_sim(&rec, 0.5);
     let bus = Bus::start();
     let d = Daemon::start(&bus, &["--replay", rec.to_str().unwrap()]);
     // The recording lasts about 0.5 s; after it, no frames.

@@ -195,16 +195,7 @@ fn sigterm_is_bounded_when_the_source_hangs() {
     require_dbus!();
     let dir = tempfile::tempdir().unwrap();
     let rec = dir.path().join("src.sdirec");
-    {
-        let bus = Bus::start();
-        let d = Daemon::start(&bus, &[]);
-        let out = d.ctl(&["record", rec.to_str().unwrap(), "--seconds", "0.5"]);
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
-    }
+    sdi_tests::dbus::record_sim(&rec, 0.5);
     let bytes = std::fs::read(&rec).unwrap();
     let fifo = dir.path().join("stuck.sdirec");
     nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::from_bits_truncate(0o600)).unwrap();

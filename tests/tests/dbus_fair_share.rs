@@ -52,19 +52,8 @@ async fn another_clients_calls_are_answered_under_a_flood() {
         }
         n
     });
-    let modes = ["depth-edge", "raw", "bipolar-colour", "two-shot"];
     let sent = Instant::now();
-    for i in 0..FLOOD_CALLS {
-        let msg = zbus::Message::method_call("/org/sdi/Camera0", "SetMode")
-            .unwrap()
-            .destination("org.sdi.Daemon")
-            .unwrap()
-            .interface("org.sdi.Camera1")
-            .unwrap()
-            .build(&(modes[i % modes.len()],))
-            .unwrap();
-        flooder.send(&msg).await.unwrap();
-    }
+    sdi_tests::dbus::send_set_mode_flood(&flooder, FLOOD_CALLS).await;
     let send_time = sent.elapsed();
 
     let mut set_mode = Vec::new();

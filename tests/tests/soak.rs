@@ -334,19 +334,8 @@ async fn flood(
             }
         })
     };
-    let modes = ["depth-edge", "raw", "bipolar-colour", "two-shot"];
     let t0 = Instant::now();
-    for i in 0..FLOOD_CALLS {
-        let msg = zbus::Message::method_call("/org/sdi/Camera0", "SetMode")
-            .unwrap()
-            .destination("org.sdi.Daemon")
-            .unwrap()
-            .interface("org.sdi.Camera1")
-            .unwrap()
-            .build(&(modes[i % modes.len()],))
-            .unwrap();
-        flooder.send(&msg).await.unwrap();
-    }
+    sdi_tests::dbus::send_set_mode_flood(flooder, FLOOD_CALLS).await;
     let mut latencies = Vec::new();
     while answered.load(Ordering::Relaxed) < FLOOD_CALLS as u64 {
         assert!(
