@@ -33,8 +33,9 @@
 //! range weights keep, and never more than the frame's usable pixels.
 
 use super::bilateral::check_input;
-use super::{input_flags, usable, BilateralParams, LocalMoments, Moments, SeparationError};
+use super::{BilateralParams, LocalMoments, Moments, SeparationError};
 use crate::frame::Frame;
+use crate::PixelFlags;
 
 /// Largest number of range levels over a frame's value range.
 pub const MAX_LEVELS: f32 = 4096.0;
@@ -63,8 +64,12 @@ pub struct BilateralGrid {
     lo: Vec<i32>,
     len: Vec<u32>,
     offset: Vec<usize>,
+    /// offset - lo per cell: node index of level k is `base + k`.
+    base: Vec<isize>,
     scratch_lo: Vec<i32>,
     scratch_hi: Vec<i32>,
+    /// Each pixel's level coordinate (I - z_0) / s_r (0 when flat).
+    level: Vec<f32>,
     a: Vec<Node>,
     b: Vec<Node>,
     out: LocalMoments,
@@ -76,14 +81,30 @@ impl Default for BilateralGrid {
     }
 }
 
+/// Where a frame's pixels land in the grid.
+struct Geometry {
+    /// Cell edge, px.
+    s: f32,
+    gx: usize,
+    gy: usize,
+    /// Splat cell of each column and row.
+    col_cell: Vec<usize>,
+    row_cell: Vec<usize>,
+    flat: bool,
+    z0: f32,
+    sr: f32,
+}
+
 impl BilateralGrid {
     pub fn new() -> Self {
         Self {
             lo: Vec::new(),
             len: Vec::new(),
             offset: Vec::new(),
+            base: Vec::new(),
             scratch_lo: Vec::new(),
             scratch_hi: Vec::new(),
+            level: Vec::new(),
             a: Vec::new(),
             b: Vec::new(),
             out: LocalMoments::default(),
@@ -104,22 +125,40 @@ impl BilateralGrid {
         check_input(frame, &params)?;
         let (w, h) = (frame.width(), frame.height());
         self.out.ensure_size(w, h);
-        self.out.flags.data.fill(0);
 
+        // Input flags; a pixel is usable exactly where they are 0. Branch-free
+        // (`<` selects compile to min/max instructions), so it vectorizes.
         let (mut vmin, mut vmax) = (f32::INFINITY, f32::NEG_INFINITY);
         let mut usable_px = 0usize;
-        for i in 0..w * h {
-            if usable(frame, i) {
-                usable_px += 1;
-                let v = frame.dn.data[i];
-                vmin = vmin.min(v);
-                vmax = vmax.max(v);
+        for y in 0..h {
+            let dn = &frame.dn.data[y * w..][..w];
+            let sat = &frame.saturated.data[y * w..][..w];
+            let fl = &mut self.out.flags.data[y * w..][..w];
+            for x in 0..w {
+                let finite = dn[x].is_finite();
+                fl[x] = if sat[x] != 0 {
+                    PixelFlags::SATURATED.bits()
+                } else {
+                    0
+                } | if finite {
+                    0
+                } else {
+                    PixelFlags::NONFINITE.bits()
+                };
+                let ok = fl[x] == 0;
+                usable_px += ok as usize;
+                let (lo, hi) = if ok {
+                    (dn[x], dn[x])
+                } else {
+                    (f32::INFINITY, f32::NEG_INFINITY)
+                };
+                vmin = if lo < vmin { lo } else { vmin };
+                vmax = if hi > vmax { hi } else { vmax };
             }
         }
         if vmin > vmax {
             for i in 0..w * h {
                 self.out.set_insufficient(i, 0.0);
-                self.out.flags.data[i] |= input_flags(frame, i);
             }
             return Ok(&self.out);
         }
@@ -136,11 +175,29 @@ impl BilateralGrid {
         let gx = (w as f32 / s).ceil().max(1.0) as usize;
         let gy = (h as f32 / s).ceil().max(1.0) as usize;
         let cell_of = |p: usize, g: usize| (((p as f32 + 0.5) / s) as usize).min(g - 1);
-        let level = |v: f32| if flat { 0.0 } else { (v - z0) / sr };
+        let geo = Geometry {
+            s,
+            gx,
+            gy,
+            col_cell: (0..w).map(|x| cell_of(x, gx)).collect(),
+            row_cell: (0..h).map(|y| cell_of(y, gy)).collect(),
+            flat,
+            z0,
+            sr,
+        };
+        // One branch-free pass (vectorizes); unusable pixels' levels are never read.
+        self.level.resize(w * h, 0.0);
+        if flat {
+            self.level.fill(0.0);
+        } else {
+            for (t, &v) in self.level.iter_mut().zip(&frame.dn.data) {
+                *t = (v - z0) / sr;
+            }
+        }
 
-        self.layout(frame, gx, gy, &cell_of, &level);
+        self.layout(w, h, &geo);
         let total = self.offset.last().copied().unwrap_or(0);
-        self.splat(frame, gx, &cell_of, &level, flat, z0, sr, total);
+        self.splat(frame, &geo, total);
         if !flat {
             self.blur_range(sr);
         } else {
@@ -149,44 +206,47 @@ impl BilateralGrid {
         // b -> a along x, a -> b along y.
         self.blur_cells(gx, gy, true);
         self.blur_cells(gx, gy, false);
-        self.slice(frame, s, gx, gy, &level, flat, z0, sr, usable_px as f32);
+        self.slice(frame, &geo, usable_px as f32);
         Ok(&self.out)
     }
 
     /// Per cell: the levels its own pixels touch, dilated over 5 x 5 cells
     /// and padded by one level (what blur and slicing read).
-    fn layout(
-        &mut self,
-        frame: &Frame,
-        gx: usize,
-        gy: usize,
-        cell_of: &impl Fn(usize, usize) -> usize,
-        level: &impl Fn(f32) -> f32,
-    ) {
-        let (w, h) = (frame.width(), frame.height());
+    fn layout(&mut self, w: usize, h: usize, geo: &Geometry) {
+        let (gx, gy) = (geo.gx, geo.gy);
         let cells = gx * gy;
         let (lo, hi) = (&mut self.scratch_lo, &mut self.scratch_hi);
         lo.clear();
         lo.resize(cells, i32::MAX);
         hi.clear();
         hi.resize(cells, i32::MIN);
+        let flags = &self.out.flags.data;
         for y in 0..h {
-            let cy = cell_of(y, gy);
-            for x in 0..w {
-                let i = y * w + x;
-                if !usable(frame, i) {
-                    continue;
+            let row = geo.row_cell[y] * gx;
+            let (t, fl) = (&self.level[y * w..][..w], &flags[y * w..][..w]);
+            // Runs of columns sharing a cell: min and max in registers, one
+            // update per cell and row.
+            let mut x = 0;
+            while x < w {
+                let cx = geo.col_cell[x];
+                let (mut kmin, mut kmax) = (i32::MAX, i32::MIN);
+                while x < w && geo.col_cell[x] == cx {
+                    let k = t[x] as i32;
+                    let ok = fl[x] == 0;
+                    kmin = if ok { kmin.min(k) } else { kmin };
+                    kmax = if ok { kmax.max(k + 1) } else { kmax };
+                    x += 1;
                 }
-                let k = level(frame.dn.data[i]) as i32;
-                let c = cy * gx + cell_of(x, gx);
-                lo[c] = lo[c].min(k);
-                hi[c] = hi[c].max(k + 1);
+                let c = row + cx;
+                lo[c] = lo[c].min(kmin);
+                hi[c] = hi[c].max(kmax);
             }
         }
         dilate(lo, hi, gx, gy);
         self.lo.clear();
         self.len.clear();
         self.offset.clear();
+        self.base.clear();
         self.offset.push(0);
         let mut total = 0usize;
         for c in 0..cells {
@@ -197,52 +257,47 @@ impl BilateralGrid {
             };
             self.lo.push(l);
             self.len.push(n);
+            self.base.push(total as isize - l as isize);
             total += n as usize;
             self.offset.push(total);
         }
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn splat(
-        &mut self,
-        frame: &Frame,
-        gx: usize,
-        cell_of: &impl Fn(usize, usize) -> usize,
-        level: &impl Fn(f32) -> f32,
-        flat: bool,
-        z0: f32,
-        sr: f32,
-        total: usize,
-    ) {
+    fn splat(&mut self, frame: &Frame, geo: &Geometry, total: usize) {
         let (w, h) = (frame.width(), frame.height());
-        let gy = self.len.len() / gx;
+        let (flat, z0, sr) = (geo.flat, geo.z0, geo.sr);
         self.a.clear();
         self.a.resize(total, [0.0; 4]);
-        let cols: Vec<usize> = (0..w).map(|x| cell_of(x, gx)).collect();
+        let a = &mut self.a;
+        let flags = &self.out.flags.data;
         for y in 0..h {
-            let row = cell_of(y, gy) * gx;
-            for (x, &cx) in cols.iter().enumerate() {
-                let i = y * w + x;
-                if !usable(frame, i) {
+            let row = geo.row_cell[y] * geo.gx;
+            let (t, fl) = (&self.level[y * w..][..w], &flags[y * w..][..w]);
+            let dn = &frame.dn.data[y * w..][..w];
+            for (x, &cx) in geo.col_cell.iter().enumerate() {
+                if fl[x] != 0 {
                     continue;
                 }
-                let v = frame.dn.data[i];
-                let c = row + cx;
-                let base = self.offset[c] as isize - self.lo[c] as isize;
+                let v = dn[x];
+                let base = self.base[row + cx];
                 if flat {
                     let d = v - z0;
-                    axpy(&mut self.a[base as usize], 1.0, &[1.0, d, d * d, 0.0]);
+                    if let Some(n) = a.get_mut(base as usize) {
+                        axpy(n, 1.0, &[1.0, d, d * d, 0.0]);
+                    }
                     continue;
                 }
-                let t = level(v);
-                let k = t as i32;
-                let f = t - k as f32;
+                let k = t[x] as i32;
+                let f = t[x] - k as f32;
                 // v - z_k and v - z_{k+1}.
                 let d = f * sr;
                 let d1 = d - sr;
                 let j = (base + k as isize) as usize;
-                axpy(&mut self.a[j], 1.0 - f, &[1.0, d, d * d, 0.0]);
-                axpy(&mut self.a[j + 1], f, &[1.0, d1, d1 * d1, 0.0]);
+                // Levels k and k + 1 are inside the cell by construction (layout).
+                if let Some([n0, n1]) = a.get_mut(j..j + 2) {
+                    axpy(n0, 1.0 - f, &[1.0, d, d * d, 0.0]);
+                    axpy(n1, f, &[1.0, d1, d1 * d1, 0.0]);
+                }
             }
         }
     }
@@ -329,20 +384,9 @@ impl BilateralGrid {
     }
 
     /// Trilinear read of the blurred grid (in `b`) at every pixel.
-    #[allow(clippy::too_many_arguments)]
-    fn slice(
-        &mut self,
-        frame: &Frame,
-        s: f32,
-        gx: usize,
-        gy: usize,
-        level: &impl Fn(f32) -> f32,
-        flat: bool,
-        z0: f32,
-        sr: f32,
-        usable_px: f32,
-    ) {
+    fn slice(&mut self, frame: &Frame, geo: &Geometry, usable_px: f32) {
         let (w, h) = (frame.width(), frame.height());
+        let (s, gx, gy, flat, z0, sr) = (geo.s, geo.gx, geo.gy, geo.flat, geo.z0, geo.sr);
         let axis = |n: usize, g: usize| -> Vec<(usize, usize, f32)> {
             (0..n)
                 .map(|p| {
@@ -358,75 +402,94 @@ impl BilateralGrid {
         let sigma_eff = s * SPATIAL_SIGMA_CELLS;
         let n_full = 4.0 * std::f32::consts::PI * sigma_eff * sigma_eff;
         let cell_area = s * s;
-        let grid = &self.b;
-        let (lo, len, offset) = (&self.lo, &self.len, &self.offset);
-        // Nodes k and k + 1 of cell c (zero outside its levels).
-        let read2 = |c: usize, k: i32| -> (Node, Node) {
-            let (l, n) = (lo[c], len[c] as i32);
-            let at = |kk: i32| {
-                if kk < l || kk >= l + n {
-                    [0.0; 4]
-                } else {
-                    grid[offset[c] + (kk - l) as usize]
-                }
-            };
-            (at(k), at(k + 1))
+        let (grid, base) = (&self.b, &self.base);
+        // Nodes k and k + 1 at `at` = base of the cell + k. Every corner of a
+        // usable pixel lies within one cell of its splat cell, whose levels
+        // layout dilated over two cells, so both are the cell's own nodes.
+        // Clamped into the grid, so no branch: only unusable pixels (whose
+        // output is discarded) can fall outside their cell.
+        let last = grid.len().saturating_sub(2);
+        let read2 = |at: isize| -> (Node, Node) {
+            let at = (at.max(0) as usize).min(last);
+            (grid[at], grid[at + 1])
         };
+        let out = &mut self.out;
+        // s0, s1, s2 and the level fraction (-1 for unusable input) of one row.
+        let mut sums = [
+            vec![0.0f32; w],
+            vec![0.0f32; w],
+            vec![0.0f32; w],
+            vec![0.0f32; w],
+        ];
         for (y, &(cy0, cy1, fy)) in ys.iter().enumerate() {
+            let (r0, r1) = (cy0 * gx, cy1 * gx);
+            let t = &self.level[y * w..][..w];
+            let dn = &frame.dn.data[y * w..][..w];
+            let mean = &mut out.mean_dn.data[y * w..][..w];
+            let var_out = &mut out.variance_dn2.data[y * w..][..w];
+            let samples = &mut out.samples.data[y * w..][..w];
+            let fl = &mut out.flags.data[y * w..][..w];
+            // Gather: the pixel's weighted moments about its own value.
             for (x, &(cx0, cx1, fx)) in xs.iter().enumerate() {
-                let i = y * w + x;
-                self.out.flags.data[i] |= input_flags(frame, i);
-                if !usable(frame, i) {
-                    self.out.set_insufficient(i, 0.0);
-                    continue;
-                }
-                let v = frame.dn.data[i];
-                let t = level(v);
-                let k = t as i32;
-                let f = if flat { 0.0 } else { t - k as f32 };
+                let k = t[x] as i32;
+                let f = if flat { 0.0 } else { t[x] - k as f32 };
                 let corners = [
-                    (cy0 * gx + cx0, (1.0 - fx) * (1.0 - fy)),
-                    (cy0 * gx + cx1, fx * (1.0 - fy)),
-                    (cy1 * gx + cx0, (1.0 - fx) * fy),
-                    (cy1 * gx + cx1, fx * fy),
+                    (r0 + cx0, (1.0 - fx) * (1.0 - fy)),
+                    (r0 + cx1, fx * (1.0 - fy)),
+                    (r1 + cx0, (1.0 - fx) * fy),
+                    (r1 + cx1, fx * fy),
                 ];
                 let (mut q, mut q1) = ([0.0f32; 4], [0.0f32; 4]);
                 for &(c, wc) in &corners {
-                    let (n0, n1) = read2(c, k);
+                    let (n0, n1) = read2(base[c] + k as isize);
                     axpy(&mut q, wc, &n0);
                     axpy(&mut q1, wc, &n1);
                 }
                 // Moments about z_k and z_{k+1} moved to the pixel's own value.
                 let (delta, delta1) = if flat {
-                    (z0 - v, 0.0)
+                    (z0 - dn[x], 0.0)
                 } else {
                     (-f * sr, (1.0 - f) * sr)
                 };
                 let (wr, wr1) = if flat { (1.0, 0.0) } else { (1.0 - f, f) };
-                let s0 = wr * q[0] + wr1 * q1[0];
-                let s1 = wr * (q[1] + delta * q[0]) + wr1 * (q1[1] + delta1 * q1[0]);
-                let s2 = wr * (q[2] + 2.0 * delta * q[1] + delta * delta * q[0])
+                sums[3][x] = if fl[x] == 0 { f } else { -1.0 };
+                sums[0][x] = wr * q[0] + wr1 * q1[0];
+                sums[1][x] = wr * (q[1] + delta * q[0]) + wr1 * (q1[1] + delta1 * q1[0]);
+                sums[2][x] = wr * (q[2] + 2.0 * delta * q[1] + delta * delta * q[0])
                     + wr1 * (q1[2] + 2.0 * delta1 * q1[1] + delta1 * delta1 * q1[0]);
-                if !(s0 > 0.0 && s0.is_finite()) {
-                    self.out.set_insufficient(i, 0.0);
-                    continue;
-                }
+            }
+            // Statistics: branch-free float selects along the row (vectorizes).
+            let [s0r, s1r, s2r, fr] = &mut sums;
+            for x in 0..w {
+                let (s0, s1, s2, f) = (s0r[x], s1r[x], s2r[x], fr[x]);
                 let m = s1 / s0;
-                let var = (s2 / s0 - m * m).max(0.0);
+                let var = s2 / s0 - m * m;
+                let var = if var > 0.0 { var } else { 0.0 };
                 // Range weight of a pixel with itself in a flat patch.
                 let self_range = if flat {
                     1.0
                 } else {
                     0.5 * ((1.0 - f) * (1.0 - f) + f * f + f * (1.0 - f))
                 };
-                let n_eff = ((s0 / (cell_area * self_range)).min(1.0) * n_full).min(usable_px);
-                if !(n_eff >= 2.0 && var.is_finite()) {
-                    self.out.set_insufficient(i, n_eff);
-                    continue;
-                }
-                self.out.mean_dn.data[i] = v + m;
-                self.out.variance_dn2.data[i] = var;
-                self.out.samples.data[i] = n_eff;
+                let share = s0 / (cell_area * self_range);
+                let share = if share < 1.0 { share } else { 1.0 };
+                let n_eff = share * n_full;
+                let n_eff = if n_eff < usable_px { n_eff } else { usable_px };
+                // Unusable input, no weight or fewer than two samples: no statistics.
+                let weighted = f >= 0.0 && s0 > 0.0 && s0 < f32::INFINITY;
+                let good = weighted && n_eff >= 2.0 && var < f32::INFINITY;
+                mean[x] = if good { dn[x] + m } else { 0.0 };
+                var_out[x] = if good { var } else { 0.0 };
+                samples[x] = if weighted { n_eff } else { 0.0 };
+                // Reused as the pixel's verdict for the flags below.
+                fr[x] = if good { 1.0 } else { 0.0 };
+            }
+            for (fl, &good) in fl.iter_mut().zip(fr.iter()) {
+                *fl |= if good > 0.0 {
+                    0
+                } else {
+                    PixelFlags::INSUFFICIENT.bits()
+                };
             }
         }
     }
