@@ -36,6 +36,7 @@ use super::bilateral::check_input;
 use super::{BilateralParams, LocalMoments, Moments, SeparationError};
 use crate::frame::Frame;
 use crate::PixelFlags;
+use multiversion::multiversion;
 
 /// Largest number of range levels over a frame's value range.
 pub const MAX_LEVELS: f32 = 4096.0;
@@ -70,6 +71,10 @@ pub struct BilateralGrid {
     scratch_hi: Vec<i32>,
     /// Each pixel's level coordinate (I - z_0) / s_r (0 when flat).
     level: Vec<f32>,
+    /// The blurred grid interpolated along y for one output row, and the
+    /// node index of level 0 of each cell column in it.
+    row_nodes: Vec<Node>,
+    row_base: Vec<isize>,
     a: Vec<Node>,
     b: Vec<Node>,
     out: LocalMoments,
@@ -105,6 +110,8 @@ impl BilateralGrid {
             scratch_lo: Vec::new(),
             scratch_hi: Vec::new(),
             level: Vec::new(),
+            row_nodes: Vec::new(),
+            row_base: Vec::new(),
             a: Vec::new(),
             b: Vec::new(),
             out: LocalMoments::default(),
@@ -402,89 +409,111 @@ impl BilateralGrid {
         let sigma_eff = s * SPATIAL_SIGMA_CELLS;
         let n_full = 4.0 * std::f32::consts::PI * sigma_eff * sigma_eff;
         let cell_area = s * s;
-        let (grid, base) = (&self.b, &self.base);
-        // Nodes k and k + 1 at `at` = base of the cell + k. Every corner of a
-        // usable pixel lies within one cell of its splat cell, whose levels
-        // layout dilated over two cells, so both are the cell's own nodes.
-        // Clamped into the grid, so no branch: only unusable pixels (whose
-        // output is discarded) can fall outside their cell.
-        let last = grid.len().saturating_sub(2);
-        let read2 = |at: isize| -> (Node, Node) {
-            let at = (at.max(0) as usize).min(last);
-            (grid[at], grid[at + 1])
+        let Self {
+            b: grid,
+            lo,
+            len,
+            offset,
+            level,
+            row_nodes,
+            row_base,
+            out,
+            ..
+        } = self;
+        let xs = &xs[..w];
+        // One row of the gathered moments about z_k (q) and z_{k+1} (p),
+        // and the level fraction (-1 for unusable input).
+        let mut rows = [(); 7].map(|_| vec![0.0f32; w]);
+        let stats = RowStats {
+            flat,
+            z0,
+            sr,
+            cell_area,
+            n_full,
+            usable_px,
         };
-        let out = &mut self.out;
-        // s0, s1, s2 and the level fraction (-1 for unusable input) of one row.
-        let mut sums = [
-            vec![0.0f32; w],
-            vec![0.0f32; w],
-            vec![0.0f32; w],
-            vec![0.0f32; w],
-        ];
         for (y, &(cy0, cy1, fy)) in ys.iter().enumerate() {
-            let (r0, r1) = (cy0 * gx, cy1 * gx);
-            let t = &self.level[y * w..][..w];
+            // The grid blended along y for this row: per cell column, the
+            // union of the two cells' levels (a level a cell lacks is zero).
+            row_nodes.clear();
+            row_base.clear();
+            for cx in 0..gx {
+                let (c0, c1) = (cy0 * gx + cx, cy1 * gx + cx);
+                let range = |c: usize| (lo[c], lo[c] + len[c] as i32);
+                let ((l0, h0), (l1, h1)) = (range(c0), range(c1));
+                let (from, to) = match (h0 > l0, h1 > l1) {
+                    (true, true) => (l0.min(l1), h0.max(h1)),
+                    (true, false) => (l0, h0),
+                    (false, true) => (l1, h1),
+                    (false, false) => (0, 0),
+                };
+                row_base.push(row_nodes.len() as isize - from as isize);
+                let node = |c: usize, l: i32, kk: i32| {
+                    grid.get(offset[c] + (kk - l) as usize)
+                        .copied()
+                        .unwrap_or([0.0; 4])
+                };
+                for kk in from..to {
+                    let mut acc = [0.0f32; 4];
+                    if (l0..h0).contains(&kk) {
+                        axpy(&mut acc, 1.0 - fy, &node(c0, l0, kk));
+                    }
+                    if (l1..h1).contains(&kk) {
+                        axpy(&mut acc, fy, &node(c1, l1, kk));
+                    }
+                    row_nodes.push(acc);
+                }
+            }
+            if row_nodes.len() < 2 {
+                row_nodes.resize(2, [0.0; 4]);
+            }
+            let (nodes, rb) = (&row_nodes[..], &row_base[..gx]);
+            // Nodes k and k + 1 at `at` = base of the column + k. Every corner
+            // of a usable pixel lies within one cell of its splat cell, whose
+            // levels layout dilated over two cells, so both are the column's
+            // own nodes. Clamped into the row, so no branch: only unusable
+            // pixels (whose output is discarded) can fall outside their column.
+            let last = nodes.len() - 2;
+            let read2 = |at: isize| -> (Node, Node) {
+                let at = (at.max(0) as usize).min(last);
+                (nodes[at], nodes[at + 1])
+            };
+            let t = &level[y * w..][..w];
             let dn = &frame.dn.data[y * w..][..w];
             let mean = &mut out.mean_dn.data[y * w..][..w];
             let var_out = &mut out.variance_dn2.data[y * w..][..w];
             let samples = &mut out.samples.data[y * w..][..w];
             let fl = &mut out.flags.data[y * w..][..w];
-            // Gather: the pixel's weighted moments about its own value.
-            for (x, &(cx0, cx1, fx)) in xs.iter().enumerate() {
-                let k = t[x] as i32;
-                let f = if flat { 0.0 } else { t[x] - k as f32 };
-                let corners = [
-                    (r0 + cx0, (1.0 - fx) * (1.0 - fy)),
-                    (r0 + cx1, fx * (1.0 - fy)),
-                    (r1 + cx0, (1.0 - fx) * fy),
-                    (r1 + cx1, fx * fy),
-                ];
-                let (mut q, mut q1) = ([0.0f32; 4], [0.0f32; 4]);
-                for &(c, wc) in &corners {
-                    let (n0, n1) = read2(base[c] + k as isize);
-                    axpy(&mut q, wc, &n0);
-                    axpy(&mut q1, wc, &n1);
-                }
-                // Moments about z_k and z_{k+1} moved to the pixel's own value.
-                let (delta, delta1) = if flat {
-                    (z0 - dn[x], 0.0)
-                } else {
-                    (-f * sr, (1.0 - f) * sr)
-                };
-                let (wr, wr1) = if flat { (1.0, 0.0) } else { (1.0 - f, f) };
-                sums[3][x] = if fl[x] == 0 { f } else { -1.0 };
-                sums[0][x] = wr * q[0] + wr1 * q1[0];
-                sums[1][x] = wr * (q[1] + delta * q[0]) + wr1 * (q1[1] + delta1 * q1[0]);
-                sums[2][x] = wr * (q[2] + 2.0 * delta * q[1] + delta * delta * q[0])
-                    + wr1 * (q1[2] + 2.0 * delta1 * q1[1] + delta1 * delta1 * q1[0]);
-            }
-            // Statistics: branch-free float selects along the row (vectorizes).
-            let [s0r, s1r, s2r, fr] = &mut sums;
+            let [q0, q1, q2, p0, p1, p2, fr] = &mut rows;
+            let (q0, q1, q2) = (&mut q0[..w], &mut q1[..w], &mut q2[..w]);
+            let (p0, p1, p2, fr) = (&mut p0[..w], &mut p1[..w], &mut p2[..w], &mut fr[..w]);
+            // Gather: bilinear along x in the blended row at levels k, k + 1.
             for x in 0..w {
-                let (s0, s1, s2, f) = (s0r[x], s1r[x], s2r[x], fr[x]);
-                let m = s1 / s0;
-                let var = s2 / s0 - m * m;
-                let var = if var > 0.0 { var } else { 0.0 };
-                // Range weight of a pixel with itself in a flat patch.
-                let self_range = if flat {
-                    1.0
+                let (cx0, cx1, fx) = xs[x];
+                let k = t[x] as isize;
+                let (a0, a1) = read2(rb.get(cx0).copied().unwrap_or(0) + k);
+                let (b0, b1) = read2(rb.get(cx1).copied().unwrap_or(0) + k);
+                let (mut q, mut p) = ([0.0f32; 4], [0.0f32; 4]);
+                axpy(&mut q, 1.0 - fx, &a0);
+                axpy(&mut q, fx, &b0);
+                axpy(&mut p, 1.0 - fx, &a1);
+                axpy(&mut p, fx, &b1);
+                (q0[x], q1[x], q2[x]) = (q[0], q[1], q[2]);
+                (p0[x], p1[x], p2[x]) = (p[0], p[1], p[2]);
+                fr[x] = if fl[x] != 0 {
+                    -1.0
+                } else if flat {
+                    0.0
                 } else {
-                    0.5 * ((1.0 - f) * (1.0 - f) + f * f + f * (1.0 - f))
+                    t[x] - (t[x] as i32) as f32
                 };
-                let share = s0 / (cell_area * self_range);
-                let share = if share < 1.0 { share } else { 1.0 };
-                let n_eff = share * n_full;
-                let n_eff = if n_eff < usable_px { n_eff } else { usable_px };
-                // Unusable input, no weight or fewer than two samples: no statistics.
-                let weighted = f >= 0.0 && s0 > 0.0 && s0 < f32::INFINITY;
-                let good = weighted && n_eff >= 2.0 && var < f32::INFINITY;
-                mean[x] = if good { dn[x] + m } else { 0.0 };
-                var_out[x] = if good { var } else { 0.0 };
-                samples[x] = if weighted { n_eff } else { 0.0 };
-                // Reused as the pixel's verdict for the flags below.
-                fr[x] = if good { 1.0 } else { 0.0 };
             }
-            for (fl, &good) in fl.iter_mut().zip(fr.iter()) {
+            stats.run(
+                [q0, q1, q2, p0, p1, p2, dn],
+                fr,
+                [mean, var_out, samples],
+            );
+            for (fl, &good) in fl.iter_mut().zip(&*fr) {
                 *fl |= if good > 0.0 {
                     0
                 } else {
@@ -492,6 +521,86 @@ impl BilateralGrid {
                 };
             }
         }
+    }
+}
+
+/// Per-row conversion of the sliced moments to mean, variance and
+/// effective sample count (see [`BilateralGrid::slice`]).
+#[derive(Clone, Copy)]
+struct RowStats {
+    flat: bool,
+    z0: f32,
+    sr: f32,
+    cell_area: f32,
+    n_full: f32,
+    usable_px: f32,
+}
+
+impl RowStats {
+    /// `inp`: the moments about z_k (3 rows) and z_{k+1} (3 rows), and the
+    /// values; `frac`: the level fraction (-1 for unusable input),
+    /// overwritten with 1 where the pixel has statistics and 0 where not.
+    fn run(self, inp: [&[f32]; 7], frac: &mut [f32], out: [&mut [f32]; 3]) {
+        row_stats(self, inp, frac, out)
+    }
+}
+
+/// Branch-free along the row, so it vectorizes.
+#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+fn row_stats(st: RowStats, inp: [&[f32]; 7], frac: &mut [f32], out: [&mut [f32]; 3]) {
+    let [q0, q1, q2, p0, p1, p2, dn] = inp;
+    let [mean, var_out, samples] = out;
+    let n = inp.iter().map(|r| r.len()).fold(frac.len(), usize::min);
+    let n = n.min(mean.len()).min(var_out.len()).min(samples.len());
+    let (q0, q1, q2, p0, p1, p2, dn) = (
+        &q0[..n], &q1[..n], &q2[..n], &p0[..n], &p1[..n], &p2[..n], &dn[..n],
+    );
+    let (frac, mean, var_out, samples) = (
+        &mut frac[..n],
+        &mut mean[..n],
+        &mut var_out[..n],
+        &mut samples[..n],
+    );
+    for x in 0..n {
+        let f = frac[x];
+        // Moments about z_k and z_{k+1} moved to the pixel's own value.
+        let fc = if f > 0.0 { f } else { 0.0 };
+        let (delta, delta1) = if st.flat {
+            (st.z0 - dn[x], 0.0)
+        } else {
+            (-fc * st.sr, (1.0 - fc) * st.sr)
+        };
+        let (wr, wr1) = if st.flat { (1.0, 0.0) } else { (1.0 - fc, fc) };
+        let s0 = wr * q0[x] + wr1 * p0[x];
+        let s1 = wr * (q1[x] + delta * q0[x]) + wr1 * (p1[x] + delta1 * p0[x]);
+        let s2 = wr * (q2[x] + 2.0 * delta * q1[x] + delta * delta * q0[x])
+            + wr1 * (p2[x] + 2.0 * delta1 * p1[x] + delta1 * delta1 * p0[x]);
+        let inv = 1.0 / s0;
+        let m = s1 * inv;
+        let var = s2 * inv - m * m;
+        let var = if var > 0.0 { var } else { 0.0 };
+        // Range weight of a pixel with itself in a flat patch:
+        // ((1 - f)^2 + f^2 + f (1 - f)) / 2.
+        let self_range = if st.flat {
+            1.0
+        } else {
+            0.5 * (1.0 - fc + fc * fc)
+        };
+        let share = s0 / (st.cell_area * self_range);
+        let share = if share < 1.0 { share } else { 1.0 };
+        let n_eff = share * st.n_full;
+        let n_eff = if n_eff < st.usable_px {
+            n_eff
+        } else {
+            st.usable_px
+        };
+        // Unusable input, no weight or fewer than two samples: no statistics.
+        let weighted = f >= 0.0 && s0 > 0.0 && s0 < f32::INFINITY;
+        let good = weighted && n_eff >= 2.0 && var < f32::INFINITY;
+        mean[x] = if good { dn[x] + m } else { 0.0 };
+        var_out[x] = if good { var } else { 0.0 };
+        samples[x] = if weighted { n_eff } else { 0.0 };
+        frac[x] = if good { 1.0 } else { 0.0 };
     }
 }
 
