@@ -73,7 +73,7 @@ fn error_vs_exact(frame: &Frame, fast: &LocalMoments, p: BilateralParams) -> (f6
             let i = y * cw + x;
             let j = (y0 + y) * W + x0 + x;
             let (m, v) = (exact.mean_dn.data[i], exact.variance_dn2.data[i]);
-            if !(v > 0.0) {
+            if v.is_nan() || v <= 0.0 {
                 continue;
             }
             let dm = (fast.mean_dn.data[j] as f64 - m) / v.sqrt();

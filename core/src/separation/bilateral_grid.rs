@@ -508,11 +508,7 @@ impl BilateralGrid {
                     t[x] - (t[x] as i32) as f32
                 };
             }
-            stats.run(
-                [q0, q1, q2, p0, p1, p2, dn],
-                fr,
-                [mean, var_out, samples],
-            );
+            stats.run([q0, q1, q2, p0, p1, p2, dn], fr, [mean, var_out, samples]);
             for (fl, &good) in fl.iter_mut().zip(&*fr) {
                 *fl |= if good > 0.0 {
                     0
@@ -553,7 +549,13 @@ fn row_stats(st: RowStats, inp: [&[f32]; 7], frac: &mut [f32], out: [&mut [f32];
     let n = inp.iter().map(|r| r.len()).fold(frac.len(), usize::min);
     let n = n.min(mean.len()).min(var_out.len()).min(samples.len());
     let (q0, q1, q2, p0, p1, p2, dn) = (
-        &q0[..n], &q1[..n], &q2[..n], &p0[..n], &p1[..n], &p2[..n], &dn[..n],
+        &q0[..n],
+        &q1[..n],
+        &q2[..n],
+        &p0[..n],
+        &p1[..n],
+        &p2[..n],
+        &dn[..n],
     );
     let (frac, mean, var_out, samples) = (
         &mut frac[..n],
