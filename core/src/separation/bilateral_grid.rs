@@ -241,7 +241,7 @@ impl BilateralGrid {
                     let k = t[x] as i32;
                     let ok = fl[x] == 0;
                     kmin = if ok { kmin.min(k) } else { kmin };
-                    kmax = if ok { kmax.max(k + 1) } else { kmax };
+                    kmax = if ok { kmax.max(k.saturating_add(1)) } else { kmax };
                     x += 1;
                 }
                 let c = row + cx;
@@ -490,9 +490,10 @@ impl BilateralGrid {
             // Gather: bilinear along x in the blended row at levels k, k + 1.
             for x in 0..w {
                 let (cx0, cx1, fx) = xs[x];
-                let k = t[x] as isize;
-                let (a0, a1) = read2(rb.get(cx0).copied().unwrap_or(0) + k);
-                let (b0, b1) = read2(rb.get(cx1).copied().unwrap_or(0) + k);
+                // Saturating: an unusable pixel's level may be infinite or NaN.
+                let k = t[x] as i32 as isize;
+                let (a0, a1) = read2(rb.get(cx0).copied().unwrap_or(0).saturating_add(k));
+                let (b0, b1) = read2(rb.get(cx1).copied().unwrap_or(0).saturating_add(k));
                 let (mut q, mut p) = ([0.0f32; 4], [0.0f32; 4]);
                 axpy(&mut q, 1.0 - fx, &a0);
                 axpy(&mut q, fx, &b0);
