@@ -241,7 +241,11 @@ impl BilateralGrid {
                     let k = t[x] as i32;
                     let ok = fl[x] == 0;
                     kmin = if ok { kmin.min(k) } else { kmin };
-                    kmax = if ok { kmax.max(k.saturating_add(1)) } else { kmax };
+                    kmax = if ok {
+                        kmax.max(k.saturating_add(1))
+                    } else {
+                        kmax
+                    };
                     x += 1;
                 }
                 let c = row + cx;
