@@ -82,7 +82,7 @@ async function watch(name, constraints) {
     for (let i = 0; !any; i++) {
       try { any = await navigator.mediaDevices.getUserMedia({video: true}); }
       catch (e) {
-        if (e.name !== 'NotFoundError' || i >= 30) throw e;
+        if (e.name !== 'NotFoundError' || i >= 120) throw e;
         post({kind: 'retry', error: String(e)});
         await new Promise(r => setTimeout(r, 2000));
       }
@@ -308,7 +308,12 @@ impl Browser {
     /// bus and PipeWire of `session` (the portal is on that bus).
     pub fn chromium_pipewire(url: &str, dir: &Path, session: &crate::pipewire::Session) -> Self {
         let mut cmd = Self::chromium_command(url, dir);
-        cmd.arg("--enable-features=WebRtcPipeWireCamera");
+        cmd.args([
+            "--enable-features=WebRtcPipeWireCamera",
+            // WebRTC's portal and PipeWire steps, in the log.
+            "--enable-logging=stderr",
+            "--vmodule=camera_portal=1,pipewire_session=1,video_capture_pipewire=1",
+        ]);
         let env = session.command("true");
         for (k, v) in env.get_envs() {
             match v {
@@ -381,6 +386,15 @@ impl Browser {
             .env("HOME", dir)
             .env("MOZ_DISABLE_CONTENT_SANDBOX", "1");
         Self::spawn(cmd, &dir.join("firefox.log"), None)
+    }
+
+    /// The lines of the browser's log that contain `pattern`.
+    pub fn log_lines(&self, pattern: &str) -> String {
+        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
+        text.lines()
+            .filter(|l| l.contains(pattern))
+            .collect::<Vec<_>>()
+            .join("\n")
     }
 
     /// The last lines of the browser's log.

@@ -222,7 +222,7 @@ impl CameraPortal {
         let spawn = |program: &str, log: &str| {
             let log = std::fs::File::create(s.dir.path().join(log)).expect("log file");
             let mut cmd = s.command(program);
-            cmd.arg("--replace")
+            cmd.args(["--replace", "--verbose"])
                 .env("XDG_DESKTOP_PORTAL_DIR", &dir)
                 .env("XDG_CURRENT_DESKTOP", "sditest")
                 .stdout(log.try_clone().expect("log file"))

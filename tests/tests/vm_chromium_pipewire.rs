@@ -123,7 +123,12 @@ fn in_vm_checks() {
             break v;
         }
         if let Some(e) = server.of_kind("error").first() {
-            panic!("chromium: the page failed: {e}\n{}", browser.log_tail());
+            panic!(
+                "chromium: the page failed: {e}\n{}\n{}\nportal log:\n{}",
+                browser.log_lines("video_capture"),
+                browser.log_tail(),
+                std::fs::read_to_string(session.dir.path().join("portal.log")).unwrap_or_default()
+            );
         }
         assert!(
             t0.elapsed() < Duration::from_secs(240),
