@@ -82,7 +82,7 @@ async function watch(name, constraints) {
     for (let i = 0; !any; i++) {
       try { any = await navigator.mediaDevices.getUserMedia({video: true}); }
       catch (e) {
-        if (e.name !== 'NotFoundError' || i >= 120) throw e;
+        if (e.name !== 'NotFoundError' || i >= 240) throw e;
         post({kind: 'retry', error: String(e)});
         await new Promise(r => setTimeout(r, 2000));
       }

@@ -112,6 +112,11 @@ impl PipeWire {
                 .stderr(log);
             Reaped(c.spawn().unwrap_or_else(|e| panic!("spawn {prog}: {e}")))
         };
+        // The previous daemon's socket would pass the wait below at once,
+        // and WirePlumber would quit ("Failed to connect to PipeWire").
+        for stale in ["pipewire-0", "pipewire-0.lock"] {
+            let _ = std::fs::remove_file(runtime.join(stale));
+        }
         let pw = spawn("pipewire");
         wait_until("pipewire's socket", Duration::from_secs(60), || {
             runtime.join("pipewire-0").exists()

@@ -177,7 +177,8 @@ fn bench_pipewire(s: &Session, caps: &str, frames: usize, rate_hz: f64) -> Run {
     if reader.is_some() {
         wait_for(
             "a reader on the PipeWire node",
-            Duration::from_secs(20),
+            // gst-launch under TCG (the VM) takes tens of seconds to start.
+            Duration::from_secs(180),
             || sink.view_streaming().then_some(()),
         );
     }
@@ -297,15 +298,13 @@ fn main() {
     println!(
         "sink_bench: {frames} frames of {WIDTH}x{HEIGHT} at {rate_hz} Hz per sink (view 640x480)"
     );
-    let mut runs: Vec<Run> = bench_loopback(frames, rate_hz).into_iter().collect();
-    runs.extend([
-        bench_y4m(&s, frames, rate_hz),
-        bench_pipewire(&s, "video/x-raw,format=YUY2", frames, rate_hz),
-        bench_pipewire(&s, "video/x-raw,format=RGB", frames, rate_hz),
-        bench_pipewire(&s, "", frames, rate_hz),
-        bench_render(frames, rate_hz),
-    ]);
-    for r in &runs {
+    // Printed as each run ends.
+    if let Some(r) = bench_loopback(frames, rate_hz) {
         r.print();
     }
+    bench_y4m(&s, frames, rate_hz).print();
+    bench_pipewire(&s, "video/x-raw,format=YUY2", frames, rate_hz).print();
+    bench_pipewire(&s, "video/x-raw,format=RGB", frames, rate_hz).print();
+    bench_pipewire(&s, "", frames, rate_hz).print();
+    bench_render(frames, rate_hz).print();
 }
