@@ -104,7 +104,12 @@ fn frame_like(v: &Value, expected: [f64; 3]) -> bool {
 
 fn in_vm_checks() {
     if let Some(why) = pipewire::missing_tools().or_else(CameraPortal::missing) {
-        panic!("the PipeWire camera test needs {why}");
+        assert!(
+            std::env::var_os("SDI_REQUIRE_VM").is_none(),
+            "the PipeWire camera test needs {why}, and SDI_REQUIRE_VM is set"
+        );
+        eprintln!("SKIPPED: the PipeWire camera test needs {why}");
+        return;
     }
     // WirePlumber 0.4.13 quits ("failed to start systemd logind monitor")
     // when logind's state directories are missing, as in the VM.
