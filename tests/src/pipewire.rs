@@ -93,6 +93,30 @@ impl Session {
         )
         .expect("chmod runtime dir");
         let bus = Bus::start();
+        // Services the bus starts on demand (WirePlumber asks the portal's
+        // permission store) get the session's directories, not the caller's
+        // home.
+        let home = dir.path().join("home");
+        std::fs::create_dir_all(&home).expect("home dir");
+        let set = |k: &str, v: &Path| format!("{k},{}", v.display());
+        let _ = Command::new("dbus-send")
+            .args([
+                &format!("--bus={}", bus.address),
+                "--print-reply",
+                "--dest=org.freedesktop.DBus",
+                "/org/freedesktop/DBus",
+                "org.freedesktop.DBus.UpdateActivationEnvironment",
+            ])
+            .arg(format!(
+                "dict:string:string:{},{},{},{}",
+                set("HOME", &home),
+                set("XDG_DATA_HOME", &dir.path().join("data")),
+                set("XDG_CONFIG_HOME", &dir.path().join("config")),
+                set("XDG_RUNTIME_DIR", &runtime),
+            ))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status();
         let pipewire = spawn_logged(dir.path(), &bus.address, "pipewire");
         wait_for(
             "PipeWire to answer pw-dump",
