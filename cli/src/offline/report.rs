@@ -48,6 +48,9 @@ pub struct SeparationReportArgs {
     /// Simulator scene (default: colour-chart when available, else flat-field).
     #[arg(long)]
     pub scene: Option<String>,
+    /// A scene parameter, KEY=VALUE (repeatable; as `sdictl sim --scene-param`).
+    #[arg(long = "scene-param", value_name = "KEY=VALUE", conflicts_with = "input")]
+    pub scene_params: Vec<String>,
     /// Directory for the plot (separation.svg) and the table (separation.tsv).
     #[arg(long, default_value = ".")]
     pub out: PathBuf,
@@ -264,6 +267,9 @@ fn scene_of(args: &SeparationReportArgs) -> Result<(String, SceneSpec), CliError
             ReportError::UnknownScene(name.clone(), SceneSpec::NAMES.join(", ")).to_string(),
         )
     })?;
+    let scene = scene
+        .with_params(&args.scene_params)
+        .map_err(|e| CliError::Usage(e.to_string()))?;
     Ok((name, scene))
 }
 
