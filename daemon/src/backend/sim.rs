@@ -82,8 +82,17 @@ impl Backend for SimBackend {
         "sim"
     }
 
+    /// "simulator (MODEL)", and ", scene NAME" with a fixed scene (`sdictl
+    /// status` reads it to tell the light-travel warning).
     fn device(&self) -> String {
-        format!("simulator ({})", self.sim.params().model)
+        match &self.fixed_scene {
+            Some(scene) => format!(
+                "simulator ({}, scene {})",
+                self.sim.params().model,
+                scene.name()
+            ),
+            None => format!("simulator ({})", self.sim.params().model),
+        }
     }
 
     fn sensor(&self) -> &SensorParams {
