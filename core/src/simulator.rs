@@ -412,9 +412,13 @@ impl Simulator {
 /// The depth map and carrier when light travel applies to `illumination`:
 /// a 50/50 square wave over the whole exposure (the delayed-square-wave
 /// split of [`light_travel::wrong_well_fraction`] holds for it alone).
-fn travel<'a>(depth: Option<&'a Image<f32>>, illumination: &Illumination) -> Option<(&'a Image<f32>, f64)> {
+fn travel<'a>(
+    depth: Option<&'a Image<f32>>,
+    illumination: &Illumination,
+) -> Option<(&'a Image<f32>, f64)> {
     let m = &illumination.modulation;
-    let square = matches!(m.segments[..], [seg] if seg.start <= 0.0 && seg.end >= 1.0 && seg.duty == 0.5);
+    let square =
+        matches!(m.segments[..], [seg] if seg.start <= 0.0 && seg.end >= 1.0 && seg.duty == 0.5);
     depth.filter(|_| square).map(|d| (d, m.carrier_hz))
 }
 

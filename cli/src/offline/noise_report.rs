@@ -372,9 +372,31 @@ fn finish(
 ) -> Result<(), CliError> {
     let json = args_json;
     let fit = |s: &Series| {
-        linear_fit(&s.electrons, &s.variance_dn2).map_err(|e| CliError::Runtime(e.to_string()))
+        let (lo, hi) = s
+            .electrons
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        if !(hi > lo) {
+            return Err(CliError::Runtime(format!(
+                "every level has the same intensity ({lo} electrons): no line to fit \
+                 (the scene needs a range of brightness)"
+            )));
+        }
+        linear_fit(&s.electrons, &s.variance_dn2)
+            .map_err(|e| CliError::Runtime(format!("line fit: {e}")))
     };
     let (fs, ft) = (fit(&snap)?, fit(&two)?);
+    // No read noise seen (zero light and a noiseless input): no ratio.
+    let (r, se) = ratio_with_se(ft.intercept, ft.intercept_se, fs.intercept, fs.intercept_se);
+    if !(fs.intercept > 0.0 && r.is_finite() && se.is_finite()) {
+        return Err(CliError::Runtime(format!(
+            "the snapshot intercept is {:.4} DN^2 and the two-shot intercept {:.4} DN^2: \
+             no read noise in the data, the intercept ratio is undefined",
+            fs.intercept, ft.intercept
+        )));
+    }
     let mut tsv = String::from("scheme\twell_electrons\tvariance_dn2\n");
     for (name, s) in [("snapshot", &snap), ("two-shot", &two)] {
         for (x, v) in s.electrons.iter().zip(&s.variance_dn2) {
@@ -389,7 +411,6 @@ fn finish(
     let written = files.commit()?;
     let (tsv_path, svg_path) = (&written[0], &written[1]);
     let g = sensor.gain_dn_per_electron();
-    let (r, se) = ratio_with_se(ft.intercept, ft.intercept_se, fs.intercept, fs.intercept_se);
     let seconds = t0.elapsed().as_secs_f64();
     if json {
         let fit_json = |f: &LinearFit| {

@@ -49,7 +49,11 @@ pub struct SeparationReportArgs {
     #[arg(long)]
     pub scene: Option<String>,
     /// A scene parameter, KEY=VALUE (repeatable; as `sdictl sim --scene-param`).
-    #[arg(long = "scene-param", value_name = "KEY=VALUE", conflicts_with = "input")]
+    #[arg(
+        long = "scene-param",
+        value_name = "KEY=VALUE",
+        conflicts_with = "input"
+    )]
     pub scene_params: Vec<String>,
     /// Directory for the plot (separation.svg) and the table (separation.tsv).
     #[arg(long, default_value = ".")]

@@ -127,7 +127,9 @@ mod tests {
             .unwrap()
             .with_params(&["displacement_px=2.5"])
             .unwrap();
-        assert!(matches!(b, SceneSpec::Birefringent { displacement_px, .. } if displacement_px == 2.5));
+        assert!(
+            matches!(b, SceneSpec::Birefringent { displacement_px, .. } if displacement_px == 2.5)
+        );
     }
 
     #[test]

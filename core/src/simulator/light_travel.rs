@@ -115,7 +115,10 @@ mod tests {
         };
         let fast = wrong_share(12e6, true);
         let slow = wrong_share(1e6, true);
-        assert!((fast - wrong_well_fraction(3.0, 12e6)).abs() < 1e-4, "{fast}");
+        assert!(
+            (fast - wrong_well_fraction(3.0, 12e6)).abs() < 1e-4,
+            "{fast}"
+        );
         assert!(fast > 0.2, "{fast}");
         assert!(slow > 0.0 && slow < 0.021, "{slow}");
         assert_eq!(wrong_share(12e6, false), 0.0);
