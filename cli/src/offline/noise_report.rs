@@ -378,7 +378,7 @@ fn finish(
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
                 (a.min(x), b.max(x))
             });
-        if !(hi > lo) {
+        if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
             return Err(CliError::Runtime(format!(
                 "every level has the same intensity ({lo} electrons): no line to fit \
                  (the scene needs a range of brightness)"
