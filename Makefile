@@ -33,6 +33,7 @@ DBUSPOLICYDIR  ?= $(SYSCONFDIR)/dbus-1/system.d
 MODPROBEDIR    ?= $(SYSCONFDIR)/modprobe.d
 endif
 UNITDIR        ?= $(PREFIX)/lib/systemd/system
+USERUNITDIR    ?= $(PREFIX)/lib/systemd/user
 SYSUSERSDIR    ?= $(PREFIX)/lib/sysusers.d
 MODULESLOADDIR ?= $(PREFIX)/lib/modules-load.d
 DBUSSERVICEDIR ?= $(DATADIR)/dbus-1/system-services
@@ -44,7 +45,7 @@ BINARIES = sdid sdictl
 # Files with the install paths filled in; regenerated on every install so a
 # changed PREFIX never leaves stale paths behind.
 GENDIR    ?= target/dist
-GENERATED = $(GENDIR)/sdid.service $(GENDIR)/org.sdi.Daemon.service
+GENERATED = $(GENDIR)/sdid.service $(GENDIR)/sdid-user.service $(GENDIR)/org.sdi.Daemon.service
 
 .PHONY: all build install uninstall clean-generated check-rules FORCE
 all: build
@@ -53,6 +54,9 @@ build:
 	$(CARGO) build --release -p sdi-daemon -p sdi-cli
 
 $(GENDIR)/sdid.service: udev/systemd/sdid.service.in FORCE
+	@mkdir -p $(GENDIR)
+	sed 's|@bindir@|$(BINDIR)|g' $< > $@
+$(GENDIR)/sdid-user.service: udev/systemd/sdid-user.service.in FORCE
 	@mkdir -p $(GENDIR)
 	sed 's|@bindir@|$(BINDIR)|g' $< > $@
 $(GENDIR)/org.sdi.Daemon.service: udev/dbus/org.sdi.Daemon.service.in FORCE
@@ -70,6 +74,7 @@ install: $(GENERATED)
 	$(INSTALL) -d $(DESTDIR)$(BINDIR)
 	$(INSTALL) -m 0755 $(addprefix $(TARGETDIR)/,$(BINARIES)) $(DESTDIR)$(BINDIR)/
 	$(INSTALL) -D -m 0644 $(GENDIR)/sdid.service $(DESTDIR)$(UNITDIR)/sdid.service
+	$(INSTALL) -D -m 0644 $(GENDIR)/sdid-user.service $(DESTDIR)$(USERUNITDIR)/sdid.service
 	$(INSTALL) -D -m 0644 udev/70-sdi-board.rules $(DESTDIR)$(UDEVRULESDIR)/70-sdi-board.rules
 	$(INSTALL) -D -m 0644 udev/dbus/org.sdi.Daemon.conf $(DESTDIR)$(DBUSPOLICYDIR)/org.sdi.Daemon.conf
 	$(INSTALL) -D -m 0644 $(GENDIR)/org.sdi.Daemon.service $(DESTDIR)$(DBUSSERVICEDIR)/org.sdi.Daemon.service
@@ -105,7 +110,7 @@ install-docs:
 
 uninstall:
 	rm -f $(addprefix $(DESTDIR)$(BINDIR)/,$(BINARIES))
-	rm -f $(DESTDIR)$(UNITDIR)/sdid.service
+	rm -f $(DESTDIR)$(UNITDIR)/sdid.service $(DESTDIR)$(USERUNITDIR)/sdid.service
 	rm -f $(DESTDIR)$(UDEVRULESDIR)/70-sdi-board.rules
 	rm -f $(DESTDIR)$(DBUSPOLICYDIR)/org.sdi.Daemon.conf
 	rm -f $(DESTDIR)$(DBUSSERVICEDIR)/org.sdi.Daemon.service

@@ -25,7 +25,8 @@ pub fn monotonic_now_us() -> u64 {
 
 impl MonotonicClock {
     /// The output timestamp of a frame the backend stamped `t_us`, captured
-    /// at monotonic time `now_us`.
+    /// at monotonic time `now_us` (for a stamp already on the monotonic
+    /// clock, `now_us == t_us`: it passes through unchanged).
     pub fn map(&mut self, t_us: u64, period_us: u64, now_us: u64) -> u64 {
         let restarted = match self.last_in_us {
             Some(last_in) => t_us < last_in,
@@ -69,6 +70,16 @@ mod tests {
         // first start at now; the restart at 0 lands one period after the
         // last frame (later than now), so does the one at 500
         assert_eq!(out, [50_000, 51_000, 52_000, 53_000, 54_000, 55_000]);
+    }
+
+    #[test]
+    fn a_stamp_on_the_monotonic_clock_passes_through() {
+        let mut c = MonotonicClock::default();
+        let out: Vec<u64> = [50_000, 83_333, 116_667, 116_900]
+            .into_iter()
+            .map(|t| c.map(t, 33_333, t))
+            .collect();
+        assert_eq!(out, [50_000, 83_333, 116_667, 116_900]);
     }
 
     #[test]

@@ -8,15 +8,23 @@
 #   bash tests/bench/daemon_cpu.sh [WINDOW_S]        (default 10 s per mode)
 #
 # Needs dbus-daemon, ffmpeg and Debian's python3 with numpy (tests/vm/setup-host.sh
-# installs them). The v4l2loopback variant (YUYV view + Y16 data node) needs
-# the module, i.e. the VM.
+# installs them). With SDI_BENCH_SINK=loopback (inside the VM: see
+# daemon_cpu_vm.sh) sdid publishes the 640x480 YUYV view and the Y16 data
+# node on v4l2loopback, each read by a V4L2 client that also measures the
+# latency from capture timestamp to dequeue, and ffmpeg writes its scaled
+# YUYV to a third loopback node.
 set -eEuo pipefail
 trap 'rc=$?; echo "daemon_cpu.sh: failed at line $LINENO (exit $rc): $BASH_COMMAND" >&2; exit $rc' ERR
 window_s=${1:-10}
 cd "$(dirname "$0")/../.."
 
-cargo build -q --release -p sdi-daemon -p sdi-cli
+sink=${SDI_BENCH_SINK:-y4m}
+# Inside the VM the target directory is read-only: the wrapper builds first.
+[ -n "${SDI_BENCH_PREBUILT:-}" ] ||
+    cargo build -q --release -p sdi-daemon -p sdi-cli -p sdi-tests --bin loopback_tool
 sdid=$PWD/target/release/sdid sdictl=$PWD/target/release/sdictl
+tool=$PWD/target/release/loopback_tool
+view_dev=/dev/video50 data_dev=/dev/video51 peer_dev=/dev/video52
 tmp=$(mktemp -d)
 pids=()
 cleanup() {
@@ -63,21 +71,48 @@ ctl stop >/dev/null 2>&1 || true
 kill "${pids[-2]}"; wait "${pids[-2]}" 2>/dev/null || true
 sleep 0.5
 
-# 2. sdid replaying it in a loop, one reader on the view, per mode.
-"$sdid" --session --replay "$tmp/rec.sdirec" --loop --sink y4m --y4m-path "$tmp/view.y4m" \
-    --state-dir "$tmp/state" 2>"$tmp/replay.log" &
+# 2. sdid replaying it in a loop, one reader per published node, per mode.
+if [ "$sink" = loopback ]; then
+    printf '[output]\nlabel = "SDI camera"\ndata_label = "SDI data"\n' >"$tmp/sdid.toml"
+    "$sdid" --session --config "$tmp/sdid.toml" --replay "$tmp/rec.sdirec" --loop \
+        --sink loopback --state-dir "$tmp/state" 2>"$tmp/replay.log" &
+else
+    "$sdid" --session --replay "$tmp/rec.sdirec" --loop --sink y4m --y4m-path "$tmp/view.y4m" \
+        --state-dir "$tmp/state" 2>"$tmp/replay.log" &
+fi
 sdid_pid=$!
 pids+=("$sdid_pid")
-cat "$tmp/view.y4m" >/dev/null &
-pids+=($!)
+if [ "$sink" != loopback ]; then
+    cat "$tmp/view.y4m" >/dev/null &
+    pids+=($!)
+fi
 wait_bus
-printf '%-22s %8s %8s\n' "sdid mode" "CPU %" "fps"
+if [ "$sink" = loopback ]; then
+    printf '%-22s %8s %8s   %s\n' "sdid mode" "CPU %" "fps" "capture to dequeue (view; data)"
+else
+    printf '%-22s %8s %8s\n' "sdid mode" "CPU %" "fps"
+fi
 modes=$(ctl --json modes | /usr/bin/python3 -c 'import json,sys; print(" ".join(json.load(sys.stdin)["modes"]))')
 for mode in $modes; do
     ctl set-mode "$mode" >/dev/null
+    if [ "$sink" = loopback ]; then
+        # Both readers run through the warm-up and the whole window.
+        "$tool" latency "$view_dev" $((window_s + 2)) >"$tmp/lat-view" &
+        view_reader=$!
+        "$tool" latency "$data_dev" $((window_s + 2)) >"$tmp/lat-data" &
+        data_reader=$!
+        pids+=("$view_reader" "$data_reader")
+    fi
     sleep 2 # past the switch and any warm-up
     pct=$(cpu_pct "$sdid_pid")
-    printf '%-22s %8s %8s\n' "$mode" "$pct" "$(stats_fps)"
+    if [ "$sink" = loopback ]; then
+        wait "$view_reader" "$data_reader"
+        lat=$(sed -E 's/.*: ([0-9]+) frames, median ([0-9]+) us, p99 ([0-9]+) us.*/\2\/\3 us (\1 frames)/' "$tmp/lat-view")
+        lat_data=$(sed -E 's/.*: ([0-9]+) frames, median ([0-9]+) us, p99 ([0-9]+) us.*/\2\/\3 us/' "$tmp/lat-data")
+        printf '%-22s %8s %8s   median/p99 %s; %s\n' "$mode" "$pct" "$(stats_fps)" "$lat" "$lat_data"
+    else
+        printf '%-22s %8s %8s\n' "$mode" "$pct" "$(stats_fps)"
+    fi
 done
 kill "$sdid_pid"
 
@@ -88,12 +123,24 @@ import sys, numpy as np
 dn = np.load(sys.argv[1])
 np.clip(np.rint(dn) + 32768, 0, 65535).astype("<u2").tofile(sys.argv[2])
 EOF
-ffmpeg -nostdin -loglevel error -re -stream_loop -1 -f rawvideo -pix_fmt gray16le \
-    -video_size 320x240 -framerate 60 -i "$tmp/rec.y16" \
-    -vf scale=640:480 -pix_fmt yuv444p -f yuv4mpegpipe - >"$tmp/view.y4m" &
-ff_pid=$!
-pids+=("$ff_pid")
-cat "$tmp/view.y4m" >/dev/null &
-pids+=($!)
-sleep 2
-printf '%-22s %8s\n' "ffmpeg (scale, y4m)" "$(cpu_pct "$ff_pid")"
+if [ "$sink" = loopback ]; then
+    ffmpeg -nostdin -loglevel error -re -stream_loop -1 -f rawvideo -pix_fmt gray16le \
+        -video_size 320x240 -framerate 60 -i "$tmp/rec.y16" \
+        -vf scale=640:480 -pix_fmt yuyv422 -f v4l2 "$peer_dev" &
+    ff_pid=$!
+    pids+=("$ff_pid")
+    sleep 2
+    "$tool" latency "$peer_dev" $((window_s + 1)) >/dev/null &
+    pids+=($!)
+    printf '%-22s %8s\n' "ffmpeg (scale, v4l2)" "$(cpu_pct "$ff_pid")"
+else
+    ffmpeg -nostdin -loglevel error -re -stream_loop -1 -f rawvideo -pix_fmt gray16le \
+        -video_size 320x240 -framerate 60 -i "$tmp/rec.y16" \
+        -vf scale=640:480 -pix_fmt yuv444p -f yuv4mpegpipe - >"$tmp/view.y4m" &
+    ff_pid=$!
+    pids+=("$ff_pid")
+    cat "$tmp/view.y4m" >/dev/null &
+    pids+=($!)
+    sleep 2
+    printf '%-22s %8s\n' "ffmpeg (scale, y4m)" "$(cpu_pct "$ff_pid")"
+fi

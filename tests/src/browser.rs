@@ -76,7 +76,17 @@ async function watch(name, constraints) {
     post({kind: 'devices-before', devices: await list()});
     // Labels are empty until a getUserMedia was granted: open any camera,
     // then pick the SDI camera by its label.
-    const any = await navigator.mediaDevices.getUserMedia({video: true});
+    // A camera taken from PipeWire may be listed only once the camera
+    // portal answered: retry while no camera is found.
+    let any = null;
+    for (let i = 0; !any; i++) {
+      try { any = await navigator.mediaDevices.getUserMedia({video: true}); }
+      catch (e) {
+        if (e.name !== 'NotFoundError' || i >= 240) throw e;
+        post({kind: 'retry', error: String(e)});
+        await new Promise(r => setTimeout(r, 2000));
+      }
+    }
     any.getTracks().forEach(t => t.stop());
     const devices = await list();
     post({kind: 'devices', devices});
@@ -258,13 +268,17 @@ pub struct Browser {
 }
 
 impl Browser {
-    fn spawn(mut cmd: Command, log: &Path) -> Self {
+    /// Spawns `cmd` in its own process group, so that all its processes go
+    /// with it. Without `session_bus`, it gets no session bus it could lose
+    /// when the test tears down.
+    fn spawn(mut cmd: Command, log: &Path, session_bus: Option<&str>) -> Self {
         let out = std::fs::File::create(log).expect("browser log");
         let err = out.try_clone().expect("browser log");
-        // No session bus it could lose when the test tears down; its own
-        // process group so that all its processes go with it.
-        cmd.env_remove("DBUS_SESSION_BUS_ADDRESS")
-            .env("DBUS_SYSTEM_BUS_ADDRESS", "unix:path=/nonexistent")
+        match session_bus {
+            Some(address) => cmd.env("DBUS_SESSION_BUS_ADDRESS", address),
+            None => cmd.env_remove("DBUS_SESSION_BUS_ADDRESS"),
+        };
+        cmd.env("DBUS_SYSTEM_BUS_ADDRESS", "unix:path=/nonexistent")
             .stdin(Stdio::null())
             .stdout(out)
             .stderr(err);
@@ -282,6 +296,41 @@ impl Browser {
     /// fake UI (the real devices, not the fake one); as root it needs
     /// `--no-sandbox`. The other flags keep it off the (closed) network.
     pub fn chromium(url: &str, dir: &Path) -> Self {
+        Self::spawn(
+            Self::chromium_command(url, dir),
+            &dir.join("chromium.log"),
+            None,
+        )
+    }
+
+    /// Headless Chromium taking cameras from PipeWire through the camera
+    /// portal (`--enable-features=WebRtcPipeWireCamera`), on the session
+    /// bus and PipeWire of `session` (the portal is on that bus).
+    pub fn chromium_pipewire(url: &str, dir: &Path, session: &crate::pipewire::Session) -> Self {
+        let mut cmd = Self::chromium_command(url, dir);
+        cmd.args([
+            "--enable-features=WebRtcPipeWireCamera",
+            // WebRTC's portal and PipeWire steps, in the log.
+            "--enable-logging=stderr",
+            "--vmodule=camera_portal=1,pipewire_session=1,video_capture_pipewire=1",
+        ]);
+        let env = session.command("true");
+        for (k, v) in env.get_envs() {
+            match v {
+                Some(v) => cmd.env(k, v),
+                None => cmd.env_remove(k),
+            };
+        }
+        // Chromium keeps its own HOME (its profile).
+        cmd.env("HOME", dir);
+        Self::spawn(
+            cmd,
+            &dir.join("chromium-pipewire.log"),
+            Some(&session.bus.address),
+        )
+    }
+
+    fn chromium_command(url: &str, dir: &Path) -> Command {
         let profile = dir.join("chromium-profile");
         let _ = std::fs::remove_dir_all(&profile);
         let mut cmd = Command::new("chromium");
@@ -300,7 +349,7 @@ impl Browser {
         .arg(format!("--user-data-dir={}", profile.display()))
         .arg(url)
         .env("HOME", dir);
-        Self::spawn(cmd, &dir.join("chromium.log"))
+        cmd
     }
 
     /// Headless Firefox ESR with a test profile: no permission prompt, the
@@ -336,7 +385,16 @@ impl Browser {
             .arg(url)
             .env("HOME", dir)
             .env("MOZ_DISABLE_CONTENT_SANDBOX", "1");
-        Self::spawn(cmd, &dir.join("firefox.log"))
+        Self::spawn(cmd, &dir.join("firefox.log"), None)
+    }
+
+    /// The lines of the browser's log that contain `pattern`.
+    pub fn log_lines(&self, pattern: &str) -> String {
+        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
+        text.lines()
+            .filter(|l| l.contains(pattern))
+            .collect::<Vec<_>>()
+            .join("\n")
     }
 
     /// The last lines of the browser's log.

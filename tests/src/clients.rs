@@ -49,10 +49,15 @@ pub fn export_binaries() {
 /// Loads Debian's v4l2loopback with the view and data nodes as udev/modprobe.d
 /// does (exclusive_caps=1, max_buffers=10).
 pub fn load_module(view_nr: u32, data_nr: u32) {
+    load_module_build(ModuleBuild::Debian0127, view_nr, data_nr);
+}
+
+/// Like [`load_module`], for module `build`.
+pub fn load_module_build(build: ModuleBuild, view_nr: u32, data_nr: u32) {
     let mut p = ModuleParams::nodes(&[(view_nr, VIEW_LABEL), (data_nr, DATA_LABEL)]);
     p.extra.push("max_buffers=10".into());
-    if let Err(e) = loopback::load_module(ModuleBuild::Debian0127, &p) {
-        panic!("loading v4l2loopback failed: {e}");
+    if let Err(e) = loopback::load_module(build, &p) {
+        panic!("loading {build} failed: {e}");
     }
 }
 
@@ -75,18 +80,52 @@ pub struct Sdid {
     config: PathBuf,
     fps: String,
     pub sensor: Sensor,
+    /// `--backend ...` (and `--sensor` for the simulator).
+    backend: Vec<String>,
 }
 
 impl Sdid {
     /// Starts sdid (simulator, `sensor`, `fps`) and waits until it serves
     /// D-Bus and both nodes are capture devices.
     pub fn start(view_nr: u32, data_nr: u32, sensor: Sensor, fps: u32) -> Self {
+        let backend = ["--backend", "sim", "--sensor", sensor.name].map(str::to_owned);
+        Self::start_with(view_nr, data_nr, sensor, fps, "", backend.to_vec())
+    }
+
+    /// Starts sdid on the board of serial `serial` (the USB board emulator,
+    /// streaming `sensor`'s size as its ROI), with "no signal" frames while
+    /// the board is unplugged (`on_unplug = "no-signal"`, the default).
+    pub fn start_on_board(
+        view_nr: u32,
+        data_nr: u32,
+        sensor: Sensor,
+        fps: u32,
+        serial: &str,
+    ) -> Self {
+        let board = format!(
+            "[board]\nserial = \"{serial}\"\non_unplug = \"no-signal\"\nroi = [0, 0, {}, {}]\n",
+            sensor.width, sensor.height
+        );
+        let backend = ["--backend", "opt8241"].map(str::to_owned);
+        Self::start_with(view_nr, data_nr, sensor, fps, &board, backend.to_vec())
+    }
+
+    fn start_with(
+        view_nr: u32,
+        data_nr: u32,
+        sensor: Sensor,
+        fps: u32,
+        extra_config: &str,
+        backend: Vec<String>,
+    ) -> Self {
         let dir = Path::new("/tmp/sdi-clients");
         std::fs::create_dir_all(dir).expect("mkdir /tmp/sdi-clients");
         let config = dir.join("sdid.toml");
         std::fs::write(
             &config,
-            format!("[output]\nlabel = \"{VIEW_LABEL}\"\ndata_label = \"{DATA_LABEL}\"\n"),
+            format!(
+                "[output]\nlabel = \"{VIEW_LABEL}\"\ndata_label = \"{DATA_LABEL}\"\n{extra_config}"
+            ),
         )
         .expect("write sdid.toml");
         let mut s = Self {
@@ -97,6 +136,7 @@ impl Sdid {
             config,
             fps: fps.to_string(),
             sensor,
+            backend,
         };
         s.spawn();
         s
@@ -106,7 +146,7 @@ impl Sdid {
         let child = Command::new(exe("SDID"))
             .args(["--bus-address", &self.bus.address, "--config"])
             .arg(&self.config)
-            .args(["--backend", "sim", "--sensor", self.sensor.name])
+            .args(&self.backend)
             .args(["--sink", "loopback"])
             .args(["--frame-rate-hz", &self.fps, "--exposure-us", "2000"])
             .env("RUST_LOG", "warn")
@@ -165,6 +205,13 @@ impl Sdid {
         mean_rgb(img.as_raw())
     }
 
+    /// Mean colour of the whole 640x480 view frame: the snapshot's mean
+    /// over the picture rows, black letterbox bars elsewhere.
+    pub fn expected_view_mean(&self) -> [f64; 3] {
+        let (_, rows) = letterbox_rows(self.sensor.width, self.sensor.height);
+        self.snapshot_mean_rgb().map(|c| c * rows as f64 / 480.0)
+    }
+
     /// Mean signed DN of the latest frame, from `sdictl snapshot x.npy`.
     pub fn snapshot_mean_dn(&self) -> f64 {
         let npy = Path::new("/tmp/sdi-clients/snap.npy");
@@ -200,6 +247,14 @@ pub fn mean_rgb(rgb: &[u8]) -> [f64; 3] {
     }
     let n = (rgb.len() / 3).max(1) as f64;
     m.map(|a| a / n)
+}
+
+/// The largest difference between two colours, channel by channel.
+pub fn off_by(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
 
 /// Rows of the view node's letterbox: the sensor picture scaled into 640x480

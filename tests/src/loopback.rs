@@ -193,7 +193,12 @@ pub fn load_module(build: ModuleBuild, params: &ModuleParams) -> Result<(), Modu
             }
             run_cmd("modprobe", &["videodev".to_owned()])?;
             let mut a = vec![path.display().to_string()];
-            a.extend(args);
+            // insmod, unlike modprobe, passes its arguments on joined by
+            // spaces: the kernel splits a value with a space unless quoted.
+            a.extend(args.into_iter().map(|arg| match arg.split_once('=') {
+                Some((k, v)) if v.contains(' ') => format!("{k}=\"{v}\""),
+                _ => arg,
+            }));
             run_cmd("insmod", &a)?;
         }
     }

@@ -93,6 +93,30 @@ impl Session {
         )
         .expect("chmod runtime dir");
         let bus = Bus::start();
+        // Services the bus starts on demand (WirePlumber asks the portal's
+        // permission store) get the session's directories, not the caller's
+        // home.
+        let home = dir.path().join("home");
+        std::fs::create_dir_all(&home).expect("home dir");
+        let set = |k: &str, v: &Path| format!("{k},{}", v.display());
+        let _ = Command::new("dbus-send")
+            .args([
+                &format!("--bus={}", bus.address),
+                "--print-reply",
+                "--dest=org.freedesktop.DBus",
+                "/org/freedesktop/DBus",
+                "org.freedesktop.DBus.UpdateActivationEnvironment",
+            ])
+            .arg(format!(
+                "dict:string:string:{},{},{},{}",
+                set("HOME", &home),
+                set("XDG_DATA_HOME", &dir.path().join("data")),
+                set("XDG_CONFIG_HOME", &dir.path().join("config")),
+                set("XDG_RUNTIME_DIR", &runtime),
+            ))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status();
         let pipewire = spawn_logged(dir.path(), &bus.address, "pipewire");
         wait_for(
             "PipeWire to answer pw-dump",
@@ -180,6 +204,134 @@ impl Session {
                 .spawn()
                 .expect("start gst-launch-1.0"),
         )
+    }
+}
+
+/// The camera portal for a session: `xdg-desktop-portal` (Debian 12: 1.16)
+/// with the permission store, killed on drop. The portal exports
+/// `org.freedesktop.portal.Camera` only when some backend implements
+/// `org.freedesktop.impl.portal.Access` (it asks the user there); a
+/// `.portal` file in `XDG_DESKTOP_PORTAL_DIR` names one, and the camera
+/// permission for unsandboxed programs (app id "") is stored as "yes"
+/// beforehand, so no dialog is ever asked for and the backend need not run.
+pub struct CameraPortal {
+    _portal: Reaped,
+    _store: Reaped,
+}
+
+impl CameraPortal {
+    /// Programs the portal needs, if one is missing.
+    pub fn missing() -> Option<String> {
+        [
+            "/usr/libexec/xdg-desktop-portal",
+            "/usr/libexec/xdg-permission-store",
+        ]
+        .iter()
+        .find(|p| !Path::new(p).exists())
+        .map(|p| format!("{p} (apt-get install xdg-desktop-portal)"))
+    }
+
+    /// Starts the permission store and the portal on the session's bus.
+    pub fn start(s: &Session) -> Self {
+        let dir = s.dir.path().join("portals");
+        std::fs::create_dir_all(&dir).expect("portals dir");
+        std::fs::write(
+            dir.join("sdi-test.portal"),
+            "[portal]\nDBusName=org.freedesktop.impl.portal.desktop.sditest\n\
+             Interfaces=org.freedesktop.impl.portal.Access;\nUseIn=sditest\n",
+        )
+        .expect("write the .portal file");
+        // `--replace`: WirePlumber may have started a permission store by
+        // D-Bus activation already (with the bus's environment).
+        let spawn = |program: &str, log: &str| {
+            let log = std::fs::File::create(s.dir.path().join(log)).expect("log file");
+            let mut cmd = s.command(program);
+            cmd.args(["--replace", "--verbose"])
+                .env("XDG_DESKTOP_PORTAL_DIR", &dir)
+                .env("XDG_CURRENT_DESKTOP", "sditest")
+                .stdout(log.try_clone().expect("log file"))
+                .stderr(log);
+            Reaped(
+                cmd.spawn()
+                    .unwrap_or_else(|e| panic!("start {program}: {e}")),
+            )
+        };
+        // Each waits until it owns its name: a call before that would start
+        // another copy by D-Bus activation, without this environment.
+        let has_owner = |name: &str| {
+            s.command("dbus-send")
+                .args([
+                    "--session",
+                    "--print-reply",
+                    "--dest=org.freedesktop.DBus",
+                    "/org/freedesktop/DBus",
+                    "org.freedesktop.DBus.NameHasOwner",
+                    &format!("string:{name}"),
+                ])
+                .output()
+                .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).contains("boolean true"))
+                .then_some(())
+        };
+        let store = spawn("/usr/libexec/xdg-permission-store", "permission-store.log");
+        wait_for("the permission store", Duration::from_secs(60), || {
+            has_owner("org.freedesktop.impl.portal.PermissionStore")
+        });
+        wait_for(
+            "the permission store to grant the camera",
+            Duration::from_secs(60),
+            || {
+                s.command("dbus-send")
+                    .args([
+                        "--session",
+                        "--print-reply",
+                        "--dest=org.freedesktop.impl.portal.PermissionStore",
+                        "/org/freedesktop/impl/portal/PermissionStore",
+                        "org.freedesktop.impl.portal.PermissionStore.SetPermission",
+                        "string:devices",
+                        "boolean:true",
+                        "string:camera",
+                        "string:",
+                        "array:string:yes",
+                    ])
+                    .stdout(Stdio::null())
+                    .stderr(Stdio::null())
+                    .status()
+                    .is_ok_and(|st| st.success())
+                    .then_some(())
+            },
+        );
+        let portal = spawn("/usr/libexec/xdg-desktop-portal", "portal.log");
+        wait_for("the portal", Duration::from_secs(60), || {
+            has_owner("org.freedesktop.portal.Desktop")
+        });
+        let t0 = Instant::now();
+        while !s
+            .command("dbus-send")
+            .args([
+                "--session",
+                "--print-reply",
+                "--dest=org.freedesktop.portal.Desktop",
+                "/org/freedesktop/portal/desktop",
+                "org.freedesktop.DBus.Properties.Get",
+                "string:org.freedesktop.portal.Camera",
+                "string:version",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|st| st.success())
+        {
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "no camera portal after 60 s; its log:\n{}",
+                std::fs::read_to_string(s.dir.path().join("portal.log")).unwrap_or_default()
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        Self {
+            _portal: portal,
+            _store: store,
+        }
     }
 }
 

@@ -1,7 +1,10 @@
 //! The system-integration files in `udev/` and `make install`, checked on
 //! the host: the rules are generated from the one list of board IDs, the
 //! systemd unit passes `systemd-analyze verify` and its exposure score stays
-//! at or below 1.4 (2.5 with the SCPI network drop-in), the names used across unit, activation file and policy
+//! at or below 1.4 (2.5 with the SCPI network drop-in), the user unit
+//! (sdid in a session, publishing to PipeWire) passes `systemd-analyze
+//! --user verify` and stands down while the system service owns the name,
+//! the names used across unit, activation file and policy
 //! agree, and install/uninstall put every file in place and take it away.
 
 use std::fs;
@@ -111,6 +114,99 @@ fn unit_passes_systemd_analyze_verify() {
     assert!(
         stderr.trim().is_empty(),
         "systemd-analyze verify complains:\n{stderr}"
+    );
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The user unit as `make install` generates it.
+fn generated_user_unit(dir: &Path) -> PathBuf {
+    let bin = fake_release_dir(dir);
+    make(&[
+        &format!("GENDIR={}", dir.display()),
+        &format!("BINDIR={}", bin.display()),
+        &format!("{}/sdid-user.service", dir.display()),
+    ]);
+    dir.join("sdid-user.service")
+}
+
+#[test]
+fn user_unit_passes_systemd_analyze_verify() {
+    if !have_systemd_analyze() {
+        return;
+    }
+    let dir = scratch("verify-user");
+    let unit = dir.join("sdid.service");
+    fs::rename(generated_user_unit(&dir), &unit).unwrap();
+    // A user manager's lookup paths need a runtime directory.
+    let runtime = dir.join("runtime");
+    fs::create_dir_all(&runtime).unwrap();
+    let out = run(Command::new("systemd-analyze")
+        .args(["--user", "verify", "--man=no"])
+        .arg(&unit)
+        .env("XDG_RUNTIME_DIR", &runtime));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && stderr.trim().is_empty(),
+        "systemd-analyze --user verify: {:?}\n{stderr}",
+        out.status
+    );
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+/// The user unit's ExecCondition, run as systemd would (`sh -c`), against a
+/// private bus standing in for the system bus: it lets the unit start while
+/// nobody owns org.sdi.Daemon there and stops it (non-zero) while a sdid does.
+#[test]
+fn user_unit_stands_down_while_the_system_service_runs() {
+    if Command::new("busctl").arg("--version").output().is_err() {
+        eprintln!("skipped: no busctl");
+        return;
+    }
+    let dir = scratch("user-condition");
+    let text = fs::read_to_string(generated_user_unit(&dir)).unwrap();
+    let condition = ini_value(&text, "ExecCondition").expect("ExecCondition");
+    let script = condition
+        .strip_prefix("/bin/sh -c '")
+        .and_then(|c| c.strip_suffix('\''))
+        .expect("ExecCondition is /bin/sh -c '...'");
+    let bus = sdi_tests::dbus::Bus::start();
+    let allowed = |bus: &sdi_tests::dbus::Bus| {
+        run(Command::new("/bin/sh")
+            .args(["-c", script])
+            .env("DBUS_SYSTEM_BUS_ADDRESS", &bus.address))
+        .status
+        .success()
+    };
+    assert!(allowed(&bus), "condition failed with no system service");
+    let mut sdid = Command::new(sdi_tests::dbus::bin("sdid"))
+        .args([
+            "--bus-address",
+            &bus.address,
+            "--backend",
+            "sim",
+            "--sink",
+            "y4m",
+        ])
+        .arg("--y4m-path")
+        .arg(dir.join("view.y4m"))
+        .arg("--state-dir")
+        .arg(dir.join("state"))
+        .env_remove("INVOCATION_ID")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("spawn sdid");
+    let t0 = std::time::Instant::now();
+    let mut stood_down = false;
+    while t0.elapsed() < std::time::Duration::from_secs(30) && !stood_down {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+        stood_down = !allowed(&bus);
+    }
+    let _ = sdid.kill();
+    let _ = sdid.wait();
+    assert!(
+        stood_down,
+        "condition still passes while sdid owns the name"
     );
     fs::remove_dir_all(&dir).unwrap();
 }
@@ -252,6 +348,7 @@ const INSTALLED: &[&str] = &[
     "usr/bin/sdid",
     "usr/bin/sdictl",
     "usr/lib/systemd/system/sdid.service",
+    "usr/lib/systemd/user/sdid.service",
     "usr/lib/udev/rules.d/70-sdi-board.rules",
     "usr/share/dbus-1/system.d/org.sdi.Daemon.conf",
     "usr/share/dbus-1/system-services/org.sdi.Daemon.service",
@@ -304,6 +401,11 @@ fn make_install_and_uninstall_with_destdir() {
     assert!(
         unit.contains("ExecStart=/usr/bin/sdid"),
         "ExecStart not substituted"
+    );
+    let user_unit = fs::read_to_string(destdir.join("usr/lib/systemd/user/sdid.service")).unwrap();
+    assert!(
+        user_unit.contains("ExecStart=/usr/bin/sdid --session"),
+        "user unit ExecStart not substituted"
     );
     let activation =
         fs::read_to_string(destdir.join("usr/share/dbus-1/system-services/org.sdi.Daemon.service"))

@@ -15,8 +15,9 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::browser::{Browser, PageServer};
-use sdi_tests::clients::{self, letterbox_rows, Sdid, PMD};
+use sdi_tests::clients::{self, off_by, Sdid, Sensor, PMD};
 use sdi_tests::vm;
 
 const VIEW_NR: u32 = 40;
@@ -24,13 +25,17 @@ const DATA_NR: u32 = 41;
 /// Browser decoding of YUYV and 4:2:2 subsampling, one frame against
 /// another: codes of tolerance on a channel's mean.
 const TOLERANCE: f64 = 12.0;
-
-/// Mean colour of the whole 640x480 view frame: the snapshot's mean over
-/// the picture rows, black bars elsewhere.
-fn expected_view_mean(sdid: &Sdid) -> [f64; 3] {
-    let (_, rows) = letterbox_rows(PMD.width, PMD.height);
-    sdid.snapshot_mean_rgb().map(|c| c * rows as f64 / 480.0)
-}
+/// The USB board emulator's serial, and the ROI sdid streams from it (small:
+/// the emulator runs in the test process, beside Chromium, under TCG).
+const SERIAL: &str = "EMU0003";
+const BOARD: Sensor = Sensor {
+    name: "opt8241",
+    width: 64,
+    height: 48,
+};
+/// How long the board stays unplugged under the browser: longer than the
+/// ~10 s after which Chromium fails a track that gets no frames.
+const UNPLUG: Duration = Duration::from_secs(15);
 
 fn mean_of(v: &Value, key: &str) -> Option<[f64; 3]> {
     let a = v["stats"][key].as_array()?;
@@ -39,13 +44,6 @@ fn mean_of(v: &Value, key: &str) -> Option<[f64; 3]> {
         a.get(1)?.as_f64()?,
         a.get(2)?.as_f64()?,
     ])
-}
-
-fn off_by(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
 }
 
 /// A view frame report near `expected`.
@@ -59,7 +57,7 @@ fn frame_like(v: &Value, expected: [f64; 3]) -> bool {
 fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
     server.clear();
     sdid.set_mode("raw");
-    let expected = expected_view_mean(sdid);
+    let expected = sdid.expected_view_mean();
     let browser = match name {
         "chromium" => Browser::chromium(&server.url, dir),
         _ => Browser::firefox(&server.url, dir),
@@ -140,7 +138,7 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
 
     // A mode switch changes what the page sees.
     sdid.set_mode("separation");
-    let expected2 = expected_view_mean(sdid);
+    let expected2 = sdid.expected_view_mean();
     assert!(
         off_by(expected, expected2) > 2.0 * TOLERANCE,
         "modes too alike: {expected:?} {expected2:?}"
@@ -164,7 +162,7 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
     let t_restart = Instant::now();
     sdid.restart();
     sdid.set_mode("raw");
-    let expected3 = expected_view_mean(sdid);
+    let expected3 = sdid.expected_view_mean();
     let (_, v) = server.wait_for(
         &format!("{name}: frames again after sdid restarted"),
         i + 1,
@@ -237,6 +235,146 @@ fn in_vm_checks() {
             run_browser(name, &mut sdid, &server, dir);
         }
     }
+}
+
+/// The newest view frame report that arrived in `[from, to)`.
+fn view_report_between(server: &PageServer, from: Instant, to: Instant) -> Option<Value> {
+    let r = server.reports.lock().expect("reports");
+    r.iter()
+        .filter(|(t, v)| *t >= from && *t < to && v["kind"] == "frame" && v["name"] == "view")
+        .map(|(_, v)| v.clone())
+        .next_back()
+}
+
+/// Chromium on sdid driving the USB board emulator: the board is unplugged
+/// for 15 s under a live track; sdid keeps writing "no signal" frames, so
+/// the page keeps getting frames and the track stays live (Chromium fails a
+/// track after ~10 s without frames); after replugging, the page sees the
+/// board's frames again, on the same track.
+fn board_unplug_checks() {
+    let emu = BoardEmulator::start("sdi0", SERIAL).expect("board emulator gadget");
+    clients::wait_until(
+        "the board emulator enumerated",
+        Duration::from_secs(30),
+        || sdi_daemon::backend::board::board_attached().unwrap_or(false),
+    );
+    clients::load_module(VIEW_NR, DATA_NR);
+    let dir = Path::new("/tmp/sdi-browsers");
+    std::fs::create_dir_all(dir).expect("mkdir");
+    let sdid = Sdid::start_on_board(VIEW_NR, DATA_NR, BOARD, 15, SERIAL);
+    let server = PageServer::start();
+    let browser = Browser::chromium(&server.url, dir);
+    let (_, first) = server.wait_for(
+        "chromium: first frame of the SDI camera on the board",
+        0,
+        Duration::from_secs(240),
+        |v| {
+            v["kind"] == "frame"
+                && v["name"] == "view"
+                && v["state"] == "live"
+                && v["frames"].as_u64().unwrap_or(0) > 0
+                && !v["stats"].is_null()
+        },
+    );
+    eprintln!(
+        "chromium on the board: time to first frame {:.1} s, {first}",
+        browser.started.elapsed().as_secs_f64()
+    );
+    // A few seconds of the board's frames first.
+    std::thread::sleep(Duration::from_secs(3));
+
+    let t_unplug = Instant::now();
+    emu.unplug().expect("unplug the board");
+    let mut last = None;
+    while t_unplug.elapsed() < UNPLUG {
+        std::thread::sleep(Duration::from_millis(500));
+        if let Some(e) = server
+            .of_kind("error")
+            .into_iter()
+            .find(|e| e["name"] == "view")
+        {
+            panic!(
+                "chromium: the page failed during the unplug: {e}\n{}",
+                browser.log_tail()
+            );
+        }
+        last = view_report_between(&server, t_unplug, Instant::now()).or(last);
+    }
+    // What the page saw 10 s in (Chromium's limit) and at the end.
+    let at_10s = view_report_between(&server, t_unplug, t_unplug + Duration::from_secs(10))
+        .expect("a frame report in the first 10 s of the unplug");
+    let end = view_report_between(&server, t_unplug + Duration::from_secs(12), Instant::now())
+        .or(last)
+        .expect("a frame report after 12 s of unplug");
+    eprintln!(
+        "chromium, board unplugged: at ~10 s {at_10s}\nat {:.1} s {end}",
+        t_unplug.elapsed().as_secs_f64()
+    );
+    let ended: Vec<Value> = server
+        .of_kind("ended")
+        .into_iter()
+        .filter(|v| v["name"] == "view")
+        .collect();
+    assert!(
+        ended.is_empty(),
+        "chromium ended the track during the unplug: {ended:?}"
+    );
+    assert_eq!(end["state"], "live", "{end}");
+    assert_eq!(
+        end["opened"], first["opened"],
+        "the page reopened the camera: {end}"
+    );
+    assert!(
+        end["frames"].as_u64().unwrap_or(0) > at_10s["frames"].as_u64().unwrap_or(0),
+        "no frames reached the page after 10 s of unplug: {at_10s} then {end}"
+    );
+    // The "no signal" card is grey: the three channels alike.
+    let mean = mean_of(&end, "mean").expect("frame stats");
+    assert!(
+        (mean[0] - mean[1]).abs() < TOLERANCE && (mean[1] - mean[2]).abs() < TOLERANCE,
+        "not the grey no-signal card: {mean:?}"
+    );
+    assert!(
+        sdid.ctl(&["get", "stats"]).status.success(),
+        "sdid answers while the board is gone"
+    );
+
+    // Replugged: the same track gets the board's frames again.
+    let t_plug = Instant::now();
+    emu.plug().expect("replug the board");
+    let frames_end = end["frames"].as_u64().unwrap_or(0);
+    let (_, back) = server.wait_for(
+        "chromium: frames after the board came back",
+        0,
+        Duration::from_secs(90),
+        |v| {
+            v["kind"] == "frame"
+                && v["name"] == "view"
+                && v["state"] == "live"
+                && v["frames"].as_u64().unwrap_or(0) > frames_end + 15
+                && mean_of(v, "mean").is_some_and(|m| off_by(m, mean) > 1.0)
+        },
+    );
+    eprintln!(
+        "chromium: board frames again {:.1} s after replug: {back}",
+        t_plug.elapsed().as_secs_f64()
+    );
+    assert_eq!(
+        back["opened"], first["opened"],
+        "the page reopened the camera: {back}"
+    );
+    drop(browser);
+}
+
+#[test]
+fn vm_chromium_track_survives_board_unplug() {
+    if !vm::in_vm() {
+        clients::export_binaries();
+        std::env::set_var("VMRUN_MEM", "2560");
+        vm::run_test_in_vm("vm_chromium_track_survives_board_unplug", 900);
+        return;
+    }
+    board_unplug_checks();
 }
 
 #[test]

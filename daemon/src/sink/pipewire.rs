@@ -431,45 +431,43 @@ fn pod_bytes(object: Object) -> Result<Vec<u8>, String> {
     .map_err(|e| format!("serializing a SPA pod: {e:?}"))
 }
 
-/// The EnumFormat a stream offers: raw video in `wires` at one size and rate.
-fn enum_format(
+/// The EnumFormats a stream offers: raw video at one size and rate, one
+/// param per format in `wires` (preferred first), each with a plain format
+/// Id, as PipeWire's V4L2 nodes enumerate them. WebRTC's PipeWire camera
+/// (Chromium's `WebRtcPipeWireCamera`) skips a param whose format is a
+/// Choice, and then lists no camera.
+fn enum_formats(
     wires: &[Wire],
     width: u32,
     height: u32,
     frame_rate_hz: u32,
-) -> Result<Vec<u8>, String> {
+) -> Result<Vec<Vec<u8>>, String> {
     use spa::param::format::{FormatProperties, MediaSubtype, MediaType};
-    let ids: Vec<Id> = wires.iter().map(|w| Id(w.spa().as_raw())).collect();
-    let format = match ids.as_slice() {
-        [one] => Value::Id(*one),
-        _ => Value::Choice(ChoiceValue::Id(Choice(
-            ChoiceFlags::empty(),
-            ChoiceEnum::Enum {
-                default: ids[0],
-                alternatives: ids.clone(),
-            },
-        ))),
-    };
-    pod_bytes(spa::pod::object!(
-        spa::utils::SpaTypes::ObjectParamFormat,
-        spa::param::ParamType::EnumFormat,
-        spa::pod::property!(FormatProperties::MediaType, Id, MediaType::Video),
-        spa::pod::property!(FormatProperties::MediaSubtype, Id, MediaSubtype::Raw),
-        spa::pod::property!(FormatProperties::VideoFormat, format),
-        spa::pod::property!(
-            FormatProperties::VideoSize,
-            Rectangle,
-            Rectangle { width, height }
-        ),
-        spa::pod::property!(
-            FormatProperties::VideoFramerate,
-            Fraction,
-            Fraction {
-                num: frame_rate_hz,
-                denom: 1
-            }
-        ),
-    ))
+    wires
+        .iter()
+        .map(|w| {
+            pod_bytes(spa::pod::object!(
+                spa::utils::SpaTypes::ObjectParamFormat,
+                spa::param::ParamType::EnumFormat,
+                spa::pod::property!(FormatProperties::MediaType, Id, MediaType::Video),
+                spa::pod::property!(FormatProperties::MediaSubtype, Id, MediaSubtype::Raw),
+                spa::pod::property!(FormatProperties::VideoFormat, Id, w.spa()),
+                spa::pod::property!(
+                    FormatProperties::VideoSize,
+                    Rectangle,
+                    Rectangle { width, height }
+                ),
+                spa::pod::property!(
+                    FormatProperties::VideoFramerate,
+                    Fraction,
+                    Fraction {
+                        num: frame_rate_hz,
+                        denom: 1
+                    }
+                ),
+            ))
+        })
+        .collect()
 }
 
 /// Buffers (count, one plane of `size_bytes`) and the header metadata (PTS).
@@ -869,14 +867,17 @@ fn make_stream(
         .process(move |stream, _| publish(stream, port_of(&s3), &mut st3.borrow_mut()))
         .register()
         .map_err(err)?;
-    let format = enum_format(spec.wires, spec.width, spec.height, spec.frame_rate_hz)?;
-    let pod = Pod::from_bytes(&format).ok_or("PipeWire: invalid format pod")?;
+    let formats = enum_formats(spec.wires, spec.width, spec.height, spec.frame_rate_hz)?;
+    let mut pods = formats
+        .iter()
+        .map(|f| Pod::from_bytes(f).ok_or("PipeWire: invalid format pod"))
+        .collect::<Result<Vec<&Pod>, _>>()?;
     stream
         .connect(
             spa::utils::Direction::Output,
             None,
             pw::stream::StreamFlags::DRIVER | pw::stream::StreamFlags::MAP_BUFFERS,
-            &mut [pod],
+            &mut pods,
         )
         .map_err(err)?;
     Ok(MadeStream {
@@ -901,10 +902,12 @@ mod tests {
 
     #[test]
     fn params_serialize() {
-        let f = enum_format(&[Wire::Yuyv, Wire::Rgb], 640, 480, 30).unwrap();
-        assert!(Pod::from_bytes(&f).is_some());
-        let f = enum_format(&[Wire::Y16], 320, 240, 30).unwrap();
-        assert!(Pod::from_bytes(&f).is_some());
+        let f = enum_formats(&[Wire::Yuyv, Wire::Rgb], 640, 480, 30).unwrap();
+        assert_eq!(f.len(), 2, "one EnumFormat per format");
+        assert!(f.iter().all(|p| Pod::from_bytes(p).is_some()));
+        let f = enum_formats(&[Wire::Y16], 320, 240, 30).unwrap();
+        assert_eq!(f.len(), 1);
+        assert!(Pod::from_bytes(&f[0]).is_some());
         for p in buffer_params(640 * 480 * 2, 1280).unwrap() {
             assert!(Pod::from_bytes(&p).is_some());
         }

@@ -1,6 +1,10 @@
 //! `loopback_tool write DEV FORMAT W H FPS SECONDS [write|mmap]`: publishes a
 //! moving test pattern through the glue (for manual checks in the VM).
 //! `loopback_tool bench DEV_OURS DEV_FFMPEG FRAMES`: see `sdi_tests::bench`.
+//! `loopback_tool latency DEV SECONDS`: reads DEV as a V4L2 client (mmap,
+//! 4 buffers) and prints how old each new frame is when it is dequeued:
+//! CLOCK_MONOTONIC at DQBUF minus the buffer's timestamp (the writer's
+//! capture time), median and 99th percentile.
 
 use std::time::{Duration, Instant};
 
@@ -74,12 +78,64 @@ fn main() {
         Some("bench") if args.len() >= 5 => {
             sdi_tests::bench::run(&args[2], &args[3], args[4].parse().expect("frames"))
         }
+        Some("latency") if args.len() >= 4 => {
+            let seconds: f64 = args[3].parse().expect("seconds");
+            latency(&args[2], Duration::from_secs_f64(seconds));
+        }
         _ => {
             eprintln!(
                 "usage: loopback_tool write DEV grey|y16|yuyv|rgb24 W H FPS SECONDS [write|mmap]"
             );
             eprintln!("       loopback_tool bench DEV_OURS DEV_FFMPEG FRAMES");
+            eprintln!("       loopback_tool latency DEV SECONDS");
             std::process::exit(2);
         }
     }
+}
+
+/// CLOCK_MONOTONIC in microseconds: the clock V4L2 buffer timestamps use.
+fn monotonic_us() -> i64 {
+    let t = nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC).expect("clock");
+    t.tv_sec() * 1_000_000 + t.tv_nsec() / 1_000
+}
+
+/// Prints "latency DEV: N frames, median X us, p99 Y us, max Z us" for the
+/// frames read in `window`. A buffer whose timestamp was seen before (the
+/// module re-sending the last frame) is not a new frame and is skipped.
+fn latency(dev: &str, window: Duration) {
+    use v4l::io::traits::CaptureStream;
+    let device = v4l::Device::with_path(dev).expect("open the node");
+    let mut stream =
+        v4l::io::mmap::Stream::with_buffers(&device, v4l::buffer::Type::VideoCapture, 4)
+            .expect("mmap streaming");
+    stream.set_timeout(Duration::from_secs(10));
+    let start = Instant::now();
+    let mut last_stamp_us = i64::MIN;
+    let mut ages_us = Vec::new();
+    while start.elapsed() < window {
+        let (_, meta) = stream.next().expect("dequeue");
+        let now_us = monotonic_us();
+        let stamp_us = meta.timestamp.sec * 1_000_000 + meta.timestamp.usec;
+        if stamp_us > last_stamp_us {
+            if ages_us.len() < 3 && std::env::var_os("SDI_LATENCY_DEBUG").is_some() {
+                eprintln!("seq {} stamp {stamp_us} now {now_us}", meta.sequence);
+            }
+            ages_us.push(now_us - stamp_us);
+            last_stamp_us = stamp_us;
+        }
+    }
+    ages_us.sort_unstable();
+    let at = |q: usize| {
+        ages_us
+            .get((ages_us.len().max(1) - 1) * q / 100)
+            .copied()
+            .unwrap_or(0)
+    };
+    println!(
+        "latency {dev}: {} frames, median {} us, p99 {} us, max {} us",
+        ages_us.len(),
+        at(50),
+        at(99),
+        at(100)
+    );
 }

@@ -1,6 +1,7 @@
 //! CPU per frame of the PipeWire sink against the y4m sink, side by side in
-//! one run on the host, at a 640x480 sensor size. (The v4l2loopback sink
-//! needs the module, i.e. the VM: `loopback_tool bench` there.)
+//! one run, at a 640x480 sensor size; where a v4l2loopback node labelled
+//! `sdi-bench` exists (the VM: `tests/vm/bench-sinks.sh`), the loopback
+//! sink too, read by `gst-launch-1.0 v4l2src`.
 //!
 //! Each sink gets the same synthetic frames, paced at `--rate` Hz, with one
 //! reader attached in another process (`gst-launch-1.0 pipewiresrc !
@@ -19,6 +20,7 @@ use std::time::{Duration, Instant};
 use nix::sys::resource::{getrusage, UsageWho};
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
 use sdi_core::mode::ModeOutput;
+use sdi_daemon::sink::loopback::LoopbackSink;
 use sdi_daemon::sink::pipewire::{PipewireSink, VIEW_NODE};
 use sdi_daemon::sink::y4m::Y4mSink;
 use sdi_daemon::sink::Sink;
@@ -175,7 +177,8 @@ fn bench_pipewire(s: &Session, caps: &str, frames: usize, rate_hz: f64) -> Run {
     if reader.is_some() {
         wait_for(
             "a reader on the PipeWire node",
-            Duration::from_secs(20),
+            // gst-launch under TCG (the VM) takes tens of seconds to start.
+            Duration::from_secs(180),
             || sink.view_streaming().then_some(()),
         );
     }
@@ -237,6 +240,48 @@ fn bench_y4m(s: &Session, frames: usize, rate_hz: f64) -> Run {
     }
 }
 
+/// The card label of the loopback node the bench writes to.
+const LOOPBACK_LABEL: &str = "sdi-bench";
+
+/// The loopback sink (YUYV 640x480 view node), read by GStreamer's v4l2src,
+/// if a node labelled [`LOOPBACK_LABEL`] exists.
+fn bench_loopback(frames: usize, rate_hz: f64) -> Option<Run> {
+    let dev = v4l2loopback_glue::find_device(LOOPBACK_LABEL).ok()?;
+    let mut sink = LoopbackSink::open(LOOPBACK_LABEL, "", WIDTH, HEIGHT, rate_hz)
+        .unwrap_or_else(|e| panic!("loopback sink: {e}"));
+    // The writer streams from open (the node is a capture device only
+    // then, with exclusive_caps=1); one frame before the reader opens.
+    let display = DisplayMap {
+        colormap: Colormap::Diverging,
+        range: DisplayRange::SymmetricAuto,
+    };
+    let mut first = ModeOutput::new(WIDTH, HEIGHT);
+    fill(&mut first, 0);
+    let _ = sink.write(&first, &display);
+    let reader = Reaped(
+        Command::new("gst-launch-1.0")
+            .arg("-q")
+            .args(format!("v4l2src device={} ! fakesink", dev.path.display()).split(' '))
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start gst-launch-1.0"),
+    );
+    std::thread::sleep(Duration::from_secs(3));
+    let (wall_s, cpu) = drive(&mut sink, frames, rate_hz);
+    drop(sink);
+    let c0 = cpu_s(UsageWho::RUSAGE_CHILDREN);
+    drop(reader);
+    Some(Run {
+        name: "loopback (YUYV view node), reader v4l2src".into(),
+        wall_s,
+        cpu_s: cpu,
+        written: frames,
+        published: frames as u64,
+        reader_cpu_s: cpu_s(UsageWho::RUSAGE_CHILDREN) - c0,
+    })
+}
+
 fn main() {
     let mut args = std::env::args().skip(1);
     let frames: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(300);
@@ -253,14 +298,13 @@ fn main() {
     println!(
         "sink_bench: {frames} frames of {WIDTH}x{HEIGHT} at {rate_hz} Hz per sink (view 640x480)"
     );
-    let runs = [
-        bench_y4m(&s, frames, rate_hz),
-        bench_pipewire(&s, "video/x-raw,format=YUY2", frames, rate_hz),
-        bench_pipewire(&s, "video/x-raw,format=RGB", frames, rate_hz),
-        bench_pipewire(&s, "", frames, rate_hz),
-        bench_render(frames, rate_hz),
-    ];
-    for r in &runs {
+    // Printed as each run ends.
+    if let Some(r) = bench_loopback(frames, rate_hz) {
         r.print();
     }
+    bench_y4m(&s, frames, rate_hz).print();
+    bench_pipewire(&s, "video/x-raw,format=YUY2", frames, rate_hz).print();
+    bench_pipewire(&s, "video/x-raw,format=RGB", frames, rate_hz).print();
+    bench_pipewire(&s, "", frames, rate_hz).print();
+    bench_render(frames, rate_hz).print();
 }
