@@ -135,6 +135,29 @@ choice! {
     }
 }
 
+choice! {
+    /// `scene`: the simulator's scene for every mode (default: each mode's own,
+    /// `sdictl modes`); one of `sdi_core::scene::SceneSpec::NAMES`.
+    "scene",
+    pub enum SimScene {
+        #[default]
+        FlatField,
+        ColourChart,
+        Polarization,
+        DepthEdge,
+        DepthEdgeVertical,
+        Birefringent,
+        FanPellets,
+    }
+}
+
+impl SimScene {
+    /// The scene with its default parameters.
+    pub fn spec(self) -> Option<sdi_core::scene::SceneSpec> {
+        sdi_core::scene::SceneSpec::from_name(self.name())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -163,6 +186,9 @@ mod tests {
         round_trip::<OnUnplug>(&["no-signal", "simulator", "exit"]);
         round_trip::<LightDriver>(&["none", "board", "scpi-tcp", "usbtmc", "gpio"]);
         round_trip::<SeparationMethod>(&["m3", "window"]);
+        // One name table with the simulator's.
+        round_trip::<SimScene>(sdi_core::scene::SceneSpec::NAMES);
+        assert!(SimScene::iter().all(|s| s.spec().is_some()));
         // Case as before: names are lower case, nothing else matches.
         assert!("Sim".parse::<BackendKind>().is_err());
         assert!("scpi_tcp".parse::<LightDriver>().is_err());

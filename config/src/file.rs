@@ -9,7 +9,7 @@ use sdi_core::display::Colormap;
 use sdi_core::mode::ModeId;
 use serde::{Deserialize, Serialize};
 
-use crate::choice::{BackendKind, LightDriver, OnUnplug, SeparationMethod, SinkKind};
+use crate::choice::{BackendKind, LightDriver, OnUnplug, SeparationMethod, SimScene, SinkKind};
 use crate::sensor_spec::SensorSpec;
 
 /// Everything `sdid` can be configured with.
@@ -29,6 +29,8 @@ pub struct Config {
     pub modulation_hz: Option<f64>,
     /// Simulator seed.
     pub seed: u64,
+    /// The simulator's scene for every mode (`None`: each mode's own).
+    pub scene: Option<SimScene>,
     pub display: DisplaySection,
     pub output: OutputSection,
     pub replay: ReplaySection,
@@ -48,6 +50,7 @@ impl Default for Config {
             frame_rate_hz: None,
             modulation_hz: None,
             seed: 1,
+            scene: None,
             display: DisplaySection::default(),
             output: OutputSection::default(),
             replay: ReplaySection::default(),

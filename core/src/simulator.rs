@@ -48,6 +48,10 @@ pub struct SimConfig {
     /// themselves, and point samples for the parts of those that can but
     /// sample (static scenes use one).
     pub substeps: usize,
+    /// Light travel time (`light_travel`): where the scene has depth, a
+    /// square-wave-modulated source's light arrives delayed by 2 depth / c
+    /// and part of it lands in the other well.
+    pub light_travel: bool,
 }
 
 impl SimConfig {
@@ -58,6 +62,7 @@ impl SimConfig {
             ambient_electrons_per_us: 0.0,
             seed: 0,
             substeps: 16,
+            light_travel: true,
         }
     }
 
@@ -126,6 +131,9 @@ pub struct Simulator {
     current: usize,
     time_us: f64,
     sequence: u64,
+    /// Per-pixel depth of the scene, metres, when light travel is simulated
+    /// and the scene has depth.
+    depth_m: Option<Image<f32>>,
 }
 
 impl Simulator {
@@ -148,7 +156,13 @@ impl Simulator {
             },
             _ => Image::new(w, h),
         };
+        let depth_m = if config.light_travel {
+            scene.depth_m()
+        } else {
+            None
+        };
         Ok(Self {
+            depth_m,
             scene,
             rng: SmallRng::seed_from_u64(config.seed),
             fixed_pattern_dn,
@@ -277,6 +291,7 @@ impl Simulator {
                 duty,
                 tb - ta,
                 self.config.ambient_electrons_per_us,
+                travel(self.depth_m.as_ref(), illumination),
             );
         }
         self.radiance_static = false;
@@ -304,7 +319,16 @@ impl Simulator {
                 self.scene.render(t_mid_us, &mut self.radiance);
                 self.radiance_static = is_static;
             }
-            accumulate(expected, &self.radiance, illumination, duty, dt_us, ambient);
+            let delay = travel(self.depth_m.as_ref(), illumination);
+            accumulate(
+                expected,
+                &self.radiance,
+                illumination,
+                duty,
+                dt_us,
+                ambient,
+                delay,
+            );
         }
     }
 
@@ -385,8 +409,24 @@ impl Simulator {
     }
 }
 
+/// The depth map and carrier when light travel applies to `illumination`:
+/// a 50/50 square wave over the whole exposure (the delayed-square-wave
+/// split of [`light_travel::wrong_well_fraction`] holds for it alone).
+fn travel<'a>(
+    depth: Option<&'a Image<f32>>,
+    illumination: &Illumination,
+) -> Option<(&'a Image<f32>, f64)> {
+    let m = &illumination.modulation;
+    let square =
+        matches!(m.segments[..], [seg] if seg.start <= 0.0 && seg.end >= 1.0 && seg.duty == 0.5);
+    depth.filter(|_| square).map(|d| (d, m.carrier_hz))
+}
+
 /// Adds the wells' share of `dt_us` of the rates in `radiance` (and the
-/// uniform ambient) at mean duty `duty` of f (eq. wellmeasurement).
+/// uniform ambient) at mean duty `duty` of f (eq. wellmeasurement). With
+/// `delay` (depth, carrier), a modulated source's light at a pixel of depth
+/// z arrives 2 z / c late and fraction w of it lands in the other well
+/// ([`light_travel::delayed_wells`]); unmodulated light is unaffected.
 fn accumulate(
     expected: &mut WellExpectation,
     radiance: &Radiance,
@@ -394,6 +434,7 @@ fn accumulate(
     duty: f64,
     dt_us: f64,
     ambient_electrons_per_us: f64,
+    delay: Option<(&Image<f32>, f64)>,
 ) {
     let channels = [
         (radiance.ls1.as_ref(), illumination.ls1),
@@ -410,9 +451,22 @@ fn accumulate(
         if wp == 0.0 && wm == 0.0 {
             continue;
         }
-        for ((p, m), &r) in plus.iter_mut().zip(minus.iter_mut()).zip(&rate.data) {
-            *p += wp * r;
-            *m += wm * r;
+        match delay.filter(|_| drive != SourceDrive::Constant) {
+            Some((depth, carrier_hz)) => {
+                let px = plus.iter_mut().zip(minus.iter_mut()).zip(&rate.data);
+                for (((p, m), &r), &z) in px.zip(&depth.data) {
+                    let w = light_travel::wrong_well_fraction(2.0 * f64::from(z), carrier_hz);
+                    let (dp, dm) = light_travel::delayed_wells(f64::from(wp), f64::from(wm), w);
+                    *p += dp as f32 * r;
+                    *m += dm as f32 * r;
+                }
+            }
+            None => {
+                for ((p, m), &r) in plus.iter_mut().zip(minus.iter_mut()).zip(&rate.data) {
+                    *p += wp * r;
+                    *m += wm * r;
+                }
+            }
         }
     }
     if ambient_electrons_per_us > 0.0 {

@@ -8,7 +8,7 @@ use sdi_core::mode::ModeId;
 use sdi_core::sensor::capture_range;
 
 use crate::bus::BusChoice;
-use crate::config::{cli, BackendKind, Config, SensorSpec, SinkKind};
+use crate::config::{cli, BackendKind, Config, SensorSpec, SimScene, SinkKind};
 use crate::startup::{StartError, StartOptions};
 
 /// The SDI difference-camera daemon.
@@ -39,6 +39,9 @@ pub struct Args {
     /// Simulator sensor: preset (ti, pmd) or a sensor description file (TOML).
     #[arg(long)]
     sensor: Option<SensorSpec>,
+    /// Simulator scene for every mode [default: each mode's own].
+    #[arg(long, value_parser = cli::choice::<SimScene>())]
+    scene: Option<SimScene>,
     /// Frame rate, Hz [0.1, 240].
     #[arg(long, value_parser = cli::in_range(capture_range::FRAME_RATE_HZ))]
     frame_rate_hz: Option<f64>,
@@ -109,6 +112,7 @@ impl Args {
         if let Some(s) = &self.sensor {
             c.sensor = s.clone();
         }
+        c.scene = self.scene.or(c.scene);
         c.frame_rate_hz = self.frame_rate_hz.or(c.frame_rate_hz);
         c.exposure_us = self.exposure_us.or(c.exposure_us);
         c.modulation_hz = self.modulation_hz.or(c.modulation_hz);

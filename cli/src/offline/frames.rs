@@ -362,6 +362,14 @@ impl FrameInput {
         }
     }
 
+    /// The mode the last frame read was recorded in (recordings only).
+    pub fn last_mode(&self) -> Option<&str> {
+        match self {
+            FrameInput::Recording { warned_mode, .. } => warned_mode.as_deref(),
+            FrameInput::Npy(_) => None,
+        }
+    }
+
     /// True for a recording that has supplied no dark frame so far.
     pub fn lacks_dark(&self) -> bool {
         matches!(self, FrameInput::Recording { dark_dn: None, .. })

@@ -5,8 +5,14 @@
 //! errors, and the ratio of the low-light intercepts (read noise counted once
 //! against twice: about 2; paper 1.97 PMD, 1.99 +- 0.37 TI). Writes
 //! noise.tsv and noise.svg; the last line printed states the ratio.
+//!
+//! On recordings (`--in SNAPSHOT --two-shot TWO`, one static scene): each
+//! pixel's temporal variance in the snapshot frames and in the differences
+//! of two-shot's frame pairs (LS1-only frame n, n even, minus LS2-only frame
+//! n + 1), against its intensity I = (mean A + mean B) / g from the two-shot
+//! frames; pixels binned by I into `--levels` groups of equal size.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use clap::Args;
 use plotters::prelude::*;
@@ -39,6 +45,170 @@ pub struct NoiseReportArgs {
     /// Simulator seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Measured data instead of the simulator: snapshot frames of a static
+    /// scene (.sdirec, or .npy in DN, dark-subtracted); needs --two-shot.
+    #[arg(long = "in", requires = "two_shot")]
+    pub input: Option<PathBuf>,
+    /// Two-shot frames of the same scene: a recording made in two-shot mode
+    /// (even-numbered frames LS1 alone, odd LS2 alone), or an .npy whose
+    /// even frames are LS1 alone and odd LS2 alone.
+    #[arg(long, requires = "input")]
+    pub two_shot: Option<PathBuf>,
+}
+
+/// Per-pixel running sums of one scheme's differences.
+struct PixelSums {
+    sum: Vec<f64>,
+    sum2: Vec<f64>,
+    bad: Vec<bool>,
+    n: usize,
+}
+
+impl PixelSums {
+    fn new(px: usize) -> Self {
+        Self {
+            sum: vec![0.0; px],
+            sum2: vec![0.0; px],
+            bad: vec![false; px],
+            n: 0,
+        }
+    }
+
+    /// Adds `a - b` (or `a` alone) per pixel; saturated or non-finite
+    /// samples mark the pixel unusable.
+    fn push(&mut self, a: &Frame, b: Option<&Frame>) {
+        for i in 0..self.sum.len() {
+            let (mut v, mut sat) = (f64::from(a.dn.data[i]), a.saturated.data[i] != 0);
+            if let Some(b) = b {
+                v -= f64::from(b.dn.data[i]);
+                sat |= b.saturated.data[i] != 0;
+            }
+            self.bad[i] |= sat || !v.is_finite();
+            self.sum[i] += v;
+            self.sum2[i] += v * v;
+        }
+        self.n += 1;
+    }
+
+    fn variance(&self, i: usize) -> Option<f64> {
+        let n = self.n as f64;
+        (self.n >= 2 && !self.bad[i])
+            .then(|| ((self.sum2[i] - self.sum[i] * self.sum[i] / n) / (n - 1.0)).max(0.0))
+    }
+
+    fn mean(&self, i: usize) -> Option<f64> {
+        (self.n >= 1 && !self.bad[i]).then(|| self.sum[i] / self.n as f64)
+    }
+}
+
+/// What a measured noise analysis found: the two series, the sensor behind
+/// the data and the frames used.
+struct Measured {
+    snap: Series,
+    two: Series,
+    sensor: sdi_core::sensor::SensorParams,
+    width: usize,
+    height: usize,
+    frames: usize,
+}
+
+fn usage(path: &Path, why: impl std::fmt::Display) -> CliError {
+    CliError::Usage(format!("'{}': {why}", path.display()))
+}
+
+/// The noise analysis of recordings (or .npy stacks): see the module doc.
+fn measure(
+    snap_path: &Path,
+    two_path: &Path,
+    sensor_arg: &SensorDescription,
+    levels: usize,
+) -> Result<Measured, CliError> {
+    use super::frames::FrameInput;
+    let (mut input, info) = FrameInput::open(snap_path)?;
+    let px = info.width * info.height;
+    let mut frame = Frame::new(info.width, info.height);
+    let mut snap = PixelSums::new(px);
+    while input.next_frame(snap_path, &mut frame)? {
+        snap.push(&frame, None);
+    }
+    let (mut input, tinfo) = FrameInput::open(two_path)?;
+    if (tinfo.width, tinfo.height) != (info.width, info.height) {
+        return Err(usage(two_path, "frames differ in size from --in"));
+    }
+    let (mut a_sums, mut b_sums, mut diffs) =
+        (PixelSums::new(px), PixelSums::new(px), PixelSums::new(px));
+    let mut a_frame: Option<Frame> = None;
+    while input.next_frame(two_path, &mut frame)? {
+        if input.last_mode().is_some_and(|m| m != "two-shot") {
+            return Err(usage(
+                two_path,
+                "holds frames not recorded in two-shot mode (sdictl set-mode two-shot before recording)",
+            ));
+        }
+        if frame.sequence & 1 == 0 {
+            a_sums.push(&frame, None);
+            a_frame = Some(frame.clone());
+        } else {
+            b_sums.push(&frame, None);
+            // A pair: the LS1-only frame just before this LS2-only one.
+            if let Some(a) = a_frame.take().filter(|a| a.sequence + 1 == frame.sequence) {
+                diffs.push(&a, Some(&frame));
+            }
+        }
+    }
+    if snap.n < 2 || diffs.n < 2 {
+        return Err(CliError::Usage(format!(
+            "need at least 2 snapshot frames and 2 two-shot pairs; got {} and {}",
+            snap.n, diffs.n
+        )));
+    }
+    // A recording's own sensor gives g; an .npy uses --sensor.
+    let sensor = info
+        .sensor
+        .clone()
+        .or(tinfo.sensor.clone())
+        .unwrap_or_else(|| sensor_arg.params());
+    let g = sensor.gain_dn_per_electron();
+    if !(g.is_finite() && g > 0.0) {
+        return Err(CliError::Usage(format!(
+            "gain rho*eta = {g} DN/electron: intensities cannot be had in electrons"
+        )));
+    }
+    // (I, snapshot variance, two-shot variance) of every usable pixel.
+    let mut pixels: Vec<(f64, f64, f64)> = (0..px)
+        .filter_map(|i| {
+            let x = (a_sums.mean(i)? + b_sums.mean(i)?) / g;
+            Some((x, snap.variance(i)?, diffs.variance(i)?))
+        })
+        .filter(|p| p.0.is_finite() && p.1.is_finite() && p.2.is_finite())
+        .collect();
+    if pixels.len() < levels {
+        return Err(CliError::Usage(format!(
+            "only {} usable pixels for {levels} levels",
+            pixels.len()
+        )));
+    }
+    pixels.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let (mut s, mut t) = (Series::default(), Series::default());
+    for k in 0..levels {
+        let bin = &pixels[k * pixels.len() / levels..(k + 1) * pixels.len() / levels];
+        let m = bin.len() as f64;
+        let x = bin.iter().map(|p| p.0).sum::<f64>() / m;
+        s.electrons.push(x);
+        s.variance_dn2
+            .push(bin.iter().map(|p| p.1).sum::<f64>() / m);
+        t.electrons.push(x);
+        t.variance_dn2
+            .push(bin.iter().map(|p| p.2).sum::<f64>() / m);
+    }
+    Ok(Measured {
+        snap: s,
+        two: t,
+        sensor,
+        width: info.width,
+        height: info.height,
+        frames: snap.n.min(diffs.n),
+    })
 }
 
 /// Variance against intensity of one capture scheme.
@@ -78,6 +248,41 @@ fn wells_total(sim: &Simulator) -> f64 {
 pub fn run(args: &NoiseReportArgs, json: bool) -> Result<(), CliError> {
     let t0 = std::time::Instant::now();
     let files = ReportFiles::create(&args.out, &["noise.tsv", "noise.svg"])?;
+    let (snap, two, sensor, n, levels, source) = match (&args.input, &args.two_shot) {
+        (Some(i), Some(t)) => {
+            let m = measure(i, t, &args.sensor, args.levels as usize)?;
+            let mut sensor = m.sensor;
+            (sensor.width, sensor.height) = (m.width, m.height);
+            let source = format!("recordings {} and {}", i.display(), t.display());
+            (
+                m.snap,
+                m.two,
+                sensor,
+                m.frames,
+                args.levels as usize,
+                source,
+            )
+        }
+        _ => {
+            let (snap, two, sensor) = simulate(args)?;
+            let source = "simulator".to_string();
+            (
+                snap,
+                two,
+                sensor,
+                args.frames as usize,
+                args.levels as usize,
+                source,
+            )
+        }
+    };
+    finish(files, json, t0, (snap, two, sensor, n, levels, source))
+}
+
+/// The two series on the simulator: flat fields at `--levels` intensities.
+fn simulate(
+    args: &NoiseReportArgs,
+) -> Result<(Series, Series, sdi_core::sensor::SensorParams), CliError> {
     let mut sensor = args.sensor.params();
     // Noise statistics do not depend on the frame size: a small frame is enough.
     sensor.width = sensor.width.min(64);
@@ -148,10 +353,50 @@ pub fn run(args: &NoiseReportArgs, json: bool) -> Result<(), CliError> {
             two.variance_dn2.push(v);
         }
     }
+    Ok((snap, two, sensor))
+}
+
+/// The fits, files and summary of both series.
+fn finish(
+    files: ReportFiles,
+    args_json: bool,
+    t0: std::time::Instant,
+    (snap, two, sensor, n, levels, source): (
+        Series,
+        Series,
+        sdi_core::sensor::SensorParams,
+        usize,
+        usize,
+        String,
+    ),
+) -> Result<(), CliError> {
+    let json = args_json;
     let fit = |s: &Series| {
-        linear_fit(&s.electrons, &s.variance_dn2).map_err(|e| CliError::Runtime(e.to_string()))
+        let (lo, hi) = s
+            .electrons
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        if hi.partial_cmp(&lo) != Some(std::cmp::Ordering::Greater) {
+            return Err(CliError::Runtime(format!(
+                "every level has the same intensity ({lo} electrons): no line to fit \
+                 (the scene needs a range of brightness)"
+            )));
+        }
+        linear_fit(&s.electrons, &s.variance_dn2)
+            .map_err(|e| CliError::Runtime(format!("line fit: {e}")))
     };
     let (fs, ft) = (fit(&snap)?, fit(&two)?);
+    // No read noise seen (zero light and a noiseless input): no ratio.
+    let (r, se) = ratio_with_se(ft.intercept, ft.intercept_se, fs.intercept, fs.intercept_se);
+    if !(fs.intercept > 0.0 && r.is_finite() && se.is_finite()) {
+        return Err(CliError::Runtime(format!(
+            "the snapshot intercept is {:.4} DN^2 and the two-shot intercept {:.4} DN^2: \
+             no read noise in the data, the intercept ratio is undefined",
+            fs.intercept, ft.intercept
+        )));
+    }
     let mut tsv = String::from("scheme\twell_electrons\tvariance_dn2\n");
     for (name, s) in [("snapshot", &snap), ("two-shot", &two)] {
         for (x, v) in s.electrons.iter().zip(&s.variance_dn2) {
@@ -166,7 +411,6 @@ pub fn run(args: &NoiseReportArgs, json: bool) -> Result<(), CliError> {
     let written = files.commit()?;
     let (tsv_path, svg_path) = (&written[0], &written[1]);
     let g = sensor.gain_dn_per_electron();
-    let (r, se) = ratio_with_se(ft.intercept, ft.intercept_se, fs.intercept, fs.intercept_se);
     let seconds = t0.elapsed().as_secs_f64();
     if json {
         let fit_json = |f: &LinearFit| {
@@ -184,6 +428,7 @@ pub fn run(args: &NoiseReportArgs, json: bool) -> Result<(), CliError> {
                 "width": sensor.width,
                 "height": sensor.height,
                 "frames_per_level": n,
+                "source": source,
                 "levels": levels,
                 "seconds": seconds,
                 "model_slope_dn2_per_electron": g * g,
@@ -199,7 +444,7 @@ pub fn run(args: &NoiseReportArgs, json: bool) -> Result<(), CliError> {
         return Ok(());
     }
     outln!(
-        "noise report: {} ({}x{} px, {} frames per level, {} levels, {seconds:.1} s)",
+        "noise report on the {source}: {} ({}x{} px, {} frames per level, {} levels, {seconds:.1} s)",
         sensor.model,
         sensor.width,
         sensor.height,

@@ -48,12 +48,22 @@ pub struct SeparationReportArgs {
     /// Simulator scene (default: colour-chart when available, else flat-field).
     #[arg(long)]
     pub scene: Option<String>,
+    /// A scene parameter, KEY=VALUE (repeatable; as `sdictl sim --scene-param`).
+    #[arg(
+        long = "scene-param",
+        value_name = "KEY=VALUE",
+        conflicts_with = "input"
+    )]
+    pub scene_params: Vec<String>,
     /// Directory for the plot (separation.svg) and the table (separation.tsv).
     #[arg(long, default_value = ".")]
     pub out: PathBuf,
     /// Largest N for M1 (2..=100000: M1 needs two frames for a variance).
-    #[arg(long, default_value_t = 1000, value_parser = parse_max_frames, allow_negative_numbers = true)]
+    #[arg(long, visible_alias = "frames", default_value_t = 1000, value_parser = parse_max_frames, allow_negative_numbers = true)]
     pub max_frames: usize,
+    /// Estimators to run, comma-separated [default: all].
+    #[arg(long, value_enum, value_delimiter = ',', num_args = 1..)]
+    pub estimators: Vec<Estimator>,
     /// Simulator seed.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
@@ -67,12 +77,44 @@ pub struct SeparationReportArgs {
     /// (.sdirec or .npy, DN, dark-subtracted); needs --truth-plus and --truth-minus.
     #[arg(long = "in", requires_all = ["truth_plus", "truth_minus"])]
     pub input: Option<PathBuf>,
-    /// Frames with LS1 alone: I+ = mean / g (eq. pixeleff).
+    /// Frames with LS1 alone: I+ = mean / g (eq. pixeleff). A recording
+    /// made in two-shot mode gives its LS1-only (even-numbered) frames.
     #[arg(long, requires = "input")]
     pub truth_plus: Option<PathBuf>,
-    /// Frames with LS2 alone: I- = -mean / g.
+    /// Frames with LS2 alone: I- = -mean / g. A recording made in two-shot
+    /// mode gives its LS2-only (odd-numbered) frames.
     #[arg(long, requires = "input")]
     pub truth_minus: Option<PathBuf>,
+}
+
+/// An estimator (family) of the report; `m3` stands for its three variants.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Estimator {
+    /// M1 over N frames (plain, and with read:=0 and non-negative at the largest N).
+    M1,
+    /// M1 with edge-aware pooling of the moments, at the largest N.
+    M1Pooled,
+    /// M2: automatic segments of one frame.
+    M2,
+    /// M3: every bilateral variant below.
+    M3,
+    M3Exact,
+    M3Separable,
+    M3Grid,
+}
+
+/// Which estimators a report runs (empty list: all).
+#[derive(Debug, Clone)]
+struct Chosen(Vec<Estimator>);
+
+impl Chosen {
+    fn has(&self, e: Estimator) -> bool {
+        let m3 = matches!(
+            e,
+            Estimator::M3Exact | Estimator::M3Separable | Estimator::M3Grid
+        );
+        self.0.is_empty() || self.0.contains(&e) || (m3 && self.0.contains(&Estimator::M3))
+    }
 }
 
 fn parse_max_frames(s: &str) -> Result<usize, String> {
@@ -108,6 +150,10 @@ pub enum ReportError {
     Dark(String),
     #[error("the simulator produced no frame")]
     NoFrames,
+    #[error(
+        "none of the chosen estimators runs here (measured data: m1, m1-pooled, m2, m3-separable)"
+    )]
+    NoRows,
 }
 
 /// One table row.
@@ -142,6 +188,10 @@ struct Report {
     height: usize,
     /// How the truth was taken, for the table's header.
     truth: &'static str,
+    /// A measured truth's own sampling error (I+, I-): relative RMS over
+    /// pixels of its standard error. An estimator's error against it is
+    /// about sqrt(error^2 + this^2).
+    truth_se: Option<(f64, f64)>,
     rows: Vec<Row>,
 }
 
@@ -221,6 +271,9 @@ fn scene_of(args: &SeparationReportArgs) -> Result<(String, SceneSpec), CliError
             ReportError::UnknownScene(name.clone(), SceneSpec::NAMES.join(", ")).to_string(),
         )
     })?;
+    let scene = scene
+        .with_params(&args.scene_params)
+        .map_err(|e| CliError::Usage(e.to_string()))?;
     Ok((name, scene))
 }
 
@@ -289,6 +342,7 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
         nonnegative: true,
     };
     let mut rows = Vec::new();
+    let chosen = Chosen(args.estimators.clone());
 
     // M1 over N frames (time: per pushed frame, plus the final inversion),
     // one accumulator read out at each N.
@@ -321,10 +375,12 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
         let m = acc.moments()?;
         let sep = unmix(&m, &h, with_read)?;
         let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
-        let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
-        r.floor = Some(m1_floor(&truth, &h, n));
-        rows.push(r);
-        if n == n_max {
+        if chosen.has(Estimator::M1) {
+            let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
+            r.floor = Some(m1_floor(&truth, &h, n));
+            rows.push(r);
+        }
+        if n == n_max && chosen.has(Estimator::M1Pooled) {
             let t0 = Instant::now();
             let pooled = pool_moments(&m, PoolParams::default())?;
             let sep = unmix(&pooled, &h, with_read)?;
@@ -337,6 +393,8 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
                 &truth,
                 ms + extra,
             ));
+        }
+        if n == n_max && chosen.has(Estimator::M1) {
             rows.push(row(
                 "M1",
                 format!("N={n}, read:=0"),
@@ -360,7 +418,12 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
     let truth = &truth;
     // M3's range scale from the frame itself (robust MAD), never from the truth.
     let noise_dn = noise_sigma(one);
-    for radius in [1usize, 2, 4] {
+    let radii: &[usize] = if chosen.has(Estimator::M2) {
+        &[1, 2, 4]
+    } else {
+        &[]
+    };
+    for &radius in radii {
         let p = SegmentParams {
             smooth_radius_px: radius,
             ..SegmentParams::default()
@@ -382,31 +445,41 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
         for k in [2.0, 4.0] {
             let p = BilateralParams::new(sd, k * noise_dn);
             let params = format!("sd={sd} sr={k}sigma");
-            let (sep, ms) = median_of_3(|| Ok(unmix(&bilateral_exact(one, p)?, &h, with_read)?))?;
-            rows.push(row("M3 exact", params.clone(), &sep, truth, ms));
+            if chosen.has(Estimator::M3Exact) {
+                let (sep, ms) =
+                    median_of_3(|| Ok(unmix(&bilateral_exact(one, p)?, &h, with_read)?))?;
+                rows.push(row("M3 exact", params.clone(), &sep, truth, ms));
+            }
             // The fast variants as the daemon runs them: buffers kept, f32 unmix.
             let mut out = Separated::default();
-            let mut separable = SeparableBilateral::new();
-            let ((), ms) = median_of_3(|| {
-                Ok(unmix_local_into(
-                    separable.compute(one, p)?,
-                    &h,
-                    with_read,
-                    &mut out,
-                )?)
-            })?;
-            rows.push(row("M3 separable", params.clone(), &out, truth, ms));
-            let mut grid = BilateralGrid::new();
-            let ((), ms) = median_of_3(|| {
-                Ok(unmix_local_into(
-                    grid.compute(one, p)?,
-                    &h,
-                    with_read,
-                    &mut out,
-                )?)
-            })?;
-            rows.push(row("M3 grid", params, &out, truth, ms));
+            if chosen.has(Estimator::M3Separable) {
+                let mut separable = SeparableBilateral::new();
+                let ((), ms) = median_of_3(|| {
+                    Ok(unmix_local_into(
+                        separable.compute(one, p)?,
+                        &h,
+                        with_read,
+                        &mut out,
+                    )?)
+                })?;
+                rows.push(row("M3 separable", params.clone(), &out, truth, ms));
+            }
+            if chosen.has(Estimator::M3Grid) {
+                let mut grid = BilateralGrid::new();
+                let ((), ms) = median_of_3(|| {
+                    Ok(unmix_local_into(
+                        grid.compute(one, p)?,
+                        &h,
+                        with_read,
+                        &mut out,
+                    )?)
+                })?;
+                rows.push(row("M3 grid", params.clone(), &out, truth, ms));
+            }
         }
+    }
+    if rows.is_empty() {
+        return Err(ReportError::NoRows);
     }
     Ok(Report {
         scene: name.to_owned(),
@@ -418,6 +491,7 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
         } else {
             "per frame (moving scene): M1 against the mean over its N frames, single-frame estimators against the first frame's"
         },
+        truth_se: None,
         rows,
     })
 }
@@ -517,6 +591,13 @@ fn print_table(r: &Report) -> Result<(), CliError> {
     let (scene, model, w, h, rows) = (&r.scene, &r.model, r.width, r.height, &r.rows);
     outln!("separation report: scene {scene}, {w}x{h}, sensor {model}, dark-frame subtracted")?;
     outln!("truth: {}", r.truth)?;
+    if let Some((p, m)) = r.truth_se {
+        outln!(
+            "the truth's own sampling error (relative RMS standard error): I+ {:.2}%, I- {:.2}%",
+            100.0 * p,
+            100.0 * m
+        )?;
+    }
     outln!("relative RMSE per pixel (rmse), per patch mean (patch), M1's sampling floor per pixel (floor)")?;
     outln!(
         "{:<13} {:<22} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>15} {:>10}",
@@ -579,6 +660,9 @@ pub fn ordering(rows: &[Row]) -> String {
     } else {
         "per pixel"
     };
+    if [m1, m2, m3].iter().any(|e| !e.is_finite()) {
+        return format!("ordering ({basis}): not all of M1, M2 auto and M3 ran");
+    }
     format!(
         "ordering ({basis}, I+ + I- error): M1 {:.2}% < M2 auto {:.2}% < M3 {:.2}%: {}",
         100.0 * m1,
@@ -620,6 +704,8 @@ fn json_doc(report: &Report) -> serde_json::Value {
         "width": report.width,
         "height": report.height,
         "truth": report.truth,
+        "truth_rel_se_plus": report.truth_se.map(|t| t.0),
+        "truth_rel_se_minus": report.truth_se.map(|t| t.1),
         "ordering": order,
         "rows": rows,
     })
@@ -727,17 +813,39 @@ fn plot(svg: &mut String, scene: &str, rows: &[Row]) -> Result<(), ReportError> 
     Ok(())
 }
 
+/// Which light source a truth input shows alone. In a recording made in
+/// two-shot mode the even-numbered frames are LS1 alone and the odd LS2
+/// alone (`ModeId::illumination`); only those of the source asked for are
+/// used. Frames of any other mode, and `.npy` frames, are all used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Alone {
+    Ls1,
+    Ls2,
+}
+
+impl Alone {
+    fn takes(self, mode: Option<&str>, sequence: u64) -> bool {
+        mode != Some("two-shot") || (sequence & 1 == 0) == (self == Alone::Ls1)
+    }
+}
+
 /// Streams up to `max` frames of a recording or .npy (dark subtracted as
-/// recorded) through `each`; the number of frames and the input's description.
+/// recorded) through `each` (with `alone`, only the frames of that source
+/// when the recording is two-shot); the number of frames and the input's
+/// description.
 fn stream_frames(
     path: &Path,
     max: usize,
+    alone: Option<Alone>,
     mut each: impl FnMut(&Frame) -> Result<(), CliError>,
 ) -> Result<(usize, super::frames::InputInfo), CliError> {
     let (mut input, info) = super::frames::FrameInput::open(path)?;
     let mut frame = Frame::new(info.width, info.height);
     let mut n = 0;
     while n < max && input.next_frame(path, &mut frame)? {
+        if alone.is_some_and(|a| !a.takes(input.last_mode(), frame.sequence)) {
+            continue;
+        }
         each(&frame)?;
         n += 1;
     }
@@ -752,28 +860,65 @@ fn stream_frames(
 
 /// Per-pixel mean over up to `max` frames (unusable samples skipped), DN,
 /// and the frame size.
-fn mean_dn(path: &Path, max: usize) -> Result<(Vec<f64>, usize, usize), CliError> {
-    let (mut s, mut k) = (Vec::new(), Vec::new());
-    let (_, info) = stream_frames(path, max, |f| {
+/// The per-pixel mean and its sampling variance (sample variance / frames,
+/// 0 below two samples), DN and DN^2.
+struct MeanDn {
+    mean: Vec<f64>,
+    var_of_mean: Vec<f64>,
+    width: usize,
+    height: usize,
+}
+
+fn mean_dn(path: &Path, max: usize, alone: Alone) -> Result<MeanDn, CliError> {
+    let (mut s, mut q, mut k) = (Vec::new(), Vec::new(), Vec::new());
+    let (_, info) = stream_frames(path, max, Some(alone), |f| {
         let n = f.dn.data.len();
         if s.is_empty() {
-            (s, k) = (vec![0.0; n], vec![0u32; n]);
+            (s, q, k) = (vec![0.0; n], vec![0.0; n], vec![0u32; n]);
         }
         for i in 0..n {
             let v = f.dn.data[i];
             if v.is_finite() && f.saturated.data[i] == 0 {
                 s[i] += f64::from(v);
+                q[i] += f64::from(v) * f64::from(v);
                 k[i] += 1;
             }
         }
         Ok(())
     })?;
-    let mean = s
+    let mean: Vec<f64> = s
         .iter()
         .zip(&k)
         .map(|(s, &k)| if k > 0 { s / f64::from(k) } else { 0.0 })
         .collect();
-    Ok((mean, info.width, info.height))
+    let var_of_mean = q
+        .iter()
+        .zip(&mean)
+        .zip(&k)
+        .map(|((q, m), &k)| {
+            let k = f64::from(k);
+            if k >= 2.0 {
+                ((q - k * m * m) / (k - 1.0)).max(0.0) / k
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    Ok(MeanDn {
+        mean,
+        var_of_mean,
+        width: info.width,
+        height: info.height,
+    })
+}
+
+/// RMS over pixels of the standard error of a measured truth, relative to
+/// its mean (`var_dn2`: per-pixel variance of the mean, DN^2; `g`: DN per
+/// electron): the error any estimator shows against it from the truth alone.
+fn truth_rel_se(var_dn2: &[f64], truth: &[f64], g: f64) -> f64 {
+    let k = truth.len().max(1) as f64;
+    let rms_e = (var_dn2.iter().sum::<f64>() / k).sqrt() / g;
+    rms_e / (truth.iter().sum::<f64>() / k).abs().max(1e-9)
 }
 
 /// `report separation` on measured data: the truth is the mean of the
@@ -791,14 +936,15 @@ fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
         ));
     };
     let n_max = args.max_frames.clamp(2, MAX_REPORT_FRAMES);
-    let (mean_plus, wp, hp) = mean_dn(tp, n_max)?;
-    let (mean_minus, wm, hm) = mean_dn(tm, n_max)?;
+    let plus = mean_dn(tp, n_max, Alone::Ls1)?;
+    let minus = mean_dn(tm, n_max, Alone::Ls2)?;
+    let (wp, hp, wm, hm) = (plus.width, plus.height, minus.width, minus.height);
     // M1's accumulator over the both-sources frames, timed per push; the
     // first frame kept for the single-frame estimators.
     let mut acc: Option<Welford> = None;
     let mut first: Option<Frame> = None;
     let mut push_time = Duration::ZERO;
-    let (n, info) = stream_frames(input, n_max, |f| {
+    let (n, info) = stream_frames(input, n_max, None, |f| {
         let a = acc.get_or_insert_with(|| Welford::new(f.width(), f.height()));
         let t0 = Instant::now();
         a.push(f).map_err(us)?;
@@ -825,40 +971,56 @@ fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
     // LS2 alone lands in I- (negative D) when driven out of phase, as in the
     // snapshot; two-shot's B frames drive it in phase (positive D). The
     // pooled sign tells which.
-    let sign = if mean_minus.iter().sum::<f64>() > 0.0 {
+    let sign = if minus.mean.iter().sum::<f64>() > 0.0 {
         eprintln!("note: --truth-minus frames are positive (LS2 driven in phase, as two-shot's B frames): I- = +mean / g");
         1.0
     } else {
         -1.0
     };
     let truth = Truth {
-        plus: mean_plus.iter().map(|m| m / g).collect(),
-        minus: mean_minus.iter().map(|m| sign * m / g).collect(),
+        plus: plus.mean.iter().map(|m| m / g).collect(),
+        minus: minus.mean.iter().map(|m| sign * m / g).collect(),
         patch: None,
     };
+    let truth_se = (
+        truth_rel_se(&plus.var_of_mean, &truth.plus, g),
+        truth_rel_se(&minus.var_of_mean, &truth.minus, g),
+    );
     let opts = UnmixOptions::default();
+    let chosen = Chosen(args.estimators.clone());
     let mut rows = Vec::new();
     if n >= 2 {
         let t0 = Instant::now();
         let m = acc.moments().map_err(us)?;
         let sep = unmix(&m, &h, opts).map_err(us)?;
         let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
-        let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
-        r.floor = Some(m1_floor(&truth, &h, n));
-        rows.push(r);
-        let pooled = pool_moments(&m, PoolParams::default()).map_err(us)?;
-        let sep = unmix(&pooled, &h, opts).map_err(us)?;
-        rows.push(row("M1 pooled", format!("N={n}"), &sep, &truth, ms));
+        if chosen.has(Estimator::M1) {
+            let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
+            r.floor = Some(m1_floor(&truth, &h, n));
+            rows.push(r);
+        }
+        if chosen.has(Estimator::M1Pooled) {
+            let pooled = pool_moments(&m, PoolParams::default()).map_err(us)?;
+            let sep = unmix(&pooled, &h, opts).map_err(us)?;
+            rows.push(row("M1 pooled", format!("N={n}"), &sep, &truth, ms));
+        }
     }
     let one = &one;
-    let t0 = Instant::now();
-    let seg = auto_segment(one, SegmentParams::default()).map_err(us)?;
-    let m = segment_moments(one, &seg.labels, Some(&seg.interior)).map_err(us)?;
-    let sep = unmix(&m, &h, opts).map_err(us)?;
-    let ms = t0.elapsed().as_secs_f64() * 1e3;
-    rows.push(row("M2 auto", "smooth r=2".into(), &sep, &truth, ms));
+    if chosen.has(Estimator::M2) {
+        let t0 = Instant::now();
+        let seg = auto_segment(one, SegmentParams::default()).map_err(us)?;
+        let m = segment_moments(one, &seg.labels, Some(&seg.interior)).map_err(us)?;
+        let sep = unmix(&m, &h, opts).map_err(us)?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        rows.push(row("M2 auto", "smooth r=2".into(), &sep, &truth, ms));
+    }
     let noise = noise_sigma(one);
-    for k in [2.0, 4.0] {
+    let ks: &[f64] = if chosen.has(Estimator::M3Separable) {
+        &[2.0, 4.0]
+    } else {
+        &[]
+    };
+    for &k in ks {
         let p = BilateralParams::new(1.5, k * noise);
         let mut out = Separated::default();
         let mut separable = SeparableBilateral::new();
@@ -873,12 +1035,16 @@ fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
             ms,
         ));
     }
+    if rows.is_empty() {
+        return Err(CliError::Usage(ReportError::NoRows.to_string()));
+    }
     Ok(Report {
         scene: format!("measured {}", input.display()),
         model: "measured".into(),
         width: w,
         height: ht,
         truth: "the mean of the LS1-only and LS2-only frames through g",
+        truth_se: Some(truth_se),
         rows,
     })
 }

@@ -41,6 +41,11 @@ pub struct SimArgs {
     /// Scene to simulate [default: the mode's own scene, flat-field if it is not built in].
     #[arg(long, value_parser = PossibleValuesParser::new(available_scenes()))]
     pub scene: Option<String>,
+    /// A scene parameter, KEY=VALUE (repeatable): e.g. source_spacing_mm,
+    /// displacement_px, fan_rpm, pellets, the sources' electrons_per_us;
+    /// an unknown key lists the scene's keys and defaults.
+    #[arg(long = "scene-param", value_name = "KEY=VALUE")]
+    pub scene_params: Vec<String>,
     /// Difference mode to run.
     #[arg(long, value_parser = sdi_config::cli::choice::<ModeId>())]
     pub mode: ModeId,
@@ -167,6 +172,9 @@ pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
         })?,
         None => args.mode.default_scene(),
     };
+    let scene = scene
+        .with_params(&args.scene_params)
+        .map_err(|e| CliError::Usage(e.to_string()))?;
     let mut sensor = args.sensor.params();
     if let Some(exposure_us) = args.exposure_us {
         sensor.exposure_us = exposure_us;

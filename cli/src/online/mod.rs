@@ -334,6 +334,34 @@ fn print_dict(d: &HashMap<String, OwnedValue>, json: bool) -> Result<(), OnlineE
     Ok(())
 }
 
+/// The simulator's light-travel warning for the scene it shows (the mode's
+/// own, or the one `sdid --scene` fixed, named in Device) at the current
+/// modulation frequency. None on other backends: a real scene's depth is
+/// not known to sdid.
+fn light_travel_warning(p: &serde_json::Map<String, Json>) -> Option<String> {
+    if p.get("Backend")?.as_str()? != "sim" {
+        return None;
+    }
+    let hz = p.get("ModulationHz")?.as_f64()?;
+    let device = p.get("Device")?.as_str()?;
+    let scene = match device.split_once(", scene ") {
+        Some((_, rest)) => {
+            let name: String = rest
+                .chars()
+                .take_while(|c| c.is_ascii_alphanumeric() || *c == '-')
+                .collect();
+            sdi_core::scene::SceneSpec::from_name(&name)?
+        }
+        None => p
+            .get("Mode")?
+            .as_str()?
+            .parse::<sdi_core::mode::ModeId>()
+            .ok()?
+            .default_scene(),
+    };
+    sdi_core::simulator::light_travel::light_travel_warning(&scene, hz)
+}
+
 async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError> {
     let json = bus.json;
     let cam = connect(bus).await?;
@@ -362,6 +390,9 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), OnlineError>
                     if let Some(v) = p.get(key) {
                         outln!("{key:>13}: {v}")?;
                     }
+                }
+                if let Some(w) = light_travel_warning(&p) {
+                    outln!("{:>13}: {w}", "Warning")?;
                 }
             }
         }

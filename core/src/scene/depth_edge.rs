@@ -150,4 +150,8 @@ impl StillScene for DepthEdgeScene {
         let (l1, l2) = self.lit_by(x, y);
         (if l1 { rate } else { 0.0 }, if l2 { rate } else { 0.0 })
     }
+
+    fn depth_at(&self, x: usize, y: usize) -> Option<f32> {
+        Some(self.surface_at(x as f32 + 0.5, y as f32 + 0.5).0 / 1000.0)
+    }
 }

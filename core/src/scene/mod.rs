@@ -6,6 +6,7 @@ mod colour_chart;
 mod depth_edge;
 mod fan_pellets;
 mod flat_field;
+mod params;
 mod polarization;
 
 pub use birefringent::BirefringentChart;
@@ -13,6 +14,7 @@ pub use colour_chart::ColourChart;
 pub use depth_edge::{DepthEdgeScene, SourcePlacement};
 pub use fan_pellets::{FanPellets, FanPelletsParams};
 pub use flat_field::FlatField;
+pub use params::SceneParamError;
 pub use polarization::{Components, PolarizationScene, Region};
 
 /// Scene-specific constants and helpers (layouts, reflectances) for tests
@@ -63,6 +65,11 @@ pub trait Scene: Send {
     ) -> bool {
         false
     }
+    /// Depth of the surface seen at each pixel, metres (sources beside the
+    /// lens: light travels twice this), for scenes that model depth.
+    fn depth_m(&self) -> Option<Image<f32>> {
+        None
+    }
 }
 
 /// A scene that does not move and is lit only by LS1 and LS2, described
@@ -72,6 +79,10 @@ pub trait StillScene: Send {
     fn size(&self) -> (usize, usize);
     /// LS1 and LS2 rates at pixel (x, y), electrons per microsecond.
     fn rates_at(&self, x: usize, y: usize) -> (f32, f32);
+    /// Depth of the surface at pixel (x, y), metres; None: no depth modelled.
+    fn depth_at(&self, _x: usize, _y: usize) -> Option<f32> {
+        None
+    }
 }
 
 impl<T: StillScene> Scene for T {
@@ -100,6 +111,18 @@ impl<T: StillScene> Scene for T {
         out.ls1 = Some(ls1);
         out.ls2 = Some(ls2);
         out.ambient = None;
+    }
+
+    fn depth_m(&self) -> Option<Image<f32>> {
+        let (w, h) = self.size();
+        self.depth_at(0, 0)?;
+        let mut d = Image::new(w, h);
+        for y in 0..h {
+            for x in 0..w {
+                d.data[y * w + x] = self.depth_at(x, y).unwrap_or(0.0);
+            }
+        }
+        Some(d)
     }
 }
 

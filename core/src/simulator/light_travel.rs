@@ -9,8 +9,10 @@
 //! scene's 1.5 m wall (3 m path, 10 ns) that is 2% at 1 MHz and 24% at
 //! 12 MHz, the TI board's default.
 //!
-//! Not yet applied inside [`super::Simulator`] (scenes carry no per-pixel
-//! depth); [`light_travel_warning`] tells the user when it matters.
+//! Applied inside [`super::Simulator`] (`SimConfig::light_travel`, on by
+//! default) for scenes with per-pixel depth (`Scene::depth_m`: the
+//! depth-edge scenes) under the 50/50 square wave; [`light_travel_warning`]
+//! tells the user when it matters.
 
 use crate::scene::SceneSpec;
 
@@ -57,8 +59,8 @@ pub fn light_travel_warning(scene: &SceneSpec, modulation_hz: f64) -> Option<Str
     (w > WARN_WRONG_WELL_FRACTION).then(|| {
         format!(
             "light travel: at {depth} m and {:.1} MHz, {:.0}% of the charge reaches the wrong well \
-             (round trip {:.1} ns against a half period of {:.1} ns); the simulator does not model this, \
-             a real sensor shows it. Lower the modulation frequency (below {:.1} MHz keeps it under {:.0}%).",
+             (round trip {:.1} ns against a half period of {:.1} ns), in the simulator as on a real sensor. \
+             Lower the modulation frequency (below {:.1} MHz keeps it under {:.0}%).",
             modulation_hz / 1e6,
             100.0 * w,
             2.0 * depth / SPEED_OF_LIGHT_M_PER_S * 1e9,
@@ -86,6 +88,40 @@ mod tests {
         assert_eq!(wrong_well_fraction(f64::NAN, 12e6), 0.0);
         let (p, m) = delayed_wells(1000.0, 0.0, fast);
         assert!((p + m - 1000.0).abs() < 1e-9 && m > 200.0);
+    }
+
+    /// The simulator itself: LS1 alone on the depth-edge scene; at a wall
+    /// pixel (1.5 m) the charge in I- is the wrong-well fraction.
+    #[test]
+    fn simulator_moves_charge_at_12_mhz_and_hardly_at_1_mhz() {
+        use crate::modulation::{Illumination, SourceDrive};
+        use crate::sensor::SensorPreset;
+        use crate::simulator::{SimConfig, Simulator};
+        let wrong_share = |hz: f64, travel: bool| {
+            let mut p = SensorPreset::TiOpt8241.params();
+            p.modulation_hz = hz;
+            let mut c = SimConfig::new(p, SceneSpec::from_name("depth-edge").unwrap());
+            c.light_travel = travel;
+            let mut sim = Simulator::new(c).unwrap();
+            let mut light = Illumination::snapshot(hz);
+            light.ls2 = SourceDrive::Off;
+            let mut f = crate::Frame::new(1, 1);
+            sim.capture(&light, &mut f);
+            let e = sim.last_expectation();
+            // Pixel (0, 0) sees the wall.
+            let (a, b) = (e.i_plus_electrons.data[0], e.i_minus_electrons.data[0]);
+            assert!(a + b > 0.0);
+            f64::from(b / (a + b))
+        };
+        let fast = wrong_share(12e6, true);
+        let slow = wrong_share(1e6, true);
+        assert!(
+            (fast - wrong_well_fraction(3.0, 12e6)).abs() < 1e-4,
+            "{fast}"
+        );
+        assert!(fast > 0.2, "{fast}");
+        assert!(slow > 0.0 && slow < 0.021, "{slow}");
+        assert_eq!(wrong_share(12e6, false), 0.0);
     }
 
     #[test]

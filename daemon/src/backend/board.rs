@@ -262,7 +262,7 @@ impl BoardBackend {
             OnUnplug::Simulator => {
                 if self.stand_in.is_none() {
                     self.seed = self.seed.wrapping_add(1);
-                    match SimBackend::new(self.sensor.clone(), self.mode, self.seed) {
+                    match SimBackend::new(self.sensor.clone(), self.mode, self.seed, None) {
                         Ok(sim) => {
                             tracing::info!("the simulator stands in until the board is back");
                             self.status.update(|s| {

@@ -100,7 +100,10 @@ fn build(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), St
             p.frame_rate_hz = c.frame_rate_hz.unwrap_or(p.frame_rate_hz);
             p.modulation_hz = c.modulation_hz.unwrap_or(p.modulation_hz);
             Ok((
-                Box::new(SimBackend::new(p, mode, c.seed).map_err(|e| e.to_string())?),
+                Box::new(
+                    SimBackend::new(p, mode, c.seed, c.scene.and_then(|s| s.spec()))
+                        .map_err(|e| e.to_string())?,
+                ),
                 BoardExtras::default(),
             ))
         }

@@ -20,19 +20,31 @@ pub struct SimBackend {
     sim: Simulator,
     scene: SceneSpec,
     seed: u64,
+    /// A scene for every mode (`sdid --scene`), else each mode's own.
+    fixed_scene: Option<SceneSpec>,
     /// The light-travel warnings logged lately: a mode switch back and forth
     /// (the depth-edge scene and another) does not log the same one again.
     light_travel_logged: VecDeque<String>,
 }
 
 impl SimBackend {
-    pub fn new(sensor: SensorParams, mode: ModeId, seed: u64) -> Result<Self, BackendError> {
-        let scene = modes::default_scene(mode);
+    /// The simulator showing `fixed_scene`, or the scene of `mode` (and of
+    /// each mode switched to) when that is `None`.
+    pub fn new(
+        sensor: SensorParams,
+        mode: ModeId,
+        seed: u64,
+        fixed_scene: Option<SceneSpec>,
+    ) -> Result<Self, BackendError> {
+        let scene = fixed_scene
+            .clone()
+            .unwrap_or_else(|| modes::default_scene(mode));
         let sim = build(sensor, scene.clone(), seed)?;
         let mut b = Self {
             sim,
             scene,
             seed,
+            fixed_scene,
             light_travel_logged: VecDeque::new(),
         };
         b.warn_light_travel();
@@ -70,8 +82,17 @@ impl Backend for SimBackend {
         "sim"
     }
 
+    /// "simulator (MODEL)", and ", scene NAME" with a fixed scene (`sdictl
+    /// status` reads it to tell the light-travel warning).
     fn device(&self) -> String {
-        format!("simulator ({})", self.sim.params().model)
+        match &self.fixed_scene {
+            Some(scene) => format!(
+                "simulator ({}, scene {})",
+                self.sim.params().model,
+                scene.name()
+            ),
+            None => format!("simulator ({})", self.sim.params().model),
+        }
     }
 
     fn sensor(&self) -> &SensorParams {
@@ -99,6 +120,9 @@ impl Backend for SimBackend {
     }
 
     fn set_mode(&mut self, mode: ModeId) {
+        if self.fixed_scene.is_some() {
+            return;
+        }
         let scene = modes::default_scene(mode);
         if scene != self.scene {
             self.seed = self.seed.wrapping_add(1);

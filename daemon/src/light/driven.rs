@@ -167,7 +167,7 @@ mod tests {
         p.width = 16;
         p.height = 8;
         p.frame_rate_hz = 240.0;
-        let sim = SimBackend::new(p, ModeId::TwoShot, 1).unwrap();
+        let sim = SimBackend::new(p, ModeId::TwoShot, 1, None).unwrap();
         let seen = Arc::new(Mutex::new(Vec::new()));
         let switch = LightSwitch::default();
         let mut b = LitBackend::new(
