@@ -149,13 +149,20 @@ fn kill_9_takes_the_private_session_bus_along() {
     }
     let address = address.expect("sdid announced no private bus");
     let t0 = Instant::now();
-    while !sdi_tests::dbus::sdictl(&address, &["get", "mode"])
-        .status
-        .success()
-    {
+    loop {
+        let out = sdi_tests::dbus::sdictl(&address, &["get", "mode"]);
+        if out.status.success() {
+            break;
+        }
+        // Fails 2 runs in 10 under load, cause not yet known: say what
+        // sdictl saw and whether sdid and its bus still run.
         assert!(
             t0.elapsed() < Duration::from_secs(30),
-            "sdid did not come up"
+            "sdid did not come up on {address}: sdictl {}: {}; sdid running: {}, its children: {:?}",
+            out.status,
+            String::from_utf8_lossy(&out.stderr).trim(),
+            running(child.id()),
+            children(child.id())
         );
         std::thread::sleep(Duration::from_millis(100));
     }
