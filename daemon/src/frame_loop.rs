@@ -283,19 +283,14 @@ impl FrameLoop {
             }
             let t0 = Instant::now();
             let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
-            // A paced source was captured when this loop's clock said (or a
-            // command asked), not on its own even spacing: its stamp is that
-            // moment, passed through. Anchoring it to "now" instead would
-            // date every later frame by the first capture's duration (tens
-            // of ms under emulation: readers saw frames from the future).
-            // A device's frame was captured when its capture call returned.
-            let arrived_us = if paced.is_some() {
+            if paced.is_some() {
+                // Captured when this loop's clock said (or a command asked),
+                // not on the source's own even spacing.
                 frame.timestamp_us = captured_at_us;
-                captured_at_us
-            } else {
-                monotonic_now_us()
-            };
-            frame.timestamp_us = self.clock.map(frame.timestamp_us, period_us, arrived_us);
+            }
+            frame.timestamp_us = self
+                .clock
+                .map(frame.timestamp_us, period_us, monotonic_now_us());
             self.sequence = self.next_sequence(frame.sequence);
             frame.sequence = self.sequence;
             self.mark_capture(&frame);
