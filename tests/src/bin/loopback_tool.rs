@@ -117,9 +117,6 @@ fn latency(dev: &str, window: Duration) {
         let now_us = monotonic_us();
         let stamp_us = meta.timestamp.sec * 1_000_000 + meta.timestamp.usec;
         if stamp_us > last_stamp_us {
-            if ages_us.len() < 3 && std::env::var_os("SDI_LATENCY_DEBUG").is_some() {
-                eprintln!("seq {} stamp {stamp_us} now {now_us}", meta.sequence);
-            }
             ages_us.push(now_us - stamp_us);
             last_stamp_us = stamp_us;
         }
