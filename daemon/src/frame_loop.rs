@@ -19,6 +19,7 @@ use crate::job::{Running, Settling};
 use crate::modes::{self, DisplayMap, ModeOutput, Pipeline, PipelineConfig};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
 use crate::photon_transfer::PtcJob;
+use crate::publish_clock::PublishClock;
 use crate::recording::{Calibration, RecordingWriter};
 use crate::sink::output::Output;
 use crate::stats::{LoopStats, StatsWindow};
@@ -138,8 +139,11 @@ pub struct FrameLoop {
     calibration_tx: watch::Sender<Calibration>,
     /// Estimator and H of the separation mode.
     separation: LiveSeparatorConfig,
-    /// Keeps output timestamps increasing when the backend restarts its clock.
+    /// Maps a device's own frame clock onto CLOCK_MONOTONIC, increasing
+    /// when the device restarts it.
     clock: MonotonicClock,
+    /// The one timestamp of each frame and "no signal" card published.
+    stamps: PublishClock,
     /// Snapshots asked for while the lights were off: answered from the
     /// first output of two consecutive lit captures.
     pending_snapshots: Vec<Reply<Option<SnapshotData>>>,
@@ -195,6 +199,7 @@ impl FrameLoop {
             calibration_tx,
             separation,
             clock: MonotonicClock::default(),
+            stamps: PublishClock::default(),
             pending_snapshots: Vec::new(),
             lights: Settling::changed(),
             sequence: 0,
@@ -272,7 +277,11 @@ impl FrameLoop {
                     self.lights.change();
                     self.answer_pending_snapshots();
                     self.answer_marks_while_stalled();
-                    self.output.send_no_signal();
+                    // No output pairs a frame from before the card with one
+                    // after it (it would carry a stamp older than the card's).
+                    self.pipeline.reset();
+                    let card_us = self.stamps.no_signal(monotonic_now_us());
+                    self.output.send_no_signal(card_us);
                     self.stats_tx.send_replace(self.stats.current.clone());
                     retry_at = Instant::now() + STALL_RETRY;
                     continue;
@@ -283,14 +292,16 @@ impl FrameLoop {
             }
             let t0 = Instant::now();
             let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
-            if paced.is_some() {
-                // Captured when this loop's clock said (or a command asked),
-                // not on the source's own even spacing.
-                frame.timestamp_us = captured_at_us;
-            }
-            frame.timestamp_us = self
-                .clock
-                .map(frame.timestamp_us, period_us, monotonic_now_us());
+            let now_us = monotonic_now_us();
+            // A paced source was captured when this loop's clock said (or a
+            // command asked): that moment is its stamp, passed through. A
+            // device's own clock is mapped onto the monotonic one.
+            let captured_us = if paced.is_some() {
+                captured_at_us
+            } else {
+                self.clock.map(frame.timestamp_us, period_us, now_us)
+            };
+            frame.timestamp_us = self.stamps.frame(captured_us, now_us);
             self.sequence = self.next_sequence(frame.sequence);
             frame.sequence = self.sequence;
             self.mark_capture(&frame);
@@ -607,7 +618,162 @@ impl FrameLoop {
 
 #[cfg(test)]
 mod tests {
-    use super::lights_needed;
+    use super::{lights_needed, Command, FrameLoop};
+    use crate::backend::sim::SimBackend;
+    use crate::backend::{Backend, BackendError, CaptureSettings};
+    use crate::modes::{DisplayMap, ModeId, ModeOutput};
+    use crate::monotonic::monotonic_now_us;
+    use crate::sink::output::Output;
+    use crate::sink::{Sink, SinkError, SinkInfo};
+    use sdi_core::modulation::Illumination;
+    use sdi_core::sensor::{SensorParams, SensorPreset};
+    use sdi_core::Frame;
+    use std::sync::{Arc, Mutex};
+    use std::time::{Duration, Instant};
+
+    /// The simulator, failing the capture attempts marked in `fails` (a
+    /// source that pauses) and taking `first_capture` over its first frame.
+    struct Scripted {
+        sim: SimBackend,
+        fails: Vec<bool>,
+        attempt: usize,
+        first_capture: Option<Duration>,
+    }
+
+    impl Backend for Scripted {
+        fn kind(&self) -> &'static str {
+            "scripted"
+        }
+        fn device(&self) -> String {
+            self.sim.device()
+        }
+        fn sensor(&self) -> &SensorParams {
+            self.sim.sensor()
+        }
+        fn settings(&self) -> CaptureSettings {
+            self.sim.settings()
+        }
+        fn configure(&mut self, s: &CaptureSettings) -> Result<(), BackendError> {
+            self.sim.configure(s)
+        }
+        fn paced_rate_hz(&self) -> Option<f64> {
+            self.sim.paced_rate_hz()
+        }
+        fn capture(&mut self, ill: &Illumination, frame: &mut Frame) -> Result<(), BackendError> {
+            self.attempt += 1;
+            if self.fails.get(self.attempt - 1).copied().unwrap_or(false) {
+                return Err(BackendError::Unavailable("paused".into()));
+            }
+            if let Some(took) = self.first_capture.take() {
+                std::thread::sleep(took);
+            }
+            self.sim.capture(ill, frame)
+        }
+    }
+
+    /// What a sink was given: (is the card, timestamp, CLOCK_MONOTONIC at the write).
+    type Written = Arc<Mutex<Vec<(bool, u64, u64)>>>;
+
+    struct Seen(Written);
+
+    impl Sink for Seen {
+        fn info(&self) -> SinkInfo {
+            SinkInfo {
+                kind: "seen",
+                device: String::new(),
+                format: String::new(),
+                width: 0,
+                height: 0,
+            }
+        }
+        fn write(&mut self, out: &ModeOutput, _: &DisplayMap) -> Result<(), SinkError> {
+            let now_us = monotonic_now_us();
+            self.0
+                .lock()
+                .unwrap()
+                .push((false, out.timestamp_us, now_us));
+            Ok(())
+        }
+        fn write_no_signal(&mut self, timestamp_us: u64) -> Result<(), SinkError> {
+            let now_us = monotonic_now_us();
+            self.0.lock().unwrap().push((true, timestamp_us, now_us));
+            Ok(())
+        }
+    }
+
+    /// Runs the frame loop in `mode` over a source that fails the attempts
+    /// marked in `fails` until the sink has `writes` writes; returns them.
+    fn published(mode: ModeId, fails: Vec<bool>, writes: usize) -> Vec<(bool, u64, u64)> {
+        let mut p = SensorPreset::TiOpt8241.params();
+        p.width = 16;
+        p.height = 8;
+        p.frame_rate_hz = 200.0;
+        let backend = Scripted {
+            sim: SimBackend::new(p, mode, 1, None).unwrap(),
+            fails,
+            attempt: 0,
+            // The capture the old anchoring dated every later frame by.
+            first_capture: Some(Duration::from_millis(40)),
+        };
+        let written = Written::default();
+        let output = Output::spawn(Box::new(Seen(written.clone()))).unwrap();
+        let (stats_tx, _stats) = tokio::sync::watch::channel(Default::default());
+        let (cal_tx, _cal) = tokio::sync::watch::channel(Default::default());
+        let fl = FrameLoop::new(
+            Box::new(backend),
+            mode,
+            DisplayMap::default(),
+            output,
+            stats_tx,
+            cal_tx,
+        );
+        let (tx, rx) = std::sync::mpsc::channel();
+        let t = std::thread::spawn(move || fl.run(rx));
+        let t0 = Instant::now();
+        while written.lock().unwrap().len() < writes && t0.elapsed() < Duration::from_secs(60) {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        tx.send(Command::Shutdown).unwrap();
+        t.join().unwrap();
+        let w = written.lock().unwrap().clone();
+        assert!(w.len() >= writes, "{} of {writes} writes: {w:?}", w.len());
+        w
+    }
+
+    /// Every stamp strictly after the one before, none later than the
+    /// moment the sink wrote it, cards and frames both where expected.
+    fn assert_one_clock(w: &[(bool, u64, u64)]) {
+        for (i, pair) in w.windows(2).enumerate() {
+            assert!(
+                pair[1].1 > pair[0].1,
+                "stamp {} not after {}: {w:?}",
+                i + 1,
+                i
+            );
+        }
+        for (i, &(card, stamp, now)) in w.iter().enumerate() {
+            assert!(
+                stamp <= now,
+                "write {i} (card {card}) stamped {} us in the future",
+                stamp - now
+            );
+        }
+        assert!(w[0].0, "the start-up card comes first: {w:?}");
+        let after_pause = w.iter().skip(1).skip_while(|x| !x.0).skip_while(|x| x.0);
+        assert!(after_pause.count() >= 2, "frames after the pause: {w:?}");
+    }
+
+    #[test]
+    fn no_signal_and_frames_share_one_clock_never_in_the_future() {
+        // A card at start-up, frames, a pause of two attempts (two cards),
+        // frames again; in two-shot the pause falls inside a pair.
+        let mut fails = vec![true, false, false, false, false, true, true];
+        fails.resize(40, false);
+        for mode in [ModeId::Raw, ModeId::TwoShot] {
+            let w = published(mode, fails.clone(), 12);
+            assert_one_clock(&w);
+        }
+    }
 
     #[test]
     fn lights_only_while_someone_needs_them() {

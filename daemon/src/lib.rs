@@ -18,6 +18,7 @@ pub mod logging;
 pub mod modes;
 pub mod monotonic;
 pub mod photon_transfer;
+pub mod publish_clock;
 pub mod recording;
 pub mod sink;
 pub mod snapshot;

@@ -7,11 +7,16 @@
 //! mode); the setting-change contract holds frame by frame: `set-mode`
 //! returns the capture timestamp of the mode's first frame, and every frame
 //! the reader gets with an earlier buffer timestamp shows the old mode, every
-//! later one the new (docs/dbus.md); snapshots through sdictl work inside the VM.
+//! later one the new (docs/dbus.md); a second V4L2 reader, streaming from
+//! sdid's start-up (its "no signal" card) through every switch, never
+//! dequeues a buffer stamped later than CLOCK_MONOTONIC at its dequeue, nor
+//! one stamped earlier than the buffer before; snapshots through sdictl work
+//! inside the VM.
 
 use std::io::{BufRead, Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -168,6 +173,79 @@ struct ModeRun {
     mean: Vec<f64>,
 }
 
+/// Buffer timestamp and CLOCK_MONOTONIC at its dequeue, microseconds.
+type Dequeued = Vec<(i64, i64)>;
+
+/// A V4L2 reader (mmap, 4 buffers) of `dev` from the moment it offers
+/// capture (sdid's start-up card) until `stop`: each buffer's timestamp
+/// with the reader's CLOCK_MONOTONIC right after its DQBUF.
+fn watch_stamps(dev: PathBuf, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Dequeued> {
+    std::thread::spawn(move || {
+        use v4l::io::traits::CaptureStream;
+        while !loopback::advertises_capture(&dev) {
+            assert!(
+                !stop.load(Ordering::Relaxed),
+                "the node never offered capture"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let device = v4l::Device::with_path(&dev).expect("open the view node");
+        let mut stream =
+            v4l::io::mmap::Stream::with_buffers(&device, v4l::buffer::Type::VideoCapture, 4)
+                .expect("mmap streaming");
+        stream.set_timeout(Duration::from_secs(10));
+        let mut seen = Vec::new();
+        while !stop.load(Ordering::Relaxed) {
+            let (_, meta) = stream.next().expect("dequeue");
+            let now_us = i64::try_from(loopback::monotonic_us()).expect("clock");
+            seen.push((meta.timestamp.sec * 1_000_000 + meta.timestamp.usec, now_us));
+        }
+        seen
+    })
+}
+
+/// Every buffer stamped no later than its dequeue, none earlier than the
+/// one before (equal: the driver repeating a frame); prints the ages.
+fn assert_stamps_in_order_and_past(seen: &Dequeued) {
+    assert!(
+        seen.len() >= 20,
+        "the stamp reader got {} buffers",
+        seen.len()
+    );
+    let future: Vec<_> = seen.iter().filter(|(t, now)| t > now).collect();
+    assert!(
+        future.is_empty(),
+        "{} of {} buffers stamped after their dequeue (stamp, dequeued at): {future:?}",
+        future.len(),
+        seen.len()
+    );
+    let back: Vec<_> = seen
+        .windows(2)
+        .enumerate()
+        .filter(|(_, w)| w[1].0 < w[0].0)
+        .map(|(i, w)| (i, w[0].0, w[1].0))
+        .collect();
+    assert!(
+        back.is_empty(),
+        "the stamp reader saw timestamps go back (index, t, next t): {back:?}"
+    );
+    let mut ages: Vec<i64> = seen
+        .windows(2)
+        .filter(|w| w[1].0 > w[0].0)
+        .map(|w| w[1].1 - w[1].0)
+        .collect();
+    ages.sort_unstable();
+    let at = |q: usize| ages[(ages.len() - 1) * q / 100];
+    eprintln!(
+        "ok: stamp reader: {} buffers ({} new frames), none from the future, none going back; capture to dequeue median {} us, p99 {} us, max {} us (TCG)",
+        seen.len(),
+        ages.len(),
+        at(50),
+        at(99),
+        at(100)
+    );
+}
+
 fn in_vm_checks() {
     loopback::modprobe(&[(NODE, LABEL)]);
     let dev = PathBuf::from(format!("/dev/video{NODE}"));
@@ -189,6 +267,8 @@ fn in_vm_checks() {
         .spawn()
         .expect("spawn sdid");
     let mut sdid = Killed(sdid);
+    let stop_stamps = Arc::new(AtomicBool::new(false));
+    let stamp_reader = watch_stamps(dev.clone(), stop_stamps.clone());
     let t0 = Instant::now();
     let ready = loop {
         if ctl(&bus.address, &["get", "mode"]).status.success()
@@ -271,6 +351,9 @@ fn in_vm_checks() {
             count() - before
         );
     }
+    stop_stamps.store(true, Ordering::Relaxed);
+    let seen = stamp_reader.join().expect("the stamp reader failed");
+    assert_stamps_in_order_and_past(&seen);
     // Pair every thumbnail with its buffer timestamp.
     let frames: Vec<(u64, Vec<u8>)> = {
         let t = thumbs.lock().expect("thumbs");

@@ -10,7 +10,7 @@
 //! let mut view = LoopbackWriter::open(&dev.path, LoopbackFormat::view(30))?;
 //! let rgb = vec![0u8; 640 * 480 * 3];
 //! view.write_rgb8(&rgb, 1_000_000)?; // sensor timestamp in µs
-//! view.write_no_signal()?; // sensor paused
+//! view.write_no_signal(1_033_333)?; // sensor paused: after the last frame
 //! let _watchers: Option<u32> = view.watchers(); // None on 0.12.x
 //! # Ok(()) }
 //! ```
@@ -25,7 +25,7 @@
 //! * [`LoopbackWriter::open`] negotiates [`LoopbackFormat`] (VIDIOC_S_FMT on the
 //!   output type, VIDIOC_S_PARM), sets `keep_format` and `sustain_framerate`,
 //!   requests mmap buffers (falls back to `write()`), STREAMONs and shows the
-//!   "no signal" card, so a reader can open at once and keeps working across
+//!   "no signal" card (stamped at the open), so a reader can open at once and keeps working across
 //!   daemon restarts.
 //! * Two profiles: [`LoopbackFormat::view`] (YUYV 640x480, browser-safe) and
 //!   [`LoopbackFormat::raw`] (Y16 at the sensor size; signed DN are stored as

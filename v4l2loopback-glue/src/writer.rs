@@ -223,7 +223,7 @@ impl LoopbackWriter {
         // current format while keep_format is set (`vidioc_try_fmt_vid`).
         writer.features.keep_format = writer.set_control(sys::CID_KEEP_FORMAT, 1);
         writer.subscribe_client_usage();
-        writer.write_no_signal()?;
+        writer.write_first_card()?;
         Ok(writer)
     }
 
@@ -491,7 +491,7 @@ impl LoopbackWriter {
             return Err(e);
         }
         self.set_control(sys::CID_KEEP_FORMAT, i32::from(self.features.keep_format));
-        self.write_no_signal()
+        self.write_first_card()
     }
 
     fn release_buffers(&mut self) {
@@ -613,16 +613,23 @@ impl LoopbackWriter {
         self.write(Input::SignedDn(Src::packed(dn, w, h, 1)), timestamp_us)
     }
 
-    /// Shows the "no signal" card (sensor paused), stamped with the current
-    /// monotonic time.
-    pub fn write_no_signal(&mut self) -> Result<(), GlueError> {
+    /// Shows the "no signal" card (sensor paused), stamped `timestamp_us`
+    /// (CLOCK_MONOTONIC, on the clock of the frames around it: a producer
+    /// stamps it after the last frame and before the next).
+    pub fn write_no_signal(&mut self, timestamp_us: u64) -> Result<(), GlueError> {
         let card = std::mem::take(&mut self.no_signal);
-        let ts = nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
-            .map(|t| t.tv_sec() as u64 * 1_000_000 + t.tv_nsec() as u64 / 1000)
-            .unwrap_or(0);
-        let result = self.write(Input::Packed(&card), ts);
+        let result = self.write(Input::Packed(&card), timestamp_us);
         self.no_signal = card;
         result
+    }
+
+    /// The card a (re)negotiated node shows until the first frame, stamped
+    /// now: before anything the producer stamps after this call returns.
+    fn write_first_card(&mut self) -> Result<(), GlueError> {
+        let now_us = nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
+            .map(|t| t.tv_sec() as u64 * 1_000_000 + t.tv_nsec() as u64 / 1000)
+            .unwrap_or(0);
+        self.write_no_signal(now_us)
     }
 
     /// The bytes of the "no signal" card in the output format.

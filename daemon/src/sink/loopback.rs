@@ -210,10 +210,10 @@ impl Sink for LoopbackSink {
         }
     }
 
-    fn write_no_signal(&mut self) -> Result<(), SinkError> {
-        self.view.write_no_signal().map_err(glue)?;
+    fn write_no_signal(&mut self, timestamp_us: u64) -> Result<(), SinkError> {
+        self.view.write_no_signal(timestamp_us).map_err(glue)?;
         if let Some(d) = &mut self.data {
-            d.write_no_signal().map_err(glue)?;
+            d.write_no_signal(timestamp_us).map_err(glue)?;
         }
         Ok(())
     }

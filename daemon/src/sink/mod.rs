@@ -35,10 +35,13 @@ pub enum SinkError {
 /// A consumer of processed frames.
 pub trait Sink: Send {
     fn info(&self) -> SinkInfo;
-    /// Renders and publishes one processed frame.
+    /// Renders and publishes one processed frame, stamped
+    /// `output.timestamp_us` where the sink has timestamps.
     fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError>;
-    /// Publishes a "no signal" frame (sensor paused or unplugged).
-    fn write_no_signal(&mut self) -> Result<(), SinkError>;
+    /// Publishes a "no signal" frame (sensor paused or unplugged), stamped
+    /// `timestamp_us` (CLOCK_MONOTONIC, chosen by the frame loop on the
+    /// frames' clock: `crate::publish_clock`) where the sink has timestamps.
+    fn write_no_signal(&mut self, timestamp_us: u64) -> Result<(), SinkError>;
     /// How many readers watch the output, where the sink can tell
     /// (v4l2loopback 0.13+); `None`: unknown, assume someone watches.
     fn watchers(&mut self) -> Option<u32> {

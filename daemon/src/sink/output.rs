@@ -12,7 +12,8 @@ use crate::modes::{DisplayMap, ModeId, ModeOutput};
 
 enum Msg {
     Frame(Arc<ModeOutput>, DisplayMap, Option<ModeId>),
-    NoSignal,
+    /// The card, with the timestamp the frame loop chose for it.
+    NoSignal(u64),
 }
 
 /// Sending side, held by the frame loop.
@@ -57,7 +58,7 @@ impl Output {
                             }
                             sink.write(&out, &display)
                         }
-                        Msg::NoSignal => sink.write_no_signal(),
+                        Msg::NoSignal(timestamp_us) => sink.write_no_signal(timestamp_us),
                     };
                     match r {
                         Ok(()) => failing = false,
@@ -108,8 +109,9 @@ impl Output {
         self.try_send(Msg::Frame(out, display, self.mode));
     }
 
-    pub fn send_no_signal(&self) {
-        self.try_send(Msg::NoSignal);
+    /// Queues the "no signal" card stamped `timestamp_us`; never blocks.
+    pub fn send_no_signal(&self, timestamp_us: u64) {
+        self.try_send(Msg::NoSignal(timestamp_us));
     }
 
     fn try_send(&self, msg: Msg) {

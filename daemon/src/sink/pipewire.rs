@@ -376,7 +376,7 @@ impl Sink for PipewireSink {
         Ok(())
     }
 
-    fn write_no_signal(&mut self) -> Result<(), SinkError> {
+    fn write_no_signal(&mut self, _timestamp_us: u64) -> Result<(), SinkError> {
         let mode = self.mode_name();
         let (vw, vh) = (self.view.width as usize, self.view.height as usize);
         let card = &self.no_signal_view;

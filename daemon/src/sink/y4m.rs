@@ -320,7 +320,7 @@ impl Sink for Y4mSink {
         self.send()
     }
 
-    fn write_no_signal(&mut self) -> Result<(), SinkError> {
+    fn write_no_signal(&mut self, _timestamp_us: u64) -> Result<(), SinkError> {
         // Dark grey with a diagonal stripe pattern.
         for (i, px) in self.rgb.chunks_exact_mut(3).enumerate() {
             let (x, y) = (i % self.width, i / self.width);

@@ -116,7 +116,7 @@ impl Sink for RenderOnly {
         Ok(())
     }
 
-    fn write_no_signal(&mut self) -> Result<(), sdi_daemon::sink::SinkError> {
+    fn write_no_signal(&mut self, _timestamp_us: u64) -> Result<(), sdi_daemon::sink::SinkError> {
         Ok(())
     }
 }
