@@ -510,7 +510,9 @@ impl LoopbackWriter {
         self.io = Io::Write { frame: Vec::new() };
     }
 
-    /// Publishes one frame; `timestamp_us` is the sensor timestamp.
+    /// Publishes one frame; `timestamp_us` is the capture timestamp
+    /// (CLOCK_MONOTONIC; 0: the driver stamps it), moved just after a
+    /// driver restamp that dated older frames later (see below).
     pub fn write(&mut self, input: Input<'_>, timestamp_us: u64) -> Result<(), GlueError> {
         let bytes = self.config.frame_bytes();
         let Self { io, conv, file, .. } = self;
@@ -536,7 +538,9 @@ impl LoopbackWriter {
                 next,
             } => {
                 let fd = file.as_fd();
-                let query = |index: usize| -> Result<Option<usize>, GlueError> {
+                // Which of our mappings the driver's buffer `index` is now,
+                // and the timestamp that buffer carries.
+                let query = |index: usize| -> Result<(Option<usize>, u64), GlueError> {
                     let mut buf = sys::v4l2_buffer {
                         index: index as u32,
                         type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
@@ -544,18 +548,40 @@ impl LoopbackWriter {
                         ..Default::default()
                     };
                     sys::querybuf(fd, &mut buf).map_err(err("VIDIOC_QUERYBUF"))?;
-                    Ok(offsets.iter().position(|&o| o == buf.mmap_offset()))
+                    let t = buf.timestamp;
+                    let stamp_us = (t.tv_sec.max(0) as u64)
+                        .saturating_mul(1_000_000)
+                        .saturating_add(t.tv_usec.max(0) as u64);
+                    Ok((
+                        offsets.iter().position(|&o| o == buf.mmap_offset()),
+                        stamp_us,
+                    ))
                 };
                 // Past the end of a shrunk ring, start again at 0: each driver
                 // buffer is then refilled only every used_buffers frames, the
                 // longest a reader can hold one.
                 let mut index = *next;
-                let mut target = query(index)?.unwrap_or(index);
+                let (found, mut held_us) = query(index)?;
+                let mut target = found.unwrap_or(index);
                 if target != index {
                     index = 0;
-                    target = query(0)?.unwrap_or(0);
+                    let (found, at_0_us) = query(0)?;
+                    target = found.unwrap_or(0);
+                    held_us = at_0_us;
                 }
                 *next = (index + 1) % maps.len();
+                // v4l2loopback 0.12.x restamps every buffer with the time of
+                // any opener's REQBUFS (`init_buffers`), e.g. a reader
+                // starting: readers then hold old frames dated that moment.
+                // A frame captured before it is dated just after it instead,
+                // so the node's timestamps never go back (it is still not
+                // dated later than now). Otherwise this buffer holds one of
+                // our earlier, older stamps and `timestamp_us` stands.
+                let timestamp_us = if timestamp_us != 0 && held_us >= timestamp_us {
+                    held_us.saturating_add(1)
+                } else {
+                    timestamp_us
+                };
                 fill(&mut maps[target].as_mut_slice()[..bytes])?;
                 let mut buf = sys::v4l2_buffer {
                     index: index as u32,
