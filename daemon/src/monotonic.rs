@@ -1,12 +1,12 @@
-//! Frame timestamps on one increasing timeline: the system's monotonic clock
-//! (CLOCK_MONOTONIC, microseconds), as V4L2 capture drivers stamp buffers and
-//! as the sinks stamp their "no signal" frames. A backend's own clock starts
-//! anywhere and may restart (the simulator rebuilds itself for a new mode's
-//! scene); each start is anchored to the monotonic time of its first frame,
-//! never earlier than one frame period after the last timestamp sent, and the
+//! A device's frame timestamps on the system's monotonic clock
+//! (CLOCK_MONOTONIC, microseconds), as V4L2 capture drivers stamp buffers. A
+//! backend's own clock starts anywhere and may restart (a board reopened);
+//! each start is anchored to the monotonic time of its first frame, never
+//! earlier than one frame period after the last timestamp sent, and the
 //! backend's own spacing is kept in between. Sources the frame loop paces
-//! (simulator, replay) are stamped with the monotonic time of their capture
-//! instead, which this mapping passes through unchanged.
+//! (simulator, replay) need no mapping: their stamp is the monotonic time of
+//! their capture (a stamp already on the monotonic clock would pass through
+//! unchanged). What is published is stamped by `crate::publish_clock`.
 
 /// Maps backend timestamps onto the monotonic timeline, microseconds.
 #[derive(Debug, Default)]

@@ -8,6 +8,7 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use super::{Sink, SinkInfo};
+use crate::monotonic::monotonic_now_us;
 use crate::modes::{DisplayMap, ModeId, ModeOutput};
 
 enum Msg {
@@ -26,6 +27,11 @@ pub struct Output {
     mode: Option<ModeId>,
     thread: Option<JoinHandle<()>>,
 }
+
+/// Trace target of one line per frame written: the mode and the time from
+/// its capture timestamp to the end of the sink's write (sdid's own
+/// latency: capture, processing, queue, rendering and publishing).
+pub const AGE_LOG: &str = "sdid::output::age";
 
 /// [`Output::watchers`] not known (the sink cannot tell).
 const WATCHERS_UNKNOWN: u32 = u32::MAX;
@@ -56,7 +62,17 @@ impl Output {
                             if let Some(m) = mode {
                                 sink.set_mode(m);
                             }
-                            sink.write(&out, &display)
+                            let r = sink.write(&out, &display);
+                            if r.is_ok() && tracing::enabled!(target: AGE_LOG, tracing::Level::TRACE) {
+                                let age_us = monotonic_now_us().saturating_sub(out.timestamp_us);
+                                tracing::trace!(
+                                    target: AGE_LOG,
+                                    mode = %mode.map_or("", ModeId::name),
+                                    capture_to_write_us = age_us,
+                                    "written"
+                                );
+                            }
+                            r
                         }
                         Msg::NoSignal(timestamp_us) => sink.write_no_signal(timestamp_us),
                     };

@@ -99,9 +99,10 @@ fn monotonic_us() -> i64 {
     t.tv_sec() * 1_000_000 + t.tv_nsec() / 1_000
 }
 
-/// Prints "latency DEV: N frames, median X us, p99 Y us, max Z us" for the
-/// frames read in `window`. A buffer whose timestamp was seen before (the
-/// module re-sending the last frame) is not a new frame and is skipped.
+/// Prints "latency DEV: N frames, median X us, p99 Y us, max Z us, B stamps
+/// went back" for the frames read in `window`. A buffer whose timestamp was
+/// seen before (the module re-sending the last frame) is not a new frame and
+/// is skipped; one stamped earlier than the last is counted in B.
 fn latency(dev: &str, window: Duration) {
     use v4l::io::traits::CaptureStream;
     let device = v4l::Device::with_path(dev).expect("open the node");
@@ -112,6 +113,8 @@ fn latency(dev: &str, window: Duration) {
     let start = Instant::now();
     let mut last_stamp_us = i64::MIN;
     let mut ages_us = Vec::new();
+    // Buffers stamped earlier than the one before (never expected).
+    let mut went_back = 0u64;
     while start.elapsed() < window {
         let (_, meta) = stream.next().expect("dequeue");
         let now_us = monotonic_us();
@@ -119,6 +122,8 @@ fn latency(dev: &str, window: Duration) {
         if stamp_us > last_stamp_us {
             ages_us.push(now_us - stamp_us);
             last_stamp_us = stamp_us;
+        } else if stamp_us < last_stamp_us {
+            went_back += 1;
         }
     }
     ages_us.sort_unstable();
@@ -129,7 +134,7 @@ fn latency(dev: &str, window: Duration) {
             .unwrap_or(0)
     };
     println!(
-        "latency {dev}: {} frames, median {} us, p99 {} us, max {} us",
+        "latency {dev}: {} frames, median {} us, p99 {} us, max {} us, {went_back} stamps went back",
         ages_us.len(),
         at(50),
         at(99),
