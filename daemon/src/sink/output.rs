@@ -8,8 +8,8 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use super::{Sink, SinkInfo};
-use crate::monotonic::monotonic_now_us;
 use crate::modes::{DisplayMap, ModeId, ModeOutput};
+use crate::monotonic::monotonic_now_us;
 
 enum Msg {
     Frame(Arc<ModeOutput>, DisplayMap, Option<ModeId>),
@@ -63,7 +63,9 @@ impl Output {
                                 sink.set_mode(m);
                             }
                             let r = sink.write(&out, &display);
-                            if r.is_ok() && tracing::enabled!(target: AGE_LOG, tracing::Level::TRACE) {
+                            if r.is_ok()
+                                && tracing::enabled!(target: AGE_LOG, tracing::Level::TRACE)
+                            {
                                 let age_us = monotonic_now_us().saturating_sub(out.timestamp_us);
                                 tracing::trace!(
                                     target: AGE_LOG,
