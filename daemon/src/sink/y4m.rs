@@ -401,24 +401,24 @@ mod tests {
         let mut sink = Y4mSink::new(Some(&path), 4, 2, 5.0).unwrap();
         std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o640)).unwrap();
         let ino = std::fs::metadata(&path).unwrap().ino();
-        sink.write_no_signal().unwrap(); // nobody reads: skipped
+        sink.write_no_signal(0).unwrap(); // nobody reads: skipped
         let mut first = reader(&path);
-        sink.write_no_signal().unwrap();
+        sink.write_no_signal(0).unwrap();
         assert!(drain(&mut first).starts_with(b"YUV4MPEG2 W4 H2"));
         let meta = std::fs::metadata(&path).unwrap();
         assert_ne!(meta.ino(), ino, "no fresh FIFO at the path");
         assert!(meta.file_type().is_fifo());
         assert_eq!(meta.permissions().mode() & 0o777, 0o640);
         let mut second = reader(&path);
-        sink.write_no_signal().unwrap();
+        sink.write_no_signal(0).unwrap();
         assert!(drain(&mut first).starts_with(b"FRAME\n"));
         assert!(
             drain(&mut second).is_empty(),
             "the second reader joined the first one's pipe"
         );
         drop(first);
-        sink.write_no_signal().unwrap(); // EPIPE: the first reader is gone
-        sink.write_no_signal().unwrap(); // connects the second
+        sink.write_no_signal(0).unwrap(); // EPIPE: the first reader is gone
+        sink.write_no_signal(0).unwrap(); // connects the second
         let got = drain(&mut second);
         assert!(
             got.starts_with(b"YUV4MPEG2 W4 H2"),
@@ -436,7 +436,7 @@ mod tests {
         std::fs::write(&victim, b"keep").unwrap();
         std::fs::remove_file(&path).unwrap();
         std::os::unix::fs::symlink(&victim, &path).unwrap();
-        assert!(sink.write_no_signal().is_err());
+        assert!(sink.write_no_signal(0).is_err());
         assert_eq!(std::fs::read(&victim).unwrap(), b"keep");
     }
 
