@@ -23,10 +23,14 @@ impl PrivateBus {
             "--nopidfile",
             "--print-address=1",
         ];
+        // Its stderr comes through our log, a line at a time: written
+        // straight to ours, its start-up warnings landed in the middle of
+        // the address announcement below (a test read a garbled address).
         let spawn = |program: &str, args: &[&str]| {
             Command::new(program)
                 .args(args)
                 .stdout(Stdio::piped())
+                .stderr(Stdio::piped())
                 .stdin(Stdio::null())
                 .spawn()
         };
@@ -42,6 +46,15 @@ impl PrivateBus {
             }
             Err(e) => return Err(e),
         };
+        if let Some(err) = child.stderr.take() {
+            std::thread::Builder::new()
+                .name("sdid-bus-log".into())
+                .spawn(move || {
+                    for line in BufReader::new(err).lines().map_while(Result::ok) {
+                        tracing::info!(target: "sdid::private_bus", "{line}");
+                    }
+                })?;
+        }
         let mut line = String::new();
         if let Some(out) = child.stdout.take() {
             BufReader::new(out).read_line(&mut line)?;
@@ -88,9 +101,15 @@ pub async fn connect(choice: &BusChoice) -> Result<(zbus::Connection, Option<Pri
                     let p = PrivateBus::spawn().map_err(|e| {
                         format!("no session bus and cannot start dbus-daemon: {e} (install dbus)")
                     })?;
-                    eprintln!(
-                        "sdid: no session bus found; started a private one:\n  export DBUS_SESSION_BUS_ADDRESS='{}'\n(sdictl --session finds it automatically)",
+                    // One write: the announcement stays whole beside
+                    // other writers of the same stderr.
+                    let announcement = format!(
+                        "sdid: no session bus found; started a private one:\n  export DBUS_SESSION_BUS_ADDRESS='{}'\n(sdictl --session finds it automatically)\n",
                         p.address
+                    );
+                    let _ = std::io::Write::write_all(
+                        &mut std::io::stderr().lock(),
+                        announcement.as_bytes(),
                     );
                     let a = p.address.clone();
                     private = Some(p);

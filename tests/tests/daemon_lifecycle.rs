@@ -121,22 +121,30 @@ fn running(pid: u32) -> bool {
     }
 }
 
-#[test]
-fn kill_9_takes_the_private_session_bus_along() {
-    require_dbus!();
-    let runtime = tempfile::tempdir().unwrap();
+/// `sdid --session` with no session bus around: it starts a private one and
+/// announces its address on stderr. Returns sdid, its stderr (read up to the
+/// announcement), the address and the lines read so far, once sdid answers
+/// on that bus.
+fn start_with_private_bus(
+    runtime: &Path,
+) -> (
+    std::process::Child,
+    BufReader<std::process::ChildStderr>,
+    String,
+    Vec<String>,
+) {
     let mut child = Command::new(bin("sdid"))
         .args(["--session", "--sink", "y4m", "--y4m-path", "-"])
         .env_remove("DBUS_SESSION_BUS_ADDRESS")
-        .env("XDG_RUNTIME_DIR", runtime.path())
-        .env("RUST_LOG", "warn")
+        .env("XDG_RUNTIME_DIR", runtime)
+        .env("RUST_LOG", "info")
         .env_remove("INVOCATION_ID")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()
         .expect("start sdid --session");
     let mut err = BufReader::new(child.stderr.take().unwrap());
-    let mut address = None;
+    let (mut address, mut lines) = (None, Vec::new());
     let mut line = String::new();
     while address.is_none() && err.read_line(&mut line).unwrap_or(0) > 0 {
         if let Some(rest) = line
@@ -145,17 +153,15 @@ fn kill_9_takes_the_private_session_bus_along() {
         {
             address = Some(rest.trim_end_matches('\'').to_owned());
         }
-        line.clear();
+        lines.push(std::mem::take(&mut line));
     }
-    let address = address.expect("sdid announced no private bus");
+    let address = address.unwrap_or_else(|| panic!("sdid announced no private bus: {lines:#?}"));
     let t0 = Instant::now();
     loop {
         let out = sdi_tests::dbus::sdictl(&address, &["get", "mode"]);
         if out.status.success() {
             break;
         }
-        // Fails 2 runs in 10 under load, cause not yet known: say what
-        // sdictl saw and whether sdid and its bus still run.
         assert!(
             t0.elapsed() < Duration::from_secs(30),
             "sdid did not come up on {address}: sdictl {}: {}; sdid running: {}, its children: {:?}",
@@ -166,6 +172,44 @@ fn kill_9_takes_the_private_session_bus_along() {
         );
         std::thread::sleep(Duration::from_millis(100));
     }
+    (child, err, address, lines)
+}
+
+/// The private bus's own messages (as root without CAP_SYS_RESOURCE,
+/// dbus-daemon warns that it cannot raise its fd limit, at the moment sdid
+/// announces the address) go through sdid's log a line at a time, so they
+/// never land inside the announcement: written straight to the shared
+/// stderr they did, 4 runs in 10 under load, and the address read was the
+/// warning.
+#[test]
+fn the_private_bus_announcement_stays_whole() {
+    require_dbus!();
+    let runtime = tempfile::tempdir().unwrap();
+    let (mut child, mut err, address, mut lines) = start_with_private_bus(runtime.path());
+    assert!(address.starts_with("unix:"), "address {address:?}");
+    // SAFETY: plain kill(2) on our own child's pid.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGTERM);
+    }
+    let mut rest = String::new();
+    let _ = err.read_to_string(&mut rest);
+    let _ = child.wait();
+    lines.extend(rest.lines().map(str::to_owned));
+    let raw: Vec<&String> = lines
+        .iter()
+        .filter(|l| l.trim_start().starts_with("dbus-daemon["))
+        .collect();
+    assert!(
+        raw.is_empty(),
+        "dbus-daemon wrote to sdid's stderr directly: {raw:#?}"
+    );
+}
+
+#[test]
+fn kill_9_takes_the_private_session_bus_along() {
+    require_dbus!();
+    let runtime = tempfile::tempdir().unwrap();
+    let (mut child, _err, address, _) = start_with_private_bus(runtime.path());
     let bus_pids = children(child.id());
     assert!(!bus_pids.is_empty(), "no dbus-daemon child");
     // SAFETY: plain kill(2) on our own child's pid.

@@ -13,11 +13,12 @@
 //! - the frame rate held: the median sample at least
 //!   [`MEDIAN_FPS_FRACTION`] of the configured rate, none below
 //!   [`MIN_FPS_FRACTION`], and frames keep coming;
-//! - a fair share: during each flood, every call of another client
-//!   (`SetMode`, which waits for a frame, and uncached property reads) is
-//!   answered within 200 ms at the 99th percentile and within 600 ms at
-//!   most (a loaded 2-core machine; the same calls without a flood reach
-//!   190 ms there), and every flood call is answered;
+//! - a fair share: during each flood, the calls of another client
+//!   (`SetMode`, which waits for a frame, and uncached property reads) take
+//!   at most 200 ms longer at the 99th percentile than the same calls
+//!   without a flood in the same run, each within 600 ms (or 200 ms over
+//!   the slowest call without a flood: on a loaded 2-core machine those
+//!   alone reach 190-530 ms), and every flood call is answered;
 //! - every client call of the workload succeeded, and sdid is still alive.
 //!
 //! About 2 minutes by default; `SDI_SOAK_SECS=3600` soaks for an hour.
@@ -42,10 +43,10 @@ use zbus::proxy::CacheProperties;
 const DEFAULT_SECS: u64 = 120;
 const FPS: f64 = 30.0;
 const FLOOD_CALLS: usize = 10_000;
-/// Another client's call under a flood (docs/dbus.md, "Fair share"), for
-/// 99 % of the calls; every call within 3x, the margin of
+/// What a flood may add to another client's calls (docs/dbus.md, "Fair
+/// share"), at the 99th percentile; every call within 3x, the margin of
 /// `dbus_fair_share.rs` for a loaded 2-core machine (on one, the same calls
-/// without any flood took up to 190 ms).
+/// without any flood took up to 190-530 ms).
 const LATENCY_BOUND: Duration = Duration::from_millis(200);
 const LATENCY_MAX_LOADED: Duration = Duration::from_millis(600);
 const SAMPLE_EVERY: Duration = Duration::from_secs(2);
@@ -290,6 +291,16 @@ async fn probe_until(
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     latencies
+}
+
+/// (99th percentile, maximum) of `latencies` (not empty).
+fn p99_and_max(latencies: &[Duration]) -> (Duration, Duration) {
+    let mut sorted = latencies.to_vec();
+    sorted.sort();
+    (
+        sorted[(sorted.len() - 1) * 99 / 100],
+        sorted[sorted.len() - 1],
+    )
 }
 
 /// "max X ms, 99th percentile Y ms, mean Z ms" of `latencies`.
@@ -543,19 +554,22 @@ async fn soak_clients_come_and_go_memory_and_descriptors_stay_flat() {
         assert!(counter.load(Ordering::Relaxed) > 0, "a worker never ran");
     }
 
-    // Fair share: 99 % of the calls within 200 ms, every one within the
-    // margin dbus_fair_share.rs gives a loaded 2-core machine (a call that
-    // waited behind the flood would take seconds).
+    // Fair share: the flood adds at most 200 ms to another client's 99th
+    // percentile, measured against the same calls without a flood in this
+    // run, and every call stays within the loaded-machine margin (a call
+    // that waited behind the flood would take seconds). Against the quiet
+    // calls, not an absolute figure: at load 9 on 2 cores the calls
+    // without any flood reached 165 ms (99th percentile) and 527 ms.
     assert!(!floods.is_empty(), "no flood ran");
+    let (quiet_p99, quiet_max) = p99_and_max(&quiet);
     for (start, _, lat) in &floods {
-        let mut sorted = lat.clone();
-        sorted.sort();
-        let p99 = sorted[(sorted.len() - 1) * 99 / 100];
-        let max = sorted[sorted.len() - 1];
+        let (p99, max) = p99_and_max(lat);
+        let max_bound = LATENCY_MAX_LOADED.max(quiet_max + LATENCY_BOUND);
         assert!(
-            p99 <= LATENCY_BOUND && max <= LATENCY_MAX_LOADED,
+            p99 <= quiet_p99 + LATENCY_BOUND && max <= max_bound,
             "under the flood at {start:.0} s another client's calls: 99th percentile \
-             {p99:?} (bound {LATENCY_BOUND:?}), max {max:?} (bound {LATENCY_MAX_LOADED:?})"
+             {p99:?} (bound {LATENCY_BOUND:?} over {quiet_p99:?} without a flood), max {max:?} \
+             (bound {max_bound:?})"
         );
     }
 
