@@ -248,6 +248,64 @@ impl PageServer {
         self.len() == 0
     }
 
+    /// The page's first view frame with stats, polling until `limit`.
+    /// Panics with `failure()` (browser and other logs) when the page
+    /// reports an error or no frame comes.
+    pub fn first_view_frame(
+        &self,
+        name: &str,
+        limit: Duration,
+        failure: impl Fn() -> String,
+    ) -> Value {
+        let t0 = Instant::now();
+        loop {
+            if let Some(v) = self.of_kind("frame").into_iter().find(|v| {
+                v["name"] == "view"
+                    && v["frames"].as_u64().unwrap_or(0) > 0
+                    && !v["stats"].is_null()
+            }) {
+                return v;
+            }
+            if let Some(e) = self.of_kind("error").first() {
+                panic!("{name}: the page failed: {e}\n{}", failure());
+            }
+            assert!(
+                t0.elapsed() < limit,
+                "{name}: no frame of the SDI camera in {limit:?}; page retries {}\n{}",
+                self.of_kind("retry").len(),
+                failure()
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
+    /// The first `opened` and `devices` reports: the track opened is the SDI
+    /// camera (label starting with `label`) at 640x480, and so is `first`,
+    /// the first frame drawn. Returns the device list.
+    pub fn assert_opened_view(&self, name: &str, label: &str, first: &Value) -> Value {
+        let opened = self
+            .of_kind("opened")
+            .into_iter()
+            .next()
+            .expect("opened before frames");
+        let devices = self.of_kind("devices").into_iter().next().expect("devices");
+        eprintln!(
+            "{name}: opened {opened}\n{name}: devices {}",
+            devices["devices"]
+        );
+        assert!(
+            opened["label"]
+                .as_str()
+                .is_some_and(|l| l.starts_with(label)),
+            "{name}: opened {opened}, not {label}"
+        );
+        assert_eq!(opened["settings"]["width"], 640, "{name}: {opened}");
+        assert_eq!(opened["settings"]["height"], 480, "{name}: {opened}");
+        assert_eq!(first["stats"]["w"], 640, "{name}: {first}");
+        assert_eq!(first["stats"]["h"], 480, "{name}: {first}");
+        devices
+    }
+
     /// Every report of `kind` (for the log).
     pub fn of_kind(&self, kind: &str) -> Vec<Value> {
         self.reports
@@ -413,4 +471,23 @@ impl Drop for Browser {
             .status();
         let _ = self.child.wait();
     }
+}
+
+/// The colour `stats[key]` ("mean", "top" ...) of a page's frame report.
+pub fn stats_rgb(v: &Value, key: &str) -> Option<[f64; 3]> {
+    let a = v["stats"][key].as_array()?;
+    Some([
+        a.first()?.as_f64()?,
+        a.get(1)?.as_f64()?,
+        a.get(2)?.as_f64()?,
+    ])
+}
+
+/// A live view frame report whose mean colour is within `tolerance` codes
+/// (per channel) of `expected`.
+pub fn view_frame_like(v: &Value, expected: [f64; 3], tolerance: f64) -> bool {
+    v["kind"] == "frame"
+        && v["name"] == "view"
+        && v["state"] == "live"
+        && stats_rgb(v, "mean").is_some_and(|m| crate::clients::off_by(m, expected) < tolerance)
 }

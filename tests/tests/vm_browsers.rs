@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use sdi_tests::board_emulator::BoardEmulator;
-use sdi_tests::browser::{Browser, PageServer};
+use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
 use sdi_tests::clients::{self, off_by, Sdid, Sensor, PMD};
 use sdi_tests::vm;
 
@@ -37,21 +37,9 @@ const BOARD: Sensor = Sensor {
 /// ~10 s after which Chromium fails a track that gets no frames.
 const UNPLUG: Duration = Duration::from_secs(15);
 
-fn mean_of(v: &Value, key: &str) -> Option<[f64; 3]> {
-    let a = v["stats"][key].as_array()?;
-    Some([
-        a.first()?.as_f64()?,
-        a.get(1)?.as_f64()?,
-        a.get(2)?.as_f64()?,
-    ])
-}
-
 /// A view frame report near `expected`.
 fn frame_like(v: &Value, expected: [f64; 3]) -> bool {
-    v["kind"] == "frame"
-        && v["name"] == "view"
-        && v["state"] == "live"
-        && mean_of(v, "mean").is_some_and(|m| off_by(m, expected) < TOLERANCE)
+    view_frame_like(v, expected, TOLERANCE)
 }
 
 fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
@@ -62,41 +50,12 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
         "chromium" => Browser::chromium(&server.url, dir),
         _ => Browser::firefox(&server.url, dir),
     };
-    let limit = Duration::from_secs(240);
-    let what = format!("{name}: first frame of the SDI camera");
-    let t0 = Instant::now();
-    let first = loop {
-        if let Some(v) = server.of_kind("frame").into_iter().find(|v| {
-            v["name"] == "view" && v["frames"].as_u64().unwrap_or(0) > 0 && !v["stats"].is_null()
-        }) {
-            break v;
-        }
-        if let Some(e) = server.of_kind("error").first() {
-            panic!("{name}: the page failed: {e}\n{}", browser.log_tail());
-        }
-        assert!(
-            t0.elapsed() < limit,
-            "{what}: none in {limit:?}; log:\n{}",
-            browser.log_tail()
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    };
+    let first = server.first_view_frame(name, Duration::from_secs(240), || browser.log_tail());
     let ttff = browser.started.elapsed().as_secs_f64();
-    let opened = server
-        .of_kind("opened")
-        .into_iter()
-        .next()
-        .expect("opened before frames");
     eprintln!(
         "{name}: time to first frame {ttff:.1} s (browser start to the page's first canvas frame)"
     );
-    eprintln!("{name}: opened {opened}");
-    let devices = server
-        .of_kind("devices")
-        .into_iter()
-        .next()
-        .expect("devices");
-    eprintln!("{name}: devices {}", devices["devices"]);
+    let devices = server.assert_opened_view(name, "SDI camera", &first);
     let labels: Vec<&str> = devices["devices"]
         .as_array()
         .into_iter()
@@ -108,16 +67,6 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
         labels.iter().any(|l| l.starts_with("SDI camera")),
         "{name} does not list SDI camera: {labels:?}"
     );
-    assert!(
-        opened["label"]
-            .as_str()
-            .is_some_and(|l| l.starts_with("SDI camera")),
-        "{opened}"
-    );
-    assert_eq!(opened["settings"]["width"], 640, "{name}: {opened}");
-    assert_eq!(opened["settings"]["height"], 480, "{name}: {opened}");
-    assert_eq!(first["stats"]["w"], 640, "{name}: {first}");
-    assert_eq!(first["stats"]["h"], 480, "{name}: {first}");
 
     // The picture: black bars, the mode's colours.
     let (i, v) = server.wait_for(
@@ -126,10 +75,10 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
         Duration::from_secs(60),
         |v| frame_like(v, expected),
     );
-    let top = mean_of(&v, "top").expect("top band");
+    let top = stats_rgb(&v, "top").expect("top band");
     eprintln!(
         "{name}: raw frame mean {:.1?} (expected {expected:.1?}), top band {top:.1?}",
-        mean_of(&v, "mean")
+        stats_rgb(&v, "mean")
     );
     assert!(
         top.iter().all(|&c| c < TOLERANCE),
@@ -153,7 +102,7 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
     eprintln!(
         "{name}: set-mode separation seen after {:.1} s: mean {:.1?} (expected {expected2:.1?})",
         t_switch.elapsed().as_secs_f64(),
-        mean_of(&v, "mean")
+        stats_rgb(&v, "mean")
     );
 
     // sdid restarts: the page keeps (or gets back) a live track with new frames.
@@ -329,7 +278,7 @@ fn board_unplug_checks() {
         "no frames reached the page after 10 s of unplug: {at_10s} then {end}"
     );
     // The "no signal" card is grey: the three channels alike.
-    let mean = mean_of(&end, "mean").expect("frame stats");
+    let mean = stats_rgb(&end, "mean").expect("frame stats");
     assert!(
         (mean[0] - mean[1]).abs() < TOLERANCE && (mean[1] - mean[2]).abs() < TOLERANCE,
         "not the grey no-signal card: {mean:?}"
@@ -352,7 +301,7 @@ fn board_unplug_checks() {
                 && v["name"] == "view"
                 && v["state"] == "live"
                 && v["frames"].as_u64().unwrap_or(0) > frames_end + 15
-                && mean_of(v, "mean").is_some_and(|m| off_by(m, mean) > 1.0)
+                && stats_rgb(v, "mean").is_some_and(|m| off_by(m, mean) > 1.0)
         },
     );
     eprintln!(

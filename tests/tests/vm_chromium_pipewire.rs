@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
-use sdi_tests::browser::{Browser, PageServer};
+use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
 use sdi_tests::clients::{self, letterbox_rows, mean_rgb, off_by, PMD};
 use sdi_tests::pipewire::{self, CameraPortal, Session};
 use sdi_tests::process::Reaped;
@@ -86,20 +86,8 @@ impl Sdid {
     }
 }
 
-fn mean_of(v: &Value) -> Option<[f64; 3]> {
-    let a = v["stats"]["mean"].as_array()?;
-    Some([
-        a.first()?.as_f64()?,
-        a.get(1)?.as_f64()?,
-        a.get(2)?.as_f64()?,
-    ])
-}
-
 fn frame_like(v: &Value, expected: [f64; 3]) -> bool {
-    v["kind"] == "frame"
-        && v["name"] == "view"
-        && v["state"] == "live"
-        && mean_of(v).is_some_and(|m| off_by(m, expected) < TOLERANCE)
+    view_frame_like(v, expected, TOLERANCE)
 }
 
 fn in_vm_checks() {
@@ -125,56 +113,21 @@ fn in_vm_checks() {
 
     let server = PageServer::start();
     let browser = Browser::chromium_pipewire(&server.url, &dir, &session);
-    let t0 = Instant::now();
-    let first = loop {
-        if let Some(v) = server.of_kind("frame").into_iter().find(|v| {
-            v["name"] == "view" && v["frames"].as_u64().unwrap_or(0) > 0 && !v["stats"].is_null()
-        }) {
-            break v;
-        }
-        if let Some(e) = server.of_kind("error").first() {
-            panic!(
-                "chromium: the page failed: {e}\n{}\n{}\nportal log:\n{}",
-                browser.log_lines("video_capture"),
-                browser.log_tail(),
-                std::fs::read_to_string(session.dir.path().join("portal.log")).unwrap_or_default()
-            );
-        }
-        // Chromium under TCG took 75-89 s to its first frame of the
-        // loopback camera (docs/loopback.md), more on a loaded host.
-        assert!(
-            t0.elapsed() < Duration::from_secs(480),
-            "chromium: no frame of the PipeWire camera in 480 s; page reports {:?}\n{}\nlog:\n{}",
-            server.of_kind("retry").len(),
+    // Chromium under TCG took 75-89 s to its first frame of the loopback
+    // camera (docs/loopback.md), more on a loaded host.
+    let first = server.first_view_frame("chromium", Duration::from_secs(480), || {
+        format!(
+            "{}\n{}\nportal log:\n{}",
             browser.log_lines("video_capture"),
-            browser.log_tail()
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    };
+            browser.log_tail(),
+            std::fs::read_to_string(session.dir.path().join("portal.log")).unwrap_or_default()
+        )
+    });
     eprintln!(
         "chromium (PipeWire camera): time to first frame {:.1} s (browser start to the page's first canvas frame)",
         browser.started.elapsed().as_secs_f64()
     );
-    let opened = server.of_kind("opened").into_iter().next().expect("opened");
-    let devices = server
-        .of_kind("devices")
-        .into_iter()
-        .next()
-        .expect("devices");
-    eprintln!(
-        "chromium: devices {}\nchromium: opened {opened}",
-        devices["devices"]
-    );
-    assert!(
-        opened["label"]
-            .as_str()
-            .is_some_and(|l| l.starts_with("SDI camera (raw)")),
-        "{opened}"
-    );
-    assert_eq!(opened["settings"]["width"], 640, "{opened}");
-    assert_eq!(opened["settings"]["height"], 480, "{opened}");
-    assert_eq!(first["stats"]["w"], 640, "{first}");
-    assert_eq!(first["stats"]["h"], 480, "{first}");
+    server.assert_opened_view("chromium", "SDI camera (raw)", &first);
 
     let (i, v) = server.wait_for(
         &format!("chromium: a raw-mode frame near {expected:.1?}"),
@@ -184,7 +137,7 @@ fn in_vm_checks() {
     );
     eprintln!(
         "chromium: raw frame mean {:.1?} (expected {expected:.1?})",
-        mean_of(&v)
+        stats_rgb(&v, "mean")
     );
     let top = &v["stats"]["top"];
     assert!(
@@ -208,7 +161,7 @@ fn in_vm_checks() {
     eprintln!(
         "chromium: set-mode separation seen after {:.1} s: mean {:.1?} (expected {expected2:.1?})",
         t_switch.elapsed().as_secs_f64(),
-        mean_of(&v)
+        stats_rgb(&v, "mean")
     );
     drop(browser);
 }

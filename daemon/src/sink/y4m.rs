@@ -2,18 +2,20 @@
 //! stream on stdout or into a FIFO, which `ffplay`/`ffmpeg` read directly.
 //!
 //! Every reader of the FIFO gets the stream header first. A FIFO keeps one
-//! pipe while any end is open, so a reader that opens after the last one
-//! closed but before the next write would join the old pipe mid-stream; a
-//! watcher thread per connection sees the last reader go (POLLERR on the
-//! write end) and closes the pipe at once, so the next reader gets a new
-//! connection, and with it the header.
+//! pipe while any end is open, so a reader that opens the path while we
+//! write to an earlier reader would join that pipe mid-stream (or, after
+//! the earlier reader closed, read its leftover partial frame). So as soon
+//! as a reader is connected, a fresh FIFO is renamed over the path
+//! ([`renew_fifo`]): the next reader opens a pipe nobody writes to, blocks
+//! in `open` until we take it (the next frame after the current reader has
+//! gone), and starts with the header. The only window left is the few
+//! microseconds between our `open` and the `rename`, in which a second
+//! reader opening at the same moment would share the first one's pipe.
 
 use std::fs::File;
 use std::io::{self, Write};
-use std::os::fd::AsFd;
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, Mutex, MutexGuard};
 
 use super::{Sink, SinkError, SinkInfo};
 use crate::modes::{DisplayMap, ModeOutput};
@@ -25,56 +27,14 @@ enum Target {
     /// A FIFO opened (non-blocking) whenever a reader is present.
     Fifo {
         path: PathBuf,
-        reader: Arc<Mutex<Option<FifoReader>>>,
-        /// Connections made so far (names each one for its watcher).
-        connections: u64,
+        reader: Option<FifoReader>,
     },
 }
 
-/// The write end of the FIFO while readers are connected.
+/// The write end of the FIFO while a reader is connected.
 struct FifoReader {
     file: File,
     header_sent: bool,
-    connection: u64,
-}
-
-fn lock(m: &Mutex<Option<FifoReader>>) -> MutexGuard<'_, Option<FifoReader>> {
-    match m.lock() {
-        Ok(g) => g,
-        Err(p) => p.into_inner(),
-    }
-}
-
-/// Closes connection `connection` as soon as its last reader has gone
-/// (POLLERR on `probe`, a second descriptor of its write end), so no later
-/// reader joins it mid-stream. Ends when the writer gave the connection up
-/// or the sink is gone.
-fn watch_readers(shared: Arc<Mutex<Option<FifoReader>>>, probe: File, connection: u64) {
-    use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
-    loop {
-        let mut fds = [PollFd::new(probe.as_fd(), PollFlags::empty())];
-        let gone = match poll(&mut fds, PollTimeout::from(500u16)) {
-            Ok(0) => false,
-            Ok(_) => fds[0]
-                .revents()
-                .is_some_and(|r| r.intersects(PollFlags::POLLERR | PollFlags::POLLHUP)),
-            Err(nix::errno::Errno::EINTR) => continue,
-            Err(_) => true,
-        };
-        let mut current = lock(&shared);
-        let ours = current.as_ref().is_some_and(|r| r.connection == connection);
-        if gone && ours {
-            // Both write descriptors closed under the lock: the pipe (and
-            // any partial frame in it) is gone before the writer reopens.
-            *current = None;
-            drop(probe);
-            tracing::info!("y4m reader went away");
-            return;
-        }
-        if !ours || Arc::strong_count(&shared) == 1 {
-            return;
-        }
-    }
 }
 
 pub struct Y4mSink {
@@ -171,31 +131,29 @@ impl Y4mSink {
                     Err(e) => return Err(e.into()),
                 }
             }
-            Target::Fifo {
-                path,
-                reader,
-                connections,
-            } => {
-                let mut current = lock(reader);
-                if current.is_none() {
+            Target::Fifo { path, reader } => {
+                if reader.is_none() {
                     // O_NONBLOCK: fails with ENXIO while nobody reads, which we skip.
                     match std::fs::OpenOptions::new()
                         .write(true)
-                        .custom_flags(libc::O_NONBLOCK)
+                        .custom_flags(libc::O_NONBLOCK | libc::O_NOFOLLOW)
                         .open(&*path)
                     {
                         Ok(f) => {
+                            if !f.metadata()?.file_type().is_fifo() {
+                                return Err(io::Error::new(
+                                    io::ErrorKind::AlreadyExists,
+                                    format!("{} is no longer a FIFO", path.display()),
+                                )
+                                .into());
+                            }
                             set_blocking(&f)?;
-                            let probe = f.try_clone()?;
-                            *connections += 1;
-                            let (shared, connection) = (reader.clone(), *connections);
-                            std::thread::Builder::new()
-                                .name("sdid-y4m-watch".into())
-                                .spawn(move || watch_readers(shared, probe, connection))?;
-                            *current = Some(FifoReader {
+                            if let Err(e) = renew_fifo(path) {
+                                tracing::warn!(path = %path.display(), "y4m: cannot put a fresh FIFO in place ({e}); a reader opening while this one reads shares its pipe");
+                            }
+                            *reader = Some(FifoReader {
                                 file: f,
                                 header_sent: false,
-                                connection,
                             });
                             tracing::info!(path = %path.display(), "y4m reader connected");
                         }
@@ -203,7 +161,7 @@ impl Y4mSink {
                         Err(e) => return Err(e.into()),
                     }
                 }
-                if let Some(r) = current.as_mut() {
+                if let Some(r) = reader.as_mut() {
                     let result = (|| {
                         if !r.header_sent {
                             r.file.write_all(header.as_bytes())?;
@@ -215,7 +173,7 @@ impl Y4mSink {
                         Ok(()) => {}
                         Err(e) if e.kind() == io::ErrorKind::BrokenPipe => {
                             tracing::info!(path = %path.display(), "y4m reader went away");
-                            *current = None;
+                            *reader = None;
                         }
                         Err(e) => return Err(e.into()),
                     }
@@ -269,9 +227,51 @@ fn fifo(path: &Path) -> io::Result<Target> {
     }
     Ok(Target::Fifo {
         path: path.to_owned(),
-        reader: Arc::new(Mutex::new(None)),
-        connections: 0,
+        reader: None,
     })
+}
+
+/// Replaces the FIFO at `path` by a new one with the same mode, owner and
+/// group (made beside it, then renamed over it), so the next reader gets a
+/// pipe of its own instead of joining the connected reader's.
+fn renew_fifo(path: &Path) -> io::Result<()> {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    let old = std::fs::symlink_metadata(path)?;
+    let name = path
+        .file_name()
+        .ok_or_else(|| io::Error::new(io::ErrorKind::InvalidInput, "FIFO path has no name"))?;
+    let mut next_name = std::ffi::OsString::from(".");
+    next_name.push(name);
+    next_name.push(".next");
+    let next = path.with_file_name(next_name);
+    match std::fs::remove_file(&next) {
+        Err(e) if e.kind() != io::ErrorKind::NotFound => return Err(e),
+        _ => {}
+    }
+    let mode = nix::sys::stat::Mode::from_bits_truncate(old.permissions().mode() & 0o777);
+    nix::unistd::mkfifo(&next, mode).map_err(io::Error::from)?;
+    // Owner, group and mode by descriptor (O_NOFOLLOW: never through a
+    // link swapped in meanwhile); opening a FIFO nobody writes to for
+    // reading does not block with O_NONBLOCK.
+    let made = std::fs::OpenOptions::new()
+        .read(true)
+        .custom_flags(libc::O_NONBLOCK | libc::O_NOFOLLOW)
+        .open(&next)?;
+    let meta = made.metadata()?;
+    if !meta.file_type().is_fifo() {
+        return Err(io::Error::new(
+            io::ErrorKind::AlreadyExists,
+            format!("{} is not the FIFO just made", next.display()),
+        ));
+    }
+    if (meta.uid(), meta.gid()) != (old.uid(), old.gid()) {
+        // Only root can give the FIFO away; anyone else keeps their own.
+        let _ = std::os::unix::fs::fchown(&made, Some(old.uid()), Some(old.gid()));
+    }
+    // The umask may have cut the mode: set it as it was.
+    made.set_permissions(old.permissions())?;
+    drop(made);
+    std::fs::rename(&next, path)
 }
 
 /// BT.601 full-range RGB -> Y, U, V planes in 16.16 fixed point: within one
@@ -365,6 +365,79 @@ mod tests {
             yuv444_planes(&[g, g, g], &mut y, &mut u, &mut v);
             assert_eq!((y[0], u[0], v[0]), (g, 128, 128));
         }
+    }
+
+    /// Reads what is in the FIFO now (non-blocking reader).
+    fn drain(f: &mut File) -> Vec<u8> {
+        use std::io::Read;
+        let mut all = Vec::new();
+        let mut buf = [0u8; 4096];
+        loop {
+            match f.read(&mut buf) {
+                Ok(0) => return all,
+                Ok(n) => all.extend_from_slice(&buf[..n]),
+                Err(e) if e.kind() == io::ErrorKind::WouldBlock => return all,
+                Err(e) => panic!("read the FIFO: {e}"),
+            }
+        }
+    }
+
+    fn reader(path: &Path) -> File {
+        std::fs::OpenOptions::new()
+            .read(true)
+            .custom_flags(libc::O_NONBLOCK)
+            .open(path)
+            .unwrap()
+    }
+
+    /// A reader that opens while another reads gets a pipe of its own: it
+    /// sees nothing of the first reader's stream, and its first bytes are
+    /// the header once the first reader has gone, however soon after.
+    #[test]
+    fn every_fifo_reader_starts_with_the_header() {
+        use std::os::unix::fs::{MetadataExt, PermissionsExt};
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("view.y4m");
+        let mut sink = Y4mSink::new(Some(&path), 4, 2, 5.0).unwrap();
+        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o640)).unwrap();
+        let ino = std::fs::metadata(&path).unwrap().ino();
+        sink.write_no_signal().unwrap(); // nobody reads: skipped
+        let mut first = reader(&path);
+        sink.write_no_signal().unwrap();
+        assert!(drain(&mut first).starts_with(b"YUV4MPEG2 W4 H2"));
+        let meta = std::fs::metadata(&path).unwrap();
+        assert_ne!(meta.ino(), ino, "no fresh FIFO at the path");
+        assert!(meta.file_type().is_fifo());
+        assert_eq!(meta.permissions().mode() & 0o777, 0o640);
+        let mut second = reader(&path);
+        sink.write_no_signal().unwrap();
+        assert!(drain(&mut first).starts_with(b"FRAME\n"));
+        assert!(
+            drain(&mut second).is_empty(),
+            "the second reader joined the first one's pipe"
+        );
+        drop(first);
+        sink.write_no_signal().unwrap(); // EPIPE: the first reader is gone
+        sink.write_no_signal().unwrap(); // connects the second
+        let got = drain(&mut second);
+        assert!(
+            got.starts_with(b"YUV4MPEG2 W4 H2"),
+            "{:?}",
+            &got[..got.len().min(16)]
+        );
+    }
+
+    #[test]
+    fn a_link_at_the_fifo_path_is_not_written_through() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("view.y4m");
+        let mut sink = Y4mSink::new(Some(&path), 4, 2, 5.0).unwrap();
+        let victim = dir.path().join("victim");
+        std::fs::write(&victim, b"keep").unwrap();
+        std::fs::remove_file(&path).unwrap();
+        std::os::unix::fs::symlink(&victim, &path).unwrap();
+        assert!(sink.write_no_signal().is_err());
+        assert_eq!(std::fs::read(&victim).unwrap(), b"keep");
     }
 
     #[test]
