@@ -120,13 +120,27 @@ fn in_vm_checks() {
         "set-mode did not change what v4l2src reads: {means:.1?}"
     );
 
-    // The data node: Y16 at the sensor size, DN + 32768.
-    sdid.set_mode("raw");
+    // The data node: Y16 at the sensor size, DN + 32768; in two-shot sdid
+    // publishes at half the node's frame interval, where the module's
+    // sustain_framerate would repeat every frame.
+    check_data(&sdid, "raw");
+    check_data(&sdid, "two-shot");
+}
+
+/// Reads FRAMES data frames (GRAY16_LE at the sensor size) in `mode`, as
+/// docs/loopback.md tells users to: the sink must not keep the buffer it
+/// rendered last (`enable-last-sample=false`), or v4l2loopback can hand
+/// that buffer to v4l2src again while it is held ("buffer N was not
+/// queued"). Checks that no frame came twice (sdid keeps the module's
+/// sustain_framerate repeat off; the simulator's noise makes every frame
+/// differ) and the last one's mean against the mode's `.npy` snapshot.
+fn check_data(sdid: &Sdid, mode: &str) {
+    sdid.set_mode(mode);
     let expected_dn = sdid.snapshot_mean_dn();
     let file = "/tmp/sdi-clients/data.y16";
     let (log, secs) = gst(&format!(
         "v4l2src device={} num-buffers={FRAMES} ! video/x-raw,format=GRAY16_LE,width={},height={} \
-         ! filesink location={file}",
+         ! filesink enable-last-sample=false location={file}",
         sdid.data.display(),
         TI.width,
         TI.height
@@ -142,6 +156,14 @@ fn in_vm_checks() {
     let bytes = std::fs::read(file).expect("read data frames");
     let size = TI.width * TI.height * 2;
     assert_eq!(bytes.len(), FRAMES * size, "data: {FRAMES} frames of Y16");
+    let frames: Vec<&[u8]> = bytes.chunks_exact(size).collect();
+    let repeats: Vec<usize> = (1..FRAMES)
+        .filter(|&i| frames[i] == frames[i - 1])
+        .collect();
+    assert!(
+        repeats.is_empty(),
+        "{mode}: frames {repeats:?} repeat the one before (the module's sustain_framerate repeat is on)"
+    );
     let last = &bytes[(FRAMES - 1) * size..];
     let n = last.len() / 2;
     let dn = last
@@ -150,11 +172,11 @@ fn in_vm_checks() {
         .sum::<f64>()
         / n as f64;
     eprintln!(
-        "gst data: {FRAMES} frames in {secs:.1} s; mean DN {dn:.1}, snapshot {expected_dn:.1}"
+        "gst data, {mode}: {FRAMES} frames in {secs:.1} s; mean DN {dn:.1}, snapshot {expected_dn:.1}"
     );
     assert!(
         (dn - expected_dn).abs() < 5.0 + 0.05 * expected_dn.abs(),
-        "data node mean DN {dn:.1} is not the frame's {expected_dn:.1}"
+        "{mode}: data node mean DN {dn:.1} is not the frame's {expected_dn:.1}"
     );
 }
 

@@ -458,10 +458,16 @@ fn module_checks(build: ModuleBuild, sim: &SimFrames, tmp: &Path) {
     check_small_reader_ring(20);
 
     // the view profile, streaming, for the remaining clients
-    let writer = LoopbackWriter::open(&view.path, LoopbackFormat::view(30)).unwrap();
+    let mut writer = LoopbackWriter::open(&view.path, LoopbackFormat::view(30)).unwrap();
     eprintln!("ok: view writer features: {:?}", writer.features());
     let f = writer.features();
-    assert!(f.keep_format && f.sustain_framerate && f.frame_interval);
+    // sustain_framerate: the module has the control, and the writer keeps
+    // it off (a repeat re-hands readers a buffer they may hold).
+    assert!(f.keep_format && !f.sustain_framerate && f.frame_interval);
+    assert!(
+        writer.set_sustain_framerate(false),
+        "no sustain_framerate control"
+    );
     assert_eq!(f.client_usage_event, view.version.has_client_usage_event());
     let mut rgb = vec![0u8; 640 * 480 * 3];
     sdi_daemon::sink::loopback::letterbox(

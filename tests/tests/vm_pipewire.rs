@@ -1,12 +1,16 @@
 //! PipeWire (with WirePlumber) sees the SDI view node, in the VM, in both
 //! start orders: `pw-dump` lists it as `Video/Source` with `media.role =
 //! Camera`. Reading frames with `gst-launch-1.0 pipewiresrc` through
-//! PipeWire 0.3.65 does not work on v4l2loopback 0.12.7 nor 0.15, for
-//! causes in the module and in PipeWire's v4l2 source (docs/loopback.md);
-//! `SDI_PIPEWIRE_READ=0.12` (or `0.15`) tries it and asserts frames of the
-//! current mode (mean colour against `sdictl snapshot`, black letterbox
-//! bars, a mode switch), reading with `max-buffers=10` (pipewiresrc asks
-//! 16 by default, more than the node's `max_buffers=10`).
+//! PipeWire 0.3.65 does not work on v4l2loopback 0.12.7 nor 0.15
+//! (docs/loopback.md): 0.12.7's QUERYBUF reports every buffer queued, and
+//! PipeWire before 1.3.81 cannot hand another process the buffers of a
+//! v4l2 device without VIDIOC_EXPBUF, which no v4l2loopback has (the link
+//! to pipewiresrc allows only DmaBuf/MemFd; with one buffer the client
+//! node refuses the mapped pointer). `SDI_PIPEWIRE_READ=0.12` (or `0.15`)
+//! tries it and asserts frames of the current mode (mean colour against
+//! `sdictl snapshot`, black letterbox bars, a mode switch), reading with
+//! `max-buffers=10` (pipewiresrc asks 16 by default, more than the node's
+//! `max_buffers=10`); with these versions it fails.
 //!
 //! PipeWire's v4l2 monitor probes a node on its udev event and creates a
 //! `Video/Source` only for a device that offers CAPTURE then; with
@@ -339,11 +343,12 @@ fn both_orders(build: ModuleBuild, read: bool) {
 
 fn in_vm_checks() {
     let _udevd = udev::start_udevd();
-    // Listed in both orders; reading frames through PipeWire does not work
-    // with v4l2loopback (docs/loopback.md: 0.12.7 reports every buffer
-    // queued, and on 0.15 PipeWire's v4l2 source cannot hand pipewiresrc
-    // the mapped buffers), so it is only tried, and must then succeed, with
-    // SDI_PIPEWIRE_READ=0.12 or SDI_PIPEWIRE_READ=0.15.
+    // Listed in both orders; reading frames through PipeWire 0.3.65 does
+    // not work with v4l2loopback (docs/loopback.md: 0.12.7 reports every
+    // buffer queued; no v4l2loopback has VIDIOC_EXPBUF, which PipeWire
+    // before 1.3.81 needs to hand a v4l2 buffer to another process), so it
+    // is only tried, and must then succeed, with SDI_PIPEWIRE_READ=0.12 or
+    // SDI_PIPEWIRE_READ=0.15 (for a newer PipeWire).
     match std::env::var("SDI_PIPEWIRE_READ").as_deref() {
         Ok("0.15") => both_orders(ModuleBuild::V0150, true),
         Ok(_) => both_orders(ModuleBuild::Debian0127, true),

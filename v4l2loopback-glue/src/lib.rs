@@ -23,7 +23,7 @@
 //!   event (0.13+), so the daemon powers the light sources only while
 //!   someone watches.
 //! * [`LoopbackWriter::open`] negotiates [`LoopbackFormat`] (VIDIOC_S_FMT on the
-//!   output type, VIDIOC_S_PARM), sets `keep_format` and `sustain_framerate`,
+//!   output type, VIDIOC_S_PARM), sets `keep_format`, clears `sustain_framerate`,
 //!   requests mmap buffers (falls back to `write()`), STREAMONs and shows the
 //!   "no signal" card (stamped at the open), so a reader can open at once and keeps working across
 //!   daemon restarts.

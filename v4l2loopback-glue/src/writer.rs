@@ -84,7 +84,14 @@ enum Io {
 pub struct DriverFeatures {
     /// `keep_format` control set: the format survives our restarts.
     pub keep_format: bool,
-    /// `sustain_framerate` control set: the driver repeats the last frame.
+    /// `sustain_framerate` control on: the driver repeats the last frame
+    /// when the writer is 1.5 frame intervals late. Off from
+    /// [`LoopbackWriter::open`]: the repeat hands each reader again the
+    /// buffer it dequeued last (`get_capture_buffer`, `reread_count`, in
+    /// 0.12.7 and 0.15 alike), whether or not the reader queued it back; a
+    /// reader still holding it (GStreamer's `v4l2src ! filesink`: the sink
+    /// keeps its last buffer) then fails ("buffer 3 was not queued, this
+    /// indicate a driver bug"). Without it readers wait for the next frame.
     pub sustain_framerate: bool,
     /// Client-usage event subscribed (0.13+).
     pub client_usage_event: bool,
@@ -217,7 +224,10 @@ impl LoopbackWriter {
             watchers: None,
             frames_written: 0,
         };
-        writer.features.sustain_framerate = writer.set_control(sys::CID_SUSTAIN_FRAMERATE, 1);
+        // Off, also when an earlier producer left it on: the module's repeat
+        // re-hands a reader the buffer it dequeued last, which it may still
+        // hold (`sustain_framerate` on DriverFeatures).
+        writer.set_sustain_framerate(false);
         writer.negotiate()?;
         // After S_FMT: v4l2loopback 0.15 answers S_FMT with the node's
         // current format while keep_format is set (`vidioc_try_fmt_vid`).
@@ -227,8 +237,10 @@ impl LoopbackWriter {
         Ok(writer)
     }
 
-    /// Turns the driver's frame duplication (`sustain_framerate`) on or off;
-    /// false when the module has no such control.
+    /// Turns the driver's frame duplication (`sustain_framerate`) on or off
+    /// (off after [`open`](Self::open); see
+    /// [`DriverFeatures::sustain_framerate`]); false when the module has no
+    /// such control.
     pub fn set_sustain_framerate(&mut self, on: bool) -> bool {
         let ok = self.set_control(sys::CID_SUSTAIN_FRAMERATE, i32::from(on));
         self.features.sustain_framerate = ok && on;

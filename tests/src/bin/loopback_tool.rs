@@ -44,8 +44,8 @@ fn main() {
                     std::process::exit(1);
                 }
             };
-            if std::env::var_os("SDI_NO_SUSTAIN").is_some() {
-                w.set_sustain_framerate(false);
+            if std::env::var_os("SDI_SUSTAIN").is_some() {
+                w.set_sustain_framerate(true);
             }
             eprintln!(
                 "writing {cfg} via {:?}, module {:?}, features {:?}",
