@@ -360,9 +360,7 @@ fn in_vm_checks() {
         let s = stamps.lock().expect("stamps");
         s.0.iter().copied().zip(t.iter().cloned()).collect()
     };
-    // Equal timestamps are one frame repeated (the driver's
-    // sustain_framerate, e.g. in two-shot at half the sensor rate); a
-    // timestamp never goes back, not even from the "no signal" card sdid
+    // A timestamp never goes back, not even from the "no signal" card sdid
     // shows before its first frame (both are on CLOCK_MONOTONIC).
     let backwards: Vec<(usize, u64, u64)> = frames
         .windows(2)
