@@ -249,9 +249,14 @@ fn separation_on_sdid_recordings_matches_numpy_truth_and_the_simulation() {
             );
         }
     }
-    // The single-frame estimators depend on the one frame's noise (M2's
-    // segmentation most: 52-59% over seeds): the recordings' error lies
-    // within the spread of four in-memory seeds, widened by 10%.
+    // The single-frame estimators depend on the one frame's noise. M3's
+    // error lies within the spread of four in-memory seeds, widened by 10%.
+    // M2's is heavy-tailed: its automatic segmentation fails on some frames
+    // (16 seeds in memory, smooth r=2, I+: 48-59%, and 113% once), and an
+    // sdid recording's first frame is just another draw (80% in 1 of 10
+    // runs), so a range of four seeds held it only 9 times in 10; M2 must
+    // stay below 3x the seeds' median (a recording that garbled frames
+    // would not).
     let seeds: Vec<Vec<(String, String, f64, f64)>> = (1..=4)
         .map(|seed| {
             let out = ok(&sdictl(&[
@@ -274,8 +279,31 @@ fn separation_on_sdid_recordings_matches_numpy_truth_and_the_simulation() {
             rows(&serde_json::from_str(out.trim()).unwrap())
         })
         .collect();
+    {
+        let m = find(&measured, "M2 auto", "smooth r=2");
+        for (c, got) in [(0, m.0), (1, m.1)] {
+            let mut vals: Vec<f64> = seeds
+                .iter()
+                .map(|r| find(r, "M2 auto", "smooth r=2"))
+                .map(|v| if c == 0 { v.0 } else { v.1 })
+                .collect();
+            vals.sort_by(f64::total_cmp);
+            let median = 0.5 * (vals[1] + vals[2]);
+            eprintln!(
+                "M2 auto smooth r=2 {}: recordings {:.2}%, in memory median {:.2}% ({:.2}%..{:.2}%)",
+                ["I+", "I-"][c],
+                100.0 * got,
+                100.0 * median,
+                100.0 * vals[0],
+                100.0 * vals[3]
+            );
+            assert!(
+                got > 0.0 && got < 3.0 * median,
+                "M2 auto smooth r=2: {got} on the recordings, median {median} in memory"
+            );
+        }
+    }
     for (method, params) in [
-        ("M2 auto", "smooth r=2"),
         ("M3 separable", "sd=1.5 sr=2sigma"),
         ("M3 separable", "sd=1.5 sr=4sigma"),
     ] {
