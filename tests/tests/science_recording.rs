@@ -206,23 +206,31 @@ fn separation_on_sdid_recordings_matches_numpy_truth_and_the_simulation() {
         "--out",
         s(&p("measured")),
     ]));
-    let simulated = ok(&sdictl(&[
-        "--json",
-        "report",
-        "separation",
-        "--scene",
-        "colour-chart",
-        "--exposure-us",
-        "2000",
-        "--frames",
-        &n.to_string(),
-        "--estimators",
-        estimators,
-        "--out",
-        s(&p("simulated")),
-    ]));
+    // The same report on the in-memory simulation of the recorded scene.
+    let simulate = |frames: usize, seed: Option<u64>, estimators: &str, out: &str| {
+        let (frames, seed) = (frames.to_string(), seed.map(|s| s.to_string()));
+        let mut args = vec![
+            "--json",
+            "report",
+            "separation",
+            "--scene",
+            "colour-chart",
+            "--exposure-us",
+            "2000",
+            "--frames",
+            &frames,
+            "--estimators",
+            estimators,
+        ];
+        if let Some(seed) = &seed {
+            args.extend(["--seed", seed.as_str()]);
+        }
+        let out = p(out);
+        args.extend(["--out", s(&out)]);
+        rows(&serde_json::from_str(ok(&sdictl(&args)).trim()).unwrap())
+    };
+    let simulated = simulate(n, None, estimators, "simulated");
     let measured = rows(&serde_json::from_str(measured.trim()).unwrap());
-    let simulated = rows(&serde_json::from_str(simulated.trim()).unwrap());
     let find = |rows: &[(String, String, f64, f64)], method: &str, params: &str| {
         rows.iter()
             .find(|r| r.0 == method && r.1.starts_with(params))
@@ -258,26 +266,7 @@ fn separation_on_sdid_recordings_matches_numpy_truth_and_the_simulation() {
     // stay below 3x the seeds' median (a recording that garbled frames
     // would not).
     let seeds: Vec<Vec<(String, String, f64, f64)>> = (1..=4)
-        .map(|seed| {
-            let out = ok(&sdictl(&[
-                "--json",
-                "report",
-                "separation",
-                "--scene",
-                "colour-chart",
-                "--exposure-us",
-                "2000",
-                "--frames",
-                "2",
-                "--seed",
-                &seed.to_string(),
-                "--estimators",
-                "m2,m3-separable",
-                "--out",
-                s(&p(&format!("seed{seed}"))),
-            ]));
-            rows(&serde_json::from_str(out.trim()).unwrap())
-        })
+        .map(|seed| simulate(2, Some(seed), "m2,m3-separable", &format!("seed{seed}")))
         .collect();
     {
         let m = find(&measured, "M2 auto", "smooth r=2");

@@ -204,6 +204,17 @@ fn watch_stamps(dev: PathBuf, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<
     })
 }
 
+/// Where a timestamp in `stamps` goes back: (index, t, next t).
+fn went_back<T: PartialOrd + Copy>(stamps: impl Iterator<Item = T>) -> Vec<(usize, T, T)> {
+    let stamps: Vec<T> = stamps.collect();
+    stamps
+        .windows(2)
+        .enumerate()
+        .filter(|(_, w)| w[1] < w[0])
+        .map(|(i, w)| (i, w[0], w[1]))
+        .collect()
+}
+
 /// Every buffer stamped no later than its dequeue, none earlier than the
 /// one before (equal: the driver repeating a frame); prints the ages.
 fn assert_stamps_in_order_and_past(seen: &Dequeued) {
@@ -219,12 +230,7 @@ fn assert_stamps_in_order_and_past(seen: &Dequeued) {
         future.len(),
         seen.len()
     );
-    let back: Vec<_> = seen
-        .windows(2)
-        .enumerate()
-        .filter(|(_, w)| w[1].0 < w[0].0)
-        .map(|(i, w)| (i, w[0].0, w[1].0))
-        .collect();
+    let back = went_back(seen.iter().map(|s| s.0));
     assert!(
         back.is_empty(),
         "the stamp reader saw timestamps go back (index, t, next t): {back:?}"
@@ -362,12 +368,7 @@ fn in_vm_checks() {
     };
     // A timestamp never goes back, not even from the "no signal" card sdid
     // shows before its first frame (both are on CLOCK_MONOTONIC).
-    let backwards: Vec<(usize, u64, u64)> = frames
-        .windows(2)
-        .enumerate()
-        .filter(|(_, w)| w[1].0 < w[0].0)
-        .map(|(i, w)| (i, w[0].0, w[1].0))
-        .collect();
+    let backwards = went_back(frames.iter().map(|f| f.0));
     assert!(
         backwards.is_empty(),
         "buffer timestamps went back (index, t, next t): {backwards:?}; {} frames",
