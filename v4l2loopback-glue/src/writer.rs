@@ -573,28 +573,35 @@ impl LoopbackWriter {
                 // buffer is then refilled only every used_buffers frames, the
                 // longest a reader can hold one.
                 let mut index = *next;
-                let (found, mut held_us) = query(index)?;
+                let (found, _) = query(index)?;
                 let mut target = found.unwrap_or(index);
                 if target != index {
                     index = 0;
-                    let (found, at_0_us) = query(0)?;
-                    target = found.unwrap_or(0);
-                    held_us = at_0_us;
+                    target = query(0)?.0.unwrap_or(0);
                 }
                 *next = (index + 1) % maps.len();
+                fill(&mut maps[target].as_mut_slice()[..bytes])?;
                 // v4l2loopback 0.12.x restamps every buffer with the time of
                 // any opener's REQBUFS (`init_buffers`), e.g. a reader
                 // starting: readers then hold old frames dated that moment.
                 // A frame captured before it is dated just after it instead,
                 // so the node's timestamps never go back (it is still not
-                // dated later than now). Otherwise this buffer holds one of
-                // our earlier, older stamps and `timestamp_us` stands.
+                // dated later than now). Otherwise the ring holds only our
+                // earlier, older stamps and `timestamp_us` stands. The
+                // latest stamp of the whole ring (the restamp runs buffer by
+                // buffer, each later than the one before, and a reader may
+                // hold any of them), read after the fill, just before QBUF:
+                // checking only this buffer, before the conversion
+                // (milliseconds under emulation), let vm_daemon see a stamp
+                // go back by up to 49 us (3 runs in 15).
+                let held_us = (0..maps.len()).try_fold(0, |latest, i| {
+                    query(i).map(|(_, stamp_us)| latest.max(stamp_us))
+                })?;
                 let timestamp_us = if timestamp_us != 0 && held_us >= timestamp_us {
                     held_us.saturating_add(1)
                 } else {
                     timestamp_us
                 };
-                fill(&mut maps[target].as_mut_slice()[..bytes])?;
                 let mut buf = sys::v4l2_buffer {
                     index: index as u32,
                     type_: sys::V4L2_BUF_TYPE_VIDEO_OUTPUT,
