@@ -286,7 +286,7 @@ fn small_uint(x: f32) -> u32 {
 }
 
 /// Table index of each value: round((t + 1) * 511) for t = v * scale in [-1, 1].
-#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
 fn lut_indices(values: &[f32], scale: f32, idx: &mut [u16]) {
     for (i, &v) in idx.iter_mut().zip(values) {
         *i = small_uint((normalized(v, scale) + 1.0) * LUT_HALF) as u16;
@@ -294,7 +294,7 @@ fn lut_indices(values: &[f32], scale: f32, idx: &mut [u16]) {
 }
 
 /// Table colours of `idx` as packed RGB8; 4 pixels per 12-byte store group.
-#[inline]
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
 fn rgb_pixels(tables: &Tables, idx: &[u16], out: &mut [u8]) {
     let px = |i: u16| tables.rgb[usize::from(i) & 1023];
     let done = out.len() / 12 * 4;
@@ -316,7 +316,7 @@ fn rgb_pixels(tables: &Tables, idx: &[u16], out: &mut [u8]) {
 }
 
 /// YUYV of pixel pairs of `idx` (see [`Tables::first`]).
-#[inline]
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
 fn yuyv_pairs(tables: &Tables, idx: &[u16], out: &mut [u8]) {
     for (o, p) in out.chunks_exact_mut(4).zip(idx.chunks_exact(2)) {
         let (i0, i1) = (usize::from(p[0]) & 1023, usize::from(p[1]) & 1023);
@@ -328,7 +328,7 @@ fn yuyv_pairs(tables: &Tables, idx: &[u16], out: &mut [u8]) {
 /// Both outputs of whole pixel pairs: `rgb` holds 6 and `yuyv` 4 bytes per
 /// pair of `idx`. Each pair's RGB goes out as one 8-byte store that the next
 /// pair overwrites in part.
-#[inline]
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
 fn rgb_yuyv_pairs(tables: &Tables, idx: &[u16], rgb: &mut [u8], yuyv: &mut [u8]) {
     for (j, (p, o)) in idx
         .chunks_exact(2)
@@ -351,7 +351,7 @@ fn rgb_yuyv_pairs(tables: &Tables, idx: &[u16], rgb: &mut [u8], yuyv: &mut [u8])
 }
 
 /// Grey level of each value: round((t + 1) * 127.5), zero at 128.
-#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
 fn grey_levels(values: &[f32], scale: f32, out: &mut [u8]) {
     for (o, &v) in out.iter_mut().zip(values) {
         *o = small_uint((normalized(v, scale) + 1.0) * 127.5) as u8;
@@ -415,7 +415,7 @@ const INF_BITS: u32 = 0x7f80_0000;
 /// those finds the quantile's fine bin. None (use the
 /// full histogram) when the bracket misses the quantile or holds more than
 /// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal.
-#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
 fn sampled_quantile(data: &[f32]) -> Option<f32> {
     if data.len() < 64 * SAMPLE_STRIDE {
         return None;
