@@ -397,8 +397,12 @@ pub fn robust_max_abs(data: &[f32]) -> f32 {
     sampled_quantile(data).unwrap_or_else(|| histogram_quantile(data))
 }
 
-/// Every this many values feed the guess of where the quantile lies.
+/// Every this many values (at least) feed the guess of where the quantile lies.
 const SAMPLE_STRIDE: usize = 16;
+/// Most values in that subsample, copied once to the stack (its histograms
+/// then read 64 KiB, not one cache line of the image per value); larger
+/// images take every `len / SAMPLE_CAPACITY`-th value.
+const SAMPLE_CAPACITY: usize = 16384;
 /// Values near the guessed quantile kept for the exact count (on the stack).
 const WINDOW_CAPACITY: usize = 8192;
 /// Values per block of the counting pass, and counters per block.
@@ -415,14 +419,22 @@ const INF_BITS: u32 = 0x7f80_0000;
 /// those finds the quantile's fine bin. None (use the
 /// full histogram) when the bracket misses the quantile or holds more than
 /// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal.
-#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
+#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
 fn sampled_quantile(data: &[f32]) -> Option<f32> {
     if data.len() < 64 * SAMPLE_STRIDE {
         return None;
     }
+    let stride = SAMPLE_STRIDE.max(data.len().div_ceil(SAMPLE_CAPACITY));
+    let mut sample = [0u32; SAMPLE_CAPACITY];
+    let mut taken = 0;
+    for (s, &v) in sample.iter_mut().zip(data.iter().step_by(stride)) {
+        *s = v.to_bits() & 0x7fff_ffff;
+        taken += 1;
+    }
+    let sample = &sample[..taken];
     let mut coarse = [0u32; BINS];
-    for &v in data.iter().step_by(SAMPLE_STRIDE) {
-        coarse[coarse_bin(v)] += 1;
+    for &bits in sample {
+        coarse[(bits >> COARSE_SHIFT) as usize] += 1;
     }
     let finite: u64 = coarse[..NON_FINITE_BIN].iter().map(|&n| u64::from(n)).sum();
     if finite == 0 {
@@ -434,8 +446,7 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
     let fine_bin_of = |rank: u64| {
         let (bin, below) = find_bin(&coarse, rank);
         let mut fine = [0u32; BINS];
-        for &v in data.iter().step_by(SAMPLE_STRIDE) {
-            let bits = v.to_bits() & 0x7fff_ffff;
+        for &bits in sample {
             if (bits >> COARSE_SHIFT) as usize == bin {
                 fine[((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize] += 1;
             }
