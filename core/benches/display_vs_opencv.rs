@@ -144,7 +144,7 @@ fn main() {
         cell(copy)
     );
     println!(
-        "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>17} {:>9} {:>9}",
+        "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>17} {:>9} {:>9} {:>9}",
         "colormap",
         "ours rgb8",
         "ours yuyv",
@@ -152,10 +152,12 @@ fn main() {
         "previous",
         "previous(simd)",
         "numpy+opencv",
+        "prev/ours",
         "cv/ours",
         "ours/copy"
     );
     let mut fixed_rows = Vec::new();
+    let mut stage_rows = Vec::new();
     let mut agreement = Vec::new();
     for (k, colormap) in [Colormap::Diverging, Colormap::Grey]
         .into_iter()
@@ -214,15 +216,30 @@ fn main() {
         let fixed_rgb = time_ms(REPS, || fixed.render_rgb8(&img, &mut rgb));
         let fixed_yuyv = time_ms(REPS, || fixed.render_yuyv(&img, &mut yuyv));
         let fixed_grey = time_ms(REPS, || fixed.render_grey8(&img, &mut yuyv[..W * H]));
+        let fixed_both = time_ms(REPS, || fixed.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv));
         fixed_rows.push(format!(
-            "{:<10} fixed range (no auto range): rgb8 {} | yuyv {} | grey8 {}",
+            "{:<10} fixed range (no auto range): rgb8 {} | yuyv {} | rgb8+yuyv {} | grey8 {}",
             colormap.name(),
             cell(fixed_rgb),
             cell(fixed_yuyv),
+            cell(fixed_both),
             cell(fixed_grey)
         ));
+        // CPU ns per pixel of each stage, against the copy's and the goal's.
+        let ns_px = |t: (f64, f64)| t.1 * 1e6 / (W * H) as f64;
+        stage_rows.push(format!(
+            "{:<10} CPU ns/pixel: auto range {:.3} + table colour and packing {:.3} \
+             (index {:.3}) = {:.3} | memcpy {:.3} | 3x memcpy (goal) {:.3}",
+            colormap.name(),
+            ns_px(range),
+            ns_px(fixed_both),
+            ns_px(fixed_grey),
+            ns_px(both),
+            ns_px(copy),
+            3.0 * ns_px(copy)
+        ));
         println!(
-            "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>17} {:>8.1}x {:>8.2}x",
+            "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>17} {:>8.1}x {:>8.1}x {:>8.2}x",
             colormap.name(),
             cell(only_rgb),
             cell(only_yuyv),
@@ -230,17 +247,28 @@ fn main() {
             cell(old_scalar),
             cell(old_simd),
             cell(cv),
+            old_scalar.1 / both.1,
             cv.1 / both.1,
             both.1 / copy.1,
         );
     }
     fixed_rows.iter().for_each(|r| println!("{r}"));
+    stage_rows.iter().for_each(|r| println!("{r}"));
+    println!(
+        "bytes per pixel: ours reads 4 (f32) twice (auto range, then colour) and writes 5; \
+         memcpy reads 5 and writes 5"
+    );
     agreement.iter().for_each(|r| println!("{r}"));
     println!(
         "ours rgb8+yuyv: auto range, colormap, RGB8 and YUYV in one pass (what the goal times)"
     );
     println!("previous: old colormap + glue scalar RGB->YUYV; previous(simd): + yuvutils");
-    println!("cv/ours and ours/copy: ratios of CPU time (numpy+OpenCV makes both outputs too)");
+    println!(
+        "prev/ours, cv/ours and ours/copy: ratios of CPU time (numpy+OpenCV makes both outputs too)"
+    );
+    println!(
+        "index: the grey8 fixed-range path (value to level, no table), a floor for any table path"
+    );
 }
 
 fn cell(t: (f64, f64)) -> String {
