@@ -71,10 +71,15 @@ pub struct BilateralGrid {
     scratch_hi: Vec<i32>,
     /// Each pixel's level coordinate (I - z_0) / s_r (0 when flat).
     level: Vec<f32>,
-    /// The blurred grid interpolated along y for one output row, and the
-    /// node index of level 0 of each cell column in it.
-    row_nodes: Vec<Node>,
+    /// The pair of cell rows an output row blends (see
+    /// [`CellLevels::pair_rows`]), the blend for one output row (flat
+    /// nodes), the node index of level 0 of each cell column in both, and
+    /// the row's gathered moments.
+    pair_a: Vec<f32>,
+    pair_d: Vec<f32>,
+    row_nodes: Vec<f32>,
     row_base: Vec<isize>,
+    gathered: Vec<[f32; 8]>,
     a: Vec<Node>,
     b: Vec<Node>,
     out: LocalMoments,
@@ -110,8 +115,11 @@ impl BilateralGrid {
             scratch_lo: Vec::new(),
             scratch_hi: Vec::new(),
             level: Vec::new(),
+            pair_a: Vec::new(),
+            pair_d: Vec::new(),
             row_nodes: Vec::new(),
             row_base: Vec::new(),
+            gathered: Vec::new(),
             a: Vec::new(),
             b: Vec::new(),
             out: LocalMoments::default(),
@@ -394,7 +402,11 @@ impl BilateralGrid {
         }
     }
 
-    /// Trilinear read of the blurred grid (in `b`) at every pixel.
+    /// Trilinear read of the blurred grid (in `b`) at every pixel: per
+    /// output row, the grid blended along y (from the row's pair of cell
+    /// rows, gathered once per pair), then per pixel a bilinear read along x
+    /// of levels k and k + 1 (two adjacent nodes, one 8-lane operation), then
+    /// the statistics.
     fn slice(&mut self, frame: &Frame, geo: &Geometry, usable_px: f32) {
         let (w, h) = (frame.width(), frame.height());
         let (s, gx, gy, flat, z0, sr) = (geo.s, geo.gx, geo.gy, geo.flat, geo.z0, geo.sr);
@@ -419,15 +431,16 @@ impl BilateralGrid {
             len,
             offset,
             level,
+            pair_a,
+            pair_d,
             row_nodes,
             row_base,
+            gathered,
             out,
             ..
         } = self;
         let xs = &xs[..w];
-        // One row of the gathered moments about z_k (q) and z_{k+1} (p),
-        // and the level fraction (-1 for unusable input).
-        let mut rows = [(); 7].map(|_| vec![0.0f32; w]);
+        gathered.resize(w, [0.0; 8]);
         let stats = RowStats {
             flat,
             z0,
@@ -436,92 +449,146 @@ impl BilateralGrid {
             n_full,
             usable_px,
         };
+        let cells = CellLevels {
+            grid,
+            lo,
+            len,
+            offset,
+        };
+        let mut pair = None;
         for (y, &(cy0, cy1, fy)) in ys.iter().enumerate() {
-            // The grid blended along y for this row: per cell column, the
-            // union of the two cells' levels (a level a cell lacks is zero).
-            row_nodes.clear();
-            row_base.clear();
-            for cx in 0..gx {
-                let (c0, c1) = (cy0 * gx + cx, cy1 * gx + cx);
-                let range = |c: usize| (lo[c], lo[c] + len[c] as i32);
-                let ((l0, h0), (l1, h1)) = (range(c0), range(c1));
-                let (from, to) = match (h0 > l0, h1 > l1) {
-                    (true, true) => (l0.min(l1), h0.max(h1)),
-                    (true, false) => (l0, h0),
-                    (false, true) => (l1, h1),
-                    (false, false) => (0, 0),
-                };
-                row_base.push(row_nodes.len() as isize - from as isize);
-                let node = |c: usize, l: i32, kk: i32| {
-                    grid.get(offset[c] + (kk - l) as usize)
-                        .copied()
-                        .unwrap_or([0.0; 4])
-                };
-                for kk in from..to {
-                    let mut acc = [0.0f32; 4];
-                    if (l0..h0).contains(&kk) {
-                        axpy(&mut acc, 1.0 - fy, &node(c0, l0, kk));
-                    }
-                    if (l1..h1).contains(&kk) {
-                        axpy(&mut acc, fy, &node(c1, l1, kk));
-                    }
-                    row_nodes.push(acc);
-                }
+            if pair != Some((cy0, cy1)) {
+                pair = Some((cy0, cy1));
+                cells.pair_rows(gx, cy0, cy1, pair_a, pair_d, row_base);
             }
-            if row_nodes.len() < 2 {
-                row_nodes.resize(2, [0.0; 4]);
-            }
-            let (nodes, rb) = (&row_nodes[..], &row_base[..gx]);
-            // Nodes k and k + 1 at `at` = base of the column + k. Every corner
-            // of a usable pixel lies within one cell of its splat cell, whose
-            // levels layout dilated over two cells, so both are the column's
-            // own nodes. Clamped into the row, so no branch: only unusable
-            // pixels (whose output is discarded) can fall outside their column.
-            let last = nodes.len() - 2;
-            let read2 = |at: isize| -> (Node, Node) {
-                let at = (at.max(0) as usize).min(last);
-                (nodes[at], nodes[at + 1])
-            };
+            row_nodes.resize(pair_a.len(), 0.0);
+            blend_row(row_nodes, pair_a, pair_d, fy);
             let t = &level[y * w..][..w];
+            gather_row(row_nodes, row_base, xs, t, gathered);
             let dn = &frame.dn.data[y * w..][..w];
-            let mean = &mut out.mean_dn.data[y * w..][..w];
-            let var_out = &mut out.variance_dn2.data[y * w..][..w];
-            let samples = &mut out.samples.data[y * w..][..w];
-            let fl = &mut out.flags.data[y * w..][..w];
-            let [q0, q1, q2, p0, p1, p2, fr] = &mut rows;
-            let (q0, q1, q2) = (&mut q0[..w], &mut q1[..w], &mut q2[..w]);
-            let (p0, p1, p2, fr) = (&mut p0[..w], &mut p1[..w], &mut p2[..w], &mut fr[..w]);
-            // Gather: bilinear along x in the blended row at levels k, k + 1.
-            for x in 0..w {
-                let (cx0, cx1, fx) = xs[x];
-                // Saturating: an unusable pixel's level may be infinite or NaN.
-                let k = t[x] as i32 as isize;
-                let (a0, a1) = read2(rb.get(cx0).copied().unwrap_or(0).saturating_add(k));
-                let (b0, b1) = read2(rb.get(cx1).copied().unwrap_or(0).saturating_add(k));
-                let (mut q, mut p) = ([0.0f32; 4], [0.0f32; 4]);
-                axpy(&mut q, 1.0 - fx, &a0);
-                axpy(&mut q, fx, &b0);
-                axpy(&mut p, 1.0 - fx, &a1);
-                axpy(&mut p, fx, &b1);
-                (q0[x], q1[x], q2[x]) = (q[0], q[1], q[2]);
-                (p0[x], p1[x], p2[x]) = (p[0], p[1], p[2]);
-                fr[x] = if fl[x] != 0 {
-                    -1.0
-                } else if flat {
-                    0.0
-                } else {
-                    t[x] - (t[x] as i32) as f32
-                };
+            let at = y * w;
+            stats.run(
+                gathered,
+                dn,
+                &mut out.flags.data[at..][..w],
+                [
+                    &mut out.mean_dn.data[at..][..w],
+                    &mut out.variance_dn2.data[at..][..w],
+                    &mut out.samples.data[at..][..w],
+                ],
+            );
+        }
+    }
+}
+
+/// The blurred grid's sparse cells, for slicing.
+struct CellLevels<'a> {
+    grid: &'a [Node],
+    lo: &'a [i32],
+    len: &'a [u32],
+    offset: &'a [usize],
+}
+
+impl CellLevels<'_> {
+    /// Cell rows `cy0` and `cy1` laid side by side for blending along y: per
+    /// cell column the union of the two cells' levels (a level a cell lacks
+    /// is zero), as flat nodes of row `cy0` (`a`) and of row `cy1` minus
+    /// row `cy0` (`d`); `base` is the node index of level 0 of each column.
+    /// At least two nodes.
+    fn pair_rows(
+        &self,
+        gx: usize,
+        cy0: usize,
+        cy1: usize,
+        a: &mut Vec<f32>,
+        d: &mut Vec<f32>,
+        base: &mut Vec<isize>,
+    ) {
+        a.clear();
+        d.clear();
+        base.clear();
+        let node = |c: usize, kk: i32| -> Node {
+            let l = self.lo[c];
+            if (l..l + self.len[c] as i32).contains(&kk) {
+                self.grid
+                    .get(self.offset[c] + (kk - l) as usize)
+                    .copied()
+                    .unwrap_or([0.0; 4])
+            } else {
+                [0.0; 4]
             }
-            stats.run([q0, q1, q2, p0, p1, p2, dn], fr, [mean, var_out, samples]);
-            for (fl, &good) in fl.iter_mut().zip(&*fr) {
-                *fl |= if good > 0.0 {
-                    0
-                } else {
-                    PixelFlags::INSUFFICIENT.bits()
-                };
+        };
+        for cx in 0..gx {
+            let (c0, c1) = (cy0 * gx + cx, cy1 * gx + cx);
+            let range = |c: usize| (self.lo[c], self.lo[c] + self.len[c] as i32);
+            let ((l0, h0), (l1, h1)) = (range(c0), range(c1));
+            let (from, to) = match (h0 > l0, h1 > l1) {
+                (true, true) => (l0.min(l1), h0.max(h1)),
+                (true, false) => (l0, h0),
+                (false, true) => (l1, h1),
+                (false, false) => (0, 0),
+            };
+            base.push((a.len() / 4) as isize - from as isize);
+            for kk in from..to {
+                let (n0, n1) = (node(c0, kk), node(c1, kk));
+                a.extend_from_slice(&n0);
+                d.extend((0..4).map(|l| n1[l] - n0[l]));
             }
         }
+        if a.len() < 8 {
+            a.resize(8, 0.0);
+            d.resize(8, 0.0);
+        }
+    }
+}
+
+/// One output row's grid: `a + fy d` (see [`CellLevels::pair_rows`]).
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn blend_row(row: &mut [f32], a: &[f32], d: &[f32], fy: f32) {
+    for ((r, &a), &d) in row.iter_mut().zip(a).zip(d) {
+        *r = a + fy * d;
+    }
+}
+
+/// Bilinear read along x of nodes k and k + 1 (adjacent in `nodes`, flat
+/// 4 floats each) for every pixel of a row: moments about z_k in lanes
+/// 0..3, about z_{k+1} in lanes 4..7, and the level fraction in lane 3
+/// (NaN for an unusable pixel's NaN level). Every corner of a usable pixel lies
+/// within one cell of its splat cell, whose levels layout dilated over two
+/// cells, so both nodes are the column's own. Clamped into the row, so no
+/// branch: only unusable pixels (whose output is discarded) can fall
+/// outside their column.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn gather_row(
+    nodes: &[f32],
+    base: &[isize],
+    xs: &[(usize, usize, f32)],
+    t: &[f32],
+    out: &mut [[f32; 8]],
+) {
+    let last = (nodes.len() / 4).saturating_sub(2);
+    let read = |at: isize| -> &[f32] {
+        let at = (at.max(0) as usize).min(last);
+        &nodes[4 * at..][..8]
+    };
+    for ((o, &(cx0, cx1, fx)), &t) in out.iter_mut().zip(xs).zip(t) {
+        // Saturating: an unusable pixel's level may be infinite or NaN.
+        let k = t as i32 as isize;
+        let a = read(base[cx0].saturating_add(k));
+        let b = read(base[cx1].saturating_add(k));
+        for l in 0..8 {
+            o[l] = a[l] + fx * (b[l] - a[l]);
+        }
+        // Lane 3 (unused by the moments): the level fraction.
+        o[3] = t - k as f32;
     }
 }
 
@@ -538,50 +605,65 @@ struct RowStats {
 }
 
 impl RowStats {
-    /// `inp`: the moments about z_k (3 rows) and z_{k+1} (3 rows), and the
-    /// values; `frac`: the level fraction (-1 for unusable input),
-    /// overwritten with 1 where the pixel has statistics and 0 where not.
-    fn run(self, inp: [&[f32]; 7], frac: &mut [f32], out: [&mut [f32]; 3]) {
-        row_stats(self, inp, frac, out)
+    /// `gathered`: per pixel the moments about z_k and z_{k+1} and the
+    /// level fraction (see [`gather_row`]), `dn` the values; `flags` the input flags, to which
+    /// INSUFFICIENT is added where a pixel has no statistics.
+    fn run(
+        self,
+        gathered: &[[f32; 8]],
+        dn: &[f32],
+        flags: &mut [u8],
+        out: [&mut [f32]; 3],
+    ) {
+        row_stats(self, gathered, dn, flags, out)
     }
 }
 
 /// Branch-free along the row, so it vectorizes.
-#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
-fn row_stats(st: RowStats, inp: [&[f32]; 7], frac: &mut [f32], out: [&mut [f32]; 3]) {
-    let [q0, q1, q2, p0, p1, p2, dn] = inp;
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn row_stats(
+    st: RowStats,
+    gathered: &[[f32; 8]],
+    dn: &[f32],
+    flags: &mut [u8],
+    out: [&mut [f32]; 3],
+) {
     let [mean, var_out, samples] = out;
-    let n = inp.iter().map(|r| r.len()).fold(frac.len(), usize::min);
-    let n = n.min(mean.len()).min(var_out.len()).min(samples.len());
-    let (q0, q1, q2, p0, p1, p2, dn) = (
-        &q0[..n],
-        &q1[..n],
-        &q2[..n],
-        &p0[..n],
-        &p1[..n],
-        &p2[..n],
-        &dn[..n],
-    );
-    let (frac, mean, var_out, samples) = (
-        &mut frac[..n],
-        &mut mean[..n],
-        &mut var_out[..n],
-        &mut samples[..n],
-    );
+    let n = gathered
+        .len()
+        .min(dn.len())
+        .min(flags.len())
+        .min(mean.len())
+        .min(var_out.len())
+        .min(samples.len());
+    let (gathered, dn, flags) = (&gathered[..n], &dn[..n], &mut flags[..n]);
+    let (mean, var_out, samples) = (&mut mean[..n], &mut var_out[..n], &mut samples[..n]);
     for x in 0..n {
-        let f = frac[x];
+        let g = &gathered[x];
+        let (q0, q1, q2, p0, p1, p2) = (g[0], g[1], g[2], g[4], g[5], g[6]);
+        let usable = flags[x] == 0;
+        // The level fraction (NaN for an unusable pixel's NaN level: 0).
+        let f = g[3];
+        let fc = if usable && !st.flat && f > 0.0 {
+            f
+        } else {
+            0.0
+        };
         // Moments about z_k and z_{k+1} moved to the pixel's own value.
-        let fc = if f > 0.0 { f } else { 0.0 };
         let (delta, delta1) = if st.flat {
             (st.z0 - dn[x], 0.0)
         } else {
             (-fc * st.sr, (1.0 - fc) * st.sr)
         };
         let (wr, wr1) = if st.flat { (1.0, 0.0) } else { (1.0 - fc, fc) };
-        let s0 = wr * q0[x] + wr1 * p0[x];
-        let s1 = wr * (q1[x] + delta * q0[x]) + wr1 * (p1[x] + delta1 * p0[x]);
-        let s2 = wr * (q2[x] + 2.0 * delta * q1[x] + delta * delta * q0[x])
-            + wr1 * (p2[x] + 2.0 * delta1 * p1[x] + delta1 * delta1 * p0[x]);
+        let s0 = wr * q0 + wr1 * p0;
+        let s1 = wr * (q1 + delta * q0) + wr1 * (p1 + delta1 * p0);
+        let s2 = wr * (q2 + 2.0 * delta * q1 + delta * delta * q0)
+            + wr1 * (p2 + 2.0 * delta1 * p1 + delta1 * delta1 * p0);
         let inv = 1.0 / s0;
         let m = s1 * inv;
         let var = s2 * inv - m * m;
@@ -602,12 +684,16 @@ fn row_stats(st: RowStats, inp: [&[f32]; 7], frac: &mut [f32], out: [&mut [f32];
             st.usable_px
         };
         // Unusable input, no weight or fewer than two samples: no statistics.
-        let weighted = f >= 0.0 && s0 > 0.0 && s0 < f32::INFINITY;
+        let weighted = usable && s0 > 0.0 && s0 < f32::INFINITY;
         let good = weighted && n_eff >= 2.0 && var < f32::INFINITY;
         mean[x] = if good { dn[x] + m } else { 0.0 };
         var_out[x] = if good { var } else { 0.0 };
         samples[x] = if weighted { n_eff } else { 0.0 };
-        frac[x] = if good { 1.0 } else { 0.0 };
+        flags[x] |= if good {
+            0
+        } else {
+            PixelFlags::INSUFFICIENT.bits()
+        };
     }
 }
 

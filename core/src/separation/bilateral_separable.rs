@@ -138,7 +138,11 @@ struct Kernel<'a> {
 
 /// The whole frame: padded input, then row by row the horizontal pass
 /// (r rows ahead) and the vertical pass.
-#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
 fn run(kn: &mut Kernel) {
     const FMA: bool = multiversion::target::target_cfg_f!(target_feature = "fma");
     run_with::<FMA>(kn);
@@ -341,21 +345,16 @@ fn vertical<const FMA: bool>(kn: &mut Kernel, y: usize, taps: &[[Tap; 2]]) {
             [&m[..w], &m[w..2 * w], &m[2 * w..3 * w], &m[3 * w..]],
         )
     };
-    for [above, below] in taps {
-        let (va, pa, [a0, a1, a2, ab]) = row(above);
-        let (vb, pb, [b0, b1, b2, bb]) = row(below);
-        for x in 0..w {
-            // Moments about I' moved to I: m1 + d m0 and m2 + d (2 m1 + d m0).
-            let (da, db) = (va[x] - vc[x], vb[x] - vc[x]);
-            let (ta, tb) = (madd::<FMA>(da, a0[x], a1[x]), madd::<FMA>(db, b0[x], b1[x]));
-            let ua = madd::<FMA>(da, ta + a1[x], a2[x]);
-            let ub = madd::<FMA>(db, tb + b1[x], b2[x]);
-            let (wa, wb) = (pa[x], pb[x]);
-            s0[x] = madd::<FMA>(wa, a0[x], madd::<FMA>(wb, b0[x], s0[x]));
-            s1[x] = madd::<FMA>(wa, ta, madd::<FMA>(wb, tb, s1[x]));
-            s2[x] = madd::<FMA>(wa, ua, madd::<FMA>(wb, ub, s2[x]));
-            q[x] = madd::<FMA>(wa * wa, ab[x], madd::<FMA>(wb * wb, bb[x], q[x]));
-        }
+    // Two tap pairs (four neighbour rows) per sweep: half the loads and
+    // stores of the sums.
+    let mut pairs = taps.chunks_exact(2);
+    for two in &mut pairs {
+        let [a, b] = two[0];
+        let [c, d] = two[1];
+        accumulate::<4, FMA>([row(&a), row(&b), row(&c), row(&d)], vc, [s0, s1, s2, q]);
+    }
+    for &[a, b] in pairs.remainder() {
+        accumulate::<2, FMA>([row(&a), row(&b)], vc, [s0, s1, s2, q]);
     }
     let ok = &kn.valid[y * stride + r..][..w];
     let out = &mut *kn.out;
@@ -382,6 +381,40 @@ fn vertical<const FMA: bool>(kn: &mut Kernel, y: usize, taps: &[[Tap; 2]]) {
         } else {
             PixelFlags::INSUFFICIENT.bits()
         };
+    }
+}
+
+/// One neighbour row of [`vertical`]: its values, its pair weights with the
+/// output row, its row moments m0 | m1 | m2 | mb.
+type NeighbourRow<'a> = (&'a [f32], &'a [f32], [&'a [f32]; 4]);
+
+/// Adds `T` neighbour rows' moments, moved to each pixel's value `vc` and
+/// weighted, to the sums s0 | s1 | s2 | q.
+#[inline(always)]
+fn accumulate<const T: usize, const FMA: bool>(
+    rows: [NeighbourRow; T],
+    vc: &[f32],
+    sums: [&mut [f32]; 4],
+) {
+    let [s0, s1, s2, q] = sums;
+    let w = vc.len().min(s0.len()).min(s1.len()).min(s2.len()).min(q.len());
+    let rows = rows.map(|(v, p, [m0, m1, m2, mb])| {
+        (&v[..w], &p[..w], [&m0[..w], &m1[..w], &m2[..w], &mb[..w]])
+    });
+    for x in 0..w {
+        let (mut t0, mut t1, mut t2, mut tq) = (s0[x], s1[x], s2[x], q[x]);
+        for (v, p, [m0, m1, m2, mb]) in &rows {
+            // Moments about I' moved to I: m1 + d m0 and m2 + d (2 m1 + d m0).
+            let d = v[x] - vc[x];
+            let t = madd::<FMA>(d, m0[x], m1[x]);
+            let u = madd::<FMA>(d, t + m1[x], m2[x]);
+            let wt = p[x];
+            t0 = madd::<FMA>(wt, m0[x], t0);
+            t1 = madd::<FMA>(wt, t, t1);
+            t2 = madd::<FMA>(wt, u, t2);
+            tq = madd::<FMA>(wt * wt, mb[x], tq);
+        }
+        (s0[x], s1[x], s2[x], q[x]) = (t0, t1, t2, tq);
     }
 }
 
