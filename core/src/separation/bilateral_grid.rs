@@ -69,8 +69,10 @@ pub struct BilateralGrid {
     base: Vec<isize>,
     scratch_lo: Vec<i32>,
     scratch_hi: Vec<i32>,
-    /// Each pixel's level coordinate (I - z_0) / s_r (0 when flat).
-    level: Vec<f32>,
+    /// Each pixel's level coordinate (I - z_0) / s_r as its level k
+    /// (saturating) and the fraction above it (both 0 when flat).
+    level_k: Vec<i32>,
+    level_frac: Vec<f32>,
     /// The pair of cell rows an output row blends (see
     /// [`CellLevels::pair_rows`]), the blend for one output row (flat
     /// nodes), the node index of level 0 of each cell column in both, and
@@ -100,6 +102,10 @@ struct Geometry {
     /// Splat cell of each column and row.
     col_cell: Vec<usize>,
     row_cell: Vec<usize>,
+    /// The columns in splat order: the first column of every cell, then the
+    /// second, ...: consecutive pixels add to different nodes, so no add
+    /// waits for the previous one's store.
+    splat_order: Vec<usize>,
     flat: bool,
     z0: f32,
     sr: f32,
@@ -114,7 +120,8 @@ impl BilateralGrid {
             base: Vec::new(),
             scratch_lo: Vec::new(),
             scratch_hi: Vec::new(),
-            level: Vec::new(),
+            level_k: Vec::new(),
+            level_frac: Vec::new(),
             pair_a: Vec::new(),
             pair_d: Vec::new(),
             row_nodes: Vec::new(),
@@ -190,24 +197,32 @@ impl BilateralGrid {
         let gx = (w as f32 / s).ceil().max(1.0) as usize;
         let gy = (h as f32 / s).ceil().max(1.0) as usize;
         let cell_of = |p: usize, g: usize| (((p as f32 + 0.5) / s) as usize).min(g - 1);
+        let col_cell: Vec<usize> = (0..w).map(|x| cell_of(x, gx)).collect();
         let geo = Geometry {
             s,
             gx,
             gy,
-            col_cell: (0..w).map(|x| cell_of(x, gx)).collect(),
+            splat_order: interleaved_cells(&col_cell),
+            col_cell,
             row_cell: (0..h).map(|y| cell_of(y, gy)).collect(),
             flat,
             z0,
             sr,
         };
         // One branch-free pass (vectorizes); unusable pixels' levels are never read.
-        self.level.resize(w * h, 0.0);
+        self.level_k.resize(w * h, 0);
+        self.level_frac.resize(w * h, 0.0);
         if flat {
-            self.level.fill(0.0);
+            self.level_k.fill(0);
+            self.level_frac.fill(0.0);
         } else {
-            for (t, &v) in self.level.iter_mut().zip(&frame.dn.data) {
-                *t = (v - z0) / sr;
-            }
+            levels(
+                &frame.dn.data,
+                z0,
+                sr,
+                &mut self.level_k,
+                &mut self.level_frac,
+            );
         }
 
         self.layout(w, h, &geo);
@@ -228,6 +243,11 @@ impl BilateralGrid {
     /// Per cell: the levels its own pixels touch, dilated over 5 x 5 cells
     /// and padded by one level (what blur and slicing read).
     fn layout(&mut self, w: usize, h: usize, geo: &Geometry) {
+        layout_mv(self, w, h, geo)
+    }
+
+    #[inline(always)]
+    fn layout_body(&mut self, w: usize, h: usize, geo: &Geometry) {
         let (gx, gy) = (geo.gx, geo.gy);
         let cells = gx * gy;
         let (lo, hi) = (&mut self.scratch_lo, &mut self.scratch_hi);
@@ -238,7 +258,7 @@ impl BilateralGrid {
         let flags = &self.out.flags.data;
         for y in 0..h {
             let row = geo.row_cell[y] * gx;
-            let (t, fl) = (&self.level[y * w..][..w], &flags[y * w..][..w]);
+            let (ks, fl) = (&self.level_k[y * w..][..w], &flags[y * w..][..w]);
             // Runs of columns sharing a cell: min and max in registers, one
             // update per cell and row.
             let mut x = 0;
@@ -246,7 +266,7 @@ impl BilateralGrid {
                 let cx = geo.col_cell[x];
                 let (mut kmin, mut kmax) = (i32::MAX, i32::MIN);
                 while x < w && geo.col_cell[x] == cx {
-                    let k = t[x] as i32;
+                    let k = ks[x];
                     let ok = fl[x] == 0;
                     kmin = if ok { kmin.min(k) } else { kmin };
                     kmax = if ok {
@@ -283,6 +303,11 @@ impl BilateralGrid {
     }
 
     fn splat(&mut self, frame: &Frame, geo: &Geometry, total: usize) {
+        splat_mv(self, frame, geo, total)
+    }
+
+    #[inline(always)]
+    fn splat_body(&mut self, frame: &Frame, geo: &Geometry, total: usize) {
         let (w, h) = (frame.width(), frame.height());
         let (flat, z0, sr) = (geo.flat, geo.z0, geo.sr);
         self.a.clear();
@@ -291,9 +316,14 @@ impl BilateralGrid {
         let flags = &self.out.flags.data;
         for y in 0..h {
             let row = geo.row_cell[y] * geo.gx;
-            let (t, fl) = (&self.level[y * w..][..w], &flags[y * w..][..w]);
+            let (ks, fr, fl) = (
+                &self.level_k[y * w..][..w],
+                &self.level_frac[y * w..][..w],
+                &flags[y * w..][..w],
+            );
             let dn = &frame.dn.data[y * w..][..w];
-            for (x, &cx) in geo.col_cell.iter().enumerate() {
+            for &x in &geo.splat_order {
+                let cx = geo.col_cell[x];
                 if fl[x] != 0 {
                     continue;
                 }
@@ -306,8 +336,7 @@ impl BilateralGrid {
                     }
                     continue;
                 }
-                let k = t[x] as i32;
-                let f = t[x] - k as f32;
+                let (k, f) = (ks[x], fr[x]);
                 // v - z_k and v - z_{k+1}.
                 let d = f * sr;
                 let d1 = d - sr;
@@ -324,6 +353,11 @@ impl BilateralGrid {
     /// a -> b: [1 2 1]/4 along range within each cell, moments shifted to
     /// each node's level.
     fn blur_range(&mut self, sr: f32) {
+        blur_range_mv(self, sr)
+    }
+
+    #[inline(always)]
+    fn blur_range_body(&mut self, sr: f32) {
         let total = self.a.len();
         // Every node is written below.
         self.b.resize(total, [0.0; 4]);
@@ -360,6 +394,11 @@ impl BilateralGrid {
     /// [1 2 1]/4 across cells at equal levels: b -> a along x, then a -> b
     /// along y (call with `along_x` true, then false).
     fn blur_cells(&mut self, gx: usize, gy: usize, along_x: bool) {
+        blur_cells_mv(self, gx, gy, along_x)
+    }
+
+    #[inline(always)]
+    fn blur_cells_body(&mut self, gx: usize, gy: usize, along_x: bool) {
         let (src, dst) = if along_x {
             (&self.b, &mut self.a)
         } else {
@@ -430,7 +469,8 @@ impl BilateralGrid {
             lo,
             len,
             offset,
-            level,
+            level_k,
+            level_frac,
             pair_a,
             pair_d,
             row_nodes,
@@ -440,6 +480,9 @@ impl BilateralGrid {
             ..
         } = self;
         let xs = &xs[..w];
+        let fx: Vec<f32> = xs.iter().map(|&(_, _, f)| f).collect();
+        // Node index of level 0 at each pixel's two cell columns.
+        let (mut at_a, mut at_b) = (vec![0isize; w], vec![0isize; w]);
         gathered.resize(w, [0.0; 8]);
         let stats = RowStats {
             flat,
@@ -460,11 +503,14 @@ impl BilateralGrid {
             if pair != Some((cy0, cy1)) {
                 pair = Some((cy0, cy1));
                 cells.pair_rows(gx, cy0, cy1, pair_a, pair_d, row_base);
+                for (x, &(cx0, cx1, _)) in xs.iter().enumerate() {
+                    (at_a[x], at_b[x]) = (row_base[cx0], row_base[cx1]);
+                }
             }
             row_nodes.resize(pair_a.len(), 0.0);
             blend_row(row_nodes, pair_a, pair_d, fy);
-            let t = &level[y * w..][..w];
-            gather_row(row_nodes, row_base, xs, t, gathered);
+            let (ks, fr) = (&level_k[y * w..][..w], &level_frac[y * w..][..w]);
+            gather_row(row_nodes, [&at_a, &at_b], &fx, (ks, fr), gathered);
             let dn = &frame.dn.data[y * w..][..w];
             let at = y * w;
             stats.run(
@@ -556,8 +602,9 @@ fn blend_row(row: &mut [f32], a: &[f32], d: &[f32], fy: f32) {
 
 /// Bilinear read along x of nodes k and k + 1 (adjacent in `nodes`, flat
 /// 4 floats each) for every pixel of a row: moments about z_k in lanes
-/// 0..3, about z_{k+1} in lanes 4..7, and the level fraction in lane 3
-/// (NaN for an unusable pixel's NaN level). Every corner of a usable pixel lies
+/// 0..3, about z_{k+1} in lanes 4..7, and the level fraction in lane 3.
+/// `at` holds the node index of level 0 at each pixel's two cell columns,
+/// `level` each pixel's level k and fraction. Every corner of a usable pixel lies
 /// within one cell of its splat cell, whose levels layout dilated over two
 /// cells, so both nodes are the column's own. Clamped into the row, so no
 /// branch: only unusable pixels (whose output is discarded) can fall
@@ -569,26 +616,40 @@ fn blend_row(row: &mut [f32], a: &[f32], d: &[f32], fy: f32) {
 ))]
 fn gather_row(
     nodes: &[f32],
-    base: &[isize],
-    xs: &[(usize, usize, f32)],
-    t: &[f32],
+    at: [&[isize]; 2],
+    fx: &[f32],
+    level: (&[i32], &[f32]),
     out: &mut [[f32; 8]],
 ) {
+    let [at_a, at_b] = at;
+    let (ks, fr) = level;
     let last = (nodes.len() / 4).saturating_sub(2);
     let read = |at: isize| -> &[f32] {
         let at = (at.max(0) as usize).min(last);
         &nodes[4 * at..][..8]
     };
-    for ((o, &(cx0, cx1, fx)), &t) in out.iter_mut().zip(xs).zip(t) {
-        // Saturating: an unusable pixel's level may be infinite or NaN.
-        let k = t as i32 as isize;
-        let a = read(base[cx0].saturating_add(k));
-        let b = read(base[cx1].saturating_add(k));
+    let n = [
+        at_a.len(),
+        at_b.len(),
+        fx.len(),
+        ks.len(),
+        fr.len(),
+        out.len(),
+    ]
+    .into_iter()
+    .min()
+    .unwrap_or(0);
+    for x in 0..n {
+        // i32 to isize: no overflow whatever an unusable pixel's level.
+        let k = ks[x] as isize;
+        let a = read(at_a[x] + k);
+        let b = read(at_b[x] + k);
+        let o = &mut out[x];
         for l in 0..8 {
-            o[l] = a[l] + fx * (b[l] - a[l]);
+            o[l] = a[l] + fx[x] * (b[l] - a[l]);
         }
         // Lane 3 (unused by the moments): the level fraction.
-        o[3] = t - k as f32;
+        o[3] = fr[x];
     }
 }
 
@@ -608,13 +669,7 @@ impl RowStats {
     /// `gathered`: per pixel the moments about z_k and z_{k+1} and the
     /// level fraction (see [`gather_row`]), `dn` the values; `flags` the input flags, to which
     /// INSUFFICIENT is added where a pixel has no statistics.
-    fn run(
-        self,
-        gathered: &[[f32; 8]],
-        dn: &[f32],
-        flags: &mut [u8],
-        out: [&mut [f32]; 3],
-    ) {
+    fn run(self, gathered: &[[f32; 8]], dn: &[f32], flags: &mut [u8], out: [&mut [f32]; 3]) {
         row_stats(self, gathered, dn, flags, out)
     }
 }
@@ -695,6 +750,78 @@ fn row_stats(
             PixelFlags::INSUFFICIENT.bits()
         };
     }
+}
+
+/// Level k and fraction of each value (see [`BilateralGrid::compute`]),
+/// saturating for unusable pixels, whose levels are never used.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn levels(dn: &[f32], z0: f32, sr: f32, level_k: &mut [i32], level_frac: &mut [f32]) {
+    for ((k, f), &v) in level_k.iter_mut().zip(level_frac.iter_mut()).zip(dn) {
+        let t = (v - z0) / sr;
+        *k = t as i32;
+        *f = t - *k as f32;
+    }
+}
+
+/// [`BilateralGrid::layout`] compiled for the CPU found at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn layout_mv(g: &mut BilateralGrid, w: usize, h: usize, geo: &Geometry) {
+    g.layout_body(w, h, geo);
+}
+
+/// [`BilateralGrid::splat`] compiled for the CPU found at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn splat_mv(g: &mut BilateralGrid, frame: &Frame, geo: &Geometry, total: usize) {
+    g.splat_body(frame, geo, total);
+}
+
+/// [`BilateralGrid::blur_range`] compiled for the CPU found at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn blur_range_mv(g: &mut BilateralGrid, sr: f32) {
+    g.blur_range_body(sr);
+}
+
+/// [`BilateralGrid::blur_cells`] compiled for the CPU found at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn blur_cells_mv(g: &mut BilateralGrid, gx: usize, gy: usize, along_x: bool) {
+    g.blur_cells_body(gx, gy, along_x);
+}
+
+/// The indices of `cells` (ascending cell numbers) ordered by their rank
+/// within their cell, then by cell.
+fn interleaved_cells(cells: &[usize]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..cells.len()).collect();
+    let mut start = 0;
+    let rank: Vec<usize> = (0..cells.len())
+        .map(|x| {
+            if x > 0 && cells[x] != cells[x - 1] {
+                start = x;
+            }
+            x - start
+        })
+        .collect();
+    order.sort_by_key(|&x| (rank[x], cells[x]));
+    order
 }
 
 /// Min of `lo` and max of `hi` over each cell's 5 x 5 neighbourhood (separable).
