@@ -22,32 +22,11 @@ sink=${SDI_BENCH_SINK:-y4m}
 # Inside the VM the target directory is read-only: the wrapper builds first.
 [ -n "${SDI_BENCH_PREBUILT:-}" ] ||
     cargo build -q --release -p sdi-daemon -p sdi-cli -p sdi-tests --bin loopback_tool
-sdid=$PWD/target/release/sdid sdictl=$PWD/target/release/sdictl
-tool=$PWD/target/release/loopback_tool
-view_dev=/dev/video50 data_dev=/dev/video51 peer_dev=/dev/video52
-tmp=$(mktemp -d)
-pids=()
-cleanup() {
-    for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
-    wait 2>/dev/null || true
-    rm -rf "$tmp"
-}
-trap cleanup EXIT
-
-# A private session bus: nothing of the user's desktop is touched.
-eval "$(dbus-daemon --session --fork --print-address=1 --print-pid=1 |
-    { read -r a; read -r p; echo "export DBUS_SESSION_BUS_ADDRESS='$a'; bus_pid=$p"; })"
-pids+=("$bus_pid")
-ctl() { "$sdictl" --session "$@"; }
+. tests/bench/replay_common.sh
+peer_dev=/dev/video52
 
 ticks() { awk '{ print $14 + $15 }' "/proc/$1/stat"; }
 hz=$(getconf CLK_TCK)
-
-# Waits until the daemon answers on the bus.
-wait_bus() {
-    for _ in $(seq 100); do ctl status >/dev/null 2>&1 && return 0; sleep 0.1; done
-    echo "daemon_cpu.sh: sdid did not come up" >&2; return 1
-}
 
 # CPU share of one core of PID over the window, printed as a percentage.
 cpu_pct() {
@@ -59,17 +38,7 @@ cpu_pct() {
 stats_fps() { ctl --json status | /usr/bin/python3 -c 'import json,sys; print("%.1f" % json.load(sys.stdin)["Stats"]["fps"])'; }
 
 # 1. A 320x240 recording of the simulator at 60 fps (8 s).
-mkfifo "$tmp/view.y4m"
-"$sdid" --session --backend sim --frame-rate-hz 60 --sink y4m --y4m-path "$tmp/view.y4m" \
-    --state-dir "$tmp/state" 2>"$tmp/rec.log" &
-pids+=($!)
-cat "$tmp/view.y4m" >/dev/null &
-pids+=($!)
-wait_bus
-ctl record "$tmp/rec.sdirec" --seconds 8 >/dev/null
-ctl stop >/dev/null 2>&1 || true
-kill "${pids[-2]}"; wait "${pids[-2]}" 2>/dev/null || true
-sleep 0.5
+record_sim
 
 # 2. sdid replaying it in a loop, one reader per published node, per mode.
 if [ "$sink" = loopback ]; then

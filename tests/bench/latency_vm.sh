@@ -32,40 +32,9 @@ elif [ -z "${SDI_LATENCY_IN_VM:-}" ]; then
       SDI_LATENCY_IN_VM=1 bash tests/bench/latency_vm.sh $window_s"
 fi
 
-sdid=$PWD/target/release/sdid sdictl=$PWD/target/release/sdictl
-tool=$PWD/target/release/loopback_tool
-view_dev=/dev/video50 data_dev=/dev/video51
-tmp=$(mktemp -d)
-pids=()
-cleanup() {
-    for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
-    wait 2>/dev/null || true
-    rm -rf "$tmp"
-}
-trap cleanup EXIT
-
-# A private session bus.
-eval "$(dbus-daemon --session --fork --print-address=1 --print-pid=1 |
-    { read -r a; read -r p; echo "export DBUS_SESSION_BUS_ADDRESS='$a'; bus_pid=$p"; })"
-pids+=("$bus_pid")
-ctl() { "$sdictl" --session "$@"; }
-wait_bus() {
-    for _ in $(seq 100); do ctl status >/dev/null 2>&1 && return 0; sleep 0.1; done
-    echo "latency_vm.sh: sdid did not come up" >&2; return 1
-}
-
+. tests/bench/replay_common.sh
 # 1. A 320x240 recording of the simulator at 60 fps (8 s).
-mkfifo "$tmp/view.y4m"
-"$sdid" --session --backend sim --frame-rate-hz 60 --sink y4m --y4m-path "$tmp/view.y4m" \
-    --state-dir "$tmp/state" 2>"$tmp/rec.log" &
-pids+=($!)
-cat "$tmp/view.y4m" >/dev/null &
-pids+=($!)
-wait_bus
-ctl record "$tmp/rec.sdirec" --seconds 8 >/dev/null
-ctl stop >/dev/null 2>&1 || true
-kill "${pids[-2]}"; wait "${pids[-2]}" 2>/dev/null || true
-sleep 0.5
+record_sim
 
 # 2. sdid replaying it in a loop (both loopback nodes, or the y4m view on
 #    the host), logging each frame's capture-to-write time.

@@ -10,6 +10,7 @@ use std::time::{Duration, Instant};
 
 use sdi_recording::{Record, RecordingReader};
 use sdi_tests::dbus::{bin, Bus, Daemon};
+use sdi_tests::process::Reaped;
 use sdi_tests::require_dbus;
 
 /// Frames and whether the end record is there.
@@ -122,13 +123,14 @@ fn running(pid: u32) -> bool {
 }
 
 /// `sdid --session` with no session bus around: it starts a private one and
-/// announces its address on stderr. Returns sdid, its stderr (read up to the
+/// announces its address on stderr. Returns sdid (killed when dropped, so a
+/// failing test leaves no daemon and bus behind), its stderr (read up to the
 /// announcement), the address and the lines read so far, once sdid answers
 /// on that bus.
 fn start_with_private_bus(
     runtime: &Path,
 ) -> (
-    std::process::Child,
+    Reaped,
     BufReader<std::process::ChildStderr>,
     String,
     Vec<String>,
@@ -143,7 +145,9 @@ fn start_with_private_bus(
         .stderr(Stdio::piped())
         .spawn()
         .expect("start sdid --session");
-    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let err = child.stderr.take().expect("sdid's stderr is piped");
+    let child = Reaped(child);
+    let mut err = BufReader::new(err);
     let (mut address, mut lines) = (None, Vec::new());
     let mut line = String::new();
     while address.is_none() && err.read_line(&mut line).unwrap_or(0) > 0 {
@@ -167,8 +171,8 @@ fn start_with_private_bus(
             "sdid did not come up on {address}: sdictl {}: {}; sdid running: {}, its children: {:?}",
             out.status,
             String::from_utf8_lossy(&out.stderr).trim(),
-            running(child.id()),
-            children(child.id())
+            running(child.0.id()),
+            children(child.0.id())
         );
         std::thread::sleep(Duration::from_millis(100));
     }
@@ -189,11 +193,11 @@ fn the_private_bus_announcement_stays_whole() {
     assert!(address.starts_with("unix:"), "address {address:?}");
     // SAFETY: plain kill(2) on our own child's pid.
     unsafe {
-        libc::kill(child.id() as i32, libc::SIGTERM);
+        libc::kill(child.0.id() as i32, libc::SIGTERM);
     }
     let mut rest = String::new();
     let _ = err.read_to_string(&mut rest);
-    let _ = child.wait();
+    let _ = child.0.wait();
     lines.extend(rest.lines().map(str::to_owned));
     let raw: Vec<&String> = lines
         .iter()
@@ -210,13 +214,13 @@ fn kill_9_takes_the_private_session_bus_along() {
     require_dbus!();
     let runtime = tempfile::tempdir().unwrap();
     let (mut child, _err, address, _) = start_with_private_bus(runtime.path());
-    let bus_pids = children(child.id());
+    let bus_pids = children(child.0.id());
     assert!(!bus_pids.is_empty(), "no dbus-daemon child");
     // SAFETY: plain kill(2) on our own child's pid.
     unsafe {
-        libc::kill(child.id() as i32, libc::SIGKILL);
+        libc::kill(child.0.id() as i32, libc::SIGKILL);
     }
-    let _ = child.wait();
+    let _ = child.0.wait();
     let t0 = Instant::now();
     while bus_pids.iter().any(|&p| running(p)) {
         if t0.elapsed() > Duration::from_secs(5) {

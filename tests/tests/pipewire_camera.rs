@@ -138,6 +138,30 @@ fn check_published(
         pts.windows(2).all(|w| w[1].1 > w[0].1),
         "{stream}: PTS not increasing"
     );
+    // PTS is the frame's capture time (as on the loopback node): never later
+    // than the moment it was published, and the capture stamp itself unless
+    // it had to be moved 1 ns past the previous frame's.
+    let stamps: Vec<(i64, i64, i64)> = d
+        .log
+        .published()
+        .iter()
+        .filter(|p| p.get("stream").map(String::as_str) == Some(stream))
+        .filter_map(|p| {
+            let n = |k: &str| p.get(k)?.parse::<i64>().ok();
+            Some((n("pts_ns")?, n("capture_us")?, n("published_ns")?))
+        })
+        .collect();
+    let late: Vec<_> = stamps.iter().filter(|(pts, _, at)| pts > at).collect();
+    assert!(late.is_empty(), "{stream}: PTS after publishing: {late:?}");
+    let captured = stamps
+        .iter()
+        .filter(|&&(pts, capture_us, _)| pts == capture_us * 1000)
+        .count();
+    assert!(
+        captured * 10 >= stamps.len() * 9,
+        "{stream}: only {captured} of {} PTS are the capture time",
+        stamps.len()
+    );
     let mut gaps_ms: Vec<f64> = pts
         .windows(2)
         .map(|w| (w[1].1 - w[0].1) as f64 * 1e-6)

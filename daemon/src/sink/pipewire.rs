@@ -95,6 +95,9 @@ struct Pending {
     bytes: Vec<u8>,
     wire: Wire,
     mode: &'static str,
+    /// Capture time (CLOCK_MONOTONIC, the frame loop's publish clock); 0:
+    /// unknown, stamped when published.
+    timestamp_us: u64,
 }
 
 #[derive(Default)]
@@ -298,6 +301,7 @@ impl PipewireSink {
     fn offer(
         port: &Port,
         mode: &'static str,
+        timestamp_us: u64,
         fill: impl FnOnce(Wire, &mut Vec<u8>) -> bool,
     ) -> bool {
         let Some(wire) = port.wire() else {
@@ -309,7 +313,12 @@ impl PipewireSink {
             return false;
         }
         let mut slot = port.slot();
-        if let Some(old) = slot.pending.replace(Pending { bytes, wire, mode }) {
+        if let Some(old) = slot.pending.replace(Pending {
+            bytes,
+            wire,
+            mode,
+            timestamp_us,
+        }) {
             slot.spare = old.bytes;
         }
         true
@@ -346,7 +355,7 @@ impl Sink for PipewireSink {
 
     fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError> {
         let img = &output.signed_dn;
-        let mode = self.mode_name();
+        let (mode, stamp_us) = (self.mode_name(), output.timestamp_us);
         let (vw, vh) = (self.view.width as usize, self.view.height as usize);
         let mut queued = false;
         if self.shared.view.wire().is_some() {
@@ -356,7 +365,7 @@ impl Sink for PipewireSink {
             display.render_output_rgb8(output, &mut self.rgb);
             super::loopback::letterbox(&self.rgb, img.width, img.height, &mut self.scaled, vw, vh);
             let (scaled, yuyv, rgb24) = (&self.scaled, &mut self.yuyv, &mut self.rgb24);
-            queued |= Self::offer(&self.shared.view, mode, |wire, bytes| {
+            queued |= Self::offer(&self.shared.view, mode, stamp_us, |wire, bytes| {
                 bytes.resize(vw * vh * wire.bytes_per_pixel(), 0);
                 let conv = if wire == Wire::Rgb { rgb24 } else { yuyv };
                 conv.rgb8(Src::packed(scaled, vw, vh, 3), bytes).is_ok()
@@ -364,7 +373,7 @@ impl Sink for PipewireSink {
         }
         if img.width == self.data_width && img.height == self.data_height {
             let (w, h, y16) = (self.data_width, self.data_height, &mut self.y16);
-            queued |= Self::offer(&self.shared.data, mode, |_, bytes| {
+            queued |= Self::offer(&self.shared.data, mode, stamp_us, |_, bytes| {
                 bytes.resize(w * h * 2, 0);
                 y16.signed_dn(Src::packed(&img.data, w, h, 1), bytes)
                     .is_ok()
@@ -376,18 +385,18 @@ impl Sink for PipewireSink {
         Ok(())
     }
 
-    fn write_no_signal(&mut self, _timestamp_us: u64) -> Result<(), SinkError> {
+    fn write_no_signal(&mut self, timestamp_us: u64) -> Result<(), SinkError> {
         let mode = self.mode_name();
         let (vw, vh) = (self.view.width as usize, self.view.height as usize);
         let card = &self.no_signal_view;
         let (yuyv, rgb24) = (&mut self.yuyv, &mut self.rgb24);
-        let mut queued = Self::offer(&self.shared.view, mode, |wire, bytes| {
+        let mut queued = Self::offer(&self.shared.view, mode, timestamp_us, |wire, bytes| {
             bytes.resize(vw * vh * wire.bytes_per_pixel(), 0);
             let conv = if wire == Wire::Rgb { rgb24 } else { yuyv };
             conv.grey8(Src::packed(card, vw, vh, 1), bytes).is_ok()
         });
         let data_card = &self.no_signal_data;
-        queued |= Self::offer(&self.shared.data, mode, |_, bytes| {
+        queued |= Self::offer(&self.shared.data, mode, timestamp_us, |_, bytes| {
             bytes.clear();
             bytes.extend_from_slice(data_card);
             true
@@ -542,7 +551,14 @@ fn publish(stream: &pw::stream::Stream, port: &Port, state: &mut StreamState) {
     }
     let bytes = &frame.0.bytes;
     let stride = state.width as usize * frame.0.wire.bytes_per_pixel();
-    let pts_ns = monotonic_ns().max(state.last_pts_ns + 1);
+    // PTS is the capture time (spa_meta_header.pts: ns, CLOCK_MONOTONIC),
+    // as on the loopback node, so a reader can tell the frame's age; strictly
+    // increasing per stream.
+    let capture_ns = match frame.0.timestamp_us {
+        0 => monotonic_ns(),
+        us => i64::try_from(us.saturating_mul(1000)).unwrap_or(i64::MAX),
+    };
+    let pts_ns = capture_ns.max(state.last_pts_ns + 1);
     state.last_pts_ns = pts_ns;
     state.seq += 1;
     let mut written = 0;
@@ -586,6 +602,8 @@ fn publish(stream: &pw::stream::Stream, port: &Port, state: &mut StreamState) {
             mode = frame.0.mode,
             seq = state.seq,
             pts_ns,
+            capture_us = frame.0.timestamp_us,
+            published_ns = monotonic_ns(),
             bytes = written,
             crc32 = format_args!("{:08x}", crc32fast::hash(&bytes[..written])),
             "published"

@@ -1,0 +1,43 @@
+# Sourced by the replay benches (daemon_cpu.sh, latency_vm.sh), from the
+# repository root: the release binaries, a scratch directory, a private
+# session bus (nothing of the user's desktop is touched), cleanup on exit, and
+# the 320x240 simulator recording at 60 fps they replay.
+
+sdid=$PWD/target/release/sdid sdictl=$PWD/target/release/sdictl
+tool=$PWD/target/release/loopback_tool
+view_dev=/dev/video50 data_dev=/dev/video51
+tmp=$(mktemp -d)
+pids=()
+cleanup() {
+    for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+    wait 2>/dev/null || true
+    rm -rf "$tmp"
+}
+trap cleanup EXIT
+
+eval "$(dbus-daemon --session --fork --print-address=1 --print-pid=1 |
+    { read -r a; read -r p; echo "export DBUS_SESSION_BUS_ADDRESS='$a'; bus_pid=$p"; })"
+pids+=("$bus_pid")
+ctl() { "$sdictl" --session "$@"; }
+
+# Waits until the daemon answers on the bus.
+wait_bus() {
+    for _ in $(seq 100); do ctl status >/dev/null 2>&1 && return 0; sleep 0.1; done
+    echo "$(basename "$0"): sdid did not come up" >&2; return 1
+}
+
+# Records 8 s of the simulator (320x240, 60 fps) to $tmp/rec.sdirec; leaves
+# the FIFO $tmp/view.y4m for a y4m replay.
+record_sim() {
+    mkfifo "$tmp/view.y4m"
+    "$sdid" --session --backend sim --frame-rate-hz 60 --sink y4m --y4m-path "$tmp/view.y4m" \
+        --state-dir "$tmp/state" 2>"$tmp/rec.log" &
+    pids+=($!)
+    cat "$tmp/view.y4m" >/dev/null &
+    pids+=($!)
+    wait_bus
+    ctl record "$tmp/rec.sdirec" --seconds 8 >/dev/null
+    ctl stop >/dev/null 2>&1 || true
+    kill "${pids[-2]}"; wait "${pids[-2]}" 2>/dev/null || true
+    sleep 0.5
+}
