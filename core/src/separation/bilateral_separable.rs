@@ -544,7 +544,8 @@ mod tests {
         let p = BilateralParams::new(1.5, 40.0);
         let mut fast = SeparableBilateral::new();
         let a = fast.compute(&f, p).expect("dispatched").clone();
-        let baselines: [(&str, fn(&mut Kernel)); 2] = [
+        type Run = fn(&mut Kernel);
+        let baselines: [(&str, Run); 2] = [
             ("row-wide", run_with::<false, LANES, 1>),
             ("blocked", run_with::<false, LANES, 8>),
         ];
