@@ -69,12 +69,19 @@ pub struct BilateralGrid {
     base: Vec<isize>,
     scratch_lo: Vec<i32>,
     scratch_hi: Vec<i32>,
-    /// Each pixel's level coordinate (I - z_0) / s_r (0 when flat).
-    level: Vec<f32>,
-    /// The blurred grid interpolated along y for one output row, and the
-    /// node index of level 0 of each cell column in it.
-    row_nodes: Vec<Node>,
+    /// Each pixel's level coordinate (I - z_0) / s_r as its level k
+    /// (saturating) and the fraction above it (both 0 when flat).
+    level_k: Vec<i32>,
+    level_frac: Vec<f32>,
+    /// The pair of cell rows an output row blends (see
+    /// [`CellLevels::pair_rows`]), the blend for one output row (flat
+    /// nodes), the node index of level 0 of each cell column in both, and
+    /// the row's gathered moments.
+    pair_a: Vec<f32>,
+    pair_d: Vec<f32>,
+    row_nodes: Vec<f32>,
     row_base: Vec<isize>,
+    gathered: Vec<[f32; 8]>,
     a: Vec<Node>,
     b: Vec<Node>,
     out: LocalMoments,
@@ -95,6 +102,10 @@ struct Geometry {
     /// Splat cell of each column and row.
     col_cell: Vec<usize>,
     row_cell: Vec<usize>,
+    /// The columns in splat order: the first column of every cell, then the
+    /// second, ...: consecutive pixels add to different nodes, so no add
+    /// waits for the previous one's store.
+    splat_order: Vec<usize>,
     flat: bool,
     z0: f32,
     sr: f32,
@@ -109,9 +120,13 @@ impl BilateralGrid {
             base: Vec::new(),
             scratch_lo: Vec::new(),
             scratch_hi: Vec::new(),
-            level: Vec::new(),
+            level_k: Vec::new(),
+            level_frac: Vec::new(),
+            pair_a: Vec::new(),
+            pair_d: Vec::new(),
             row_nodes: Vec::new(),
             row_base: Vec::new(),
+            gathered: Vec::new(),
             a: Vec::new(),
             b: Vec::new(),
             out: LocalMoments::default(),
@@ -182,24 +197,32 @@ impl BilateralGrid {
         let gx = (w as f32 / s).ceil().max(1.0) as usize;
         let gy = (h as f32 / s).ceil().max(1.0) as usize;
         let cell_of = |p: usize, g: usize| (((p as f32 + 0.5) / s) as usize).min(g - 1);
+        let col_cell: Vec<usize> = (0..w).map(|x| cell_of(x, gx)).collect();
         let geo = Geometry {
             s,
             gx,
             gy,
-            col_cell: (0..w).map(|x| cell_of(x, gx)).collect(),
+            splat_order: interleaved_cells(&col_cell),
+            col_cell,
             row_cell: (0..h).map(|y| cell_of(y, gy)).collect(),
             flat,
             z0,
             sr,
         };
         // One branch-free pass (vectorizes); unusable pixels' levels are never read.
-        self.level.resize(w * h, 0.0);
+        self.level_k.resize(w * h, 0);
+        self.level_frac.resize(w * h, 0.0);
         if flat {
-            self.level.fill(0.0);
+            self.level_k.fill(0);
+            self.level_frac.fill(0.0);
         } else {
-            for (t, &v) in self.level.iter_mut().zip(&frame.dn.data) {
-                *t = (v - z0) / sr;
-            }
+            levels(
+                &frame.dn.data,
+                z0,
+                sr,
+                &mut self.level_k,
+                &mut self.level_frac,
+            );
         }
 
         self.layout(w, h, &geo);
@@ -220,6 +243,11 @@ impl BilateralGrid {
     /// Per cell: the levels its own pixels touch, dilated over 5 x 5 cells
     /// and padded by one level (what blur and slicing read).
     fn layout(&mut self, w: usize, h: usize, geo: &Geometry) {
+        layout_mv(self, w, h, geo)
+    }
+
+    #[inline(always)]
+    fn layout_body(&mut self, w: usize, h: usize, geo: &Geometry) {
         let (gx, gy) = (geo.gx, geo.gy);
         let cells = gx * gy;
         let (lo, hi) = (&mut self.scratch_lo, &mut self.scratch_hi);
@@ -230,7 +258,7 @@ impl BilateralGrid {
         let flags = &self.out.flags.data;
         for y in 0..h {
             let row = geo.row_cell[y] * gx;
-            let (t, fl) = (&self.level[y * w..][..w], &flags[y * w..][..w]);
+            let (ks, fl) = (&self.level_k[y * w..][..w], &flags[y * w..][..w]);
             // Runs of columns sharing a cell: min and max in registers, one
             // update per cell and row.
             let mut x = 0;
@@ -238,7 +266,7 @@ impl BilateralGrid {
                 let cx = geo.col_cell[x];
                 let (mut kmin, mut kmax) = (i32::MAX, i32::MIN);
                 while x < w && geo.col_cell[x] == cx {
-                    let k = t[x] as i32;
+                    let k = ks[x];
                     let ok = fl[x] == 0;
                     kmin = if ok { kmin.min(k) } else { kmin };
                     kmax = if ok {
@@ -275,6 +303,11 @@ impl BilateralGrid {
     }
 
     fn splat(&mut self, frame: &Frame, geo: &Geometry, total: usize) {
+        splat_mv(self, frame, geo, total)
+    }
+
+    #[inline(always)]
+    fn splat_body(&mut self, frame: &Frame, geo: &Geometry, total: usize) {
         let (w, h) = (frame.width(), frame.height());
         let (flat, z0, sr) = (geo.flat, geo.z0, geo.sr);
         self.a.clear();
@@ -283,9 +316,14 @@ impl BilateralGrid {
         let flags = &self.out.flags.data;
         for y in 0..h {
             let row = geo.row_cell[y] * geo.gx;
-            let (t, fl) = (&self.level[y * w..][..w], &flags[y * w..][..w]);
+            let (ks, fr, fl) = (
+                &self.level_k[y * w..][..w],
+                &self.level_frac[y * w..][..w],
+                &flags[y * w..][..w],
+            );
             let dn = &frame.dn.data[y * w..][..w];
-            for (x, &cx) in geo.col_cell.iter().enumerate() {
+            for &x in &geo.splat_order {
+                let cx = geo.col_cell[x];
                 if fl[x] != 0 {
                     continue;
                 }
@@ -298,8 +336,7 @@ impl BilateralGrid {
                     }
                     continue;
                 }
-                let k = t[x] as i32;
-                let f = t[x] - k as f32;
+                let (k, f) = (ks[x], fr[x]);
                 // v - z_k and v - z_{k+1}.
                 let d = f * sr;
                 let d1 = d - sr;
@@ -316,6 +353,11 @@ impl BilateralGrid {
     /// a -> b: [1 2 1]/4 along range within each cell, moments shifted to
     /// each node's level.
     fn blur_range(&mut self, sr: f32) {
+        blur_range_mv(self, sr)
+    }
+
+    #[inline(always)]
+    fn blur_range_body(&mut self, sr: f32) {
         let total = self.a.len();
         // Every node is written below.
         self.b.resize(total, [0.0; 4]);
@@ -352,6 +394,11 @@ impl BilateralGrid {
     /// [1 2 1]/4 across cells at equal levels: b -> a along x, then a -> b
     /// along y (call with `along_x` true, then false).
     fn blur_cells(&mut self, gx: usize, gy: usize, along_x: bool) {
+        blur_cells_mv(self, gx, gy, along_x)
+    }
+
+    #[inline(always)]
+    fn blur_cells_body(&mut self, gx: usize, gy: usize, along_x: bool) {
         let (src, dst) = if along_x {
             (&self.b, &mut self.a)
         } else {
@@ -394,7 +441,11 @@ impl BilateralGrid {
         }
     }
 
-    /// Trilinear read of the blurred grid (in `b`) at every pixel.
+    /// Trilinear read of the blurred grid (in `b`) at every pixel: per
+    /// output row, the grid blended along y (from the row's pair of cell
+    /// rows, gathered once per pair), then per pixel a bilinear read along x
+    /// of levels k and k + 1 (two adjacent nodes, one 8-lane operation), then
+    /// the statistics.
     fn slice(&mut self, frame: &Frame, geo: &Geometry, usable_px: f32) {
         let (w, h) = (frame.width(), frame.height());
         let (s, gx, gy, flat, z0, sr) = (geo.s, geo.gx, geo.gy, geo.flat, geo.z0, geo.sr);
@@ -418,16 +469,21 @@ impl BilateralGrid {
             lo,
             len,
             offset,
-            level,
+            level_k,
+            level_frac,
+            pair_a,
+            pair_d,
             row_nodes,
             row_base,
+            gathered,
             out,
             ..
         } = self;
         let xs = &xs[..w];
-        // One row of the gathered moments about z_k (q) and z_{k+1} (p),
-        // and the level fraction (-1 for unusable input).
-        let mut rows = [(); 7].map(|_| vec![0.0f32; w]);
+        let fx: Vec<f32> = xs.iter().map(|&(_, _, f)| f).collect();
+        // Node index of level 0 at each pixel's two cell columns.
+        let (mut at_a, mut at_b) = (vec![0isize; w], vec![0isize; w]);
+        gathered.resize(w, [0.0; 8]);
         let stats = RowStats {
             flat,
             z0,
@@ -436,92 +492,164 @@ impl BilateralGrid {
             n_full,
             usable_px,
         };
+        let cells = CellLevels {
+            grid,
+            lo,
+            len,
+            offset,
+        };
+        let mut pair = None;
         for (y, &(cy0, cy1, fy)) in ys.iter().enumerate() {
-            // The grid blended along y for this row: per cell column, the
-            // union of the two cells' levels (a level a cell lacks is zero).
-            row_nodes.clear();
-            row_base.clear();
-            for cx in 0..gx {
-                let (c0, c1) = (cy0 * gx + cx, cy1 * gx + cx);
-                let range = |c: usize| (lo[c], lo[c] + len[c] as i32);
-                let ((l0, h0), (l1, h1)) = (range(c0), range(c1));
-                let (from, to) = match (h0 > l0, h1 > l1) {
-                    (true, true) => (l0.min(l1), h0.max(h1)),
-                    (true, false) => (l0, h0),
-                    (false, true) => (l1, h1),
-                    (false, false) => (0, 0),
-                };
-                row_base.push(row_nodes.len() as isize - from as isize);
-                let node = |c: usize, l: i32, kk: i32| {
-                    grid.get(offset[c] + (kk - l) as usize)
-                        .copied()
-                        .unwrap_or([0.0; 4])
-                };
-                for kk in from..to {
-                    let mut acc = [0.0f32; 4];
-                    if (l0..h0).contains(&kk) {
-                        axpy(&mut acc, 1.0 - fy, &node(c0, l0, kk));
-                    }
-                    if (l1..h1).contains(&kk) {
-                        axpy(&mut acc, fy, &node(c1, l1, kk));
-                    }
-                    row_nodes.push(acc);
+            if pair != Some((cy0, cy1)) {
+                pair = Some((cy0, cy1));
+                cells.pair_rows(gx, cy0, cy1, pair_a, pair_d, row_base);
+                for (x, &(cx0, cx1, _)) in xs.iter().enumerate() {
+                    (at_a[x], at_b[x]) = (row_base[cx0], row_base[cx1]);
                 }
             }
-            if row_nodes.len() < 2 {
-                row_nodes.resize(2, [0.0; 4]);
-            }
-            let (nodes, rb) = (&row_nodes[..], &row_base[..gx]);
-            // Nodes k and k + 1 at `at` = base of the column + k. Every corner
-            // of a usable pixel lies within one cell of its splat cell, whose
-            // levels layout dilated over two cells, so both are the column's
-            // own nodes. Clamped into the row, so no branch: only unusable
-            // pixels (whose output is discarded) can fall outside their column.
-            let last = nodes.len() - 2;
-            let read2 = |at: isize| -> (Node, Node) {
-                let at = (at.max(0) as usize).min(last);
-                (nodes[at], nodes[at + 1])
-            };
-            let t = &level[y * w..][..w];
+            row_nodes.resize(pair_a.len(), 0.0);
+            blend_row(row_nodes, pair_a, pair_d, fy);
+            let (ks, fr) = (&level_k[y * w..][..w], &level_frac[y * w..][..w]);
+            gather_row(row_nodes, [&at_a, &at_b], &fx, (ks, fr), gathered);
             let dn = &frame.dn.data[y * w..][..w];
-            let mean = &mut out.mean_dn.data[y * w..][..w];
-            let var_out = &mut out.variance_dn2.data[y * w..][..w];
-            let samples = &mut out.samples.data[y * w..][..w];
-            let fl = &mut out.flags.data[y * w..][..w];
-            let [q0, q1, q2, p0, p1, p2, fr] = &mut rows;
-            let (q0, q1, q2) = (&mut q0[..w], &mut q1[..w], &mut q2[..w]);
-            let (p0, p1, p2, fr) = (&mut p0[..w], &mut p1[..w], &mut p2[..w], &mut fr[..w]);
-            // Gather: bilinear along x in the blended row at levels k, k + 1.
-            for x in 0..w {
-                let (cx0, cx1, fx) = xs[x];
-                // Saturating: an unusable pixel's level may be infinite or NaN.
-                let k = t[x] as i32 as isize;
-                let (a0, a1) = read2(rb.get(cx0).copied().unwrap_or(0).saturating_add(k));
-                let (b0, b1) = read2(rb.get(cx1).copied().unwrap_or(0).saturating_add(k));
-                let (mut q, mut p) = ([0.0f32; 4], [0.0f32; 4]);
-                axpy(&mut q, 1.0 - fx, &a0);
-                axpy(&mut q, fx, &b0);
-                axpy(&mut p, 1.0 - fx, &a1);
-                axpy(&mut p, fx, &b1);
-                (q0[x], q1[x], q2[x]) = (q[0], q[1], q[2]);
-                (p0[x], p1[x], p2[x]) = (p[0], p[1], p[2]);
-                fr[x] = if fl[x] != 0 {
-                    -1.0
-                } else if flat {
-                    0.0
-                } else {
-                    t[x] - (t[x] as i32) as f32
-                };
+            let at = y * w;
+            stats.run(
+                gathered,
+                dn,
+                &mut out.flags.data[at..][..w],
+                [
+                    &mut out.mean_dn.data[at..][..w],
+                    &mut out.variance_dn2.data[at..][..w],
+                    &mut out.samples.data[at..][..w],
+                ],
+            );
+        }
+    }
+}
+
+/// The blurred grid's sparse cells, for slicing.
+struct CellLevels<'a> {
+    grid: &'a [Node],
+    lo: &'a [i32],
+    len: &'a [u32],
+    offset: &'a [usize],
+}
+
+impl CellLevels<'_> {
+    /// Cell rows `cy0` and `cy1` laid side by side for blending along y: per
+    /// cell column the union of the two cells' levels (a level a cell lacks
+    /// is zero), as flat nodes of row `cy0` (`a`) and of row `cy1` minus
+    /// row `cy0` (`d`); `base` is the node index of level 0 of each column.
+    /// At least two nodes.
+    fn pair_rows(
+        &self,
+        gx: usize,
+        cy0: usize,
+        cy1: usize,
+        a: &mut Vec<f32>,
+        d: &mut Vec<f32>,
+        base: &mut Vec<isize>,
+    ) {
+        a.clear();
+        d.clear();
+        base.clear();
+        let node = |c: usize, kk: i32| -> Node {
+            let l = self.lo[c];
+            if (l..l + self.len[c] as i32).contains(&kk) {
+                self.grid
+                    .get(self.offset[c] + (kk - l) as usize)
+                    .copied()
+                    .unwrap_or([0.0; 4])
+            } else {
+                [0.0; 4]
             }
-            stats.run([q0, q1, q2, p0, p1, p2, dn], fr, [mean, var_out, samples]);
-            for (fl, &good) in fl.iter_mut().zip(&*fr) {
-                *fl |= if good > 0.0 {
-                    0
-                } else {
-                    PixelFlags::INSUFFICIENT.bits()
-                };
+        };
+        for cx in 0..gx {
+            let (c0, c1) = (cy0 * gx + cx, cy1 * gx + cx);
+            let range = |c: usize| (self.lo[c], self.lo[c] + self.len[c] as i32);
+            let ((l0, h0), (l1, h1)) = (range(c0), range(c1));
+            let (from, to) = match (h0 > l0, h1 > l1) {
+                (true, true) => (l0.min(l1), h0.max(h1)),
+                (true, false) => (l0, h0),
+                (false, true) => (l1, h1),
+                (false, false) => (0, 0),
+            };
+            base.push((a.len() / 4) as isize - from as isize);
+            for kk in from..to {
+                let (n0, n1) = (node(c0, kk), node(c1, kk));
+                a.extend_from_slice(&n0);
+                d.extend((0..4).map(|l| n1[l] - n0[l]));
             }
         }
+        if a.len() < 8 {
+            a.resize(8, 0.0);
+            d.resize(8, 0.0);
+        }
+    }
+}
+
+/// One output row's grid: `a + fy d` (see [`CellLevels::pair_rows`]).
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn blend_row(row: &mut [f32], a: &[f32], d: &[f32], fy: f32) {
+    for ((r, &a), &d) in row.iter_mut().zip(a).zip(d) {
+        *r = a + fy * d;
+    }
+}
+
+/// Bilinear read along x of nodes k and k + 1 (adjacent in `nodes`, flat
+/// 4 floats each) for every pixel of a row: moments about z_k in lanes
+/// 0..3, about z_{k+1} in lanes 4..7, and the level fraction in lane 3.
+/// `at` holds the node index of level 0 at each pixel's two cell columns,
+/// `level` each pixel's level k and fraction. Every corner of a usable pixel lies
+/// within one cell of its splat cell, whose levels layout dilated over two
+/// cells, so both nodes are the column's own. Clamped into the row, so no
+/// branch: only unusable pixels (whose output is discarded) can fall
+/// outside their column.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn gather_row(
+    nodes: &[f32],
+    at: [&[isize]; 2],
+    fx: &[f32],
+    level: (&[i32], &[f32]),
+    out: &mut [[f32; 8]],
+) {
+    let [at_a, at_b] = at;
+    let (ks, fr) = level;
+    let last = (nodes.len() / 4).saturating_sub(2);
+    let read = |at: isize| -> &[f32] {
+        let at = (at.max(0) as usize).min(last);
+        &nodes[4 * at..][..8]
+    };
+    let n = [
+        at_a.len(),
+        at_b.len(),
+        fx.len(),
+        ks.len(),
+        fr.len(),
+        out.len(),
+    ]
+    .into_iter()
+    .min()
+    .unwrap_or(0);
+    for x in 0..n {
+        // i32 to isize: no overflow whatever an unusable pixel's level.
+        let k = ks[x] as isize;
+        let a = read(at_a[x] + k);
+        let b = read(at_b[x] + k);
+        let o = &mut out[x];
+        for l in 0..8 {
+            o[l] = a[l] + fx[x] * (b[l] - a[l]);
+        }
+        // Lane 3 (unused by the moments): the level fraction.
+        o[3] = fr[x];
     }
 }
 
@@ -538,50 +666,59 @@ struct RowStats {
 }
 
 impl RowStats {
-    /// `inp`: the moments about z_k (3 rows) and z_{k+1} (3 rows), and the
-    /// values; `frac`: the level fraction (-1 for unusable input),
-    /// overwritten with 1 where the pixel has statistics and 0 where not.
-    fn run(self, inp: [&[f32]; 7], frac: &mut [f32], out: [&mut [f32]; 3]) {
-        row_stats(self, inp, frac, out)
+    /// `gathered`: per pixel the moments about z_k and z_{k+1} and the
+    /// level fraction (see [`gather_row`]), `dn` the values; `flags` the input flags, to which
+    /// INSUFFICIENT is added where a pixel has no statistics.
+    fn run(self, gathered: &[[f32; 8]], dn: &[f32], flags: &mut [u8], out: [&mut [f32]; 3]) {
+        row_stats(self, gathered, dn, flags, out)
     }
 }
 
 /// Branch-free along the row, so it vectorizes.
-#[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
-fn row_stats(st: RowStats, inp: [&[f32]; 7], frac: &mut [f32], out: [&mut [f32]; 3]) {
-    let [q0, q1, q2, p0, p1, p2, dn] = inp;
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn row_stats(
+    st: RowStats,
+    gathered: &[[f32; 8]],
+    dn: &[f32],
+    flags: &mut [u8],
+    out: [&mut [f32]; 3],
+) {
     let [mean, var_out, samples] = out;
-    let n = inp.iter().map(|r| r.len()).fold(frac.len(), usize::min);
-    let n = n.min(mean.len()).min(var_out.len()).min(samples.len());
-    let (q0, q1, q2, p0, p1, p2, dn) = (
-        &q0[..n],
-        &q1[..n],
-        &q2[..n],
-        &p0[..n],
-        &p1[..n],
-        &p2[..n],
-        &dn[..n],
-    );
-    let (frac, mean, var_out, samples) = (
-        &mut frac[..n],
-        &mut mean[..n],
-        &mut var_out[..n],
-        &mut samples[..n],
-    );
+    let n = gathered
+        .len()
+        .min(dn.len())
+        .min(flags.len())
+        .min(mean.len())
+        .min(var_out.len())
+        .min(samples.len());
+    let (gathered, dn, flags) = (&gathered[..n], &dn[..n], &mut flags[..n]);
+    let (mean, var_out, samples) = (&mut mean[..n], &mut var_out[..n], &mut samples[..n]);
     for x in 0..n {
-        let f = frac[x];
+        let g = &gathered[x];
+        let (q0, q1, q2, p0, p1, p2) = (g[0], g[1], g[2], g[4], g[5], g[6]);
+        let usable = flags[x] == 0;
+        // The level fraction (NaN for an unusable pixel's NaN level: 0).
+        let f = g[3];
+        let fc = if usable && !st.flat && f > 0.0 {
+            f
+        } else {
+            0.0
+        };
         // Moments about z_k and z_{k+1} moved to the pixel's own value.
-        let fc = if f > 0.0 { f } else { 0.0 };
         let (delta, delta1) = if st.flat {
             (st.z0 - dn[x], 0.0)
         } else {
             (-fc * st.sr, (1.0 - fc) * st.sr)
         };
         let (wr, wr1) = if st.flat { (1.0, 0.0) } else { (1.0 - fc, fc) };
-        let s0 = wr * q0[x] + wr1 * p0[x];
-        let s1 = wr * (q1[x] + delta * q0[x]) + wr1 * (p1[x] + delta1 * p0[x]);
-        let s2 = wr * (q2[x] + 2.0 * delta * q1[x] + delta * delta * q0[x])
-            + wr1 * (p2[x] + 2.0 * delta1 * p1[x] + delta1 * delta1 * p0[x]);
+        let s0 = wr * q0 + wr1 * p0;
+        let s1 = wr * (q1 + delta * q0) + wr1 * (p1 + delta1 * p0);
+        let s2 = wr * (q2 + 2.0 * delta * q1 + delta * delta * q0)
+            + wr1 * (p2 + 2.0 * delta1 * p1 + delta1 * delta1 * p0);
         let inv = 1.0 / s0;
         let m = s1 * inv;
         let var = s2 * inv - m * m;
@@ -602,13 +739,89 @@ fn row_stats(st: RowStats, inp: [&[f32]; 7], frac: &mut [f32], out: [&mut [f32];
             st.usable_px
         };
         // Unusable input, no weight or fewer than two samples: no statistics.
-        let weighted = f >= 0.0 && s0 > 0.0 && s0 < f32::INFINITY;
+        let weighted = usable && s0 > 0.0 && s0 < f32::INFINITY;
         let good = weighted && n_eff >= 2.0 && var < f32::INFINITY;
         mean[x] = if good { dn[x] + m } else { 0.0 };
         var_out[x] = if good { var } else { 0.0 };
         samples[x] = if weighted { n_eff } else { 0.0 };
-        frac[x] = if good { 1.0 } else { 0.0 };
+        flags[x] |= if good {
+            0
+        } else {
+            PixelFlags::INSUFFICIENT.bits()
+        };
     }
+}
+
+/// Level k and fraction of each value (see [`BilateralGrid::compute`]),
+/// saturating for unusable pixels, whose levels are never used.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn levels(dn: &[f32], z0: f32, sr: f32, level_k: &mut [i32], level_frac: &mut [f32]) {
+    for ((k, f), &v) in level_k.iter_mut().zip(level_frac.iter_mut()).zip(dn) {
+        let t = (v - z0) / sr;
+        *k = t as i32;
+        *f = t - *k as f32;
+    }
+}
+
+/// [`BilateralGrid::layout`] compiled for the CPU found at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn layout_mv(g: &mut BilateralGrid, w: usize, h: usize, geo: &Geometry) {
+    g.layout_body(w, h, geo);
+}
+
+/// [`BilateralGrid::splat`] compiled for the CPU found at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn splat_mv(g: &mut BilateralGrid, frame: &Frame, geo: &Geometry, total: usize) {
+    g.splat_body(frame, geo, total);
+}
+
+/// [`BilateralGrid::blur_range`] compiled for the CPU found at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn blur_range_mv(g: &mut BilateralGrid, sr: f32) {
+    g.blur_range_body(sr);
+}
+
+/// [`BilateralGrid::blur_cells`] compiled for the CPU found at run time.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn blur_cells_mv(g: &mut BilateralGrid, gx: usize, gy: usize, along_x: bool) {
+    g.blur_cells_body(gx, gy, along_x);
+}
+
+/// The indices of `cells` (ascending cell numbers) ordered by their rank
+/// within their cell, then by cell.
+fn interleaved_cells(cells: &[usize]) -> Vec<usize> {
+    let mut order: Vec<usize> = (0..cells.len()).collect();
+    let mut start = 0;
+    let rank: Vec<usize> = (0..cells.len())
+        .map(|x| {
+            if x > 0 && cells[x] != cells[x - 1] {
+                start = x;
+            }
+            x - start
+        })
+        .collect();
+    order.sort_by_key(|&x| (rank[x], cells[x]));
+    order
 }
 
 /// Min of `lo` and max of `hi` over each cell's 5 x 5 neighbourhood (separable).

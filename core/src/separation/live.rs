@@ -9,16 +9,18 @@ use crate::frame::Frame;
 use crate::sensor::SkellamMixing;
 
 /// From this sigma_domain on the bilateral grid (O(1) per pixel) beats the
-/// separable M3 (O(sigma) per pixel): about 5.7 ms CPU each at 640x480 on one
-/// core (`cargo bench -p sdi-core --bench m3_vs_opencv`), and the grid's
-/// error against the exact M3 is the lower from sigma_domain 5 up.
-const GRID_FROM_SIGMA_PX: f64 = 6.0;
+/// separable M3 (O(sigma) per pixel) at 640x480 on one core: about 3.5 ms CPU
+/// each at 4.5 (`cargo bench -p sdi-core --bench m3_vs_opencv`), so no
+/// sigma_domain costs more than the separable M3 at radius 12. The grid's
+/// error against the exact M3 is the lower in the mean and the higher in the
+/// variance from here to 6 (the bench prints both).
+const GRID_FROM_SIGMA_PX: f64 = 4.5;
 
 /// Which estimator the live separator runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum LiveMethod {
     /// Fast M3 on every frame (one-frame latency, moving scenes): the
-    /// separable variant, or the bilateral grid from sigma_domain 6 px up
+    /// separable variant, or the bilateral grid from sigma_domain 4.5 px up
     /// (see `cargo bench -p sdi-core --bench m3_vs_opencv`).
     Bilateral(BilateralParams),
     /// M1 over the last `frames` frames (static scenes, best accuracy).

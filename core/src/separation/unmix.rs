@@ -5,6 +5,7 @@ use super::{LocalMoments, MomentSource, SeparationError};
 use crate::image::Image;
 use crate::sensor::SkellamMixing;
 use crate::PixelFlags;
+use multiversion::multiversion;
 
 /// How to invert H.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -154,46 +155,34 @@ pub fn unmix_local_into(
     };
     let (w, ht) = moments.size();
     out.ensure_size(w, ht);
-    let (half_inv_g2, g2) = ((0.5 / (g * g)) as f32, (g * g) as f32);
-    let (mean, var, n) = (
-        &moments.mean_dn.data,
-        &moments.variance_dn2.data,
-        &moments.samples.data,
+    let scales = LocalScales {
+        inv_g,
+        inv_g2,
+        half_inv_g2: (0.5 / (g * g)) as f32,
+        g2: (g * g) as f32,
+        read,
+    };
+    let negative = unmix_local_pixels(
+        scales,
+        [
+            &moments.mean_dn.data,
+            &moments.variance_dn2.data,
+            &moments.samples.data,
+        ],
+        &moments.flags.data,
+        [
+            &mut out.i_plus_electrons.data,
+            &mut out.i_minus_electrons.data,
+            &mut out.i_plus_se_electrons.data,
+            &mut out.i_minus_se_electrons.data,
+        ],
+        &mut out.flags.data,
     );
-    let fl_in = &moments.flags.data;
     let (plus, minus) = (
         &mut out.i_plus_electrons.data,
         &mut out.i_minus_electrons.data,
     );
-    let (se_plus, se_minus) = (
-        &mut out.i_plus_se_electrons.data,
-        &mut out.i_minus_se_electrons.data,
-    );
     let fl = &mut out.flags.data;
-    let mut negative = false;
-    for i in 0..w * ht {
-        let insufficient = fl_in[i] & PixelFlags::INSUFFICIENT.bits() != 0;
-        let excess = var[i] - read;
-        let clamped = excess < 0.0 && !insufficient;
-        let excess = excess.max(0.0);
-        let (sum, diff) = (excess * inv_g2, mean[i] * inv_g);
-        let (p, m) = (0.5 * (sum + diff), 0.5 * (sum - diff));
-        // Var S = Var(var) / g^4, Var D = Var(mean) / g^2:
-        // SE = sqrt(Var S + Var D) / 2 = sqrt(Var(var) + g^2 Var(mean)) / (2 g^2).
-        let (v, nn) = (var[i], n[i]);
-        let se = (2.0 * v * v / (nn - 1.0) + g2 * v / nn).max(0.0).sqrt() * half_inv_g2;
-        plus[i] = if insufficient { 0.0 } else { p };
-        minus[i] = if insufficient { 0.0 } else { m };
-        se_plus[i] = if insufficient { f32::INFINITY } else { se };
-        se_minus[i] = se_plus[i];
-        fl[i] = fl_in[i]
-            | if clamped {
-                PixelFlags::VARIANCE_CLAMPED.bits()
-            } else {
-                0
-            };
-        negative |= !insufficient && (p < 0.0 || m < 0.0);
-    }
     if options.nonnegative && negative {
         for i in 0..w * ht {
             if fl[i] & PixelFlags::INSUFFICIENT.bits() == 0 && (plus[i] < 0.0 || minus[i] < 0.0) {
@@ -206,6 +195,68 @@ pub fn unmix_local_into(
         }
     }
     Ok(())
+}
+
+/// The f32 factors of [`unmix_local_into`].
+#[derive(Clone, Copy)]
+struct LocalScales {
+    inv_g: f32,
+    inv_g2: f32,
+    half_inv_g2: f32,
+    g2: f32,
+    read: f32,
+}
+
+/// [`unmix_local_into`]'s per-pixel equations (mean, variance, samples in;
+/// I+, I-, SE+, SE- out), branch-free so they vectorize; true when some
+/// usable pixel came out negative.
+#[multiversion(targets(
+    "x86_64+avx512f+avx512bw+avx512cd+avx512dq+avx512vl+avx2+fma",
+    "x86_64+avx2+fma",
+    "x86_64+sse4.1"
+))]
+fn unmix_local_pixels(
+    sc: LocalScales,
+    inp: [&[f32]; 3],
+    fl_in: &[u8],
+    out: [&mut [f32]; 4],
+    fl: &mut [u8],
+) -> bool {
+    let [mean, var, n] = inp;
+    let [plus, minus, se_plus, se_minus] = out;
+    let len = [mean.len(), var.len(), n.len(), fl_in.len(), fl.len()]
+        .into_iter()
+        .chain([plus.len(), minus.len(), se_plus.len(), se_minus.len()])
+        .min()
+        .unwrap_or(0);
+    let (mean, var, n, fl_in) = (&mean[..len], &var[..len], &n[..len], &fl_in[..len]);
+    let (plus, minus) = (&mut plus[..len], &mut minus[..len]);
+    let (se_plus, se_minus, fl) = (&mut se_plus[..len], &mut se_minus[..len], &mut fl[..len]);
+    let mut negative = false;
+    for i in 0..len {
+        let insufficient = fl_in[i] & PixelFlags::INSUFFICIENT.bits() != 0;
+        let excess = var[i] - sc.read;
+        let clamped = excess < 0.0 && !insufficient;
+        let excess = excess.max(0.0);
+        let (sum, diff) = (excess * sc.inv_g2, mean[i] * sc.inv_g);
+        let (p, m) = (0.5 * (sum + diff), 0.5 * (sum - diff));
+        // Var S = Var(var) / g^4, Var D = Var(mean) / g^2:
+        // SE = sqrt(Var S + Var D) / 2 = sqrt(Var(var) + g^2 Var(mean)) / (2 g^2).
+        let (v, nn) = (var[i], n[i]);
+        let se = (2.0 * v * v / (nn - 1.0) + sc.g2 * v / nn).max(0.0).sqrt() * sc.half_inv_g2;
+        plus[i] = if insufficient { 0.0 } else { p };
+        minus[i] = if insufficient { 0.0 } else { m };
+        se_plus[i] = if insufficient { f32::INFINITY } else { se };
+        se_minus[i] = se_plus[i];
+        fl[i] = fl_in[i]
+            | if clamped {
+                PixelFlags::VARIANCE_CLAMPED.bits()
+            } else {
+                0
+            };
+        negative |= !insufficient && (p < 0.0 || m < 0.0);
+    }
+    negative
 }
 
 /// Minimizes (mu - g(p - m))^2 / Var mu + (v - g^2 (p + m))^2 / Var v over the
