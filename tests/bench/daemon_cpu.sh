@@ -98,9 +98,17 @@ if [ "$sink" = loopback ]; then
         -vf scale=640:480 -pix_fmt yuyv422 -f v4l2 "$peer_dev" &
     ff_pid=$!
     pids+=("$ff_pid")
-    sleep 2
-    "$tool" latency "$peer_dev" $((window_s + 1)) >/dev/null &
-    pids+=($!)
+    # A reader, like sdid's nodes have; retried until ffmpeg has set the
+    # node's format (REQBUFS fails with EINVAL before that, which took more
+    # than 2 s in the emulated guest).
+    for _ in $(seq 40); do
+        sleep 0.5
+        "$tool" latency "$peer_dev" $((window_s + 1)) >"$tmp/lat-peer" 2>&1 &
+        reader=$!
+        sleep 0.5
+        kill -0 "$reader" 2>/dev/null && break
+    done
+    pids+=("$reader")
     printf '%-22s %8s\n' "ffmpeg (scale, v4l2)" "$(cpu_pct "$ff_pid")"
 else
     ffmpeg -nostdin -loglevel error -re -stream_loop -1 -f rawvideo -pix_fmt gray16le \
