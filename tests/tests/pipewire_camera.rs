@@ -125,44 +125,41 @@ fn check_published(
         distinct.len(),
         crcs.len()
     );
-    // PTS strictly increasing in publishing order, at about the frame rate.
-    let mut pts: Vec<(u64, i64)> = d
-        .log
-        .published()
-        .iter()
-        .filter(|p| p.get("stream").map(String::as_str) == Some(stream))
-        .filter_map(|p| Some((p.get("seq")?.parse().ok()?, p.get("pts_ns")?.parse().ok()?)))
-        .collect();
-    pts.sort_unstable();
-    assert!(
-        pts.windows(2).all(|w| w[1].1 > w[0].1),
-        "{stream}: PTS not increasing"
-    );
-    // PTS is the frame's capture time (as on the loopback node): never later
-    // than the moment it was published, and the capture stamp itself unless
-    // it had to be moved 1 ns past the previous frame's.
-    let stamps: Vec<(i64, i64, i64)> = d
+    // This stream's published buffers, in publishing order: (seq, PTS,
+    // capture stamp in us, CLOCK_MONOTONIC when published), all in ns but the
+    // capture stamp.
+    let mut stamps: Vec<(u64, i64, i64, i64)> = d
         .log
         .published()
         .iter()
         .filter(|p| p.get("stream").map(String::as_str) == Some(stream))
         .filter_map(|p| {
             let n = |k: &str| p.get(k)?.parse::<i64>().ok();
-            Some((n("pts_ns")?, n("capture_us")?, n("published_ns")?))
+            let seq = p.get("seq")?.parse().ok()?;
+            Some((seq, n("pts_ns")?, n("capture_us")?, n("published_ns")?))
         })
         .collect();
-    let late: Vec<_> = stamps.iter().filter(|(pts, _, at)| pts > at).collect();
+    stamps.sort_unstable();
+    // PTS strictly increasing in publishing order, at about the frame rate.
+    assert!(
+        stamps.windows(2).all(|w| w[1].1 > w[0].1),
+        "{stream}: PTS not increasing"
+    );
+    // PTS is the frame's capture time (as on the loopback node): never later
+    // than the moment it was published, and the capture stamp itself unless
+    // it had to be moved 1 ns past the previous frame's.
+    let late: Vec<_> = stamps.iter().filter(|(_, pts, _, at)| pts > at).collect();
     assert!(late.is_empty(), "{stream}: PTS after publishing: {late:?}");
     let captured = stamps
         .iter()
-        .filter(|&&(pts, capture_us, _)| pts == capture_us * 1000)
+        .filter(|&&(_, pts, capture_us, _)| pts == capture_us * 1000)
         .count();
     assert!(
         captured * 10 >= stamps.len() * 9,
         "{stream}: only {captured} of {} PTS are the capture time",
         stamps.len()
     );
-    let mut gaps_ms: Vec<f64> = pts
+    let mut gaps_ms: Vec<f64> = stamps
         .windows(2)
         .map(|w| (w[1].1 - w[0].1) as f64 * 1e-6)
         .collect();
