@@ -3,7 +3,7 @@
 //! session bus, plus `pw-dump` and `gst-launch-1.0 pipewiresrc` readers.
 
 use std::collections::HashMap;
-use std::io::{BufRead, BufReader, Read};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::{Arc, Mutex};
@@ -191,6 +191,33 @@ impl Session {
             "gst-launch-1.0 {pipeline}: {status:?} (None = timeout after {timeout:?})\n{err}"
         );
         std::fs::read(&out).expect("read the frames gst-launch wrote")
+    }
+
+    /// Starts a reader of node `target` that runs until dropped, hashing
+    /// each `frame_bytes` frame it gets.
+    pub fn stream_frames(&self, target: &str, caps: &str, frame_bytes: usize) -> FrameStream {
+        let mut child = self
+            .command("gst-launch-1.0")
+            .arg("-q")
+            .args(format!("pipewiresrc target-object={target} ! {caps} ! fdsink fd=1").split(' '))
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("start gst-launch-1.0");
+        let mut out = child.stdout.take().expect("gst-launch stdout");
+        let crcs = Arc::new(Mutex::new(Vec::new()));
+        let c = crcs.clone();
+        std::thread::spawn(move || {
+            let mut frame = vec![0; frame_bytes];
+            while out.read_exact(&mut frame).is_ok() {
+                let crc = format!("{:08x}", crc32fast::hash(&frame));
+                c.lock().expect("crc lock").push(crc);
+            }
+        });
+        FrameStream {
+            child: Reaped(child),
+            crcs,
+        }
     }
 
     /// Starts a reader that runs until killed (`pipewiresrc ! fakesink`).
@@ -394,38 +421,57 @@ fn env(cmd: &mut Command, dir: &Path, bus: &str) {
         .env_remove("WAYLAND_DISPLAY");
 }
 
-/// The per-frame lines `sdid` logs with `RUST_LOG=sdid::pipewire::frames=trace`
-/// ("published stream=... crc32=..."), collected from its stderr.
-#[derive(Clone, Default)]
+/// The per-frame lines logged with `RUST_LOG=sdid::pipewire::frames=trace`
+/// ("published stream=... crc32=..."), read from the log file that the
+/// session's sdids and the camera process they start (which inherits their
+/// stderr and outlives them) append to.
+#[derive(Clone)]
 pub struct FrameLog {
-    lines: Arc<Mutex<Vec<HashMap<String, String>>>>,
-    all: Arc<Mutex<Vec<String>>>,
+    path: PathBuf,
 }
 
 impl FrameLog {
-    /// Collects from `stderr` on a thread until it closes.
-    pub fn collect(stderr: impl Read + Send + 'static) -> Self {
-        let log = Self::default();
-        let l = log.clone();
-        std::thread::spawn(move || {
-            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
-                if let Some(fields) = parse_published(&line) {
-                    l.lines.lock().expect("log lock").push(fields);
-                }
-                l.all.lock().expect("log lock").push(line);
-            }
-        });
-        log
+    /// The log at `path` (opened for appending by [`FrameLog::writer`]).
+    pub fn file(path: PathBuf) -> Self {
+        Self { path }
+    }
+
+    /// A handle appending to the log, for a child's stderr.
+    pub fn writer(&self) -> std::fs::File {
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&self.path)
+            .expect("open the log for appending")
     }
 
     /// Published frames so far, as key=value fields.
     pub fn published(&self) -> Vec<HashMap<String, String>> {
-        self.lines.lock().expect("log lock").clone()
+        self.text().lines().filter_map(parse_published).collect()
     }
 
-    /// Everything sdid wrote to stderr so far.
+    /// Everything logged so far.
     pub fn text(&self) -> String {
-        self.all.lock().expect("log lock").join("\n")
+        String::from_utf8_lossy(&std::fs::read(&self.path).unwrap_or_default()).into_owned()
+    }
+}
+
+/// A reader that runs until dropped (`pipewiresrc ! fdsink`), keeping the
+/// CRC-32 of every frame it received.
+pub struct FrameStream {
+    child: Reaped,
+    crcs: Arc<Mutex<Vec<String>>>,
+}
+
+impl FrameStream {
+    /// CRCs of the frames received so far, in order.
+    pub fn crcs(&self) -> Vec<String> {
+        self.crcs.lock().expect("crc lock").clone()
+    }
+
+    /// True while gst-launch runs.
+    pub fn running(&mut self) -> bool {
+        matches!(self.child.0.try_wait(), Ok(None))
     }
 }
 

@@ -3,7 +3,9 @@
 //! `sdid --backend sim --sink pipewire`. `pw-dump` must list the camera node
 //! (Video/Source, media.role Camera), `gst-launch-1.0 pipewiresrc` must read
 //! frames whose CRC-32 sdid logged as published (the exact bytes), through a
-//! mode switch, a second format, the data node and a restart of sdid.
+//! mode switch, a second format and the data node; a reader keeps its
+//! stream while sdid restarts (the nodes belong to the camera process sdid
+//! starts), seeing the "no signal" card and then the new sdid's frames.
 
 use std::collections::{HashMap, HashSet};
 use std::process::Stdio;
@@ -31,8 +33,11 @@ struct Sdid {
 }
 
 impl Sdid {
+    /// Starts sdid; its stderr (and the camera process's, which inherits
+    /// it) goes to the session's `sdid.log`.
     fn start(s: &Session, extra: &[&str]) -> Self {
-        let mut child = s
+        let log = FrameLog::file(s.dir.path().join("sdid.log"));
+        let child = s
             .command(bin("sdid"))
             .args(["--bus-address", &s.bus.address, "--backend", "sim"])
             .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
@@ -41,10 +46,9 @@ impl Sdid {
             .env_remove("INVOCATION_ID")
             .env_remove("JOURNAL_STREAM")
             .stdout(Stdio::null())
-            .stderr(Stdio::piped())
+            .stderr(log.writer())
             .spawn()
             .expect("start sdid");
-        let log = FrameLog::collect(child.stderr.take().expect("sdid stderr"));
         let child = Reaped(child);
         let address = s.bus.address.clone();
         let t0 = Instant::now();
@@ -78,19 +82,22 @@ fn prop<'a>(p: &'a HashMap<String, serde_json::Value>, key: &str) -> &'a str {
     p.get(key).and_then(|v| v.as_str()).unwrap_or("")
 }
 
-/// Asserts that every frame in `data` is one sdid published on `stream` in
+/// The CRC-32 of each frame in `data`, read whole.
+fn crcs_of(data: &[u8], frame_bytes: usize) -> Vec<String> {
+    assert_eq!(data.len() % frame_bytes, 0, "a partial frame was read");
+    frame_crcs(data, frame_bytes)
+}
+
+/// Asserts that every frame of `crcs` is one sdid published on `stream` in
 /// `format` while in `mode` (same CRC-32), that they are live (not one
-/// still) and that their PTS rise steadily; returns their CRCs.
+/// still) and that their PTS rise steadily; returns the CRCs.
 fn check_published(
     d: &Sdid,
-    data: &[u8],
-    frame_bytes: usize,
+    crcs: Vec<String>,
     stream: &str,
     format: &str,
     mode: &str,
 ) -> Vec<String> {
-    assert_eq!(data.len() % frame_bytes, 0, "a partial frame was read");
-    let crcs = frame_crcs(data, frame_bytes);
     assert!(crcs.len() >= 30, "only {} frames read", crcs.len());
     let matches = |p: &HashMap<String, String>, crc: &str| {
         p.get("crc32").map(String::as_str) == Some(crc)
@@ -220,12 +227,13 @@ fn pipewire_camera_node_frames_mode_switch_and_restart() {
     // RGB from the camera node.
     let rgb_bytes = VIEW_W * VIEW_H * 3;
     let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", FRAMES, TIMEOUT);
-    let raw_crcs = check_published(&d, &rgb, rgb_bytes, VIEW, "RGB", "raw");
+    let raw_crcs = check_published(&d, crcs_of(&rgb, rgb_bytes), VIEW, "RGB", "raw");
     rgb.chunks_exact(rgb_bytes).for_each(assert_doubled_rgb);
 
     // The raw data node: Y16 at the sensor size.
     let y16 = s.read_frames(DATA, "video/x-raw,format=GRAY16_LE", 30, TIMEOUT);
-    check_published(&d, &y16, SENSOR_W * SENSOR_H * 2, DATA, "Y16", "raw");
+    let y16 = crcs_of(&y16, SENSOR_W * SENSOR_H * 2);
+    check_published(&d, y16, DATA, "Y16", "raw");
 
     // A mode switch: the description follows, and the frames are the new mode's.
     d.ctl(&["set-mode", "depth-edge"]);
@@ -234,22 +242,95 @@ fn pipewire_camera_node_frames_mode_switch_and_restart() {
             .filter(|p| prop(p, "node.description") == "SDI camera (depth-edge)")
     });
     let yuyv = s.read_frames(VIEW, "video/x-raw,format=YUY2", 30, TIMEOUT);
-    let edge_crcs = check_published(&d, &yuyv, VIEW_W * VIEW_H * 2, VIEW, "YUYV", "depth-edge");
+    let yuyv = crcs_of(&yuyv, VIEW_W * VIEW_H * 2);
+    let edge_crcs = check_published(&d, yuyv, VIEW, "YUYV", "depth-edge");
     assert!(edge_crcs.iter().all(|c| !raw_crcs.contains(c)));
 
-    // A restart: the node goes away with sdid and comes back with the new one.
+    // A restart: the node stays, and a reader that started before it keeps
+    // its stream: the no-signal card while no sdid runs, then the new
+    // sdid's frames (WirePlumber would end the stream if the node went away).
+    let mut reader = s.stream_frames(VIEW, "video/x-raw,format=RGB", rgb_bytes);
+    wait_for("frames in the running reader", TIMEOUT, || {
+        (reader.crcs().len() >= 5).then_some(())
+    });
+    let pid = d._child.0.id();
     drop(d);
-    wait_for("the node to go away with sdid", TIMEOUT, || {
+    let card = frame_crcs(&no_signal_rgb(), rgb_bytes);
+    wait_for("the no-signal card in the running reader", TIMEOUT, || {
+        reader.crcs().contains(&card[0]).then_some(())
+    });
+    assert!(
+        s.node(VIEW).is_some(),
+        "the node went away with sdid (pid {pid})"
+    );
+    let d = Sdid::start(&s, &["--sink", "pipewire", "--mode", "bipolar-colour"]);
+    wait_for(
+        "the node description to follow the new sdid",
+        TIMEOUT,
+        || {
+            s.node(VIEW)
+                .filter(|p| prop(p, "node.description") == "SDI camera (bipolar-colour)")
+        },
+    );
+    let is_new = |c: &String| {
+        d.log.published().iter().any(|p| {
+            p.get("crc32") == Some(c) && p.get("mode").map(String::as_str) == Some("bipolar-colour")
+        })
+    };
+    let from_new = wait_for(
+        "30 frames of the new sdid in the running reader",
+        TIMEOUT,
+        || {
+            let crcs = reader.crcs();
+            let first = crcs.iter().position(is_new)?;
+            (crcs.len() >= first + 30).then(|| crcs[first..first + 30].to_vec())
+        },
+    );
+    assert!(reader.running(), "the reader did not survive the restart");
+    check_published(&d, from_new, VIEW, "RGB", "bipolar-colour");
+    eprintln!("ok: one gst-launch reader kept its stream across an sdid restart (no-signal card, then the new sdid's frames)");
+}
+
+/// The no-signal card as RGB at the view size.
+fn no_signal_rgb() -> Vec<u8> {
+    v4l2loopback_glue::no_signal_grey(VIEW_W, VIEW_H)
+        .iter()
+        .flat_map(|&g| [g, g, g])
+        .collect()
+}
+
+/// The camera process outlives sdid by its linger time while no reader
+/// streams, then ends and takes the nodes along.
+#[test]
+fn camera_process_ends_after_sdid_and_readers_are_gone() {
+    require_pipewire!();
+    let s = Session::start();
+    let d = Sdid::start(&s, &["--sink", "pipewire"]);
+    wait_node(&s, VIEW);
+    let gone_at = Instant::now();
+    drop(d);
+    let linger = sdi_daemon::pipewire_camera::server::LINGER;
+    while gone_at.elapsed() < linger - Duration::from_secs(5) {
+        assert!(
+            s.node(VIEW).is_some(),
+            "the node went away {:?} after sdid, before the linger time",
+            gone_at.elapsed()
+        );
+        std::thread::sleep(Duration::from_secs(1));
+    }
+    wait_for("the camera process to end", linger + TIMEOUT, || {
         s.node(VIEW).is_none().then_some(())
     });
-    let d = Sdid::start(&s, &["--sink", "pipewire", "--mode", "bipolar-colour"]);
-    let view = wait_node(&s, VIEW);
-    assert_eq!(
-        prop(&view, "node.description"),
-        "SDI camera (bipolar-colour)"
+    let log = FrameLog::file(s.dir.path().join("sdid.log")).text();
+    assert!(
+        log.contains("no reader: exiting"),
+        "the camera process did not say why it ended:\n{log}"
     );
-    let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", 30, TIMEOUT);
-    check_published(&d, &rgb, rgb_bytes, VIEW, "RGB", "bipolar-colour");
+    eprintln!(
+        "ok: the camera ended {:.1} s after sdid (linger {} s)",
+        gone_at.elapsed().as_secs_f64(),
+        linger.as_secs()
+    );
 }
 
 #[test]
@@ -320,10 +401,7 @@ fn no_signal_card_while_the_source_stops() {
     let rgb_bytes = VIEW_W * VIEW_H * 3;
     let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", 5, TIMEOUT);
     assert_eq!(rgb.len(), 5 * rgb_bytes);
-    let card: Vec<u8> = v4l2loopback_glue::no_signal_grey(VIEW_W, VIEW_H)
-        .iter()
-        .flat_map(|&g| [g, g, g])
-        .collect();
+    let card = no_signal_rgb();
     // A checkerboard of 40 and 72 with a bar of 200 across the middle.
     assert_eq!(&card[..3], &[40, 40, 40]);
     assert_eq!(&card[(VIEW_H / 2 * VIEW_W) * 3..][..3], &[200, 200, 200]);

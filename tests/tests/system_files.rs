@@ -164,6 +164,8 @@ fn user_unit_stands_down_while_the_system_service_runs() {
     }
     let dir = scratch("user-condition");
     let text = fs::read_to_string(generated_user_unit(&dir)).unwrap();
+    // A restart stops sdid only: the PipeWire camera process keeps the nodes.
+    assert_eq!(ini_value(&text, "KillMode").as_deref(), Some("process"));
     let condition = ini_value(&text, "ExecCondition").expect("ExecCondition");
     let script = condition
         .strip_prefix("/bin/sh -c '")

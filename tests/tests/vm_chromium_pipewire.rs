@@ -7,7 +7,8 @@
 //! "SDI camera (MODE)". The page (`sdi_tests::browser`) opens it at 640x480,
 //! a frame drawn to a canvas has the mode's mean colour (`sdictl snapshot`,
 //! letterboxed, with a tolerance for YUV to RGB), and `sdictl set-mode`
-//! changes what it sees.
+//! changes what it sees. Across a restart of sdid the track survives (the
+//! camera process sdid started keeps the node) and shows the new frames.
 
 use std::path::Path;
 use std::process::{Command, Stdio};
@@ -31,7 +32,12 @@ struct Sdid {
 
 impl Sdid {
     fn start(session: &Session) -> Self {
-        let log = std::fs::File::create(session.dir.path().join("sdid.log")).expect("sdid log");
+        // Appended to: the camera process of the first sdid keeps writing here.
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(session.dir.path().join("sdid.log"))
+            .expect("sdid log");
         let child = session
             .command(clients::exe("SDID"))
             .args(["--bus-address", &session.bus.address])
@@ -162,6 +168,34 @@ fn in_vm_checks() {
         "chromium: set-mode separation seen after {:.1} s: mean {:.1?} (expected {expected2:.1?})",
         t_switch.elapsed().as_secs_f64(),
         stats_rgb(&v, "mean")
+    );
+
+    // sdid restarts: the camera process keeps the node, so the page's track
+    // survives (no `ended`, no reopening) and shows the new sdid's frames.
+    let frames_before = v["frames"].as_u64().unwrap_or(0);
+    let opened_before = v["opened"].as_u64().unwrap_or(0);
+    let t_restart = Instant::now();
+    drop(sdid);
+    let sdid = Sdid::start(&session);
+    let expected3 = sdid.set_mode_expect("raw", &dir);
+    let (_, v) = server.wait_for(
+        &format!("chromium: raw frames near {expected3:.1?} after sdid restarted"),
+        i + 1,
+        Duration::from_secs(120),
+        |v| frame_like(v, expected3) && v["frames"].as_u64().unwrap_or(0) > frames_before,
+    );
+    let ended = server.of_kind("ended").len();
+    eprintln!(
+        "chromium: frames again {:.1} s after the restart began (ended events: {ended}, opens: {} before, {} after)",
+        t_restart.elapsed().as_secs_f64(),
+        opened_before,
+        v["opened"]
+    );
+    assert_eq!(ended, 0, "the track ended across the restart");
+    assert_eq!(
+        v["opened"].as_u64().unwrap_or(0),
+        opened_before,
+        "the page had to reopen the camera across the restart"
     );
     drop(browser);
 }

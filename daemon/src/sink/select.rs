@@ -17,7 +17,9 @@ fn open_pipewire(
     mode: ModeId,
 ) -> Result<Box<dyn Sink>, String> {
     use super::pipewire::{PipewireSink, VIEW_NODE};
-    let s = PipewireSink::open(width, height, fps, mode).map_err(|e| e.to_string())?;
+    // The camera process is sdid itself (`sdid --pipewire-camera`).
+    let program = std::env::current_exe().map_err(|e| format!("finding sdid's own path: {e}"))?;
+    let s = PipewireSink::open(&program, width, height, fps, mode).map_err(|e| e.to_string())?;
     tracing::info!(
         device = %s.info().device,
         "publishing as a PipeWire camera: e.g. gst-launch-1.0 pipewiresrc target-object={VIEW_NODE} ! videoconvert ! autovideosink"

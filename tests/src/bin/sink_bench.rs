@@ -6,8 +6,9 @@
 //! Each sink gets the same synthetic frames, paced at `--rate` Hz, with one
 //! reader attached in another process (`gst-launch-1.0 pipewiresrc !
 //! fakesink`, `cat FIFO > /dev/null`). The figure is this process's CPU time
-//! (the writing thread plus, for PipeWire, its loop thread) divided by the
-//! frames the sink published. The readers' CPU (reaped children) is printed
+//! (the writing thread; for PipeWire plus the camera process it feeds, this
+//! program started as `--pipewire-camera`) divided by the frames the sink
+//! published. The readers' CPU (reaped children) is printed
 //! beside it.
 //!
 //! `cargo run --release -p sdi-tests --bin sink_bench -- [FRAMES] [RATE_HZ]`
@@ -35,6 +36,25 @@ fn cpu_s(who: UsageWho) -> f64 {
         let t = |tv: nix::sys::time::TimeVal| tv.tv_sec() as f64 + tv.tv_usec() as f64 * 1e-6;
         t(u.user_time()) + t(u.system_time())
     })
+}
+
+/// User + system CPU seconds of process `pid` so far (/proc/PID/stat).
+fn process_cpu_s(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    // Fields after the command name (which may hold spaces): utime and stime
+    // are the 12th and 13th, in clock ticks.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let ticks: Vec<f64> = rest
+        .split_whitespace()
+        .skip(11)
+        .take(2)
+        .filter_map(|t| t.parse().ok())
+        .collect();
+    let hz = nix::unistd::sysconf(nix::unistd::SysconfVar::CLK_TCK)
+        .ok()
+        .flatten()
+        .unwrap_or(100) as f64;
+    ticks.iter().sum::<f64>() / hz
 }
 
 /// Frame `k`: a moving ramp of signed DN.
@@ -171,8 +191,17 @@ fn drive(sink: &mut dyn Sink, frames: usize, rate_hz: f64) -> (f64, f64) {
 }
 
 fn bench_pipewire(s: &Session, caps: &str, frames: usize, rate_hz: f64) -> Run {
-    let mut sink = PipewireSink::open(WIDTH, HEIGHT, rate_hz, sdi_core::mode::ModeId::Raw)
-        .unwrap_or_else(|e| panic!("PipeWire sink: {e}"));
+    // This program is its own camera process (see `main`).
+    let program = std::env::current_exe().expect("sink_bench's own path");
+    let mut sink = PipewireSink::open(
+        &program,
+        WIDTH,
+        HEIGHT,
+        rate_hz,
+        sdi_core::mode::ModeId::Raw,
+    )
+    .unwrap_or_else(|e| panic!("PipeWire sink: {e}"));
+    let camera = sink.camera_pid().expect("the camera process's pid");
     let reader = (!caps.is_empty()).then(|| s.reader(VIEW_NODE, caps));
     if reader.is_some() {
         wait_for(
@@ -183,9 +212,18 @@ fn bench_pipewire(s: &Session, caps: &str, frames: usize, rate_hz: f64) -> Run {
         );
     }
     let before = sink.published().0;
+    let camera_cpu0 = process_cpu_s(camera);
     let (wall_s, cpu) = drive(&mut sink, frames, rate_hz);
+    // The camera reports its count at most every 200 ms.
+    std::thread::sleep(Duration::from_millis(400));
     let published = sink.published().0 - before;
+    // The camera process's share: PipeWire's loop and the copy it receives.
+    let cpu = cpu + process_cpu_s(camera) - camera_cpu0;
+    sink.stop_camera();
     drop(sink);
+    wait_for("the camera process to end", Duration::from_secs(30), || {
+        (!std::path::Path::new(&format!("/proc/{camera}")).exists()).then_some(())
+    });
     let c0 = cpu_s(UsageWho::RUSAGE_CHILDREN);
     drop(reader);
     Run {
@@ -283,6 +321,14 @@ fn bench_loopback(frames: usize, rate_hz: f64) -> Option<Run> {
 }
 
 fn main() {
+    // The PipeWire sink starts this program as its camera process.
+    if let Some(code) = sdi_daemon::pipewire_camera::server::run_if_asked() {
+        std::process::exit(if code == std::process::ExitCode::SUCCESS {
+            0
+        } else {
+            1
+        });
+    }
     let mut args = std::env::args().skip(1);
     let frames: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(300);
     let rate_hz: f64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(60.0);

@@ -1,0 +1,805 @@
+//! The camera process's PipeWire nodes. Two output streams: the view
+//! (`Video/Source`, `media.role = Camera`, YUYV or RGB at the v4l2loopback
+//! view size) and the raw data (`Video/Source`, Y16 at the sensor size,
+//! signed DN offset by 32768, no camera role so camera pickers skip it).
+//!
+//! PipeWire's loop runs on its own thread ("sdi-camera-pw"). Frames arrive
+//! already rendered, in the format a reader negotiated, into a one-frame
+//! slot per stream, and wake the loop; the loop copies the slot into a
+//! PipeWire buffer (dropping the frame when the reader holds every buffer).
+//! Frames therefore never wait on PipeWire or its readers.
+
+use std::cell::RefCell;
+use std::rc::Rc;
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicU8, Ordering};
+use std::sync::{mpsc, Arc, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use pipewire as pw;
+use pw::spa;
+use sdi_core::mode::ModeId;
+use spa::param::video::VideoFormat;
+use spa::pod::{ChoiceValue, Object, Pod, Property, Value};
+use spa::utils::{Choice, ChoiceEnum, ChoiceFlags, Fraction, Id, Rectangle};
+use v4l2loopback_glue::{no_signal_grey, Converter, PixelFormat, Src, YuyvPath};
+
+use super::link::{Port as PortId, Spec, State, Wire};
+
+/// Node name of the view stream (what `pipewiresrc target-object=` takes).
+pub const VIEW_NODE: &str = "sdi-camera";
+/// Node name of the raw Y16 data stream.
+pub const DATA_NODE: &str = "sdi-camera-data";
+/// `tracing` target of the per-frame log (CRC-32 of each published buffer),
+/// enabled with `RUST_LOG=sdid::pipewire::frames=trace`.
+pub const FRAME_LOG: &str = "sdid::pipewire::frames";
+/// How long [`Nodes::open`] waits for the PipeWire thread to connect.
+const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+/// Buffers per stream: the reader may hold some while we fill another.
+const BUFFERS: (i32, i32, i32) = (4, 2, 8);
+
+fn spa_format(w: Wire) -> VideoFormat {
+    match w {
+        Wire::Yuyv => VideoFormat::YUY2,
+        Wire::Rgb => VideoFormat::RGB,
+        Wire::Y16 => VideoFormat::GRAY16_LE,
+    }
+}
+
+fn wire_of(f: VideoFormat) -> Option<Wire> {
+    Wire::ALL.into_iter().find(|w| spa_format(*w) == f)
+}
+
+/// A rendered frame waiting for the PipeWire thread.
+struct Pending {
+    bytes: Vec<u8>,
+    wire: Wire,
+    mode: &'static str,
+    /// Capture time (CLOCK_MONOTONIC, sdid's publish clock); 0: unknown,
+    /// stamped when published.
+    timestamp_us: u64,
+}
+
+#[derive(Default)]
+struct Slot {
+    pending: Option<Pending>,
+    /// The last consumed frame's allocation, reused.
+    spare: Vec<u8>,
+}
+
+/// One stream as both threads see it.
+struct Port {
+    /// `Wire` code negotiated while a reader streams; 0 when nobody does.
+    streaming: AtomicU8,
+    slot: Mutex<Slot>,
+    /// Buffers handed to PipeWire.
+    published: AtomicU64,
+}
+
+impl Port {
+    fn new() -> Self {
+        Self {
+            streaming: AtomicU8::new(0),
+            slot: Mutex::new(Slot::default()),
+            published: AtomicU64::new(0),
+        }
+    }
+
+    fn wire(&self) -> Option<Wire> {
+        Wire::from_code(self.streaming.load(Ordering::Acquire))
+    }
+
+    fn slot(&self) -> MutexGuard<'_, Slot> {
+        // A panic while holding the slot leaves plain bytes behind: keep going.
+        self.slot.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+struct Shared {
+    view: Port,
+    data: Port,
+    /// A wake-up is queued on the loop's channel (keeps the channel at one message).
+    woken: AtomicBool,
+    /// Set by the loop when the PipeWire connection is lost.
+    broken: AtomicBool,
+}
+
+impl Shared {
+    fn port(&self, id: PortId) -> &Port {
+        match id {
+            PortId::View => &self.view,
+            PortId::Data => &self.data,
+        }
+    }
+}
+
+enum Msg {
+    /// New frames in the slots.
+    Wake,
+    /// The mode changed: new node descriptions.
+    Mode(&'static str),
+    Quit,
+}
+
+/// The camera's nodes, fed from any thread through `&self`.
+pub struct Nodes {
+    shared: Arc<Shared>,
+    tx: pw::channel::Sender<Msg>,
+    thread: Option<JoinHandle<()>>,
+    spec: Spec,
+    mode: Mutex<ModeId>,
+    /// The "no signal" card: grey at the view size, and its Y16 rendering
+    /// at the sensor size.
+    no_signal_view: Vec<u8>,
+    no_signal_data: Vec<u8>,
+}
+
+/// The node description readers show, e.g. "SDI camera (depth-edge)".
+pub fn view_description(mode: &str) -> String {
+    format!("SDI camera ({mode})")
+}
+
+fn data_description(mode: &str) -> String {
+    format!("SDI camera raw data, Y16 DN+32768 ({mode})")
+}
+
+impl Nodes {
+    /// Connects to the PipeWire daemon of this user (`$PIPEWIRE_REMOTE`, else
+    /// `$XDG_RUNTIME_DIR/pipewire-0`) and creates both nodes; fails when no
+    /// daemon answers.
+    pub fn open(spec: &Spec) -> Result<Self, String> {
+        let shared = Arc::new(Shared {
+            view: Port::new(),
+            data: Port::new(),
+            woken: AtomicBool::new(false),
+            broken: AtomicBool::new(false),
+        });
+        let (tx, rx) = pw::channel::channel::<Msg>();
+        let (ready_tx, ready_rx) = mpsc::channel::<Result<(), String>>();
+        let loop_shared = shared.clone();
+        let loop_spec = spec.clone();
+        let thread = std::thread::Builder::new()
+            .name("sdi-camera-pw".into())
+            .spawn(move || run_loop(loop_spec, loop_shared, rx, ready_tx))
+            .map_err(|e| format!("starting the PipeWire thread: {e}"))?;
+        match ready_rx.recv_timeout(CONNECT_TIMEOUT) {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => {
+                let _ = thread.join();
+                return Err(e);
+            }
+            Err(_) => {
+                let _ = tx.send(Msg::Quit);
+                return Err(format!(
+                    "PipeWire did not answer within {} s",
+                    CONNECT_TIMEOUT.as_secs()
+                ));
+            }
+        }
+        let (vw, vh) = (spec.view_width as usize, spec.view_height as usize);
+        let (dw, dh) = (spec.data_width as usize, spec.data_height as usize);
+        let mut y16 = Converter::new(
+            spec.data_width,
+            spec.data_height,
+            PixelFormat::Y16,
+            YuyvPath::Scalar,
+        );
+        let mut no_signal_data = vec![0; dw * dh * 2];
+        let _ = y16.grey8(
+            Src::packed(&no_signal_grey(dw, dh), dw, dh, 1),
+            &mut no_signal_data,
+        );
+        Ok(Self {
+            shared,
+            tx,
+            thread: Some(thread),
+            spec: spec.clone(),
+            mode: Mutex::new(spec.mode),
+            no_signal_view: no_signal_grey(vw, vh),
+            no_signal_data,
+        })
+    }
+
+    pub fn spec(&self) -> &Spec {
+        &self.spec
+    }
+
+    /// What readers stream, and buffers published so far.
+    pub fn state(&self) -> State {
+        State {
+            view: self.shared.view.wire(),
+            data: self.shared.data.wire(),
+            view_published: self.shared.view.published.load(Ordering::Relaxed),
+            data_published: self.shared.data.published.load(Ordering::Relaxed),
+        }
+    }
+
+    /// True once the PipeWire connection is lost.
+    pub fn broken(&self) -> bool {
+        self.shared.broken.load(Ordering::Relaxed)
+    }
+
+    fn mode(&self) -> ModeId {
+        *self.mode.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Puts a frame of `wire` into `port`'s slot, replacing one the loop has
+    /// not taken yet, when a reader streams `wire` there; `fill` writes the
+    /// bytes into the given buffer. False (and `fill` not called) when
+    /// nobody streams that format.
+    pub fn offer<E>(
+        &self,
+        port: PortId,
+        wire: Wire,
+        timestamp_us: u64,
+        fill: impl FnOnce(&mut Vec<u8>) -> Result<(), E>,
+    ) -> Result<bool, E> {
+        let port_state = self.shared.port(port);
+        if port_state.wire() != Some(wire) {
+            return Ok(false);
+        }
+        let mut bytes = std::mem::take(&mut port_state.slot().spare);
+        if let Err(e) = fill(&mut bytes) {
+            port_state.slot().spare = bytes;
+            return Err(e);
+        }
+        let mut slot = port_state.slot();
+        if let Some(old) = slot.pending.replace(Pending {
+            bytes,
+            wire,
+            mode: self.mode().name(),
+            timestamp_us,
+        }) {
+            slot.spare = old.bytes;
+        }
+        drop(slot);
+        self.wake();
+        Ok(true)
+    }
+
+    /// Publishes the "no signal" card on both nodes, stamped `timestamp_us`.
+    pub fn no_signal(&self, timestamp_us: u64) {
+        let (vw, vh) = (self.spec.view_width, self.spec.view_height);
+        if let Some(wire) = self.shared.view.wire() {
+            let card = &self.no_signal_view;
+            let _ = self.offer(PortId::View, wire, timestamp_us, |bytes| {
+                bytes.resize(vw as usize * vh as usize * wire.bytes_per_pixel(), 0);
+                Converter::new(vw, vh, wire.glue(), YuyvPath::Scalar)
+                    .grey8(Src::packed(card, vw as usize, vh as usize, 1), bytes)
+                    .map(|_| ())
+            });
+        }
+        let data_card = &self.no_signal_data;
+        let _ = self.offer(PortId::Data, Wire::Y16, timestamp_us, |bytes| {
+            bytes.clear();
+            bytes.extend_from_slice(data_card);
+            Ok::<(), ()>(())
+        });
+    }
+
+    /// New node descriptions for `mode`.
+    pub fn set_mode(&self, mode: ModeId) {
+        let mut m = self.mode.lock().unwrap_or_else(|e| e.into_inner());
+        if *m != mode {
+            *m = mode;
+            let _ = self.tx.send(Msg::Mode(mode.name()));
+        }
+    }
+
+    fn wake(&self) {
+        if !self.shared.woken.swap(true, Ordering::AcqRel) && self.tx.send(Msg::Wake).is_err() {
+            self.shared.broken.store(true, Ordering::Relaxed);
+        }
+    }
+}
+
+impl Drop for Nodes {
+    fn drop(&mut self) {
+        let _ = self.tx.send(Msg::Quit);
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+/// Serializes a pod object.
+fn pod_bytes(object: Object) -> Result<Vec<u8>, String> {
+    spa::pod::serialize::PodSerializer::serialize(
+        std::io::Cursor::new(Vec::new()),
+        &Value::Object(object),
+    )
+    .map(|(cursor, _)| cursor.into_inner())
+    .map_err(|e| format!("serializing a SPA pod: {e:?}"))
+}
+
+/// The EnumFormats a stream offers: raw video at one size and rate, one
+/// param per format in `wires` (preferred first), each with a plain format
+/// Id, as PipeWire's V4L2 nodes enumerate them. WebRTC's PipeWire camera
+/// (Chromium's `WebRtcPipeWireCamera`) skips a param whose format is a
+/// Choice, and then lists no camera.
+fn enum_formats(
+    wires: &[Wire],
+    width: u32,
+    height: u32,
+    frame_rate_hz: u32,
+) -> Result<Vec<Vec<u8>>, String> {
+    use spa::param::format::{FormatProperties, MediaSubtype, MediaType};
+    wires
+        .iter()
+        .map(|w| {
+            pod_bytes(spa::pod::object!(
+                spa::utils::SpaTypes::ObjectParamFormat,
+                spa::param::ParamType::EnumFormat,
+                spa::pod::property!(FormatProperties::MediaType, Id, MediaType::Video),
+                spa::pod::property!(FormatProperties::MediaSubtype, Id, MediaSubtype::Raw),
+                spa::pod::property!(FormatProperties::VideoFormat, Id, spa_format(*w)),
+                spa::pod::property!(
+                    FormatProperties::VideoSize,
+                    Rectangle,
+                    Rectangle { width, height }
+                ),
+                spa::pod::property!(
+                    FormatProperties::VideoFramerate,
+                    Fraction,
+                    Fraction {
+                        num: frame_rate_hz,
+                        denom: 1
+                    }
+                ),
+            ))
+        })
+        .collect()
+}
+
+/// Buffers (count, one plane of `size_bytes`) and the header metadata (PTS).
+fn buffer_params(size_bytes: usize, stride_bytes: usize) -> Result<[Vec<u8>; 2], String> {
+    use spa::sys;
+    let int = |v: usize| Value::Int(i32::try_from(v).unwrap_or(i32::MAX));
+    let (default, min, max) = BUFFERS;
+    let buffers = Object {
+        type_: sys::SPA_TYPE_OBJECT_ParamBuffers,
+        id: sys::SPA_PARAM_Buffers,
+        properties: vec![
+            Property::new(
+                sys::SPA_PARAM_BUFFERS_buffers,
+                Value::Choice(ChoiceValue::Int(Choice(
+                    ChoiceFlags::empty(),
+                    ChoiceEnum::Range { default, min, max },
+                ))),
+            ),
+            Property::new(sys::SPA_PARAM_BUFFERS_blocks, Value::Int(1)),
+            Property::new(sys::SPA_PARAM_BUFFERS_size, int(size_bytes)),
+            Property::new(sys::SPA_PARAM_BUFFERS_stride, int(stride_bytes)),
+        ],
+    };
+    let meta = Object {
+        type_: sys::SPA_TYPE_OBJECT_ParamMeta,
+        id: sys::SPA_PARAM_Meta,
+        properties: vec![
+            Property::new(
+                sys::SPA_PARAM_META_type,
+                Value::Id(Id(sys::SPA_META_Header)),
+            ),
+            Property::new(
+                sys::SPA_PARAM_META_size,
+                int(std::mem::size_of::<sys::spa_meta_header>()),
+            ),
+        ],
+    };
+    Ok([pod_bytes(buffers)?, pod_bytes(meta)?])
+}
+
+/// The loop thread's view of one stream.
+struct StreamState {
+    name: &'static str,
+    width: u32,
+    height: u32,
+    /// Negotiated format.
+    wire: Option<Wire>,
+    seq: u64,
+    last_pts_ns: i64,
+}
+
+fn monotonic_ns() -> i64 {
+    nix::time::clock_gettime(nix::time::ClockId::CLOCK_MONOTONIC)
+        .map(|t| t.tv_sec() * 1_000_000_000 + t.tv_nsec())
+        .unwrap_or(0)
+}
+
+/// Copies `port`'s pending frame into a free buffer of `stream` and queues it.
+fn publish(stream: &pw::stream::Stream, port: &Port, state: &mut StreamState) {
+    let Some(frame) = port.slot().pending.take() else {
+        return;
+    };
+    let frame = Returned(frame, port);
+    if state.wire != Some(frame.0.wire) {
+        return;
+    }
+    // SAFETY: dequeue on the loop thread that owns the stream; a null result
+    // (no free buffer: the reader holds them all) is checked below.
+    let pwb = unsafe { stream.dequeue_raw_buffer() };
+    if pwb.is_null() {
+        return;
+    }
+    let bytes = &frame.0.bytes;
+    let stride = state.width as usize * frame.0.wire.bytes_per_pixel();
+    // PTS is the capture time (spa_meta_header.pts: ns, CLOCK_MONOTONIC),
+    // as on the loopback node, so a reader can tell the frame's age; strictly
+    // increasing per stream.
+    let capture_ns = match frame.0.timestamp_us {
+        0 => monotonic_ns(),
+        us => i64::try_from(us.saturating_mul(1000)).unwrap_or(i64::MAX),
+    };
+    let pts_ns = capture_ns.max(state.last_pts_ns + 1);
+    state.last_pts_ns = pts_ns;
+    state.seq += 1;
+    let mut written = 0;
+    // SAFETY: `pwb` came from dequeue and is ours until queued; its spa_buffer,
+    // data planes, chunks and metas are set up by PipeWire for the negotiated
+    // Buffers/Meta params; MAP_BUFFERS maps `data` for `maxsize` bytes. We
+    // write at most `maxsize` bytes and check every pointer for null.
+    unsafe {
+        let buf = (*pwb).buffer;
+        if !buf.is_null() && (*buf).n_datas >= 1 && !(*buf).datas.is_null() {
+            let d = &mut *(*buf).datas;
+            if !d.data.is_null() && !d.chunk.is_null() {
+                written = bytes.len().min(d.maxsize as usize);
+                std::ptr::copy_nonoverlapping(bytes.as_ptr(), d.data.cast::<u8>(), written);
+                let chunk = &mut *d.chunk;
+                chunk.offset = 0;
+                chunk.size = written as u32;
+                chunk.stride = stride as i32;
+                chunk.flags = 0;
+            }
+            let h = spa::sys::spa_buffer_find_meta_data(
+                buf,
+                spa::sys::SPA_META_Header,
+                std::mem::size_of::<spa::sys::spa_meta_header>(),
+            )
+            .cast::<spa::sys::spa_meta_header>();
+            if !h.is_null() {
+                (*h).flags = 0;
+                (*h).offset = 0;
+                (*h).pts = pts_ns;
+                (*h).dts_offset = 0;
+                (*h).seq = state.seq;
+            }
+        }
+    }
+    if tracing::enabled!(target: FRAME_LOG, tracing::Level::TRACE) {
+        tracing::trace!(
+            target: FRAME_LOG,
+            stream = state.name,
+            format = frame.0.wire.name(),
+            mode = frame.0.mode,
+            seq = state.seq,
+            pts_ns,
+            capture_us = frame.0.timestamp_us,
+            published_ns = monotonic_ns(),
+            bytes = written,
+            crc32 = format_args!("{:08x}", crc32fast::hash(&bytes[..written])),
+            "published"
+        );
+    }
+    // SAFETY: `pwb` was dequeued from this stream above and not queued yet.
+    unsafe { stream.queue_raw_buffer(pwb) };
+    port.published.fetch_add(1, Ordering::Relaxed);
+}
+
+/// Returns the frame's allocation to the slot when dropped.
+struct Returned<'a>(Pending, &'a Port);
+
+impl Drop for Returned<'_> {
+    fn drop(&mut self) {
+        let bytes = std::mem::take(&mut self.0.bytes);
+        let mut slot = self.1.slot();
+        if slot.spare.capacity() < bytes.capacity() {
+            slot.spare = bytes;
+        }
+    }
+}
+
+/// Sets a stream's node description.
+fn describe(stream: &pw::stream::Stream, description: &str) {
+    let props = pw::properties::properties! { *pw::keys::NODE_DESCRIPTION => description };
+    // SAFETY: the stream is alive and used on its loop thread; the dict is
+    // only read during the call (PipeWire copies it).
+    let r =
+        unsafe { pw::sys::pw_stream_update_properties(stream.as_raw_ptr(), props.dict().as_raw()) };
+    if r < 0 {
+        tracing::debug!(
+            "updating the node description of {}: error {r}",
+            stream.name()
+        );
+    }
+}
+
+fn run_loop(
+    spec: Spec,
+    shared: Arc<Shared>,
+    rx: pw::channel::Receiver<Msg>,
+    ready: mpsc::Sender<Result<(), String>>,
+) {
+    pw::init();
+    let ready = RefCell::new(Some(ready));
+    let report = |r: Result<(), String>| {
+        if let Some(tx) = ready.borrow_mut().take() {
+            let _ = tx.send(r);
+        }
+    };
+    if let Err(e) = serve(&spec, &shared, rx, &report) {
+        shared.broken.store(true, Ordering::Relaxed);
+        report(Err(e));
+    }
+    shared.view.streaming.store(0, Ordering::Release);
+    shared.data.streaming.store(0, Ordering::Release);
+}
+
+/// Builds the loop, connects, creates both streams and runs until `Quit`.
+fn serve(
+    spec: &Spec,
+    shared: &Arc<Shared>,
+    rx: pw::channel::Receiver<Msg>,
+    report: &dyn Fn(Result<(), String>),
+) -> Result<(), String> {
+    fn err(what: &'static str) -> impl Fn(pw::Error) -> String {
+        move |e| format!("PipeWire: {what}: {e}")
+    }
+    let mainloop = pw::main_loop::MainLoopRc::new(None).map_err(err("creating the loop"))?;
+    let context =
+        pw::context::ContextRc::new(&mainloop, None).map_err(err("creating a context"))?;
+    let core = context.connect_rc(None).map_err(|e| {
+        let socket = std::env::var("PIPEWIRE_REMOTE").unwrap_or_else(|_| {
+            std::env::var("XDG_RUNTIME_DIR")
+                .map_or("(no XDG_RUNTIME_DIR)".into(), |d| format!("{d}/pipewire-0"))
+        });
+        format!("no PipeWire daemon reachable at {socket}: {e}")
+    })?;
+    let lost = {
+        let (shared, mainloop) = (shared.clone(), mainloop.downgrade());
+        core.add_listener_local()
+            .error(move |id, _seq, res, message| {
+                if id == pw::core::PW_ID_CORE {
+                    tracing::warn!("PipeWire connection error {res}: {message}");
+                    shared.broken.store(true, Ordering::Relaxed);
+                    if let Some(l) = mainloop.upgrade() {
+                        l.quit();
+                    }
+                }
+            })
+            .register()
+    };
+
+    let view = make_stream(
+        &core,
+        shared,
+        StreamSpec {
+            node: VIEW_NODE,
+            description: view_description(spec.mode.name()),
+            camera: true,
+            wires: &[Wire::Yuyv, Wire::Rgb],
+            width: spec.view_width,
+            height: spec.view_height,
+            frame_rate_hz: spec.frame_rate_hz,
+        },
+        |s| &s.view,
+    )?;
+    let data = make_stream(
+        &core,
+        shared,
+        StreamSpec {
+            node: DATA_NODE,
+            description: data_description(spec.mode.name()),
+            camera: false,
+            wires: &[Wire::Y16],
+            width: spec.data_width,
+            height: spec.data_height,
+            frame_rate_hz: spec.frame_rate_hz,
+        },
+        |s| &s.data,
+    )?;
+
+    let _receiver = {
+        let (shared, weak) = (shared.clone(), mainloop.downgrade());
+        let (view_stream, view_state) = (view.stream.clone(), view.state.clone());
+        let (data_stream, data_state) = (data.stream.clone(), data.state.clone());
+        rx.attach(mainloop.loop_(), move |msg| match msg {
+            Msg::Wake => {
+                shared.woken.store(false, Ordering::Release);
+                for (stream, state, port) in [
+                    (&view_stream, &view_state, &shared.view),
+                    (&data_stream, &data_state, &shared.data),
+                ] {
+                    if port.slot().pending.is_none() {
+                        continue;
+                    }
+                    if stream.is_driving() {
+                        // process() publishes, in the graph's cycle.
+                        let _ = stream.trigger_process();
+                    } else {
+                        publish(stream, port, &mut state.borrow_mut());
+                    }
+                }
+            }
+            Msg::Mode(mode) => {
+                describe(&view_stream, &view_description(mode));
+                describe(&data_stream, &data_description(mode));
+            }
+            Msg::Quit => {
+                if let Some(l) = weak.upgrade() {
+                    l.quit();
+                }
+            }
+        })
+    };
+    tracing::info!(
+        view = VIEW_NODE,
+        data = DATA_NODE,
+        "PipeWire nodes created (Video/Source, media.role Camera on the view)"
+    );
+    report(Ok(()));
+    mainloop.run();
+    drop(lost);
+    Ok(())
+}
+
+struct StreamSpec {
+    node: &'static str,
+    description: String,
+    /// Advertise as a camera (`media.role = Camera`).
+    camera: bool,
+    wires: &'static [Wire],
+    width: u32,
+    height: u32,
+    frame_rate_hz: u32,
+}
+
+struct MadeStream {
+    stream: pw::stream::StreamRc,
+    state: Rc<RefCell<StreamState>>,
+    _listener: pw::stream::StreamListener<()>,
+}
+
+fn make_stream(
+    core: &pw::core::CoreRc,
+    shared: &Arc<Shared>,
+    spec: StreamSpec,
+    port_of: fn(&Shared) -> &Port,
+) -> Result<MadeStream, String> {
+    let err = |e: pw::Error| format!("PipeWire stream {}: {e}", spec.node);
+    let mut props = pw::properties::properties! {
+        *pw::keys::MEDIA_TYPE => "Video",
+        *pw::keys::MEDIA_CATEGORY => "Capture",
+        *pw::keys::MEDIA_CLASS => "Video/Source",
+        *pw::keys::NODE_NAME => spec.node,
+        *pw::keys::NODE_DESCRIPTION => spec.description.as_str(),
+        "node.nick" => "SDI camera",
+    };
+    if spec.camera {
+        props.insert(*pw::keys::MEDIA_ROLE, "Camera");
+    }
+    let stream = pw::stream::StreamRc::new(core.clone(), spec.node, props).map_err(err)?;
+    let state = Rc::new(RefCell::new(StreamState {
+        name: spec.node,
+        width: spec.width,
+        height: spec.height,
+        wire: None,
+        seq: 0,
+        last_pts_ns: 0,
+    }));
+    let (s1, s2, s3) = (shared.clone(), shared.clone(), shared.clone());
+    let (st1, st2, st3) = (state.clone(), state.clone(), state.clone());
+    let listener = stream
+        .add_local_listener_with_user_data(())
+        .state_changed(move |_, _, old, new| {
+            let port = port_of(&s1);
+            let st = st1.borrow();
+            let streaming = matches!(new, pw::stream::StreamState::Streaming);
+            let code = match (streaming, st.wire) {
+                (true, Some(w)) => w as u8,
+                _ => 0,
+            };
+            port.streaming.store(code, Ordering::Release);
+            match &new {
+                pw::stream::StreamState::Streaming => {
+                    tracing::info!(
+                        node = st.name,
+                        format = st.wire.map_or("?", Wire::name),
+                        "PipeWire reader streaming"
+                    )
+                }
+                pw::stream::StreamState::Error(e) => {
+                    tracing::warn!(node = st.name, "PipeWire stream error: {e}")
+                }
+                _ if matches!(old, pw::stream::StreamState::Streaming) => {
+                    tracing::info!(node = st.name, "PipeWire reader stopped")
+                }
+                _ => tracing::debug!(node = st.name, "PipeWire stream {old:?} -> {new:?}"),
+            }
+        })
+        .param_changed(move |stream, _, id, param| {
+            let Some(param) = param else { return };
+            if id != spa::param::ParamType::Format.as_raw() {
+                return;
+            }
+            let mut info = spa::param::video::VideoInfoRaw::new();
+            if info.parse(param).is_err() {
+                return;
+            }
+            let mut st = st2.borrow_mut();
+            st.wire = wire_of(info.format());
+            let Some(wire) = st.wire else {
+                tracing::warn!(
+                    node = st.name,
+                    "PipeWire negotiated an unexpected format {:?}",
+                    info.format()
+                );
+                return;
+            };
+            let stride = st.width as usize * wire.bytes_per_pixel();
+            let size = stride * st.height as usize;
+            match buffer_params(size, stride) {
+                Ok(pods) => {
+                    let mut params: Vec<&Pod> =
+                        pods.iter().filter_map(|b| Pod::from_bytes(b)).collect();
+                    if let Err(e) = stream.update_params(&mut params) {
+                        tracing::warn!(node = st.name, "PipeWire buffer parameters: {e}");
+                    }
+                }
+                Err(e) => tracing::warn!(node = st.name, "{e}"),
+            }
+            // A format change while streaming: the new format counts from now.
+            let port = port_of(&s2);
+            if port.streaming.load(Ordering::Acquire) != 0 {
+                port.streaming.store(wire as u8, Ordering::Release);
+            }
+        })
+        .process(move |stream, _| publish(stream, port_of(&s3), &mut st3.borrow_mut()))
+        .register()
+        .map_err(err)?;
+    let formats = enum_formats(spec.wires, spec.width, spec.height, spec.frame_rate_hz)?;
+    let mut pods = formats
+        .iter()
+        .map(|f| Pod::from_bytes(f).ok_or("PipeWire: invalid format pod"))
+        .collect::<Result<Vec<&Pod>, _>>()?;
+    stream
+        .connect(
+            spa::utils::Direction::Output,
+            None,
+            pw::stream::StreamFlags::DRIVER | pw::stream::StreamFlags::MAP_BUFFERS,
+            &mut pods,
+        )
+        .map_err(err)?;
+    Ok(MadeStream {
+        stream,
+        state,
+        _listener: listener,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn wire_codes_round_trip() {
+        for w in Wire::ALL {
+            assert_eq!(Wire::from_code(w as u8), Some(w));
+            assert_eq!(wire_of(spa_format(w)), Some(w));
+        }
+        assert_eq!(Wire::from_code(0), None);
+    }
+
+    #[test]
+    fn params_serialize() {
+        let f = enum_formats(&[Wire::Yuyv, Wire::Rgb], 640, 480, 30).unwrap();
+        assert_eq!(f.len(), 2, "one EnumFormat per format");
+        assert!(f.iter().all(|p| Pod::from_bytes(p).is_some()));
+        let f = enum_formats(&[Wire::Y16], 320, 240, 30).unwrap();
+        assert_eq!(f.len(), 1);
+        assert!(Pod::from_bytes(&f[0]).is_some());
+        for p in buffer_params(640 * 480 * 2, 1280).unwrap() {
+            assert!(Pod::from_bytes(&p).is_some());
+        }
+    }
+}
