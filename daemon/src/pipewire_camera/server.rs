@@ -32,9 +32,11 @@ use crate::monotonic::monotonic_now_us;
 pub const LINGER: Duration = Duration::from_secs(30);
 /// The "no signal" card's period while sdid is away (sdid's own rate).
 const NO_SIGNAL_PERIOD: Duration = Duration::from_millis(200);
-/// The main loop's tick: accepting sdid, state reports, the card.
-const TICK_MS: u16 = 20;
-/// Fewest milliseconds between two state reports that only count buffers.
+/// The main loop's tick: state reports, the card, the linger check (a
+/// connecting sdid wakes it at once).
+const TICK_MS: u16 = 100;
+/// Fewest milliseconds between two state reports that only count buffers
+/// (a change of format is reported at the next tick).
 const STATE_PERIOD: Duration = Duration::from_millis(200);
 
 /// Runs the camera process when this program was started as one
