@@ -4,6 +4,8 @@
 //! symmetric about zero, either fixed or taken from a high percentile of |x|
 //! so a few outliers (hot pixels, saturation, NaN/Inf) do not wash it out.
 
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 pub mod reference;
 
 use std::str::FromStr;
@@ -11,6 +13,34 @@ use std::sync::OnceLock;
 
 use multiversion::multiversion;
 
+#[cfg(target_arch = "x86_64")]
+use avx512::Kernel;
+
+/// No vector kernel off x86-64: the table path does every pixel.
+#[cfg(not(target_arch = "x86_64"))]
+#[derive(Clone, Copy)]
+struct Kernel;
+
+#[cfg(not(target_arch = "x86_64"))]
+impl Kernel {
+    fn detect() -> Option<Self> {
+        None
+    }
+    fn render(
+        self,
+        _: &[[[u8; 64]; 16]; 4],
+        _: bool,
+        _: &[f32],
+        _: f32,
+        _: &mut [u8],
+        _: &mut [u8],
+    ) -> usize {
+        0
+    }
+    fn count_bracket(self, _: &[f32], _: u32, _: u32, _: &mut [u32]) -> Option<(u64, u64, usize)> {
+        None
+    }
+}
 use crate::image::Image;
 use crate::mode::{ModeOutput, SeparatedChannels};
 
@@ -109,6 +139,8 @@ const LUT_HALF: f32 = ((LUT_SIZE - 1) / 2) as f32;
 /// every finite x >= 0 (the expansion LLVM itself uses), without a libm call,
 /// so the per-pixel loops vectorize.
 const ROUND_BIAS: f32 = 0.499_999_97;
+/// Pixels per step of the vector kernel.
+const KERNEL_STEP: usize = 64;
 /// Pixels per block: indices of one block live on the stack.
 const BLOCK: usize = 256;
 
@@ -133,6 +165,9 @@ struct Tables {
     /// 18 (`second`): one shift and mask puts each byte in place.
     first: [u64; 1024],
     second: [u64; 1024],
+    /// R, G, B and limited-range luma bytes, entry i at `[i / 64][i % 64]`
+    /// (the AVX-512 kernel's byte tables).
+    planes: [[[u8; 64]; 16]; 4],
 }
 
 /// Per pixel: half the chroma offset 128 << 9 plus half the rounding 256,
@@ -157,6 +192,7 @@ impl Tables {
             rgb: [0; 1024],
             first: [0; 1024],
             second: [0; 1024],
+            planes: [[[0; 64]; 16]; 4],
         };
         for i in 0..1024 {
             let x = i.min(LUT_SIZE - 1) as f32 / LUT_HALF - 1.0;
@@ -171,6 +207,9 @@ impl Tables {
             let v = (112 * r - 94 * g - 18 * b + CHROMA_BIAS) as u64;
             t.first[i] = u | v << 32 | luma << 50;
             t.second[i] = u | v << 32 | luma << 18;
+            for (plane, byte) in t.planes.iter_mut().zip([c[0], c[1], c[2], luma as u8]) {
+                plane[i / 64][i % 64] = byte;
+            }
         }
         t
     }
@@ -226,6 +265,21 @@ impl DisplayMap {
         }
         let scale = 1.0 / self.max_abs_dn(img);
         let tables = Tables::get(self.colormap);
+        let kernel = Kernel::detect();
+        let grey = self.colormap == Colormap::Grey;
+        if let Some(k) = kernel {
+            // Rows of whole 64-pixel steps and each output whole or absent:
+            // the image is one run for the kernel, whose tables load once.
+            let whole =
+                |out: &[u8], bytes_per_px: usize| out.is_empty() || out.len() >= bytes_per_px * n;
+            if w % KERNEL_STEP == 0 && whole(rgb, 3) && whole(yuyv, 2) {
+                let rgb = rgb.get_mut(..3 * n).unwrap_or_default();
+                let yuyv = yuyv.get_mut(..2 * n).unwrap_or_default();
+                if k.render(&tables.planes, grey, &img.data, scale, rgb, yuyv) == n {
+                    return;
+                }
+            }
+        }
         let mut idx = [0u16; BLOCK];
         for (y, row) in img.data.chunks(w).enumerate() {
             // Whole pairs of this row inside `yuyv`.
@@ -233,12 +287,27 @@ impl DisplayMap {
             let pairs = (row.len() / 2).min(yuyv_row.len() / 4);
             for (b, block) in row.chunks(BLOCK).enumerate() {
                 let x0 = b * BLOCK;
-                let idx = &mut idx[..block.len()];
-                lut_indices(block, scale, idx);
                 let rgb_px = n_rgb.saturating_sub(y * w + x0).min(block.len());
                 let rgb_out = &mut rgb[3 * (y * w + x0).min(n_rgb)..][..3 * rgb_px];
                 let block_pairs = pairs.saturating_sub(x0 / 2).min(block.len() / 2);
                 let yuyv_out = &mut yuyv_row[(2 * x0).min(4 * pairs)..][..4 * block_pairs];
+                // The kernel takes the block's whole 64-pixel steps when each
+                // output it writes holds all of them.
+                let done = match kernel {
+                    Some(k)
+                        if (rgb_px == 0 || rgb_px == block.len())
+                            && (block_pairs == 0 || block_pairs == block.len() / 2) =>
+                    {
+                        k.render(&tables.planes, grey, block, scale, rgb_out, yuyv_out)
+                    }
+                    _ => 0,
+                };
+                let block = &block[done..];
+                let rgb_out = rgb_out.get_mut(3 * done..).unwrap_or_default();
+                let yuyv_out = yuyv_out.get_mut(2 * done..).unwrap_or_default();
+                let (rgb_px, block_pairs) = (rgb_px - done.min(rgb_px), block_pairs - done / 2);
+                let idx = &mut idx[..block.len()];
+                lut_indices(block, scale, idx);
                 if rgb_px == 2 * block_pairs && rgb_px == idx.len() {
                     rgb_yuyv_pairs(tables, idx, rgb_out, yuyv_out);
                 } else {
@@ -466,10 +535,38 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
     if lo_bits < f32::MIN_POSITIVE.to_bits() || hi_bits > INF_BITS {
         return None;
     }
+    let mut window = [0u32; WINDOW_CAPACITY];
+    let (finite, below, kept) = match Kernel::detect() {
+        Some(k) => k.count_bracket(data, lo_bits, hi_bits, &mut window)?,
+        None => count_bracket(data, lo_bits, hi_bits, &mut window)?,
+    };
+    let window = &mut window[..kept];
+    let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
+    if rank < below || rank >= below + kept as u64 {
+        return None;
+    }
+    // The largest value sharing the quantile's fine bin, as the histogram finds it.
+    let key = *window.select_nth_unstable((rank - below) as usize).1 >> FINE_SHIFT;
+    let q = window
+        .iter()
+        .filter(|&&bits| bits >> FINE_SHIFT == key)
+        .fold(0, |m, &bits| m.max(bits));
+    Some(f32::from_bits(q))
+}
+
+/// One pass over `data`: how many |x| are finite, how many lie below
+/// `lo_bits`, and the |x| bits in `lo_bits..hi_bits` copied into `window`
+/// (their count is the third value); None when they overflow `window`.
+#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+fn count_bracket(
+    data: &[f32],
+    lo_bits: u32,
+    hi_bits: u32,
+    window: &mut [u32],
+) -> Option<(u64, u64, usize)> {
     // One pass: per-lane counts (no reduction per block), and the values
     // inside the bracket from the blocks that hold any.
     let (mut finite, mut below) = ([0u32; LANES], [0u32; LANES]);
-    let mut window = [0u32; WINDOW_CAPACITY];
     let mut kept = 0usize;
     let mut blocks = data.chunks_exact(COUNT_BLOCK);
     let mut collect = |block: &[f32], inside: bool| -> Option<()> {
@@ -504,18 +601,7 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
     collect(blocks.remainder(), true)?;
     let finite: u64 = finite.iter().map(|&n| u64::from(n)).sum();
     let below: u64 = below.iter().map(|&n| u64::from(n)).sum();
-    let window = &mut window[..kept];
-    let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
-    if rank < below || rank >= below + kept as u64 {
-        return None;
-    }
-    // The largest value sharing the quantile's fine bin, as the histogram finds it.
-    let key = *window.select_nth_unstable((rank - below) as usize).1 >> FINE_SHIFT;
-    let q = window
-        .iter()
-        .filter(|&&bits| bits >> FINE_SHIFT == key)
-        .fold(0, |m, &bits| m.max(bits));
-    Some(f32::from_bits(q))
+    Some((finite, below, kept))
 }
 
 /// The two-pass histogram over all values (see [`robust_max_abs`]).
