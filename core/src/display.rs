@@ -808,6 +808,130 @@ mod tests {
         assert_eq!(rgb[6], 9);
     }
 
+    /// The AVX-512 kernel runs wherever the CPU has the features it needs
+    /// (so the tests above ran it on such a host), and equals the table path
+    /// for every table index, NaN and +-Inf, with either output or both.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx512_kernel_equals_the_table_path() {
+        let has = |f: &[bool]| f.iter().all(|&b| b);
+        let expected = has(&[
+            std::arch::is_x86_feature_detected!("avx512f"),
+            std::arch::is_x86_feature_detected!("avx512bw"),
+            std::arch::is_x86_feature_detected!("avx512vl"),
+            std::arch::is_x86_feature_detected!("avx512vbmi"),
+            std::arch::is_x86_feature_detected!("avx512vbmi2"),
+            std::arch::is_x86_feature_detected!("avx512bitalg"),
+            std::arch::is_x86_feature_detected!("avx512vnni"),
+            std::arch::is_x86_feature_detected!("avx512vpopcntdq"),
+            std::arch::is_x86_feature_detected!("gfni"),
+            std::arch::is_x86_feature_detected!("vaes"),
+            std::arch::is_x86_feature_detected!("vpclmulqdq"),
+        ]);
+        let Some(kernel) = Kernel::detect() else {
+            assert!(
+                !expected,
+                "the CPU has the kernel's features but it was not detected"
+            );
+            eprintln!("no AVX-512 VBMI: kernel not tested on this host");
+            return;
+        };
+        // Every index and half step at scale 1/511, then the awkward values.
+        let mut values: Vec<f32> = (-1100..=1100).map(|i| i as f32 * 0.5).collect();
+        values.extend([
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            0.0,
+            -0.0,
+            1e30,
+            -1e-45,
+        ]);
+        values.resize(values.len().next_multiple_of(KERNEL_STEP), -7.25);
+        let n = values.len();
+        for colormap in [Colormap::Diverging, Colormap::Grey] {
+            let tables = Tables::get(colormap);
+            let grey = colormap == Colormap::Grey;
+            for scale in [1.0 / 511.0, 1.0 / 3.7, 1e-30] {
+                let mut idx = vec![0u16; n];
+                lut_indices(&values, scale, &mut idx);
+                let (mut want_rgb, mut want_yuyv) = (vec![0u8; 3 * n], vec![0u8; 2 * n]);
+                rgb_pixels(tables, &idx, &mut want_rgb);
+                yuyv_pairs(tables, &idx, &mut want_yuyv);
+                let (mut rgb, mut yuyv) = (vec![1u8; 3 * n], vec![1u8; 2 * n]);
+                assert_eq!(
+                    kernel.render(&tables.planes, grey, &values, scale, &mut rgb, &mut yuyv),
+                    n
+                );
+                assert_eq!(rgb, want_rgb, "{colormap:?} {scale}");
+                assert_eq!(yuyv, want_yuyv, "{colormap:?} {scale}");
+                let mut rgb = vec![2u8; 3 * n];
+                assert_eq!(
+                    kernel.render(&tables.planes, grey, &values, scale, &mut rgb, &mut []),
+                    n
+                );
+                assert_eq!(rgb, want_rgb);
+                let mut yuyv = vec![2u8; 2 * n];
+                assert_eq!(
+                    kernel.render(&tables.planes, grey, &values, scale, &mut [], &mut yuyv),
+                    n
+                );
+                assert_eq!(yuyv, want_yuyv);
+                // A short output limits the steps done.
+                let mut short = vec![3u8; 3 * n - 1];
+                let done = kernel.render(&tables.planes, grey, &values, scale, &mut short, &mut []);
+                assert_eq!(done, n - KERNEL_STEP);
+                assert_eq!(short[..3 * done], want_rgb[..3 * done]);
+            }
+        }
+        // The counting pass: same counts and kept values as the portable one.
+        let mut rng = SmallRng::seed_from_u64(26);
+        let mut data: Vec<f32> = (0..10_007)
+            .map(|_| rng.random_range(-1.0f32..1.0).powi(3) * 900.0)
+            .collect();
+        data[5] = f32::NAN;
+        data[77] = f32::NEG_INFINITY;
+        data[10_000] = 0.0;
+        for (lo, hi) in [
+            (100.0f32, 101.0f32),
+            (0.5, 2.0),
+            (800.0, 900.0),
+            (1e-3, 1e3),
+        ] {
+            let (lo, hi) = (lo.to_bits(), hi.to_bits());
+            let (mut a, mut b) = ([0u32; WINDOW_CAPACITY], [0u32; WINDOW_CAPACITY]);
+            let fast = kernel.count_bracket(&data, lo, hi, &mut a);
+            let slow = count_bracket(&data, lo, hi, &mut b);
+            match (fast, slow) {
+                (Some(f), Some(s)) => {
+                    assert_eq!(f, s, "{lo} {hi}");
+                    assert_eq!(a[..f.2], b[..s.2]);
+                }
+                // The kernel gives up a step early when the window is nearly full.
+                (None, s) => assert!(s.is_none_or(|s| s.2 + 16 > WINDOW_CAPACITY)),
+                (Some(_), None) => panic!("the kernel kept more than the window holds"),
+            }
+        }
+    }
+
+    /// Full-width frames take the kernel in one run; short outputs there
+    /// fall back to the row path and write only what fits.
+    #[test]
+    fn short_outputs_of_kernel_wide_frames() {
+        let img = Image::from_vec(128, 3, (0..384).map(|i| i as f32 - 190.0).collect()).unwrap();
+        let map = DisplayMap::default();
+        let mut full = vec![0u8; 2 * 384];
+        map.render_yuyv(&img, &mut full);
+        let mut short = vec![9u8; 2 * 384 - 2];
+        map.render_yuyv(&img, &mut short);
+        assert_eq!(&short[..2 * 384 - 4], &full[..2 * 384 - 4]);
+        assert_eq!(&short[2 * 384 - 4..], &[9, 9]);
+        let mut rgb = vec![9u8; 3 * 384 - 1];
+        map.render_rgb8(&img, &mut rgb);
+        assert_eq!(&rgb[..3 * 383], &slow_rgb(&map, &img)[..3 * 383]);
+        assert_eq!(&rgb[3 * 383..], &[9, 9]);
+    }
+
     #[test]
     fn round_bias_matches_round_on_the_table_range() {
         // Every 7th f32 in [0, 1023], and every f32 within 64 ulps of each half step.
