@@ -490,8 +490,9 @@ const INF_BITS: u32 = 0x7f80_0000;
 /// reduction per block) and keeps the few inside it, and selection among
 /// those finds the quantile's fine bin. None (use the
 /// full histogram) when the bracket misses the quantile or holds more than
-/// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal. No
-/// AVX-512 clone: it measured slower than AVX2 in the display bench.
+/// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal. The
+/// counting pass is the AVX-512 kernel's where the CPU has it; no AVX-512
+/// clone of the rest (it measured slower than AVX2 in the display bench).
 #[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
 fn sampled_quantile(data: &[f32]) -> Option<f32> {
     if data.len() < 64 * SAMPLE_STRIDE {
