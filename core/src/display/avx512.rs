@@ -41,7 +41,11 @@ impl Kernel {
         rgb: &mut [u8],
         yuyv: &mut [u8],
     ) -> usize {
-        render(self.0, planes, grey, values, scale, rgb, yuyv)
+        if grey {
+            render::<true>(self.0, planes, values, scale, rgb, yuyv)
+        } else {
+            render::<false>(self.0, planes, values, scale, rgb, yuyv)
+        }
     }
 
     /// `super::count_bracket` 16 values per step: compares into masks,
@@ -118,10 +122,9 @@ const RGB: [([u8; 64], [u8; 64], u64); 3] = [rgb_order(0), rgb_order(1), rgb_ord
 const YUYV: [[u8; 64]; 2] = [yuyv_order(0), yuyv_order(1)];
 
 #[arcane]
-fn render(
+fn render<const GREY: bool>(
     _token: X64V4xToken,
     planes: &[Plane; 4],
-    grey: bool,
     values: &[f32],
     scale: f32,
     rgb: &mut [u8],
@@ -137,10 +140,14 @@ fn render(
     let vscale = _mm512_set1_ps(scale);
     let (one, neg_one) = (_mm512_set1_ps(1.0), _mm512_set1_ps(-1.0));
     let (half, bias) = (_mm512_set1_ps(LUT_HALF), _mm512_set1_ps(ROUND_BIAS));
-    let load = |b: &[u8; 64]| mem::_mm512_loadu_si512(b);
-    let (pack_lo, pack_hi) = (load(&PACK_LO), load(&PACK_HI));
-    let rgb_idx = RGB.map(|(rg, b, mask)| (load(&rg), load(&b), mask));
-    let yuyv_idx = YUYV.map(|i| load(&i));
+    macro_rules! load {
+        ($b:expr) => {
+            mem::_mm512_loadu_si512::<[u8; 64]>($b)
+        };
+    }
+    let (pack_lo, pack_hi) = (load!(&PACK_LO), load!(&PACK_HI));
+    let rgb_idx = RGB.map(|(rg, b, mask)| (load!(&rg), load!(&b), mask));
+    let yuyv_idx = YUYV.map(|i| load!(&i));
     let ones8 = _mm512_set1_epi8(1);
     let (bit7, bit8, bit9) = (
         _mm512_set1_epi8(0x80u8 as i8),
@@ -149,18 +156,27 @@ fn render(
     );
     // Table index of 16 values: round((t + 1) * 511), t = v * scale in
     // [-1, 1], NaN -> 0, exactly as `super::lut_indices` computes it.
-    let index = |v: __m512| {
-        let t = _mm512_mul_ps(v, vscale);
-        let t = _mm512_maskz_mov_ps(_mm512_cmp_ps_mask::<_CMP_ORD_Q>(t, t), t);
-        let t = _mm512_min_ps(_mm512_max_ps(t, neg_one), one);
-        let x = _mm512_mul_ps(_mm512_add_ps(t, one), half);
-        _mm512_cvttps_epi32(_mm512_add_ps(x, bias))
-    };
+    macro_rules! index {
+        ($v:expr) => {{
+            let v: __m512 = $v;
+            let t = _mm512_mul_ps(v, vscale);
+            let t = _mm512_maskz_mov_ps(_mm512_cmp_ps_mask::<_CMP_ORD_Q>(t, t), t);
+            let t = _mm512_min_ps(_mm512_max_ps(t, neg_one), one);
+            let x = _mm512_mul_ps(_mm512_add_ps(t, one), half);
+            _mm512_cvttps_epi32(_mm512_add_ps(x, bias))
+        }};
+    }
     let (mut scratch_rgb, mut scratch_yuyv) = ([0u8; 3 * STEP], [0u8; 2 * STEP]);
     let (chunks, _) = values.as_chunks::<STEP>();
     for (c, chunk) in chunks.iter().enumerate().take(n) {
         let (quads, _) = chunk.as_chunks::<16>();
-        let i = [0, 1, 2, 3].map(|k| index(mem::_mm512_loadu_ps(&quads[k])));
+        let [q0, q1, q2, q3] = quads else { break };
+        let i = [
+            index!(mem::_mm512_loadu_ps(q0)),
+            index!(mem::_mm512_loadu_ps(q1)),
+            index!(mem::_mm512_loadu_ps(q2)),
+            index!(mem::_mm512_loadu_ps(q3)),
+        ];
         let w01 = _mm512_packus_epi32(i[0], i[1]);
         let w23 = _mm512_packus_epi32(i[2], i[3]);
         let lo = _mm512_permutex2var_epi8(w01, pack_lo, w23);
@@ -168,23 +184,37 @@ fn render(
         let m7 = _mm512_test_epi8_mask(lo, bit7);
         let m8 = _mm512_test_epi8_mask(hi, bit8);
         let m9 = _mm512_test_epi8_mask(hi, bit9);
-        let lookup = |plane: &Plane| {
-            let piece = |k: usize| {
-                _mm512_permutex2var_epi8(load(&plane[2 * k]), lo, load(&plane[2 * k + 1]))
-            };
-            let b =
-                [0, 1, 2, 3].map(|k| _mm512_mask_blend_epi8(m7, piece(2 * k), piece(2 * k + 1)));
-            let c0 = _mm512_mask_blend_epi8(m8, b[0], b[1]);
-            let c1 = _mm512_mask_blend_epi8(m8, b[2], b[3]);
-            _mm512_mask_blend_epi8(m9, c0, c1)
-        };
-        let r = lookup(&planes[0]);
-        let (g, b) = if grey {
+        // A macro, not a closure: LLVM must inline all four lookups.
+        macro_rules! lookup {
+            ($plane:expr) => {{
+                let plane: &Plane = $plane;
+                macro_rules! piece {
+                    ($k:expr) => {
+                        _mm512_permutex2var_epi8(
+                            load!(&plane[2 * $k]),
+                            lo,
+                            load!(&plane[2 * $k + 1]),
+                        )
+                    };
+                }
+                let b = [
+                    _mm512_mask_blend_epi8(m7, piece!(0), piece!(1)),
+                    _mm512_mask_blend_epi8(m7, piece!(2), piece!(3)),
+                    _mm512_mask_blend_epi8(m7, piece!(4), piece!(5)),
+                    _mm512_mask_blend_epi8(m7, piece!(6), piece!(7)),
+                ];
+                let c0 = _mm512_mask_blend_epi8(m8, b[0], b[1]);
+                let c1 = _mm512_mask_blend_epi8(m8, b[2], b[3]);
+                _mm512_mask_blend_epi8(m9, c0, c1)
+            }};
+        }
+        let r = lookup!(&planes[0]);
+        let (g, b) = if GREY {
             (r, r)
         } else {
-            (lookup(&planes[1]), lookup(&planes[2]))
+            (lookup!(&planes[1]), lookup!(&planes[2]))
         };
-        let y = lookup(&planes[3]);
+        let y = lookup!(&planes[3]);
         if !rgb.is_empty() {
             let dst = rgb
                 .get_mut(3 * STEP * c..3 * STEP * (c + 1))
@@ -204,24 +234,27 @@ fn render(
                 _mm512_maddubs_epi16(g, ones8),
                 _mm512_maddubs_epi16(b, ones8),
             );
-            let chroma = |cr: i16, cg: i16, cb: i16| {
-                let inner = _mm512_add_epi16(
-                    _mm512_add_epi16(
-                        _mm512_mullo_epi16(rs, _mm512_set1_epi16(cr)),
-                        _mm512_mullo_epi16(gs, _mm512_set1_epi16(cg)),
-                    ),
-                    _mm512_mullo_epi16(bs, _mm512_set1_epi16(cb)),
-                );
-                let shifted =
-                    _mm512_srai_epi16::<8>(_mm512_add_epi16(inner, _mm512_set1_epi16(128)));
-                _mm512_add_epi16(shifted, _mm512_set1_epi16(128))
-            };
-            let uv = if grey {
+            macro_rules! chroma {
+                ($cr:expr, $cg:expr, $cb:expr) => {{
+                    let (cr, cg, cb): (i16, i16, i16) = ($cr, $cg, $cb);
+                    let inner = _mm512_add_epi16(
+                        _mm512_add_epi16(
+                            _mm512_mullo_epi16(rs, _mm512_set1_epi16(cr)),
+                            _mm512_mullo_epi16(gs, _mm512_set1_epi16(cg)),
+                        ),
+                        _mm512_mullo_epi16(bs, _mm512_set1_epi16(cb)),
+                    );
+                    let shifted =
+                        _mm512_srai_epi16::<8>(_mm512_add_epi16(inner, _mm512_set1_epi16(128)));
+                    _mm512_add_epi16(shifted, _mm512_set1_epi16(128))
+                }};
+            }
+            let uv = if GREY {
                 // R = G = B: U and V are 128 (the coefficients sum to 0).
                 _mm512_set1_epi16(0x8080_u16 as i16)
             } else {
-                let u = chroma(-19, -37, 56);
-                let v = chroma(56, -47, -9);
+                let u = chroma!(-19, -37, 56);
+                let v = chroma!(56, -47, -9);
                 _mm512_or_si512(u, _mm512_slli_epi16::<8>(v))
             };
             let dst = yuyv
