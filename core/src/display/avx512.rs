@@ -214,7 +214,26 @@ fn render<const GREY: bool>(
         } else {
             (lookup!(&planes[1]), lookup!(&planes[2]))
         };
-        let y = lookup!(&planes[3]);
+        let y = if GREY {
+            // Limited-range luma of grey g: ((220 g + 128) >> 8) + 16, the
+            // table's value, for even and odd pixels in 16-bit lanes (< 2^16).
+            macro_rules! luma {
+                ($g:expr) => {
+                    _mm512_add_epi16(
+                        _mm512_srli_epi16::<8>(_mm512_add_epi16(
+                            _mm512_mullo_epi16($g, _mm512_set1_epi16(220)),
+                            _mm512_set1_epi16(128),
+                        )),
+                        _mm512_set1_epi16(16),
+                    )
+                };
+            }
+            let even = luma!(_mm512_and_si512(r, _mm512_set1_epi16(0xff)));
+            let odd = luma!(_mm512_srli_epi16::<8>(r));
+            _mm512_or_si512(even, _mm512_slli_epi16::<8>(odd))
+        } else {
+            lookup!(&planes[3])
+        };
         if !rgb.is_empty() {
             let dst = rgb
                 .get_mut(3 * STEP * c..3 * STEP * (c + 1))
