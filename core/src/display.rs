@@ -504,35 +504,30 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
         .saturating_pow(2)
         .max(SAMPLE_MIN);
     let stride = SAMPLE_STRIDE.max(data.len() / wanted);
-    let sample: Vec<u32> = data
+    let mut sample: Vec<u32> = data
         .iter()
         .step_by(stride)
         .map(|v| v.to_bits() & 0x7fff_ffff)
         .collect();
-    let sample = &sample[..];
-    let mut coarse = [0u32; BINS];
-    for &bits in sample {
-        coarse[(bits >> COARSE_SHIFT) as usize] += 1;
-    }
-    let finite: u64 = coarse[..NON_FINITE_BIN].iter().map(|&n| u64::from(n)).sum();
+    let finite = sample.iter().filter(|&&bits| bits < INF_BITS).count() as u64;
     if finite == 0 {
         return None;
     }
     let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
     // Five standard deviations of the subsample's count above the quantile.
     let margin = (5.0 * (finite as f64 * (1.0 - AUTO_PERCENTILE)).sqrt()) as u64 + 4;
-    let fine_bin_of = |rank: u64| {
-        let (bin, below) = find_bin(&coarse, rank);
-        let mut fine = [0u32; BINS];
-        for &bits in sample {
-            if (bits >> COARSE_SHIFT) as usize == bin {
-                fine[((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize] += 1;
-            }
-        }
-        ((bin as u32) << COARSE_SHIFT) | ((find_bin(&fine, rank - below).0 as u32) << FINE_SHIFT)
+    // The fine bins of the subsample's values of those ranks (non-finite
+    // values sort last): selection, not histograms, over the small sample.
+    let lo_rank = rank.saturating_sub(margin) as usize;
+    let hi_rank = (rank + margin).min(finite - 1) as usize;
+    let (_, &mut lo_value, above) = sample.select_nth_unstable(lo_rank);
+    let hi_value = match hi_rank.checked_sub(lo_rank + 1) {
+        Some(k) => *above.select_nth_unstable(k).1,
+        None => lo_value,
     };
-    let lo_bits = fine_bin_of(rank.saturating_sub(margin));
-    let hi_bits = fine_bin_of((rank + margin).min(finite - 1)) + (1 << FINE_SHIFT);
+    let fine_bin = |bits: u32| bits >> FINE_SHIFT << FINE_SHIFT;
+    let lo_bits = fine_bin(lo_value);
+    let hi_bits = fine_bin(hi_value) + (1 << FINE_SHIFT);
     if lo_bits < f32::MIN_POSITIVE.to_bits() || hi_bits > INF_BITS {
         return None;
     }
