@@ -272,7 +272,7 @@ impl DisplayMap {
             // the image is one run for the kernel, whose tables load once.
             let whole =
                 |out: &[u8], bytes_per_px: usize| out.is_empty() || out.len() >= bytes_per_px * n;
-            if w % KERNEL_STEP == 0 && whole(rgb, 3) && whole(yuyv, 2) {
+            if w.is_multiple_of(KERNEL_STEP) && whole(rgb, 3) && whole(yuyv, 2) {
                 let rgb = rgb.get_mut(..3 * n).unwrap_or_default();
                 let yuyv = yuyv.get_mut(..2 * n).unwrap_or_default();
                 if k.render(&tables.planes, grey, &img.data, scale, rgb, yuyv) == n {
