@@ -305,7 +305,8 @@ impl DisplayMap {
                 let block = &block[done..];
                 let rgb_out = rgb_out.get_mut(3 * done..).unwrap_or_default();
                 let yuyv_out = yuyv_out.get_mut(2 * done..).unwrap_or_default();
-                let (rgb_px, block_pairs) = (rgb_px - done.min(rgb_px), block_pairs - done / 2);
+                let rgb_px = rgb_px.saturating_sub(done);
+                let block_pairs = block_pairs.saturating_sub(done / 2);
                 let idx = &mut idx[..block.len()];
                 lut_indices(block, scale, idx);
                 if rgb_px == 2 * block_pairs && rgb_px == idx.len() {

@@ -184,27 +184,32 @@ fn render<const GREY: bool>(
         let m7 = _mm512_test_epi8_mask(lo, bit7);
         let m8 = _mm512_test_epi8_mask(hi, bit8);
         let m9 = _mm512_test_epi8_mask(hi, bit9);
-        // A macro, not a closure: LLVM must inline all four lookups.
+        // A macro, not a closure: LLVM must inline every lookup. Each pair
+        // of 128-entry pieces is two masked `vpermi2b`s: lanes with index
+        // bit 7 clear take the first piece's entry, and the second permute
+        // (masked to bit 7 set) leaves them alone; bits 8 and 9 then pick
+        // the pair by blends.
         macro_rules! lookup {
             ($plane:expr) => {{
                 let plane: &Plane = $plane;
-                macro_rules! piece {
-                    ($k:expr) => {
-                        _mm512_permutex2var_epi8(
-                            load!(&plane[2 * $k]),
+                macro_rules! pair {
+                    ($first:expr) => {{
+                        let x = _mm512_mask2_permutex2var_epi8(
+                            load!(&plane[2 * $first]),
                             lo,
-                            load!(&plane[2 * $k + 1]),
+                            !m7,
+                            load!(&plane[2 * $first + 1]),
+                        );
+                        _mm512_mask2_permutex2var_epi8(
+                            load!(&plane[2 * $first + 2]),
+                            x,
+                            m7,
+                            load!(&plane[2 * $first + 3]),
                         )
-                    };
+                    }};
                 }
-                let b = [
-                    _mm512_mask_blend_epi8(m7, piece!(0), piece!(1)),
-                    _mm512_mask_blend_epi8(m7, piece!(2), piece!(3)),
-                    _mm512_mask_blend_epi8(m7, piece!(4), piece!(5)),
-                    _mm512_mask_blend_epi8(m7, piece!(6), piece!(7)),
-                ];
-                let c0 = _mm512_mask_blend_epi8(m8, b[0], b[1]);
-                let c1 = _mm512_mask_blend_epi8(m8, b[2], b[3]);
+                let c0 = _mm512_mask_blend_epi8(m8, pair!(0), pair!(2));
+                let c1 = _mm512_mask_blend_epi8(m8, pair!(4), pair!(6));
                 _mm512_mask_blend_epi8(m9, c0, c1)
             }};
         }
