@@ -257,6 +257,18 @@ impl DisplayMap {
     /// [`Self::render_rgb8`] into `rgb` and [`Self::render_yuyv`] into
     /// `yuyv` in one pass with one auto range; an empty slice skips that output.
     pub fn render_rgb8_yuyv(&self, img: &Image<f32>, rgb: &mut [u8], yuyv: &mut [u8]) {
+        self.render_rgb8_yuyv_with(Kernel::detect(), img, rgb, yuyv);
+    }
+
+    /// [`Self::render_rgb8_yuyv`] with the vector kernel, or none (the table
+    /// path alone, as on CPUs without AVX-512 VBMI).
+    fn render_rgb8_yuyv_with(
+        &self,
+        kernel: Option<Kernel>,
+        img: &Image<f32>,
+        rgb: &mut [u8],
+        yuyv: &mut [u8],
+    ) {
         let w = img.width.max(1);
         let n = img.data.len();
         let n_rgb = (rgb.len() / 3).min(n);
@@ -265,7 +277,6 @@ impl DisplayMap {
         }
         let scale = 1.0 / self.max_abs_dn(img);
         let tables = Tables::get(self.colormap);
-        let kernel = Kernel::detect();
         let grey = self.colormap == Colormap::Grey;
         if let Some(k) = kernel {
             // Rows of whole 64-pixel steps and each output whole or absent:
@@ -461,8 +472,10 @@ const NORMAL_BIN: usize = (f32::MIN_POSITIVE.to_bits() >> COARSE_SHIFT) as usize
 /// The [`AUTO_PERCENTILE`] quantile of |x| over finite values; falls back to
 /// the largest finite |x| when that is 0, and to 1 for an image with no
 /// finite non-zero value. Never 0, NaN or Inf. One allocation (a subsample
-/// of at most len / 16 values), then histograms over the f32 bit pattern (monotonic for x >= 0); the result
-/// is a sample within 2^-14 (relative) above the exact quantile.
+/// of at most len / 16 values) brackets it for one counting pass; when the
+/// bracket misses, histograms over the f32 bit pattern (monotonic for
+/// x >= 0). Either way the result is the same sample, within 2^-14
+/// (relative) above the exact quantile.
 pub fn robust_max_abs(data: &[f32]) -> f32 {
     sampled_quantile(data).unwrap_or_else(|| histogram_quantile(data))
 }
@@ -778,6 +791,11 @@ mod tests {
                 let (mut rgb, mut yuyv) = (vec![0u8; 3 * n], vec![7u8; 2 * n]);
                 map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv);
                 assert_eq!(yuyv, want, "{map:?} {}x{}", img.width, img.height);
+                assert_eq!(rgb, slow_rgb(&map, &img));
+                // The table path alone (CPUs without the AVX-512 kernel).
+                let (mut rgb, mut yuyv) = (vec![0u8; 3 * n], vec![7u8; 2 * n]);
+                map.render_rgb8_yuyv_with(None, &img, &mut rgb, &mut yuyv);
+                assert_eq!(yuyv, want, "{map:?} {}x{} no kernel", img.width, img.height);
                 assert_eq!(rgb, slow_rgb(&map, &img));
             }
         }
