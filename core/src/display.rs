@@ -4,6 +4,8 @@
 //! symmetric about zero, either fixed or taken from a high percentile of |x|
 //! so a few outliers (hot pixels, saturation, NaN/Inf) do not wash it out.
 
+#[cfg(target_arch = "x86_64")]
+mod avx512;
 pub mod reference;
 
 use std::str::FromStr;
@@ -11,6 +13,34 @@ use std::sync::OnceLock;
 
 use multiversion::multiversion;
 
+#[cfg(target_arch = "x86_64")]
+use avx512::Kernel;
+
+/// No vector kernel off x86-64: the table path does every pixel.
+#[cfg(not(target_arch = "x86_64"))]
+#[derive(Clone, Copy)]
+struct Kernel;
+
+#[cfg(not(target_arch = "x86_64"))]
+impl Kernel {
+    fn detect() -> Option<Self> {
+        None
+    }
+    fn render(
+        self,
+        _: &[[[u8; 64]; 16]; 4],
+        _: bool,
+        _: &[f32],
+        _: f32,
+        _: &mut [u8],
+        _: &mut [u8],
+    ) -> usize {
+        0
+    }
+    fn count_bracket(self, _: &[f32], _: u32, _: u32, _: &mut [u32]) -> Option<(u64, u64, usize)> {
+        None
+    }
+}
 use crate::image::Image;
 use crate::mode::{ModeOutput, SeparatedChannels};
 
@@ -109,6 +139,8 @@ const LUT_HALF: f32 = ((LUT_SIZE - 1) / 2) as f32;
 /// every finite x >= 0 (the expansion LLVM itself uses), without a libm call,
 /// so the per-pixel loops vectorize.
 const ROUND_BIAS: f32 = 0.499_999_97;
+/// Pixels per step of the vector kernel.
+const KERNEL_STEP: usize = 64;
 /// Pixels per block: indices of one block live on the stack.
 const BLOCK: usize = 256;
 
@@ -133,6 +165,9 @@ struct Tables {
     /// 18 (`second`): one shift and mask puts each byte in place.
     first: [u64; 1024],
     second: [u64; 1024],
+    /// R, G, B and limited-range luma bytes, entry i at `[i / 64][i % 64]`
+    /// (the AVX-512 kernel's byte tables).
+    planes: [[[u8; 64]; 16]; 4],
 }
 
 /// Per pixel: half the chroma offset 128 << 9 plus half the rounding 256,
@@ -157,6 +192,7 @@ impl Tables {
             rgb: [0; 1024],
             first: [0; 1024],
             second: [0; 1024],
+            planes: [[[0; 64]; 16]; 4],
         };
         for i in 0..1024 {
             let x = i.min(LUT_SIZE - 1) as f32 / LUT_HALF - 1.0;
@@ -171,6 +207,9 @@ impl Tables {
             let v = (112 * r - 94 * g - 18 * b + CHROMA_BIAS) as u64;
             t.first[i] = u | v << 32 | luma << 50;
             t.second[i] = u | v << 32 | luma << 18;
+            for (plane, byte) in t.planes.iter_mut().zip([c[0], c[1], c[2], luma as u8]) {
+                plane[i / 64][i % 64] = byte;
+            }
         }
         t
     }
@@ -218,6 +257,18 @@ impl DisplayMap {
     /// [`Self::render_rgb8`] into `rgb` and [`Self::render_yuyv`] into
     /// `yuyv` in one pass with one auto range; an empty slice skips that output.
     pub fn render_rgb8_yuyv(&self, img: &Image<f32>, rgb: &mut [u8], yuyv: &mut [u8]) {
+        self.render_rgb8_yuyv_with(Kernel::detect(), img, rgb, yuyv);
+    }
+
+    /// [`Self::render_rgb8_yuyv`] with the vector kernel, or none (the table
+    /// path alone, as on CPUs without AVX-512 VBMI).
+    fn render_rgb8_yuyv_with(
+        &self,
+        kernel: Option<Kernel>,
+        img: &Image<f32>,
+        rgb: &mut [u8],
+        yuyv: &mut [u8],
+    ) {
         let w = img.width.max(1);
         let n = img.data.len();
         let n_rgb = (rgb.len() / 3).min(n);
@@ -226,6 +277,20 @@ impl DisplayMap {
         }
         let scale = 1.0 / self.max_abs_dn(img);
         let tables = Tables::get(self.colormap);
+        let grey = self.colormap == Colormap::Grey;
+        if let Some(k) = kernel {
+            // Rows of whole 64-pixel steps and each output whole or absent:
+            // the image is one run for the kernel, whose tables load once.
+            let whole =
+                |out: &[u8], bytes_per_px: usize| out.is_empty() || out.len() >= bytes_per_px * n;
+            if w.is_multiple_of(KERNEL_STEP) && whole(rgb, 3) && whole(yuyv, 2) {
+                let rgb = rgb.get_mut(..3 * n).unwrap_or_default();
+                let yuyv = yuyv.get_mut(..2 * n).unwrap_or_default();
+                if k.render(&tables.planes, grey, &img.data, scale, rgb, yuyv) == n {
+                    return;
+                }
+            }
+        }
         let mut idx = [0u16; BLOCK];
         for (y, row) in img.data.chunks(w).enumerate() {
             // Whole pairs of this row inside `yuyv`.
@@ -233,12 +298,28 @@ impl DisplayMap {
             let pairs = (row.len() / 2).min(yuyv_row.len() / 4);
             for (b, block) in row.chunks(BLOCK).enumerate() {
                 let x0 = b * BLOCK;
-                let idx = &mut idx[..block.len()];
-                lut_indices(block, scale, idx);
                 let rgb_px = n_rgb.saturating_sub(y * w + x0).min(block.len());
                 let rgb_out = &mut rgb[3 * (y * w + x0).min(n_rgb)..][..3 * rgb_px];
                 let block_pairs = pairs.saturating_sub(x0 / 2).min(block.len() / 2);
                 let yuyv_out = &mut yuyv_row[(2 * x0).min(4 * pairs)..][..4 * block_pairs];
+                // The kernel takes the block's whole 64-pixel steps when each
+                // output it writes holds all of them.
+                let done = match kernel {
+                    Some(k)
+                        if (rgb_px == 0 || rgb_px == block.len())
+                            && (block_pairs == 0 || block_pairs == block.len() / 2) =>
+                    {
+                        k.render(&tables.planes, grey, block, scale, rgb_out, yuyv_out)
+                    }
+                    _ => 0,
+                };
+                let block = &block[done..];
+                let rgb_out = rgb_out.get_mut(3 * done..).unwrap_or_default();
+                let yuyv_out = yuyv_out.get_mut(2 * done..).unwrap_or_default();
+                let rgb_px = rgb_px.saturating_sub(done);
+                let block_pairs = block_pairs.saturating_sub(done / 2);
+                let idx = &mut idx[..block.len()];
+                lut_indices(block, scale, idx);
                 if rgb_px == 2 * block_pairs && rgb_px == idx.len() {
                     rgb_yuyv_pairs(tables, idx, rgb_out, yuyv_out);
                 } else {
@@ -391,8 +472,10 @@ const NORMAL_BIN: usize = (f32::MIN_POSITIVE.to_bits() >> COARSE_SHIFT) as usize
 /// The [`AUTO_PERCENTILE`] quantile of |x| over finite values; falls back to
 /// the largest finite |x| when that is 0, and to 1 for an image with no
 /// finite non-zero value. Never 0, NaN or Inf. One allocation (a subsample
-/// of at most len / 16 values), then histograms over the f32 bit pattern (monotonic for x >= 0); the result
-/// is a sample within 2^-14 (relative) above the exact quantile.
+/// of at most len / 16 values) brackets it for one counting pass; when the
+/// bracket misses, histograms over the f32 bit pattern (monotonic for
+/// x >= 0). Either way the result is the same sample, within 2^-14
+/// (relative) above the exact quantile.
 pub fn robust_max_abs(data: &[f32]) -> f32 {
     sampled_quantile(data).unwrap_or_else(|| histogram_quantile(data))
 }
@@ -421,8 +504,9 @@ const INF_BITS: u32 = 0x7f80_0000;
 /// reduction per block) and keeps the few inside it, and selection among
 /// those finds the quantile's fine bin. None (use the
 /// full histogram) when the bracket misses the quantile or holds more than
-/// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal. No
-/// AVX-512 clone: it measured slower than AVX2 in the display bench.
+/// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal. The
+/// counting pass is the AVX-512 kernel's where the CPU has it; no AVX-512
+/// clone of the rest (it measured slower than AVX2 in the display bench).
 #[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
 fn sampled_quantile(data: &[f32]) -> Option<f32> {
     if data.len() < 64 * SAMPLE_STRIDE {
@@ -434,42 +518,65 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
         .saturating_pow(2)
         .max(SAMPLE_MIN);
     let stride = SAMPLE_STRIDE.max(data.len() / wanted);
-    let sample: Vec<u32> = data
+    let mut sample: Vec<u32> = data
         .iter()
         .step_by(stride)
         .map(|v| v.to_bits() & 0x7fff_ffff)
         .collect();
-    let sample = &sample[..];
-    let mut coarse = [0u32; BINS];
-    for &bits in sample {
-        coarse[(bits >> COARSE_SHIFT) as usize] += 1;
-    }
-    let finite: u64 = coarse[..NON_FINITE_BIN].iter().map(|&n| u64::from(n)).sum();
+    let finite = sample.iter().filter(|&&bits| bits < INF_BITS).count() as u64;
     if finite == 0 {
         return None;
     }
     let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
     // Five standard deviations of the subsample's count above the quantile.
     let margin = (5.0 * (finite as f64 * (1.0 - AUTO_PERCENTILE)).sqrt()) as u64 + 4;
-    let fine_bin_of = |rank: u64| {
-        let (bin, below) = find_bin(&coarse, rank);
-        let mut fine = [0u32; BINS];
-        for &bits in sample {
-            if (bits >> COARSE_SHIFT) as usize == bin {
-                fine[((bits & ((1 << COARSE_SHIFT) - 1)) >> FINE_SHIFT) as usize] += 1;
-            }
-        }
-        ((bin as u32) << COARSE_SHIFT) | ((find_bin(&fine, rank - below).0 as u32) << FINE_SHIFT)
+    // The fine bins of the subsample's values of those ranks (non-finite
+    // values sort last): selection, not histograms, over the small sample.
+    let lo_rank = rank.saturating_sub(margin) as usize;
+    let hi_rank = (rank + margin).min(finite - 1) as usize;
+    let (_, &mut lo_value, above) = sample.select_nth_unstable(lo_rank);
+    let hi_value = match hi_rank.checked_sub(lo_rank + 1) {
+        Some(k) => *above.select_nth_unstable(k).1,
+        None => lo_value,
     };
-    let lo_bits = fine_bin_of(rank.saturating_sub(margin));
-    let hi_bits = fine_bin_of((rank + margin).min(finite - 1)) + (1 << FINE_SHIFT);
+    let fine_bin = |bits: u32| bits >> FINE_SHIFT << FINE_SHIFT;
+    let lo_bits = fine_bin(lo_value);
+    let hi_bits = fine_bin(hi_value) + (1 << FINE_SHIFT);
     if lo_bits < f32::MIN_POSITIVE.to_bits() || hi_bits > INF_BITS {
         return None;
     }
+    let mut window = [0u32; WINDOW_CAPACITY];
+    let (finite, below, kept) = match Kernel::detect() {
+        Some(k) => k.count_bracket(data, lo_bits, hi_bits, &mut window)?,
+        None => count_bracket(data, lo_bits, hi_bits, &mut window)?,
+    };
+    let window = &mut window[..kept];
+    let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
+    if rank < below || rank >= below + kept as u64 {
+        return None;
+    }
+    // The largest value sharing the quantile's fine bin, as the histogram finds it.
+    let key = *window.select_nth_unstable((rank - below) as usize).1 >> FINE_SHIFT;
+    let q = window
+        .iter()
+        .filter(|&&bits| bits >> FINE_SHIFT == key)
+        .fold(0, |m, &bits| m.max(bits));
+    Some(f32::from_bits(q))
+}
+
+/// One pass over `data`: how many |x| are finite, how many lie below
+/// `lo_bits`, and the |x| bits in `lo_bits..hi_bits` copied into `window`
+/// (their count is the third value); None when they overflow `window`.
+#[multiversion(targets("x86_64+avx2", "x86_64+sse4.1"))]
+fn count_bracket(
+    data: &[f32],
+    lo_bits: u32,
+    hi_bits: u32,
+    window: &mut [u32],
+) -> Option<(u64, u64, usize)> {
     // One pass: per-lane counts (no reduction per block), and the values
     // inside the bracket from the blocks that hold any.
     let (mut finite, mut below) = ([0u32; LANES], [0u32; LANES]);
-    let mut window = [0u32; WINDOW_CAPACITY];
     let mut kept = 0usize;
     let mut blocks = data.chunks_exact(COUNT_BLOCK);
     let mut collect = |block: &[f32], inside: bool| -> Option<()> {
@@ -504,18 +611,7 @@ fn sampled_quantile(data: &[f32]) -> Option<f32> {
     collect(blocks.remainder(), true)?;
     let finite: u64 = finite.iter().map(|&n| u64::from(n)).sum();
     let below: u64 = below.iter().map(|&n| u64::from(n)).sum();
-    let window = &mut window[..kept];
-    let rank = ((AUTO_PERCENTILE * finite as f64).ceil() as u64).clamp(1, finite) - 1;
-    if rank < below || rank >= below + kept as u64 {
-        return None;
-    }
-    // The largest value sharing the quantile's fine bin, as the histogram finds it.
-    let key = *window.select_nth_unstable((rank - below) as usize).1 >> FINE_SHIFT;
-    let q = window
-        .iter()
-        .filter(|&&bits| bits >> FINE_SHIFT == key)
-        .fold(0, |m, &bits| m.max(bits));
-    Some(f32::from_bits(q))
+    Some((finite, below, kept))
 }
 
 /// The two-pass histogram over all values (see [`robust_max_abs`]).
@@ -696,6 +792,11 @@ mod tests {
                 map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv);
                 assert_eq!(yuyv, want, "{map:?} {}x{}", img.width, img.height);
                 assert_eq!(rgb, slow_rgb(&map, &img));
+                // The table path alone (CPUs without the AVX-512 kernel).
+                let (mut rgb, mut yuyv) = (vec![0u8; 3 * n], vec![7u8; 2 * n]);
+                map.render_rgb8_yuyv_with(None, &img, &mut rgb, &mut yuyv);
+                assert_eq!(yuyv, want, "{map:?} {}x{} no kernel", img.width, img.height);
+                assert_eq!(rgb, slow_rgb(&map, &img));
             }
         }
     }
@@ -720,6 +821,130 @@ mod tests {
         map.render_rgb8(&img, &mut rgb);
         assert_eq!(&rgb[..6], &slow_rgb(&map, &img)[..6]);
         assert_eq!(rgb[6], 9);
+    }
+
+    /// The AVX-512 kernel runs wherever the CPU has the features it needs
+    /// (so the tests above ran it on such a host), and equals the table path
+    /// for every table index, NaN and +-Inf, with either output or both.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx512_kernel_equals_the_table_path() {
+        let has = |f: &[bool]| f.iter().all(|&b| b);
+        let expected = has(&[
+            std::arch::is_x86_feature_detected!("avx512f"),
+            std::arch::is_x86_feature_detected!("avx512bw"),
+            std::arch::is_x86_feature_detected!("avx512vl"),
+            std::arch::is_x86_feature_detected!("avx512vbmi"),
+            std::arch::is_x86_feature_detected!("avx512vbmi2"),
+            std::arch::is_x86_feature_detected!("avx512bitalg"),
+            std::arch::is_x86_feature_detected!("avx512vnni"),
+            std::arch::is_x86_feature_detected!("avx512vpopcntdq"),
+            std::arch::is_x86_feature_detected!("gfni"),
+            std::arch::is_x86_feature_detected!("vaes"),
+            std::arch::is_x86_feature_detected!("vpclmulqdq"),
+        ]);
+        let Some(kernel) = Kernel::detect() else {
+            assert!(
+                !expected,
+                "the CPU has the kernel's features but it was not detected"
+            );
+            eprintln!("no AVX-512 VBMI: kernel not tested on this host");
+            return;
+        };
+        // Every index and half step at scale 1/511, then the awkward values.
+        let mut values: Vec<f32> = (-1100..=1100).map(|i| i as f32 * 0.5).collect();
+        values.extend([
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            0.0,
+            -0.0,
+            1e30,
+            -1e-45,
+        ]);
+        values.resize(values.len().next_multiple_of(KERNEL_STEP), -7.25);
+        let n = values.len();
+        for colormap in [Colormap::Diverging, Colormap::Grey] {
+            let tables = Tables::get(colormap);
+            let grey = colormap == Colormap::Grey;
+            for scale in [1.0 / 511.0, 1.0 / 3.7, 1e-30] {
+                let mut idx = vec![0u16; n];
+                lut_indices(&values, scale, &mut idx);
+                let (mut want_rgb, mut want_yuyv) = (vec![0u8; 3 * n], vec![0u8; 2 * n]);
+                rgb_pixels(tables, &idx, &mut want_rgb);
+                yuyv_pairs(tables, &idx, &mut want_yuyv);
+                let (mut rgb, mut yuyv) = (vec![1u8; 3 * n], vec![1u8; 2 * n]);
+                assert_eq!(
+                    kernel.render(&tables.planes, grey, &values, scale, &mut rgb, &mut yuyv),
+                    n
+                );
+                assert_eq!(rgb, want_rgb, "{colormap:?} {scale}");
+                assert_eq!(yuyv, want_yuyv, "{colormap:?} {scale}");
+                let mut rgb = vec![2u8; 3 * n];
+                assert_eq!(
+                    kernel.render(&tables.planes, grey, &values, scale, &mut rgb, &mut []),
+                    n
+                );
+                assert_eq!(rgb, want_rgb);
+                let mut yuyv = vec![2u8; 2 * n];
+                assert_eq!(
+                    kernel.render(&tables.planes, grey, &values, scale, &mut [], &mut yuyv),
+                    n
+                );
+                assert_eq!(yuyv, want_yuyv);
+                // A short output limits the steps done.
+                let mut short = vec![3u8; 3 * n - 1];
+                let done = kernel.render(&tables.planes, grey, &values, scale, &mut short, &mut []);
+                assert_eq!(done, n - KERNEL_STEP);
+                assert_eq!(short[..3 * done], want_rgb[..3 * done]);
+            }
+        }
+        // The counting pass: same counts and kept values as the portable one.
+        let mut rng = SmallRng::seed_from_u64(26);
+        let mut data: Vec<f32> = (0..10_007)
+            .map(|_| rng.random_range(-1.0f32..1.0).powi(3) * 900.0)
+            .collect();
+        data[5] = f32::NAN;
+        data[77] = f32::NEG_INFINITY;
+        data[10_000] = 0.0;
+        for (lo, hi) in [
+            (100.0f32, 101.0f32),
+            (0.5, 2.0),
+            (800.0, 900.0),
+            (1e-3, 1e3),
+        ] {
+            let (lo, hi) = (lo.to_bits(), hi.to_bits());
+            let (mut a, mut b) = ([0u32; WINDOW_CAPACITY], [0u32; WINDOW_CAPACITY]);
+            let fast = kernel.count_bracket(&data, lo, hi, &mut a);
+            let slow = count_bracket(&data, lo, hi, &mut b);
+            match (fast, slow) {
+                (Some(f), Some(s)) => {
+                    assert_eq!(f, s, "{lo} {hi}");
+                    assert_eq!(a[..f.2], b[..s.2]);
+                }
+                // The kernel gives up a step early when the window is nearly full.
+                (None, s) => assert!(s.is_none_or(|s| s.2 + 16 > WINDOW_CAPACITY)),
+                (Some(_), None) => panic!("the kernel kept more than the window holds"),
+            }
+        }
+    }
+
+    /// Full-width frames take the kernel in one run; short outputs there
+    /// fall back to the row path and write only what fits.
+    #[test]
+    fn short_outputs_of_kernel_wide_frames() {
+        let img = Image::from_vec(128, 3, (0..384).map(|i| i as f32 - 190.0).collect()).unwrap();
+        let map = DisplayMap::default();
+        let mut full = vec![0u8; 2 * 384];
+        map.render_yuyv(&img, &mut full);
+        let mut short = vec![9u8; 2 * 384 - 2];
+        map.render_yuyv(&img, &mut short);
+        assert_eq!(&short[..2 * 384 - 4], &full[..2 * 384 - 4]);
+        assert_eq!(&short[2 * 384 - 4..], &[9, 9]);
+        let mut rgb = vec![9u8; 3 * 384 - 1];
+        map.render_rgb8(&img, &mut rgb);
+        assert_eq!(&rgb[..3 * 383], &slow_rgb(&map, &img)[..3 * 383]);
+        assert_eq!(&rgb[3 * 383..], &[9, 9]);
     }
 
     #[test]

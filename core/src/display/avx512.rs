@@ -1,0 +1,343 @@
+//! The display path's AVX-512 (VBMI) kernel: 64 pixels per step from f32
+//! values to RGB8 and YUYV, byte-identical to the table path in [`super`].
+//! Each 1024-entry byte plane (R, G, B, Y) is looked up with eight 128-entry
+//! `vpermi2b` permutes and a blend tree on index bits 7..9; the pair chroma
+//! is computed from the looked-up R, G, B in 16-bit lanes. Written with
+//! intrinsics because no vectorizer makes byte permutes of this shape.
+
+use std::arch::x86_64::*;
+
+use archmage::{arcane, SimdToken, X64V4xToken};
+use safe_unaligned_simd::x86_64 as mem;
+
+use super::{LUT_HALF, ROUND_BIAS};
+
+/// Pixels per kernel step.
+pub(super) const STEP: usize = super::KERNEL_STEP;
+
+/// One channel's 1024 table entries as 16 vectors' worth of bytes.
+pub(super) type Plane = [[u8; 64]; 16];
+
+/// Proof, found at run time, that this CPU runs the kernel (AVX-512 F, BW,
+/// VL and VBMI, as every x86-64-v4x CPU has).
+#[derive(Clone, Copy)]
+pub(super) struct Kernel(X64V4xToken);
+
+impl Kernel {
+    pub(super) fn detect() -> Option<Self> {
+        X64V4xToken::summon().map(Kernel)
+    }
+
+    /// Colours `values[..64 n]` (with `grey`: R = G = B, `planes[0]`) into `rgb` (192 bytes per step) and `yuyv`
+    /// (128 bytes per step); an empty output is not written. `n` is the
+    /// most whole steps that `values` and each non-empty output hold.
+    /// Returns the pixels done (64 n).
+    pub(super) fn render(
+        self,
+        planes: &[Plane; 4],
+        grey: bool,
+        values: &[f32],
+        scale: f32,
+        rgb: &mut [u8],
+        yuyv: &mut [u8],
+    ) -> usize {
+        if grey {
+            render::<true>(self.0, planes, values, scale, rgb, yuyv)
+        } else {
+            render::<false>(self.0, planes, values, scale, rgb, yuyv)
+        }
+    }
+
+    /// `super::count_bracket` 16 values per step: compares into masks,
+    /// masked increments of per-lane counters, and a compress of the rare
+    /// steps holding values inside the bracket. None when those could
+    /// overflow `window` (then the caller takes the full histogram).
+    pub(super) fn count_bracket(
+        self,
+        data: &[f32],
+        lo_bits: u32,
+        hi_bits: u32,
+        window: &mut [u32],
+    ) -> Option<(u64, u64, usize)> {
+        count_bracket(self.0, data, lo_bits, hi_bits, window)
+    }
+}
+
+/// Byte `p` of the low (or high) bytes of two `packus_epi32` results: pixel
+/// p's index word sits in 128-bit lane (p % 16) / 4 of its vector.
+const fn pack_order(high: bool) -> [u8; 64] {
+    let mut idx = [0u8; 64];
+    let mut p = 0;
+    while p < 64 {
+        let q = p % 32; // pixel inside its pair of f32 vectors
+        let (j, k, second) = (q % 16 / 4, q % 4, q >= 16);
+        let word = 8 * j + if second { 4 } else { 0 } + k;
+        idx[p] = (2 * word + high as usize + if p >= 32 { 64 } else { 0 }) as u8;
+        p += 1;
+    }
+    idx
+}
+
+/// Byte q of RGB output vector `z`: pixel (64 z + q) / 3, channel (64 z + q) % 3.
+/// Returns the R/G permute index (G from the second table) and the B index.
+const fn rgb_order(z: usize) -> ([u8; 64], [u8; 64], u64) {
+    let (mut rg, mut b, mut b_mask) = ([0u8; 64], [0u8; 64], 0u64);
+    let mut q = 0;
+    while q < 64 {
+        let (px, ch) = ((64 * z + q) / 3, (64 * z + q) % 3);
+        match ch {
+            0 => rg[q] = px as u8,
+            1 => rg[q] = 64 + px as u8,
+            _ => {
+                b[q] = px as u8;
+                b_mask |= 1 << q;
+            }
+        }
+        q += 1;
+    }
+    (rg, b, b_mask)
+}
+
+/// Byte q of YUYV output vector `z`: Y0 U Y1 V of pair 16 z + q / 4, Y from
+/// the first table, U (even) and V (odd bytes) from the second.
+const fn yuyv_order(z: usize) -> [u8; 64] {
+    let mut idx = [0u8; 64];
+    let mut q = 0;
+    while q < 64 {
+        let pair = 16 * z + q / 4;
+        idx[q] = match q % 4 {
+            0 => 2 * pair,
+            1 => 64 + 2 * pair,
+            2 => 2 * pair + 1,
+            _ => 64 + 2 * pair + 1,
+        } as u8;
+        q += 1;
+    }
+    idx
+}
+
+const PACK_LO: [u8; 64] = pack_order(false);
+const PACK_HI: [u8; 64] = pack_order(true);
+const RGB: [([u8; 64], [u8; 64], u64); 3] = [rgb_order(0), rgb_order(1), rgb_order(2)];
+const YUYV: [[u8; 64]; 2] = [yuyv_order(0), yuyv_order(1)];
+
+#[arcane]
+fn render<const GREY: bool>(
+    _token: X64V4xToken,
+    planes: &[Plane; 4],
+    values: &[f32],
+    scale: f32,
+    rgb: &mut [u8],
+    yuyv: &mut [u8],
+) -> usize {
+    let mut n = values.len() / STEP;
+    if !rgb.is_empty() {
+        n = n.min(rgb.len() / (3 * STEP));
+    }
+    if !yuyv.is_empty() {
+        n = n.min(yuyv.len() / (2 * STEP));
+    }
+    let vscale = _mm512_set1_ps(scale);
+    let (one, neg_one) = (_mm512_set1_ps(1.0), _mm512_set1_ps(-1.0));
+    let (half, bias) = (_mm512_set1_ps(LUT_HALF), _mm512_set1_ps(ROUND_BIAS));
+    macro_rules! load {
+        ($b:expr) => {
+            mem::_mm512_loadu_si512::<[u8; 64]>($b)
+        };
+    }
+    let (pack_lo, pack_hi) = (load!(&PACK_LO), load!(&PACK_HI));
+    let rgb_idx = RGB.map(|(rg, b, mask)| (load!(&rg), load!(&b), mask));
+    let yuyv_idx = YUYV.map(|i| load!(&i));
+    let ones8 = _mm512_set1_epi8(1);
+    let (bit7, bit8, bit9) = (
+        _mm512_set1_epi8(0x80u8 as i8),
+        _mm512_set1_epi8(1),
+        _mm512_set1_epi8(2),
+    );
+    // Table index of 16 values: round((t + 1) * 511), t = v * scale in
+    // [-1, 1], NaN -> 0, exactly as `super::lut_indices` computes it.
+    macro_rules! index {
+        ($v:expr) => {{
+            let v: __m512 = $v;
+            let t = _mm512_mul_ps(v, vscale);
+            let t = _mm512_maskz_mov_ps(_mm512_cmp_ps_mask::<_CMP_ORD_Q>(t, t), t);
+            let t = _mm512_min_ps(_mm512_max_ps(t, neg_one), one);
+            let x = _mm512_mul_ps(_mm512_add_ps(t, one), half);
+            _mm512_cvttps_epi32(_mm512_add_ps(x, bias))
+        }};
+    }
+    let (mut scratch_rgb, mut scratch_yuyv) = ([0u8; 3 * STEP], [0u8; 2 * STEP]);
+    let (chunks, _) = values.as_chunks::<STEP>();
+    for (c, chunk) in chunks.iter().enumerate().take(n) {
+        let (quads, _) = chunk.as_chunks::<16>();
+        let [q0, q1, q2, q3] = quads else { break };
+        let i = [
+            index!(mem::_mm512_loadu_ps(q0)),
+            index!(mem::_mm512_loadu_ps(q1)),
+            index!(mem::_mm512_loadu_ps(q2)),
+            index!(mem::_mm512_loadu_ps(q3)),
+        ];
+        let w01 = _mm512_packus_epi32(i[0], i[1]);
+        let w23 = _mm512_packus_epi32(i[2], i[3]);
+        let lo = _mm512_permutex2var_epi8(w01, pack_lo, w23);
+        let hi = _mm512_permutex2var_epi8(w01, pack_hi, w23);
+        let m7 = _mm512_test_epi8_mask(lo, bit7);
+        let m8 = _mm512_test_epi8_mask(hi, bit8);
+        let m9 = _mm512_test_epi8_mask(hi, bit9);
+        // A macro, not a closure: LLVM must inline every lookup. Each pair
+        // of 128-entry pieces is two masked `vpermi2b`s: lanes with index
+        // bit 7 clear take the first piece's entry, and the second permute
+        // (masked to bit 7 set) leaves them alone; bits 8 and 9 then pick
+        // the pair by blends.
+        macro_rules! lookup {
+            ($plane:expr) => {{
+                let plane: &Plane = $plane;
+                macro_rules! pair {
+                    ($first:expr) => {{
+                        let x = _mm512_mask2_permutex2var_epi8(
+                            load!(&plane[2 * $first]),
+                            lo,
+                            !m7,
+                            load!(&plane[2 * $first + 1]),
+                        );
+                        _mm512_mask2_permutex2var_epi8(
+                            load!(&plane[2 * $first + 2]),
+                            x,
+                            m7,
+                            load!(&plane[2 * $first + 3]),
+                        )
+                    }};
+                }
+                let c0 = _mm512_mask_blend_epi8(m8, pair!(0), pair!(2));
+                let c1 = _mm512_mask_blend_epi8(m8, pair!(4), pair!(6));
+                _mm512_mask_blend_epi8(m9, c0, c1)
+            }};
+        }
+        let r = lookup!(&planes[0]);
+        let (g, b) = if GREY {
+            (r, r)
+        } else {
+            (lookup!(&planes[1]), lookup!(&planes[2]))
+        };
+        let y = if GREY {
+            // Limited-range luma of grey g: ((220 g + 128) >> 8) + 16, the
+            // table's value, for even and odd pixels in 16-bit lanes (< 2^16).
+            macro_rules! luma {
+                ($g:expr) => {
+                    _mm512_add_epi16(
+                        _mm512_srli_epi16::<8>(_mm512_add_epi16(
+                            _mm512_mullo_epi16($g, _mm512_set1_epi16(220)),
+                            _mm512_set1_epi16(128),
+                        )),
+                        _mm512_set1_epi16(16),
+                    )
+                };
+            }
+            let even = luma!(_mm512_and_si512(r, _mm512_set1_epi16(0xff)));
+            let odd = luma!(_mm512_srli_epi16::<8>(r));
+            _mm512_or_si512(even, _mm512_slli_epi16::<8>(odd))
+        } else {
+            lookup!(&planes[3])
+        };
+        if !rgb.is_empty() {
+            let dst = rgb
+                .get_mut(3 * STEP * c..3 * STEP * (c + 1))
+                .unwrap_or(&mut scratch_rgb);
+            let (dst, _) = dst.as_chunks_mut::<64>();
+            for (d, &(rg_idx, b_idx, b_mask)) in dst.iter_mut().zip(&rgb_idx) {
+                let rg = _mm512_permutex2var_epi8(r, rg_idx, g);
+                mem::_mm512_storeu_si512(d, _mm512_mask_permutexvar_epi8(rg, b_mask, b_idx, b));
+            }
+        }
+        if !yuyv.is_empty() {
+            // Pair sums, then glue's ((-38 r - 74 g + 112 b + 256) >> 9) + 128
+            // as (inner + 128) >> 8 + 128 with the halved coefficients
+            // (|inner| <= 56 * 510 fits in i16); V likewise.
+            let (rs, gs, bs) = (
+                _mm512_maddubs_epi16(r, ones8),
+                _mm512_maddubs_epi16(g, ones8),
+                _mm512_maddubs_epi16(b, ones8),
+            );
+            macro_rules! chroma {
+                ($cr:expr, $cg:expr, $cb:expr) => {{
+                    let (cr, cg, cb): (i16, i16, i16) = ($cr, $cg, $cb);
+                    let inner = _mm512_add_epi16(
+                        _mm512_add_epi16(
+                            _mm512_mullo_epi16(rs, _mm512_set1_epi16(cr)),
+                            _mm512_mullo_epi16(gs, _mm512_set1_epi16(cg)),
+                        ),
+                        _mm512_mullo_epi16(bs, _mm512_set1_epi16(cb)),
+                    );
+                    let shifted =
+                        _mm512_srai_epi16::<8>(_mm512_add_epi16(inner, _mm512_set1_epi16(128)));
+                    _mm512_add_epi16(shifted, _mm512_set1_epi16(128))
+                }};
+            }
+            let uv = if GREY {
+                // R = G = B: U and V are 128 (the coefficients sum to 0).
+                _mm512_set1_epi16(0x8080_u16 as i16)
+            } else {
+                let u = chroma!(-19, -37, 56);
+                let v = chroma!(56, -47, -9);
+                _mm512_or_si512(u, _mm512_slli_epi16::<8>(v))
+            };
+            let dst = yuyv
+                .get_mut(2 * STEP * c..2 * STEP * (c + 1))
+                .unwrap_or(&mut scratch_yuyv);
+            let (dst, _) = dst.as_chunks_mut::<64>();
+            for (d, &idx) in dst.iter_mut().zip(&yuyv_idx) {
+                mem::_mm512_storeu_si512(d, _mm512_permutex2var_epi8(y, idx, uv));
+            }
+        }
+    }
+    n * STEP
+}
+
+#[arcane]
+fn count_bracket(
+    _token: X64V4xToken,
+    data: &[f32],
+    lo_bits: u32,
+    hi_bits: u32,
+    window: &mut [u32],
+) -> Option<(u64, u64, usize)> {
+    let abs = _mm512_set1_epi32(0x7fff_ffff);
+    let inf = _mm512_set1_epi32(super::INF_BITS as i32);
+    let (lo, hi) = (
+        _mm512_set1_epi32(lo_bits as i32),
+        _mm512_set1_epi32(hi_bits as i32),
+    );
+    let minus_one = _mm512_set1_epi32(-1);
+    let (mut finite, mut below) = (_mm512_setzero_si512(), _mm512_setzero_si512());
+    let mut kept = 0usize;
+    let (steps, rest) = data.as_chunks::<16>();
+    for step in steps {
+        let bits = _mm512_and_si512(_mm512_castps_si512(mem::_mm512_loadu_ps(step)), abs);
+        let is_finite = _mm512_cmplt_epu32_mask(bits, inf);
+        let is_below = _mm512_cmplt_epu32_mask(bits, lo);
+        let inside = _kandn_mask16(is_below, _mm512_cmplt_epu32_mask(bits, hi));
+        finite = _mm512_mask_sub_epi32(finite, is_finite, finite, minus_one);
+        below = _mm512_mask_sub_epi32(below, is_below, below, minus_one);
+        if inside != 0 {
+            let dst: &mut [u32; 16] = window.get_mut(kept..kept + 16)?.try_into().ok()?;
+            mem::_mm512_storeu_epi32(dst, _mm512_maskz_compress_epi32(inside, bits));
+            kept += inside.count_ones() as usize;
+        }
+    }
+    let lanes = |v: __m512i| -> u64 {
+        let mut a = [0u32; 16];
+        mem::_mm512_storeu_epi32(&mut a, v);
+        a.iter().map(|&n| u64::from(n)).sum()
+    };
+    let (mut finite, mut below) = (lanes(finite), lanes(below));
+    for v in rest {
+        let bits = v.to_bits() & 0x7fff_ffff;
+        finite += u64::from(bits < super::INF_BITS);
+        below += u64::from(bits < lo_bits);
+        if (lo_bits..hi_bits).contains(&bits) {
+            *window.get_mut(kept)? = bits;
+            kept += 1;
+        }
+    }
+    Some((finite, below, kept))
+}
