@@ -71,9 +71,18 @@ fn main(spec: Option<OsString>) -> ExitCode {
     }
 }
 
+/// Set once the ready line went out: later failures are logged, earlier
+/// ones go back to the starting sdid on stdout (which says what it does
+/// next, e.g. falls back to y4m).
+static SERVING: AtomicBool = AtomicBool::new(false);
+
 fn fail(why: &str) -> ExitCode {
-    announce(&format!("{}{why}", link::ERROR_PREFIX));
-    tracing::error!("PipeWire camera: {why}");
+    if SERVING.load(Ordering::Relaxed) {
+        tracing::warn!("PipeWire camera: {why}");
+    } else {
+        announce(&format!("{}{why}", link::ERROR_PREFIX));
+        tracing::debug!("PipeWire camera: {why}");
+    }
     ExitCode::FAILURE
 }
 
@@ -115,6 +124,7 @@ fn run(spec: Spec) -> Result<(), String> {
         .map_err(|e| format!("{}: {e}", sock.display()))?;
     tracing::info!(socket = %sock.display(), spec = %spec, "PipeWire camera serving");
     announce(link::READY_LINE);
+    SERVING.store(true, Ordering::Relaxed);
     let r = serve(&listener, &nodes);
     let _ = std::fs::remove_file(&sock);
     r
