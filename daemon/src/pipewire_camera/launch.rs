@@ -57,6 +57,15 @@ pub fn connect(program: &Path, spec: &Spec) -> Result<Connected, String> {
 
 fn greet(stream: UnixStream, spec: &Spec) -> Result<Connected, String> {
     let io = |e: std::io::Error| format!("greeting the camera process: {e}");
+    // Frames go only to a camera process of this user, as it takes them only from one.
+    let peer = getsockopt(&stream, PeerCredentials)
+        .map_err(|e| format!("the camera socket's peer credentials: {e}"))?;
+    if peer.uid() != nix::unistd::getuid().as_raw() {
+        return Err(format!(
+            "the camera socket is served by uid {}, not this user",
+            peer.uid()
+        ));
+    }
     stream.set_read_timeout(Some(CONNECT_TIMEOUT)).map_err(io)?;
     stream
         .set_write_timeout(Some(Duration::from_secs(2)))
@@ -70,9 +79,7 @@ fn greet(stream: UnixStream, spec: &Spec) -> Result<Connected, String> {
         Err(e) => return Err(e.to_string()),
     }
     stream.set_read_timeout(None).map_err(io)?;
-    let camera_pid = getsockopt(&stream, PeerCredentials)
-        .ok()
-        .and_then(|c| u32::try_from(c.pid()).ok());
+    let camera_pid = u32::try_from(peer.pid()).ok();
     Ok(Connected { stream, camera_pid })
 }
 

@@ -321,8 +321,10 @@ fn take_frames(
                     Port::View => (spec.view_width, spec.view_height),
                     Port::Data => (spec.data_width, spec.data_height),
                 };
-                let fits = matches!((port, wire), (Port::Data, Wire::Y16))
-                    || matches!((port, wire), (Port::View, Wire::Yuyv | Wire::Rgb));
+                let fits = matches!(
+                    (port, wire),
+                    (Port::Data, Wire::Y16) | (Port::View, Wire::Yuyv | Wire::Rgb)
+                );
                 if !fits || len != w as usize * h as usize * wire.bytes_per_pixel() {
                     return Err(LinkError::Bad(format!(
                         "a {len}-byte {} frame for the {port:?} node of {w}x{h}",

@@ -234,10 +234,7 @@ impl Sink for PipewireSink {
     }
 
     fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError> {
-        let state = match self.link() {
-            Ok(l) => l.state(),
-            Err(e) => return Err(e),
-        };
+        let state = self.link()?.state();
         let img = &output.signed_dn;
         let stamp_us = output.timestamp_us;
         let (vw, vh) = (self.view.width as usize, self.view.height as usize);
