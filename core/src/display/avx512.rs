@@ -116,6 +116,32 @@ const fn yuyv_order(z: usize) -> [u8; 64] {
     idx
 }
 
+/// Byte p of pixel order from two `packus_epi16` of `packus_epi32`
+/// results: pixel 16 v + j of f32 vector v sits at 16 (j / 4) + 4 v + j % 4.
+const fn grey_order() -> [u8; 64] {
+    let mut idx = [0u8; 64];
+    let mut p = 0;
+    while p < 64 {
+        let (v, j) = (p / 16, p % 16);
+        idx[p] = (16 * (j / 4) + 4 * v + j % 4) as u8;
+        p += 1;
+    }
+    idx
+}
+
+/// Byte q of RGB output vector `z` when R = G = B: pixel (64 z + q) / 3.
+const fn grey_rgb_order(z: usize) -> [u8; 64] {
+    let mut idx = [0u8; 64];
+    let mut q = 0;
+    while q < 64 {
+        idx[q] = ((64 * z + q) / 3) as u8;
+        q += 1;
+    }
+    idx
+}
+
+const GREY_ORDER: [u8; 64] = grey_order();
+const GREY_RGB: [[u8; 64]; 3] = [grey_rgb_order(0), grey_rgb_order(1), grey_rgb_order(2)];
 const PACK_LO: [u8; 64] = pack_order(false);
 const PACK_HI: [u8; 64] = pack_order(true);
 const RGB: [([u8; 64], [u8; 64], u64); 3] = [rgb_order(0), rgb_order(1), rgb_order(2)];
@@ -138,8 +164,9 @@ fn render<const GREY: bool>(
         n = n.min(yuyv.len() / (2 * STEP));
     }
     let vscale = _mm512_set1_ps(scale);
-    let (one, neg_one) = (_mm512_set1_ps(1.0), _mm512_set1_ps(-1.0));
+    let one = _mm512_set1_ps(1.0);
     let (half, bias) = (_mm512_set1_ps(LUT_HALF), _mm512_set1_ps(ROUND_BIAS));
+    let nan_to_zero = _mm512_set1_epi32(0x88);
     macro_rules! load {
         ($b:expr) => {
             mem::_mm512_loadu_si512::<[u8; 64]>($b)
@@ -148,20 +175,26 @@ fn render<const GREY: bool>(
     let (pack_lo, pack_hi) = (load!(&PACK_LO), load!(&PACK_HI));
     let rgb_idx = RGB.map(|(rg, b, mask)| (load!(&rg), load!(&b), mask));
     let yuyv_idx = YUYV.map(|i| load!(&i));
-    let ones8 = _mm512_set1_epi8(1);
+    let grey_rgb_idx = GREY_RGB.map(|i| load!(&i));
+    let grey_order = load!(&GREY_ORDER);
+    let (grey_step, grey_offset) = (_mm512_set1_ps(255.0 / 1022.0), _mm512_set1_ps(0.5004));
     let (bit7, bit8, bit9) = (
         _mm512_set1_epi8(0x80u8 as i8),
         _mm512_set1_epi8(1),
         _mm512_set1_epi8(2),
     );
     // Table index of 16 values: round((t + 1) * 511), t = v * scale in
-    // [-1, 1], NaN -> 0, exactly as `super::lut_indices` computes it.
+    // [-1, 1], NaN -> 0, exactly as `super::lut_indices` computes it. Only
+    // the top is clamped here: t below -1 gives an index below 0 (or
+    // i32::MIN), which the unsigned saturating packs below turn into 0.
     macro_rules! index {
         ($v:expr) => {{
             let v: __m512 = $v;
             let t = _mm512_mul_ps(v, vscale);
-            let t = _mm512_maskz_mov_ps(_mm512_cmp_ps_mask::<_CMP_ORD_Q>(t, t), t);
-            let t = _mm512_min_ps(_mm512_max_ps(t, neg_one), one);
+            // NaN (classes 0 and 1: QNaN, SNaN) becomes +0 (response 8);
+            // every other class keeps its value (response 0).
+            let t = _mm512_fixupimm_ps::<0>(t, t, nan_to_zero);
+            let t = _mm512_min_ps(t, one);
             let x = _mm512_mul_ps(_mm512_add_ps(t, one), half);
             _mm512_cvttps_epi32(_mm512_add_ps(x, bias))
         }};
@@ -177,49 +210,24 @@ fn render<const GREY: bool>(
             index!(mem::_mm512_loadu_ps(q2)),
             index!(mem::_mm512_loadu_ps(q3)),
         ];
-        let w01 = _mm512_packus_epi32(i[0], i[1]);
-        let w23 = _mm512_packus_epi32(i[2], i[3]);
-        let lo = _mm512_permutex2var_epi8(w01, pack_lo, w23);
-        let hi = _mm512_permutex2var_epi8(w01, pack_hi, w23);
-        let m7 = _mm512_test_epi8_mask(lo, bit7);
-        let m8 = _mm512_test_epi8_mask(hi, bit8);
-        let m9 = _mm512_test_epi8_mask(hi, bit9);
-        // A macro, not a closure: LLVM must inline every lookup. Each pair
-        // of 128-entry pieces is two masked `vpermi2b`s: lanes with index
-        // bit 7 clear take the first piece's entry, and the second permute
-        // (masked to bit 7 set) leaves them alone; bits 8 and 9 then pick
-        // the pair by blends.
-        macro_rules! lookup {
-            ($plane:expr) => {{
-                let plane: &Plane = $plane;
-                macro_rules! pair {
-                    ($first:expr) => {{
-                        let x = _mm512_mask2_permutex2var_epi8(
-                            load!(&plane[2 * $first]),
-                            lo,
-                            !m7,
-                            load!(&plane[2 * $first + 1]),
-                        );
-                        _mm512_mask2_permutex2var_epi8(
-                            load!(&plane[2 * $first + 2]),
-                            x,
-                            m7,
-                            load!(&plane[2 * $first + 3]),
-                        )
-                    }};
-                }
-                let c0 = _mm512_mask_blend_epi8(m8, pair!(0), pair!(2));
-                let c1 = _mm512_mask_blend_epi8(m8, pair!(4), pair!(6));
-                _mm512_mask_blend_epi8(m9, c0, c1)
-            }};
-        }
-        let r = lookup!(&planes[0]);
-        let (g, b) = if GREY {
-            (r, r)
-        } else {
-            (lookup!(&planes[1]), lookup!(&planes[2]))
-        };
-        let y = if GREY {
+        let (r, g, b, y) = if GREY {
+            // The grey table holds round(i * 255 / 1022) (halves up): one
+            // fused multiply-add per 16 indices, exact for every index
+            // (the nearest non-tie lies 1/1022 from a half, the offset
+            // 0.0004), then saturating packs (negative -> 0) and one
+            // permute into pixel order.
+            let level = i.map(|i| {
+                _mm512_cvttps_epi32(_mm512_fmadd_ps(
+                    _mm512_cvtepi32_ps(i),
+                    grey_step,
+                    grey_offset,
+                ))
+            });
+            let bytes = _mm512_packus_epi16(
+                _mm512_packus_epi32(level[0], level[1]),
+                _mm512_packus_epi32(level[2], level[3]),
+            );
+            let g = _mm512_permutexvar_epi8(grey_order, bytes);
             // Limited-range luma of grey g: ((220 g + 128) >> 8) + 16, the
             // table's value, for even and odd pixels in 16-bit lanes (< 2^16).
             macro_rules! luma {
@@ -233,53 +241,101 @@ fn render<const GREY: bool>(
                     )
                 };
             }
-            let even = luma!(_mm512_and_si512(r, _mm512_set1_epi16(0xff)));
-            let odd = luma!(_mm512_srli_epi16::<8>(r));
-            _mm512_or_si512(even, _mm512_slli_epi16::<8>(odd))
+            let even = luma!(_mm512_and_si512(g, _mm512_set1_epi16(0xff)));
+            let odd = luma!(_mm512_srli_epi16::<8>(g));
+            let y = _mm512_or_si512(even, _mm512_slli_epi16::<8>(odd));
+            (g, g, g, y)
         } else {
-            lookup!(&planes[3])
+            let w01 = _mm512_packus_epi32(i[0], i[1]);
+            let w23 = _mm512_packus_epi32(i[2], i[3]);
+            let lo = _mm512_permutex2var_epi8(w01, pack_lo, w23);
+            let hi = _mm512_permutex2var_epi8(w01, pack_hi, w23);
+            let m7 = _mm512_test_epi8_mask(lo, bit7);
+            let m8 = _mm512_test_epi8_mask(hi, bit8);
+            let m9 = _mm512_test_epi8_mask(hi, bit9);
+            // A macro, not a closure: LLVM must inline every lookup. Each pair
+            // of 128-entry pieces is two masked `vpermi2b`s: lanes with index
+            // bit 7 clear take the first piece's entry, and the second permute
+            // (masked to bit 7 set) leaves them alone; bits 8 and 9 then pick
+            // the pair by blends.
+            macro_rules! lookup {
+                ($plane:expr) => {{
+                    let plane: &Plane = $plane;
+                    macro_rules! pair {
+                        ($first:expr) => {{
+                            let x = _mm512_mask2_permutex2var_epi8(
+                                load!(&plane[2 * $first]),
+                                lo,
+                                !m7,
+                                load!(&plane[2 * $first + 1]),
+                            );
+                            _mm512_mask2_permutex2var_epi8(
+                                load!(&plane[2 * $first + 2]),
+                                x,
+                                m7,
+                                load!(&plane[2 * $first + 3]),
+                            )
+                        }};
+                    }
+                    let c0 = _mm512_mask_blend_epi8(m8, pair!(0), pair!(2));
+                    let c1 = _mm512_mask_blend_epi8(m8, pair!(4), pair!(6));
+                    _mm512_mask_blend_epi8(m9, c0, c1)
+                }};
+            }
+            (
+                lookup!(&planes[0]),
+                lookup!(&planes[1]),
+                lookup!(&planes[2]),
+                lookup!(&planes[3]),
+            )
         };
         if !rgb.is_empty() {
             let dst = rgb
                 .get_mut(3 * STEP * c..3 * STEP * (c + 1))
                 .unwrap_or(&mut scratch_rgb);
             let (dst, _) = dst.as_chunks_mut::<64>();
-            for (d, &(rg_idx, b_idx, b_mask)) in dst.iter_mut().zip(&rgb_idx) {
-                let rg = _mm512_permutex2var_epi8(r, rg_idx, g);
-                mem::_mm512_storeu_si512(d, _mm512_mask_permutexvar_epi8(rg, b_mask, b_idx, b));
+            if GREY {
+                // One single-source permute per vector: R = G = B.
+                for (d, &idx) in dst.iter_mut().zip(&grey_rgb_idx) {
+                    mem::_mm512_storeu_si512(d, _mm512_permutexvar_epi8(idx, g));
+                }
+            } else {
+                for (d, &(rg_idx, b_idx, b_mask)) in dst.iter_mut().zip(&rgb_idx) {
+                    let rg = _mm512_permutex2var_epi8(r, rg_idx, g);
+                    mem::_mm512_storeu_si512(d, _mm512_mask_permutexvar_epi8(rg, b_mask, b_idx, b));
+                }
             }
         }
         if !yuyv.is_empty() {
-            // Pair sums, then glue's ((-38 r - 74 g + 112 b + 256) >> 9) + 128
-            // as (inner + 128) >> 8 + 128 with the halved coefficients
-            // (|inner| <= 56 * 510 fits in i16); V likewise.
-            let (rs, gs, bs) = (
-                _mm512_maddubs_epi16(r, ones8),
-                _mm512_maddubs_epi16(g, ones8),
-                _mm512_maddubs_epi16(b, ones8),
-            );
-            macro_rules! chroma {
-                ($cr:expr, $cg:expr, $cb:expr) => {{
-                    let (cr, cg, cb): (i16, i16, i16) = ($cr, $cg, $cb);
-                    let inner = _mm512_add_epi16(
-                        _mm512_add_epi16(
-                            _mm512_mullo_epi16(rs, _mm512_set1_epi16(cr)),
-                            _mm512_mullo_epi16(gs, _mm512_set1_epi16(cg)),
-                        ),
-                        _mm512_mullo_epi16(bs, _mm512_set1_epi16(cb)),
-                    );
-                    let shifted =
-                        _mm512_srai_epi16::<8>(_mm512_add_epi16(inner, _mm512_set1_epi16(128)));
-                    _mm512_add_epi16(shifted, _mm512_set1_epi16(128))
-                }};
-            }
+            // Glue's ((-38 r - 74 g + 112 b + 256) >> 9) + 128 of the pair
+            // sums as (inner + 128) >> 8 + 128, inner with the halved
+            // coefficients: `maddubs` multiplies each byte and adds the
+            // pair (|inner| <= 56 * 510, no saturation), and the offset
+            // 128 + (128 << 8) makes the sum non-negative, so one logical
+            // shift (U) or mask (V, already in the high byte) finishes it.
             let uv = if GREY {
                 // R = G = B: U and V are 128 (the coefficients sum to 0).
                 _mm512_set1_epi16(0x8080_u16 as i16)
             } else {
-                let u = chroma!(-19, -37, 56);
-                let v = chroma!(56, -47, -9);
-                _mm512_or_si512(u, _mm512_slli_epi16::<8>(v))
+                macro_rules! chroma {
+                    ($cr:expr, $cg:expr, $cb:expr) => {{
+                        let (cr, cg, cb): (i8, i8, i8) = ($cr, $cg, $cb);
+                        _mm512_add_epi16(
+                            _mm512_add_epi16(
+                                _mm512_maddubs_epi16(r, _mm512_set1_epi8(cr)),
+                                _mm512_maddubs_epi16(g, _mm512_set1_epi8(cg)),
+                            ),
+                            _mm512_add_epi16(
+                                _mm512_maddubs_epi16(b, _mm512_set1_epi8(cb)),
+                                _mm512_set1_epi16(0x8080_u16 as i16),
+                            ),
+                        )
+                    }};
+                }
+                let u = _mm512_srli_epi16::<8>(chroma!(-19, -37, 56));
+                let v =
+                    _mm512_and_si512(chroma!(56, -47, -9), _mm512_set1_epi16(0xff00_u16 as i16));
+                _mm512_or_si512(u, v)
             };
             let dst = yuyv
                 .get_mut(2 * STEP * c..2 * STEP * (c + 1))
@@ -310,18 +366,28 @@ fn count_bracket(
     let minus_one = _mm512_set1_epi32(-1);
     let (mut finite, mut below) = (_mm512_setzero_si512(), _mm512_setzero_si512());
     let mut kept = 0usize;
-    let (steps, rest) = data.as_chunks::<16>();
-    for step in steps {
-        let bits = _mm512_and_si512(_mm512_castps_si512(mem::_mm512_loadu_ps(step)), abs);
-        let is_finite = _mm512_cmplt_epu32_mask(bits, inf);
-        let is_below = _mm512_cmplt_epu32_mask(bits, lo);
-        let inside = _kandn_mask16(is_below, _mm512_cmplt_epu32_mask(bits, hi));
-        finite = _mm512_mask_sub_epi32(finite, is_finite, finite, minus_one);
-        below = _mm512_mask_sub_epi32(below, is_below, below, minus_one);
-        if inside != 0 {
-            let dst: &mut [u32; 16] = window.get_mut(kept..kept + 16)?.try_into().ok()?;
-            mem::_mm512_storeu_epi32(dst, _mm512_maskz_compress_epi32(inside, bits));
-            kept += inside.count_ones() as usize;
+    // Last value first: the colour pass that follows reads from the start,
+    // which is then what the L2 cache still holds.
+    let (steps, rest) = data.as_chunks::<64>();
+    for step in steps.iter().rev() {
+        let (quads, _) = step.as_chunks::<16>();
+        let mut bits = [_mm512_setzero_si512(); 4];
+        let mut inside = [0u16; 4];
+        for ((b, ins), quad) in bits.iter_mut().zip(&mut inside).zip(quads) {
+            *b = _mm512_and_si512(_mm512_castps_si512(mem::_mm512_loadu_ps(quad)), abs);
+            let is_finite = _mm512_cmplt_epu32_mask(*b, inf);
+            let is_below = _mm512_cmplt_epu32_mask(*b, lo);
+            *ins = _kandn_mask16(is_below, _mm512_cmplt_epu32_mask(*b, hi));
+            finite = _mm512_mask_sub_epi32(finite, is_finite, finite, minus_one);
+            below = _mm512_mask_sub_epi32(below, is_below, below, minus_one);
+        }
+        // One branch per 64 values: steps holding bracket values are rare.
+        if inside != [0; 4] {
+            for (&b, &ins) in bits.iter().zip(&inside).filter(|(_, &ins)| ins != 0) {
+                let dst: &mut [u32; 16] = window.get_mut(kept..kept + 16)?.try_into().ok()?;
+                mem::_mm512_storeu_epi32(dst, _mm512_maskz_compress_epi32(ins, b));
+                kept += ins.count_ones() as usize;
+            }
         }
     }
     let lanes = |v: __m512i| -> u64 {
