@@ -1,9 +1,12 @@
 //! The display path's AVX-512 (VBMI) kernel: 64 pixels per step from f32
 //! values to RGB8 and YUYV, byte-identical to the table path in [`super`].
-//! Each 1024-entry byte plane (R, G, B, Y) is looked up with eight 128-entry
-//! `vpermi2b` permutes and a blend tree on index bits 7..9; the pair chroma
-//! is computed from the looked-up R, G, B in 16-bit lanes. Written with
-//! intrinsics because no vectorizer makes byte permutes of this shape.
+//! Diverging: each 1024-entry byte plane (R, G, B, Y) is looked up with
+//! eight 128-entry `vpermi2b` permutes and a blend tree on index bits 7..9,
+//! and the pair chroma is computed from the looked-up R, G, B in 16-bit
+//! lanes. Grey: the level is one exact multiply-add of the index, luma and
+//! chroma follow by arithmetic. The diverging step is bound by the permute
+//! unit (42 byte permutes per 64 pixels). Written with intrinsics because
+//! no vectorizer makes byte permutes of this shape.
 
 use std::arch::x86_64::*;
 
@@ -28,8 +31,9 @@ impl Kernel {
         X64V4xToken::summon().map(Kernel)
     }
 
-    /// Colours `values[..64 n]` (with `grey`: R = G = B, `planes[0]`) into `rgb` (192 bytes per step) and `yuyv`
-    /// (128 bytes per step); an empty output is not written. `n` is the
+    /// Colours `values[..64 n]` (with `grey`: R = G = B, the levels of
+    /// `planes[0]` computed, not looked up) into `rgb` (192 bytes per step)
+    /// and `yuyv` (128 bytes per step); an empty output is not written. `n` is the
     /// most whole steps that `values` and each non-empty output hold.
     /// Returns the pixels done (64 n).
     pub(super) fn render(
