@@ -22,7 +22,7 @@ use sdi_core::mode::ModeId;
 use spa::param::video::VideoFormat;
 use spa::pod::{ChoiceValue, Object, Pod, Property, Value};
 use spa::utils::{Choice, ChoiceEnum, ChoiceFlags, Fraction, Id, Rectangle};
-use v4l2loopback_glue::{no_signal_grey, Converter, PixelFormat, Src, YuyvPath};
+use v4l2loopback_glue::{no_signal_grey, Converter, Src, YuyvPath};
 
 use super::link::{Port as PortId, Spec, State, Wire};
 
@@ -128,9 +128,9 @@ pub struct Nodes {
     thread: Option<JoinHandle<()>>,
     spec: Spec,
     mode: Mutex<ModeId>,
-    /// The "no signal" card: grey at the view size, and its Y16 rendering
-    /// at the sensor size.
-    no_signal_view: Vec<u8>,
+    /// The "no signal" card, rendered once: at the view size in each wire
+    /// format a reader may stream, and in Y16 at the sensor size.
+    no_signal_view: Vec<(Wire, Vec<u8>)>,
     no_signal_data: Vec<u8>,
 }
 
@@ -176,26 +176,26 @@ impl Nodes {
                 ));
             }
         }
-        let (vw, vh) = (spec.view_width as usize, spec.view_height as usize);
-        let (dw, dh) = (spec.data_width as usize, spec.data_height as usize);
-        let mut y16 = Converter::new(
-            spec.data_width,
-            spec.data_height,
-            PixelFormat::Y16,
-            YuyvPath::Scalar,
-        );
-        let mut no_signal_data = vec![0; dw * dh * 2];
-        let _ = y16.grey8(
-            Src::packed(&no_signal_grey(dw, dh), dw, dh, 1),
-            &mut no_signal_data,
-        );
+        let card = |w: u32, h: u32, wire: Wire| {
+            let (wu, hu) = (w as usize, h as usize);
+            let mut bytes = vec![0; wu * hu * wire.bytes_per_pixel()];
+            let grey = no_signal_grey(wu, hu);
+            let _ = Converter::new(w, h, wire.glue(), YuyvPath::Scalar)
+                .grey8(Src::packed(&grey, wu, hu, 1), &mut bytes);
+            bytes
+        };
+        let no_signal_view = Wire::ALL
+            .iter()
+            .map(|&wire| (wire, card(spec.view_width, spec.view_height, wire)))
+            .collect();
+        let no_signal_data = card(spec.data_width, spec.data_height, Wire::Y16);
         Ok(Self {
             shared,
             tx,
             thread: Some(thread),
             spec: spec.clone(),
             mode: Mutex::new(spec.mode),
-            no_signal_view: no_signal_grey(vw, vh),
+            no_signal_view,
             no_signal_data,
         })
     }
@@ -259,22 +259,17 @@ impl Nodes {
 
     /// Publishes the "no signal" card on both nodes, stamped `timestamp_us`.
     pub fn no_signal(&self, timestamp_us: u64) {
-        let (vw, vh) = (self.spec.view_width, self.spec.view_height);
         if let Some(wire) = self.shared.view.wire() {
-            let card = &self.no_signal_view;
-            let _ = self.offer(PortId::View, wire, timestamp_us, |bytes| {
-                bytes.resize(vw as usize * vh as usize * wire.bytes_per_pixel(), 0);
-                Converter::new(vw, vh, wire.glue(), YuyvPath::Scalar)
-                    .grey8(Src::packed(card, vw as usize, vh as usize, 1), bytes)
-                    .map(|_| ())
-            });
+            if let Some((_, card)) = self.no_signal_view.iter().find(|(w, _)| *w == wire) {
+                let _ = self.offer(PortId::View, wire, timestamp_us, copy(card));
+            }
         }
-        let data_card = &self.no_signal_data;
-        let _ = self.offer(PortId::Data, Wire::Y16, timestamp_us, |bytes| {
-            bytes.clear();
-            bytes.extend_from_slice(data_card);
-            Ok::<(), ()>(())
-        });
+        let _ = self.offer(
+            PortId::Data,
+            Wire::Y16,
+            timestamp_us,
+            copy(&self.no_signal_data),
+        );
     }
 
     /// New node descriptions for `mode`.
@@ -290,6 +285,15 @@ impl Nodes {
         if !self.shared.woken.swap(true, Ordering::AcqRel) && self.tx.send(Msg::Wake).is_err() {
             self.shared.broken.store(true, Ordering::Relaxed);
         }
+    }
+}
+
+/// A frame filler that copies `card`.
+fn copy(card: &[u8]) -> impl FnOnce(&mut Vec<u8>) -> Result<(), ()> + '_ {
+    move |bytes| {
+        bytes.clear();
+        bytes.extend_from_slice(card);
+        Ok(())
     }
 }
 
