@@ -4,9 +4,9 @@
 //! eight 128-entry `vpermi2b` permutes and a blend tree on index bits 7..9,
 //! and the pair chroma is computed from the looked-up R, G, B in 16-bit
 //! lanes. Grey: the level is one exact multiply-add of the index, luma and
-//! chroma follow by arithmetic. The diverging step is bound by the permute
-//! unit (42 byte permutes per 64 pixels). Written with intrinsics because
-//! no vectorizer makes byte permutes of this shape.
+//! chroma follow by arithmetic. Diverging steps run four at a time, so each
+//! plane's table is loaded into registers once per four steps. Written with
+//! intrinsics because no vectorizer makes byte permutes of this shape.
 
 use std::arch::x86_64::*;
 
@@ -17,6 +17,8 @@ use super::{LUT_HALF, ROUND_BIAS};
 
 /// Pixels per kernel step.
 pub(super) const STEP: usize = super::KERNEL_STEP;
+/// Diverging steps per table load (see `render`).
+const BLOCK_STEPS: usize = 4;
 
 /// One channel's 1024 table entries as 16 vectors' worth of bytes.
 pub(super) type Plane = [[u8; 64]; 16];
@@ -205,16 +207,87 @@ fn render<const GREY: bool>(
     }
     let (mut scratch_rgb, mut scratch_yuyv) = ([0u8; 3 * STEP], [0u8; 2 * STEP]);
     let (chunks, _) = values.as_chunks::<STEP>();
-    for (c, chunk) in chunks.iter().enumerate().take(n) {
-        let (quads, _) = chunk.as_chunks::<16>();
-        let [q0, q1, q2, q3] = quads else { break };
-        let i = [
-            index!(mem::_mm512_loadu_ps(q0)),
-            index!(mem::_mm512_loadu_ps(q1)),
-            index!(mem::_mm512_loadu_ps(q2)),
-            index!(mem::_mm512_loadu_ps(q3)),
-        ];
-        let (r, g, b, y) = if GREY {
+    // The 64 table indices of step `c`, as four vectors of 16 in f32 order.
+    macro_rules! indices {
+        ($c:expr) => {{
+            let (quads, _) = chunks[$c].as_chunks::<16>();
+            let mut i = [_mm512_setzero_si512(); 4];
+            for (i, q) in i.iter_mut().zip(quads) {
+                *i = index!(mem::_mm512_loadu_ps(q));
+            }
+            i
+        }};
+    }
+    // Writes step `c`'s RGB and YUYV bytes from its R, G, B and luma bytes.
+    macro_rules! emit {
+        ($c:expr, $r:expr, $g:expr, $b:expr, $y:expr) => {{
+            let (c, r, g, b, y): (usize, __m512i, __m512i, __m512i, __m512i) = ($c, $r, $g, $b, $y);
+            if !rgb.is_empty() {
+                let dst = rgb
+                    .get_mut(3 * STEP * c..3 * STEP * (c + 1))
+                    .unwrap_or(&mut scratch_rgb);
+                let (dst, _) = dst.as_chunks_mut::<64>();
+                if GREY {
+                    // One single-source permute per vector: R = G = B.
+                    for (d, &idx) in dst.iter_mut().zip(&grey_rgb_idx) {
+                        mem::_mm512_storeu_si512(d, _mm512_permutexvar_epi8(idx, g));
+                    }
+                } else {
+                    for (d, &(rg_idx, b_idx, b_mask)) in dst.iter_mut().zip(&rgb_idx) {
+                        let rg = _mm512_permutex2var_epi8(r, rg_idx, g);
+                        mem::_mm512_storeu_si512(
+                            d,
+                            _mm512_mask_permutexvar_epi8(rg, b_mask, b_idx, b),
+                        );
+                    }
+                }
+            }
+            if !yuyv.is_empty() {
+                // Glue's ((-38 r - 74 g + 112 b + 256) >> 9) + 128 of the pair
+                // sums as (inner + 128) >> 8 + 128, inner with the halved
+                // coefficients: `maddubs` multiplies each byte and adds the
+                // pair (|inner| <= 56 * 510, no saturation), and the offset
+                // 128 + (128 << 8) makes the sum non-negative, so one logical
+                // shift (U) or mask (V, already in the high byte) finishes it.
+                let uv = if GREY {
+                    // R = G = B: U and V are 128 (the coefficients sum to 0).
+                    _mm512_set1_epi16(0x8080_u16 as i16)
+                } else {
+                    macro_rules! chroma {
+                        ($cr:expr, $cg:expr, $cb:expr) => {{
+                            let (cr, cg, cb): (i8, i8, i8) = ($cr, $cg, $cb);
+                            _mm512_add_epi16(
+                                _mm512_add_epi16(
+                                    _mm512_maddubs_epi16(r, _mm512_set1_epi8(cr)),
+                                    _mm512_maddubs_epi16(g, _mm512_set1_epi8(cg)),
+                                ),
+                                _mm512_add_epi16(
+                                    _mm512_maddubs_epi16(b, _mm512_set1_epi8(cb)),
+                                    _mm512_set1_epi16(0x8080_u16 as i16),
+                                ),
+                            )
+                        }};
+                    }
+                    let u = _mm512_srli_epi16::<8>(chroma!(-19, -37, 56));
+                    let v = _mm512_and_si512(
+                        chroma!(56, -47, -9),
+                        _mm512_set1_epi16(0xff00_u16 as i16),
+                    );
+                    _mm512_or_si512(u, v)
+                };
+                let dst = yuyv
+                    .get_mut(2 * STEP * c..2 * STEP * (c + 1))
+                    .unwrap_or(&mut scratch_yuyv);
+                let (dst, _) = dst.as_chunks_mut::<64>();
+                for (d, &idx) in dst.iter_mut().zip(&yuyv_idx) {
+                    mem::_mm512_storeu_si512(d, _mm512_permutex2var_epi8(y, idx, uv));
+                }
+            }
+        }};
+    }
+    if GREY {
+        for c in 0..n {
+            let i = indices!(c);
             // The grey table holds round(i * 255 / 1022) (halves up): one
             // fused multiply-add per 16 indices, exact for every index
             // (the nearest non-tie lies 1/1022 from a half, the offset
@@ -248,107 +321,69 @@ fn render<const GREY: bool>(
             let even = luma!(_mm512_and_si512(g, _mm512_set1_epi16(0xff)));
             let odd = luma!(_mm512_srli_epi16::<8>(g));
             let y = _mm512_or_si512(even, _mm512_slli_epi16::<8>(odd));
-            (g, g, g, y)
-        } else {
-            let w01 = _mm512_packus_epi32(i[0], i[1]);
-            let w23 = _mm512_packus_epi32(i[2], i[3]);
-            let lo = _mm512_permutex2var_epi8(w01, pack_lo, w23);
-            let hi = _mm512_permutex2var_epi8(w01, pack_hi, w23);
-            let m7 = _mm512_test_epi8_mask(lo, bit7);
-            let m8 = _mm512_test_epi8_mask(hi, bit8);
-            let m9 = _mm512_test_epi8_mask(hi, bit9);
-            // A macro, not a closure: LLVM must inline every lookup. Each pair
-            // of 128-entry pieces is two masked `vpermi2b`s: lanes with index
-            // bit 7 clear take the first piece's entry, and the second permute
-            // (masked to bit 7 set) leaves them alone; bits 8 and 9 then pick
-            // the pair by blends.
-            macro_rules! lookup {
-                ($plane:expr) => {{
-                    let plane: &Plane = $plane;
-                    macro_rules! pair {
-                        ($first:expr) => {{
-                            let x = _mm512_mask2_permutex2var_epi8(
-                                load!(&plane[2 * $first]),
-                                lo,
-                                !m7,
-                                load!(&plane[2 * $first + 1]),
-                            );
-                            _mm512_mask2_permutex2var_epi8(
-                                load!(&plane[2 * $first + 2]),
-                                x,
-                                m7,
-                                load!(&plane[2 * $first + 3]),
-                            )
-                        }};
-                    }
-                    let c0 = _mm512_mask_blend_epi8(m8, pair!(0), pair!(2));
-                    let c1 = _mm512_mask_blend_epi8(m8, pair!(4), pair!(6));
-                    _mm512_mask_blend_epi8(m9, c0, c1)
-                }};
-            }
-            (
-                lookup!(&planes[0]),
-                lookup!(&planes[1]),
-                lookup!(&planes[2]),
-                lookup!(&planes[3]),
-            )
-        };
-        if !rgb.is_empty() {
-            let dst = rgb
-                .get_mut(3 * STEP * c..3 * STEP * (c + 1))
-                .unwrap_or(&mut scratch_rgb);
-            let (dst, _) = dst.as_chunks_mut::<64>();
-            if GREY {
-                // One single-source permute per vector: R = G = B.
-                for (d, &idx) in dst.iter_mut().zip(&grey_rgb_idx) {
-                    mem::_mm512_storeu_si512(d, _mm512_permutexvar_epi8(idx, g));
-                }
-            } else {
-                for (d, &(rg_idx, b_idx, b_mask)) in dst.iter_mut().zip(&rgb_idx) {
-                    let rg = _mm512_permutex2var_epi8(r, rg_idx, g);
-                    mem::_mm512_storeu_si512(d, _mm512_mask_permutexvar_epi8(rg, b_mask, b_idx, b));
-                }
-            }
+            emit!(c, g, g, g, y);
         }
-        if !yuyv.is_empty() {
-            // Glue's ((-38 r - 74 g + 112 b + 256) >> 9) + 128 of the pair
-            // sums as (inner + 128) >> 8 + 128, inner with the halved
-            // coefficients: `maddubs` multiplies each byte and adds the
-            // pair (|inner| <= 56 * 510, no saturation), and the offset
-            // 128 + (128 << 8) makes the sum non-negative, so one logical
-            // shift (U) or mask (V, already in the high byte) finishes it.
-            let uv = if GREY {
-                // R = G = B: U and V are 128 (the coefficients sum to 0).
-                _mm512_set1_epi16(0x8080_u16 as i16)
-            } else {
-                macro_rules! chroma {
-                    ($cr:expr, $cg:expr, $cb:expr) => {{
-                        let (cr, cg, cb): (i8, i8, i8) = ($cr, $cg, $cb);
-                        _mm512_add_epi16(
-                            _mm512_add_epi16(
-                                _mm512_maddubs_epi16(r, _mm512_set1_epi8(cr)),
-                                _mm512_maddubs_epi16(g, _mm512_set1_epi8(cg)),
-                            ),
-                            _mm512_add_epi16(
-                                _mm512_maddubs_epi16(b, _mm512_set1_epi8(cb)),
-                                _mm512_set1_epi16(0x8080_u16 as i16),
-                            ),
-                        )
-                    }};
-                }
-                let u = _mm512_srli_epi16::<8>(chroma!(-19, -37, 56));
-                let v =
-                    _mm512_and_si512(chroma!(56, -47, -9), _mm512_set1_epi16(0xff00_u16 as i16));
-                _mm512_or_si512(u, v)
-            };
-            let dst = yuyv
-                .get_mut(2 * STEP * c..2 * STEP * (c + 1))
-                .unwrap_or(&mut scratch_yuyv);
-            let (dst, _) = dst.as_chunks_mut::<64>();
-            for (d, &idx) in dst.iter_mut().zip(&yuyv_idx) {
-                mem::_mm512_storeu_si512(d, _mm512_permutex2var_epi8(y, idx, uv));
+        return n * STEP;
+    }
+    // Diverging, `$steps` steps at a time: their indices first, then each
+    // plane's 16 table vectors loaded once (they stay in registers) for all
+    // the steps' lookups, then the outputs. Plane by plane, not step by
+    // step: 64 table vectors do not fit the 32 registers, and reloading
+    // them for every step cost more than the lookups.
+    macro_rules! block {
+        ($steps:expr, $c0:expr) => {{
+            let c0: usize = $c0;
+            let mut lo = [_mm512_setzero_si512(); $steps];
+            let mut bits = [(0u64, 0u64, 0u64); $steps];
+            for (s, (lo, bits)) in lo.iter_mut().zip(&mut bits).enumerate() {
+                let i = indices!(c0 + s);
+                let w01 = _mm512_packus_epi32(i[0], i[1]);
+                let w23 = _mm512_packus_epi32(i[2], i[3]);
+                *lo = _mm512_permutex2var_epi8(w01, pack_lo, w23);
+                let hi = _mm512_permutex2var_epi8(w01, pack_hi, w23);
+                *bits = (
+                    _mm512_test_epi8_mask(*lo, bit7),
+                    _mm512_test_epi8_mask(hi, bit8),
+                    _mm512_test_epi8_mask(hi, bit9),
+                );
             }
-        }
+            let mut out = [[_mm512_setzero_si512(); $steps]; 4];
+            // Luma (the last plane) only feeds YUYV.
+            let used = if yuyv.is_empty() { 3 } else { 4 };
+            for (plane, out) in planes.iter().zip(&mut out).take(used) {
+                let t: [__m512i; 16] = std::array::from_fn(|k| load!(&plane[k]));
+                for ((out, &lo), &(m7, m8, m9)) in out.iter_mut().zip(&lo).zip(&bits) {
+                    // Each pair of 128-entry pieces is two masked `vpermi2b`s:
+                    // lanes with index bit 7 clear take the first piece's
+                    // entry, and the second permute (masked to bit 7 set)
+                    // leaves them alone; bits 8 and 9 then pick the pair by
+                    // blends.
+                    let pair = |k: usize| {
+                        let x = _mm512_mask2_permutex2var_epi8(t[k], lo, !m7, t[k + 1]);
+                        _mm512_mask2_permutex2var_epi8(t[k + 2], x, m7, t[k + 3])
+                    };
+                    let c0 = _mm512_mask_blend_epi8(m8, pair(0), pair(4));
+                    let c1 = _mm512_mask_blend_epi8(m8, pair(8), pair(12));
+                    *out = _mm512_mask_blend_epi8(m9, c0, c1);
+                }
+            }
+            for s in 0..$steps {
+                emit!(c0 + s, out[0][s], out[1][s], out[2][s], out[3][s]);
+            }
+        }};
+    }
+    // RGB alone (three planes, 48 table vectors) measured faster one step
+    // at a time.
+    let full = if yuyv.is_empty() {
+        0
+    } else {
+        n / BLOCK_STEPS * BLOCK_STEPS
+    };
+    for c0 in (0..full).step_by(BLOCK_STEPS) {
+        block!(BLOCK_STEPS, c0);
+    }
+    for c in full..n {
+        block!(1, c);
     }
     n * STEP
 }
