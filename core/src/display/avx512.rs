@@ -207,10 +207,11 @@ fn render<const GREY: bool>(
     }
     let (mut scratch_rgb, mut scratch_yuyv) = ([0u8; 3 * STEP], [0u8; 2 * STEP]);
     let (chunks, _) = values.as_chunks::<STEP>();
-    // The 64 table indices of step `c`, as four vectors of 16 in f32 order.
+    // The 64 table indices of a step's values, as four vectors of 16.
     macro_rules! indices {
-        ($c:expr) => {{
-            let (quads, _) = chunks[$c].as_chunks::<16>();
+        ($chunk:expr) => {{
+            let chunk: &[f32; STEP] = $chunk;
+            let (quads, _) = chunk.as_chunks::<16>();
             let mut i = [_mm512_setzero_si512(); 4];
             for (i, q) in i.iter_mut().zip(quads) {
                 *i = index!(mem::_mm512_loadu_ps(q));
@@ -286,8 +287,8 @@ fn render<const GREY: bool>(
         }};
     }
     if GREY {
-        for c in 0..n {
-            let i = indices!(c);
+        for (c, chunk) in chunks.iter().enumerate().take(n) {
+            let i = indices!(chunk);
             // The grey table holds round(i * 255 / 1022) (halves up): one
             // fused multiply-add per 16 indices, exact for every index
             // (the nearest non-tie lies 1/1022 from a half, the offset
@@ -336,7 +337,7 @@ fn render<const GREY: bool>(
             let mut lo = [_mm512_setzero_si512(); $steps];
             let mut bits = [(0u64, 0u64, 0u64); $steps];
             for (s, (lo, bits)) in lo.iter_mut().zip(&mut bits).enumerate() {
-                let i = indices!(c0 + s);
+                let i = indices!(&chunks[c0 + s]);
                 let w01 = _mm512_packus_epi32(i[0], i[1]);
                 let w23 = _mm512_packus_epi32(i[2], i[3]);
                 *lo = _mm512_permutex2var_epi8(w01, pack_lo, w23);
