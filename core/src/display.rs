@@ -491,7 +491,8 @@ const SAMPLE_MIN: usize = 4096;
 const SAMPLE_SCALE: usize = 5793;
 /// Values near the guessed quantile kept for the exact count (on the stack).
 const WINDOW_CAPACITY: usize = 8192;
-/// Values per block of the counting pass, and counters per block.
+/// Values per block of the counting pass (one maximum each), and lanes of
+/// that maximum.
 const COUNT_BLOCK: usize = 16;
 const LANES: usize = 8;
 /// |x| bits of +Inf: finite values lie below.
@@ -500,8 +501,9 @@ const INF_BITS: u32 = 0x7f80_0000;
 /// The same result as [`histogram_quantile`], faster on large images: a
 /// subsample brackets the quantile between two |x| bit patterns (aligned to
 /// fine bins, so a fine bin is wholly in or out), one vectorized pass counts
-/// the finite values and those below the bracket (per-lane counters, so no
-/// reduction per block) and keeps the few inside it, and selection among
+/// the finite values and those below the bracket (by counting the rare ones
+/// that are not, in the blocks whose maximum reaches the bracket) and keeps
+/// the few inside it, and selection among
 /// those finds the quantile's fine bin. None (use the
 /// full histogram) when the bracket misses the quantile or holds more than
 /// [`WINDOW_CAPACITY`] values, or the quantile is 0 or subnormal. The
@@ -574,16 +576,20 @@ fn count_bracket(
     hi_bits: u32,
     window: &mut [u32],
 ) -> Option<(u64, u64, usize)> {
-    // One pass: per-lane counts (no reduction per block), and the values
-    // inside the bracket from the blocks that hold any.
-    let (mut finite, mut below) = ([0u32; LANES], [0u32; LANES]);
+    // Values at or above the bracket's bottom (the top percent or so, and
+    // every NaN and Inf, whose |x| bits lie above any finite value's) are
+    // rare: a block costs one vectorized maximum, and only blocks reaching
+    // the bracket are looked at value by value. Then values below = all -
+    // at or above, finite = all - non-finite.
+    let (mut at_or_above, mut non_finite) = (0u64, 0u64);
     let mut kept = 0usize;
-    let mut blocks = data.chunks_exact(COUNT_BLOCK);
-    let mut collect = |block: &[f32], inside: bool| -> Option<()> {
-        if inside {
-            for v in block {
-                let bits = v.to_bits() & 0x7fff_ffff;
-                if (lo_bits..hi_bits).contains(&bits) {
+    let mut count = |block: &[f32]| -> Option<()> {
+        for v in block {
+            let bits = v.to_bits() & 0x7fff_ffff;
+            if bits >= lo_bits {
+                at_or_above += 1;
+                non_finite += u64::from(bits >= INF_BITS);
+                if bits < hi_bits {
                     *window.get_mut(kept)? = bits;
                     kept += 1;
                 }
@@ -591,27 +597,21 @@ fn count_bracket(
         }
         Some(())
     };
+    let mut blocks = data.chunks_exact(COUNT_BLOCK);
     for block in &mut blocks {
-        let mut inside = [0u32; LANES];
+        let mut top = [0u32; LANES];
         for part in block.chunks_exact(LANES) {
-            for k in 0..LANES {
-                let bits = part[k].to_bits() & 0x7fff_ffff;
-                finite[k] += u32::from(bits < INF_BITS);
-                below[k] += u32::from(bits < lo_bits);
-                inside[k] |= u32::from(bits >= lo_bits) & u32::from(bits < hi_bits);
+            for (t, v) in top.iter_mut().zip(part) {
+                *t = (*t).max(v.to_bits() & 0x7fff_ffff);
             }
         }
-        collect(block, inside != [0; LANES])?;
+        if top.iter().fold(0, |m, &t| m.max(t)) >= lo_bits {
+            count(block)?;
+        }
     }
-    for &v in blocks.remainder() {
-        let bits = v.to_bits() & 0x7fff_ffff;
-        finite[0] += u32::from(bits < INF_BITS);
-        below[0] += u32::from(bits < lo_bits);
-    }
-    collect(blocks.remainder(), true)?;
-    let finite: u64 = finite.iter().map(|&n| u64::from(n)).sum();
-    let below: u64 = below.iter().map(|&n| u64::from(n)).sum();
-    Some((finite, below, kept))
+    count(blocks.remainder())?;
+    let all = data.len() as u64;
+    Some((all - non_finite, all - at_or_above, kept))
 }
 
 /// The two-pass histogram over all values (see [`robust_max_abs`]).
@@ -900,20 +900,9 @@ mod tests {
             }
         }
         // The counting pass: same counts and kept values (in any order) as
-        // the portable one.
-        let mut rng = SmallRng::seed_from_u64(26);
-        let mut data: Vec<f32> = (0..10_007)
-            .map(|_| rng.random_range(-1.0f32..1.0).powi(3) * 900.0)
-            .collect();
-        data[5] = f32::NAN;
-        data[77] = f32::NEG_INFINITY;
-        data[10_000] = 0.0;
-        for (lo, hi) in [
-            (100.0f32, 101.0f32),
-            (0.5, 2.0),
-            (800.0, 900.0),
-            (1e-3, 1e3),
-        ] {
+        // the portable one, which the next test holds to the definition.
+        let data = counting_data();
+        for (lo, hi) in COUNTING_BRACKETS {
             let (lo, hi) = (lo.to_bits(), hi.to_bits());
             let (mut a, mut b) = ([0u32; WINDOW_CAPACITY], [0u32; WINDOW_CAPACITY]);
             let fast = kernel.count_bracket(&data, lo, hi, &mut a);
@@ -930,6 +919,70 @@ mod tests {
                 (None, s) => assert!(s.is_none_or(|s| s.2 + 16 > WINDOW_CAPACITY)),
                 (Some(_), None) => panic!("the kernel kept more than the window holds"),
             }
+        }
+    }
+
+    /// Brackets of the counting tests, in |x|: the first's ends occur
+    /// exactly in [`counting_data`], the last holds NaN and Inf above it.
+    const COUNTING_BRACKETS: [(f32, f32); 5] = [
+        (100.0, 101.0),
+        (0.5, 2.0),
+        (800.0, 900.0),
+        (1e-3, 1e3),
+        (800.0, 1e38),
+    ];
+
+    /// Values for the counting pass: NaN and +-Inf (at or above any
+    /// bracket), -0, values exactly at the first bracket's ends, a run of
+    /// 64-value steps whose only value reaching it is exactly its bottom,
+    /// and a partial step at the end.
+    fn counting_data() -> Vec<f32> {
+        let mut rng = SmallRng::seed_from_u64(26);
+        let mut data: Vec<f32> = (0..10_007)
+            .map(|_| rng.random_range(-1.0f32..1.0).powi(3) * 900.0)
+            .collect();
+        data[1024..1280].fill(0.25);
+        data[1100] = 100.0;
+        data[1200] = -100.0;
+        for (k, v) in [
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -0.0,
+            101.0,
+            -100.0,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            data[k * 1597 + 3] = v;
+        }
+        data[10_003] = f32::NAN; // in the partial step
+        data
+    }
+
+    /// The portable counting pass (every host's, the VM's too) against the
+    /// plain definition; None when more lie inside the bracket than the
+    /// window holds.
+    #[test]
+    fn counting_pass_counts_as_defined() {
+        let data = counting_data();
+        for (lo, hi) in COUNTING_BRACKETS {
+            let (lo, hi) = (lo.to_bits(), hi.to_bits());
+            let bits = data.iter().map(|v| v.to_bits() & 0x7fff_ffff);
+            let finite = bits.clone().filter(|&b| b < INF_BITS).count() as u64;
+            let below = bits.clone().filter(|&b| b < lo).count() as u64;
+            let mut inside: Vec<u32> = bits.filter(|b| (lo..hi).contains(b)).collect();
+            inside.sort_unstable();
+            let mut window = [0u32; WINDOW_CAPACITY];
+            let got = count_bracket(&data, lo, hi, &mut window);
+            if inside.len() > WINDOW_CAPACITY {
+                assert_eq!(got, None, "{lo} {hi}");
+                continue;
+            }
+            assert_eq!(got, Some((finite, below, inside.len())), "{lo} {hi}");
+            window[..inside.len()].sort_unstable();
+            assert_eq!(window[..inside.len()], inside[..]);
         }
     }
 

@@ -54,10 +54,11 @@ impl Kernel {
         }
     }
 
-    /// `super::count_bracket` 16 values per step: compares into masks,
-    /// masked increments of per-lane counters, and a compress of the rare
-    /// steps holding values inside the bracket. None when those could
-    /// overflow `window` (then the caller takes the full histogram).
+    /// `super::count_bracket` 64 values per step: one compare of the
+    /// step's largest |x| against the bracket's bottom, and lane counts and
+    /// a compress only for the rare steps reaching it. None when the kept
+    /// values could overflow `window` (then the caller takes the full
+    /// histogram).
     pub(super) fn count_bracket(
         self,
         data: &[f32],
@@ -403,39 +404,45 @@ fn count_bracket(
         _mm512_set1_epi32(lo_bits as i32),
         _mm512_set1_epi32(hi_bits as i32),
     );
-    let minus_one = _mm512_set1_epi32(-1);
-    let (mut finite, mut below) = (_mm512_setzero_si512(), _mm512_setzero_si512());
+    // Values at or above the bracket's bottom (the top percent or so, and
+    // every NaN and Inf, whose |x| bits lie above any finite value's) are
+    // rare: a step of 64 values costs four masks and three maxima, and only
+    // steps holding such values are counted lane by lane. Then values
+    // below = all - at or above, finite = all - non-finite.
+    let (mut at_or_above, mut non_finite) = (0u64, 0u64);
     let mut kept = 0usize;
     // Last value first: the colour pass that follows reads from the start,
     // which is then what the L2 cache still holds.
     let (steps, rest) = data.as_chunks::<64>();
     for step in steps.iter().rev() {
         let (quads, _) = step.as_chunks::<16>();
-        let mut bits = [_mm512_setzero_si512(); 4];
-        let mut inside = [0u16; 4];
-        for ((b, ins), quad) in bits.iter_mut().zip(&mut inside).zip(quads) {
-            *b = _mm512_and_si512(_mm512_castps_si512(mem::_mm512_loadu_ps(quad)), abs);
-            let is_finite = _mm512_cmplt_epu32_mask(*b, inf);
-            let is_below = _mm512_cmplt_epu32_mask(*b, lo);
-            *ins = _kandn_mask16(is_below, _mm512_cmplt_epu32_mask(*b, hi));
-            finite = _mm512_mask_sub_epi32(finite, is_finite, finite, minus_one);
-            below = _mm512_mask_sub_epi32(below, is_below, below, minus_one);
+        let bits: [__m512i; 4] = std::array::from_fn(|k| {
+            _mm512_and_si512(_mm512_castps_si512(mem::_mm512_loadu_ps(&quads[k])), abs)
+        });
+        let top = _mm512_max_epu32(
+            _mm512_max_epu32(bits[0], bits[1]),
+            _mm512_max_epu32(bits[2], bits[3]),
+        );
+        if _mm512_cmpge_epu32_mask(top, lo) == 0 {
+            continue;
         }
-        // One branch per 64 values: steps holding bracket values are rare.
-        if inside != [0; 4] {
-            for (&b, &ins) in bits.iter().zip(&inside).filter(|(_, &ins)| ins != 0) {
+        for &b in &bits {
+            let high = _mm512_cmpge_epu32_mask(b, lo);
+            if high == 0 {
+                continue;
+            }
+            at_or_above += u64::from(high.count_ones());
+            non_finite += u64::from(_mm512_cmpge_epu32_mask(b, inf).count_ones());
+            let inside = _mm512_mask_cmplt_epu32_mask(high, b, hi);
+            if inside != 0 {
                 let dst: &mut [u32; 16] = window.get_mut(kept..kept + 16)?.try_into().ok()?;
-                mem::_mm512_storeu_epi32(dst, _mm512_maskz_compress_epi32(ins, b));
-                kept += ins.count_ones() as usize;
+                mem::_mm512_storeu_epi32(dst, _mm512_maskz_compress_epi32(inside, b));
+                kept += inside.count_ones() as usize;
             }
         }
     }
-    let lanes = |v: __m512i| -> u64 {
-        let mut a = [0u32; 16];
-        mem::_mm512_storeu_epi32(&mut a, v);
-        a.iter().map(|&n| u64::from(n)).sum()
-    };
-    let (mut finite, mut below) = (lanes(finite), lanes(below));
+    let all = (steps.len() * 64) as u64;
+    let (mut finite, mut below) = (all - non_finite, all - at_or_above);
     for v in rest {
         let bits = v.to_bits() & 0x7fff_ffff;
         finite += u64::from(bits < super::INF_BITS);
