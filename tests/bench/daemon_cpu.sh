@@ -55,7 +55,7 @@ if [ "$sink" != loopback ]; then
     cat "$tmp/view.y4m" >/dev/null &
     pids+=($!)
 fi
-wait_bus
+wait_bus "$tmp/replay.log"
 if [ "$sink" = loopback ]; then
     printf '%-22s %8s %8s   %s\n' "sdid mode" "CPU %" "fps" "capture to dequeue (view; data)"
 else

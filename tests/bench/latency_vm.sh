@@ -52,7 +52,7 @@ else
     sdid_pid=$!
     pids+=("$sdid_pid")
 fi
-wait_bus
+wait_bus "$tmp/replay.log"
 
 # "median/p99 us (frames)" from a loopback_tool latency line.
 lat() { sed -E 's/.*: ([0-9]+) frames, median (-?[0-9]+) us, p99 (-?[0-9]+) us.*/\2\/\3 (\1)/' "$1"; }

@@ -20,10 +20,13 @@ eval "$(dbus-daemon --session --fork --print-address=1 --print-pid=1 |
 pids+=("$bus_pid")
 ctl() { "$sdictl" --session "$@"; }
 
-# Waits until the daemon answers on the bus.
+# Waits until the daemon answers on the bus; if it does not, says why from
+# its log ($1).
 wait_bus() {
-    for _ in $(seq 100); do ctl status >/dev/null 2>&1 && return 0; sleep 0.1; done
-    echo "$(basename "$0"): sdid did not come up" >&2; return 1
+    for _ in $(seq 300); do ctl status >/dev/null 2>&1 && return 0; sleep 0.1; done
+    echo "$(basename "$0"): sdid did not come up in 30 s; the end of its log ($1):" >&2
+    tail -20 "$1" >&2 || true
+    return 1
 }
 
 # Records 8 s of the simulator (320x240, 60 fps) to $tmp/rec.sdirec; leaves
@@ -35,7 +38,7 @@ record_sim() {
     pids+=($!)
     cat "$tmp/view.y4m" >/dev/null &
     pids+=($!)
-    wait_bus
+    wait_bus "$tmp/rec.log"
     ctl record "$tmp/rec.sdirec" --seconds 8 >/dev/null
     ctl stop >/dev/null 2>&1 || true
     kill "${pids[-2]}"; wait "${pids[-2]}" 2>/dev/null || true
