@@ -441,16 +441,14 @@ fn count_bracket(
             }
         }
     }
+    // The last partial step (under 64 values): the portable pass, into
+    // what is left of the window.
+    let (rest_finite, rest_below, rest_kept) =
+        super::count_bracket(rest, lo_bits, hi_bits, window.get_mut(kept..)?)?;
     let all = (steps.len() * 64) as u64;
-    let (mut finite, mut below) = (all - non_finite, all - at_or_above);
-    for v in rest {
-        let bits = v.to_bits() & 0x7fff_ffff;
-        finite += u64::from(bits < super::INF_BITS);
-        below += u64::from(bits < lo_bits);
-        if (lo_bits..hi_bits).contains(&bits) {
-            *window.get_mut(kept)? = bits;
-            kept += 1;
-        }
-    }
-    Some((finite, below, kept))
+    Some((
+        all - non_finite + rest_finite,
+        all - at_or_above + rest_below,
+        kept + rest_kept,
+    ))
 }
