@@ -18,8 +18,6 @@ pub mod logging;
 pub mod modes;
 pub mod monotonic;
 pub mod photon_transfer;
-#[cfg(feature = "pipewire")]
-pub mod pipewire_camera;
 pub mod publish_clock;
 pub mod recording;
 pub mod sink;

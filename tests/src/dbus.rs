@@ -8,7 +8,7 @@ use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 /// `target/<profile>` of the running test binary.
-fn target_dir() -> PathBuf {
+pub(crate) fn target_dir() -> PathBuf {
     let exe = std::env::current_exe().expect("test exe path");
     // target/<profile>/deps/<test>-<hash>
     exe.parent()
@@ -42,6 +42,10 @@ pub fn bin(name: &str) -> PathBuf {
         for program in PROGRAMS {
             link_program(program, &dir);
         }
+        // sdid starts the PipeWire camera from beside itself, when it was built.
+        if let Some(camera) = crate::pipewire::camera_program() {
+            link_file(&camera, &dir.join(sdi_daemon::sink::pipewire::CAMERA_PROGRAM));
+        }
         dir
     })
     .join(name)
@@ -61,14 +65,21 @@ fn link_program(name: &str, dir: &Path) {
         "{} is missing: run the tests through `cargo test -p sdi-tests`, which builds it",
         source.display()
     );
+    link_file(&source, &dir.join(name));
+}
+
+/// Hard-links (or copies) `source` as `dest`.
+fn link_file(source: &Path, dest: &Path) {
+    let dir = dest.parent().expect("a file in a directory");
+    let name = dest.file_name().expect("a file name").to_string_lossy();
     // A link to a fresh temporary name renamed over the old one: parallel
     // tests never see a half-written program.
     let tmp = dir.join(format!(".{name}.{}", std::process::id()));
     let _ = std::fs::remove_file(&tmp);
-    if std::fs::hard_link(&source, &tmp).is_err() {
-        std::fs::copy(&source, &tmp).expect("copy the test program");
+    if std::fs::hard_link(source, &tmp).is_err() {
+        std::fs::copy(source, &tmp).expect("copy the test program");
     }
-    std::fs::rename(&tmp, dir.join(name)).expect("name the test program");
+    std::fs::rename(&tmp, dest).expect("name the test program");
     // rename(2) does nothing when both names are links to one file.
     let _ = std::fs::remove_file(&tmp);
 }

@@ -22,9 +22,17 @@ const TOOLS: [(&str, &[&str], &str); 6] = [
     ("gst-inspect-1.0", &["pipewiresrc"], "gstreamer1.0-pipewire"),
 ];
 
+/// The PipeWire camera program, when it was built into this target
+/// directory (`cargo build -p sdi-pipewire-camera`; the README's `cargo
+/// test` leaves it out, as it needs libpipewire's headers).
+pub fn camera_program() -> Option<PathBuf> {
+    let p = crate::dbus::target_dir().join(sdi_daemon::sink::pipewire::CAMERA_PROGRAM);
+    p.is_file().then_some(p)
+}
+
 /// Why the PipeWire tests cannot run here (a missing program), if so.
 pub fn missing_tools() -> Option<String> {
-    let missing: Vec<String> = TOOLS
+    let mut missing: Vec<String> = TOOLS
         .iter()
         .filter(|(prog, args, _)| {
             !Command::new(prog)
@@ -36,6 +44,13 @@ pub fn missing_tools() -> Option<String> {
         })
         .map(|(prog, _, pkg)| format!("{prog} ({pkg})"))
         .collect();
+    if camera_program().is_none() {
+        missing.push(format!(
+            "{} (cargo build -p sdi-pipewire-camera, which needs {})",
+            sdi_daemon::sink::pipewire::CAMERA_PROGRAM,
+            sdi_daemon::sink::pipewire_launch::BUILD_PACKAGES
+        ));
+    }
     (!missing.is_empty()).then(|| format!("missing {}", missing.join(", ")))
 }
 

@@ -309,7 +309,7 @@ fn camera_process_ends_after_sdid_and_readers_are_gone() {
     wait_node(&s, VIEW);
     let gone_at = Instant::now();
     drop(d);
-    let linger = sdi_daemon::pipewire_camera::server::LINGER;
+    let linger = sdi_daemon::sink::pipewire::LINGER;
     while gone_at.elapsed() < linger - Duration::from_secs(5) {
         assert!(
             s.node(VIEW).is_some(),

@@ -5,8 +5,8 @@
 
 pub mod loopback;
 pub mod output;
-#[cfg(feature = "pipewire")]
 pub mod pipewire;
+pub mod pipewire_launch;
 pub mod select;
 pub mod y4m;
 

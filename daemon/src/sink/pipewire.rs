@@ -1,5 +1,5 @@
 //! The PipeWire sink: a camera without a kernel module. The nodes belong to
-//! the per-user camera process ([`crate::pipewire_camera`]), which outlives
+//! the per-user camera process (`sdi-pipewire-camera`, [`launch`]), which outlives
 //! sdid so readers survive a restart; this sink renders what the camera's
 //! readers negotiated (YUYV or RGB at the view size, Y16 at the sensor size)
 //! and sends it there. When the camera process goes away it is started
@@ -17,9 +17,11 @@ use v4l2loopback_glue::{Converter, LoopbackFormat, PixelFormat, Src, YuyvPath};
 
 use super::{Sink, SinkError, SinkInfo};
 use crate::modes::{DisplayMap, ModeOutput};
-use crate::pipewire_camera::launch;
-use crate::pipewire_camera::link::{self, Message, Port, Spec, State, Wire};
-pub use crate::pipewire_camera::nodes::{view_description, DATA_NODE, FRAME_LOG, VIEW_NODE};
+use super::pipewire_launch as launch;
+use sdi_camera_link::{self as link, Message, Port, Spec, State, Wire};
+pub use sdi_camera_link::{
+    view_description, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, VIEW_NODE,
+};
 
 /// Between attempts to reach a camera process that went away.
 const RETRY: Duration = Duration::from_secs(2);
@@ -91,8 +93,8 @@ pub struct PipewireSink {
 }
 
 impl PipewireSink {
-    /// Connects to this user's camera process (`program --pipewire-camera`,
-    /// normally sdid itself), starting it when none runs; fails when it
+    /// Connects to this user's camera process (`program`, found by
+    /// [`launch::find_program`]), starting it when none runs; fails when it
     /// cannot reach PipeWire.
     pub fn open(
         program: &Path,

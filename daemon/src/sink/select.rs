@@ -9,7 +9,6 @@ use super::Sink;
 use crate::config::{Config, SinkKind};
 use crate::modes::ModeId;
 
-#[cfg(feature = "pipewire")]
 fn open_pipewire(
     width: usize,
     height: usize,
@@ -17,19 +16,13 @@ fn open_pipewire(
     mode: ModeId,
 ) -> Result<Box<dyn Sink>, String> {
     use super::pipewire::{PipewireSink, VIEW_NODE};
-    // The camera process is sdid itself (`sdid --pipewire-camera`).
-    let program = std::env::current_exe().map_err(|e| format!("finding sdid's own path: {e}"))?;
+    let program = super::pipewire_launch::find_program().map_err(|e| e.to_string())?;
     let s = PipewireSink::open(&program, width, height, fps, mode).map_err(|e| e.to_string())?;
     tracing::info!(
         device = %s.info().device,
         "publishing as a PipeWire camera: e.g. gst-launch-1.0 pipewiresrc target-object={VIEW_NODE} ! videoconvert ! autovideosink"
     );
     Ok(Box::new(s))
-}
-
-#[cfg(not(feature = "pipewire"))]
-fn open_pipewire(_: usize, _: usize, _: f64, _: ModeId) -> Result<Box<dyn Sink>, String> {
-    Err("sdid was built without the PipeWire sink (cargo feature \"pipewire\")".into())
 }
 
 /// The output sink, and for `auto` why it was chosen (shown in the log and

@@ -6,8 +6,8 @@
 //! Each sink gets the same synthetic frames, paced at `--rate` Hz, with one
 //! reader attached in another process (`gst-launch-1.0 pipewiresrc !
 //! fakesink`, `cat FIFO > /dev/null`). The figure is this process's CPU time
-//! (the writing thread; for PipeWire plus the camera process it feeds, this
-//! program started as `--pipewire-camera`) divided by the frames the sink
+//! (the writing thread; for PipeWire plus the camera process it feeds,
+//! `sdi-pipewire-camera`, a child of this one) divided by the frames the sink
 //! published. The readers' CPU (reaped children) is printed
 //! beside it.
 //!
@@ -191,8 +191,11 @@ fn drive(sink: &mut dyn Sink, frames: usize, rate_hz: f64) -> (f64, f64) {
 }
 
 fn bench_pipewire(s: &Session, caps: &str, frames: usize, rate_hz: f64) -> Run {
-    // This program is its own camera process (see `main`).
-    let program = std::env::current_exe().expect("sink_bench's own path");
+    // The camera program built beside this one (`cargo build -p sdi-pipewire-camera`).
+    let program = sdi_daemon::sink::pipewire_launch::find_program().unwrap_or_else(|e| {
+        eprintln!("sink_bench: {e}");
+        std::process::exit(2)
+    });
     let mut sink = PipewireSink::open(
         &program,
         WIDTH,
@@ -321,14 +324,6 @@ fn bench_loopback(frames: usize, rate_hz: f64) -> Option<Run> {
 }
 
 fn main() {
-    // The PipeWire sink starts this program as its camera process.
-    if let Some(code) = sdi_daemon::pipewire_camera::server::run_if_asked() {
-        std::process::exit(if code == std::process::ExitCode::SUCCESS {
-            0
-        } else {
-            1
-        });
-    }
     let mut args = std::env::args().skip(1);
     let frames: usize = args.next().and_then(|a| a.parse().ok()).unwrap_or(300);
     let rate_hz: f64 = args.next().and_then(|a| a.parse().ok()).unwrap_or(60.0);

@@ -24,9 +24,30 @@ use v4l2loopback_glue::PixelFormat;
 pub const SOCKET_NAME: &str = "sdi-camera.sock";
 /// File name of the lock the running camera process holds.
 pub const LOCK_NAME: &str = "sdi-camera.lock";
-/// The first argument that makes `sdid` the camera process; the second is
-/// the [`Spec`].
-pub const CAMERA_ARG: &str = "--pipewire-camera";
+/// The camera program's file name: sdid runs `sdi-pipewire-camera SPEC`
+/// (the [`Spec`] as its only argument).
+pub const CAMERA_PROGRAM: &str = "sdi-pipewire-camera";
+/// Where a package installs it, relative to the directory holding sdid.
+pub const CAMERA_LIBEXEC: &str = "../libexec/sdi";
+/// How long the camera outlives sdid while no reader streams.
+pub const LINGER: std::time::Duration = std::time::Duration::from_secs(30);
+/// Node name of the view stream (what `pipewiresrc target-object=` takes).
+pub const VIEW_NODE: &str = "sdi-camera";
+/// Node name of the raw Y16 data stream.
+pub const DATA_NODE: &str = "sdi-camera-data";
+/// `tracing` target of the per-frame log (CRC-32 of each published buffer),
+/// enabled with `RUST_LOG=sdid::pipewire::frames=trace`.
+pub const FRAME_LOG: &str = "sdid::pipewire::frames";
+
+/// The node description readers show, e.g. "SDI camera (depth-edge)".
+pub fn view_description(mode: &str) -> String {
+    format!("SDI camera ({mode})")
+}
+
+/// The data node's description.
+pub fn data_description(mode: &str) -> String {
+    format!("SDI camera raw data, Y16 DN+32768 ({mode})")
+}
 /// The camera process's first line on stdout: serving.
 pub const READY_LINE: &str = "ready";
 /// ... or: another camera process runs (connect to it).

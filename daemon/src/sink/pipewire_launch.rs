@@ -1,18 +1,65 @@
-//! sdid's side of the camera process: connect to the running one, or start
-//! it (`sdid --pipewire-camera SPEC`, in its own process group so it
-//! outlives this sdid), and greet it.
+//! sdid's side of the camera process: find the program, connect to the
+//! running one, or start it (`sdi-pipewire-camera SPEC`, in its own process
+//! group so it outlives this sdid), and greet it.
 
 use std::io::{BufRead, BufReader};
 use std::os::unix::net::UnixStream;
 use std::os::unix::process::CommandExt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use nix::sys::socket::{getsockopt, sockopt::PeerCredentials};
 
-use super::link::{self, Message, Spec};
+use sdi_camera_link::{self as link, Message, Spec};
+
+/// The Debian packages that build the camera program from source.
+pub const BUILD_PACKAGES: &str = "libpipewire-0.3-dev libspa-0.2-dev clang libclang-dev";
+
+/// The camera program is not installed where sdid looks for it.
+#[derive(Debug, thiserror::Error)]
+#[error(
+    "the PipeWire camera program {program} is not installed (looked in {looked}): \
+     install the sdi-pipewire-camera package, or build it with \
+     `cargo build --release -p sdi-pipewire-camera` (needs {BUILD_PACKAGES})",
+    program = link::CAMERA_PROGRAM
+)]
+pub struct NotInstalled {
+    pub looked: String,
+}
+
+/// Where sdid looks for the camera program: beside its own executable (a
+/// build tree, `make install`), then `../libexec/sdi/` from it (the package).
+pub fn program_candidates() -> Vec<PathBuf> {
+    let Some(dir) = std::env::current_exe()
+        .ok()
+        .and_then(|e| e.parent().map(Path::to_path_buf))
+    else {
+        return Vec::new();
+    };
+    vec![
+        dir.join(link::CAMERA_PROGRAM),
+        dir.join(link::CAMERA_LIBEXEC).join(link::CAMERA_PROGRAM),
+    ]
+}
+
+/// The installed camera program, or where it was looked for.
+pub fn find_program() -> Result<PathBuf, NotInstalled> {
+    let candidates = program_candidates();
+    candidates
+        .iter()
+        .find(|p| p.is_file())
+        .cloned()
+        .ok_or_else(|| NotInstalled {
+            looked: candidates
+                .iter()
+                .filter_map(|p| p.parent())
+                .map(|d| d.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", "),
+        })
+}
 
 /// How long [`connect`] tries, start-up of a new camera process included.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(8);
@@ -26,8 +73,8 @@ pub struct Connected {
     pub camera_pid: Option<u32>,
 }
 
-/// Connects to this user's camera process, starting `program
-/// --pipewire-camera SPEC` when none runs; fails with the camera's own
+/// Connects to this user's camera process, starting `program SPEC` when
+/// none runs; fails with the camera's own
 /// reason (e.g. "no PipeWire daemon reachable at ...").
 pub fn connect(program: &Path, spec: &Spec) -> Result<Connected, String> {
     let sock = link::runtime_dir()?.join(link::SOCKET_NAME);
@@ -91,14 +138,13 @@ enum Started {
 /// Starts the camera process and waits for its first line.
 fn start(program: &Path, spec: &Spec, deadline: Instant) -> Result<Started, String> {
     let mut child = Command::new(program)
-        .arg(link::CAMERA_ARG)
         .arg(spec.to_string())
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         // Its own group: a Ctrl-C or a kill of sdid's group leaves it running.
         .process_group(0)
         .spawn()
-        .map_err(|e| format!("starting {} {}: {e}", program.display(), link::CAMERA_ARG))?;
+        .map_err(|e| format!("starting {}: {e}", program.display()))?;
     let pid = child.id();
     let (tx, rx) = mpsc::channel();
     if let Some(out) = child.stdout.take() {

@@ -1,6 +1,6 @@
-//! The camera process (`sdid --pipewire-camera SPEC`): owns the PipeWire
+//! The camera process (`sdi-pipewire-camera SPEC`): owns the PipeWire
 //! nodes, so a reader keeps its stream while sdid restarts, and takes frames
-//! from one sdid at a time over [`super::link`].
+//! from one sdid at a time over [`sdi_camera_link`].
 //!
 //! While no sdid is connected it shows the "no signal" card 5 times a
 //! second. It exits when sdid has been gone for [`LINGER`] and no reader
@@ -24,12 +24,9 @@ use nix::fcntl::{Flock, FlockArg};
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 use nix::sys::socket::{getsockopt, sockopt::PeerCredentials};
 
-use super::link::{self, LinkError, Message, Port, Spec, State, Wire};
-use super::nodes::Nodes;
-use crate::monotonic::monotonic_now_us;
+use sdi_camera_link::{self as link, LinkError, Message, Port, Spec, State, Wire, LINGER};
 
-/// How long the camera outlives sdid while no reader streams.
-pub const LINGER: Duration = Duration::from_secs(30);
+use crate::nodes::{monotonic_now_us, Nodes};
 /// The "no signal" card's period while sdid is away (sdid's own rate).
 const NO_SIGNAL_PERIOD: Duration = Duration::from_millis(200);
 /// The main loop's tick: state reports, the card, the linger check (a
@@ -39,23 +36,10 @@ const TICK_MS: u16 = 100;
 /// (a change of format is reported at the next tick).
 const STATE_PERIOD: Duration = Duration::from_millis(200);
 
-/// Runs the camera process when this program was started as one
-/// (`PROGRAM --pipewire-camera SPEC`): the first thing a program that opens
-/// the PipeWire sink does in `main`, since the sink starts its own
-/// executable as the camera.
-pub fn run_if_asked() -> Option<ExitCode> {
-    let mut argv = std::env::args_os().skip(1);
-    if argv.next()? != link::CAMERA_ARG {
-        return None;
-    }
-    crate::logging::init();
-    Some(main(argv.next()))
-}
-
-/// Entry point of `sdid --pipewire-camera SPEC`. The first line on stdout
+/// Entry point of `sdi-pipewire-camera SPEC`. The first line on stdout
 /// tells the sdid that started it how it went ([`link::READY_LINE`],
 /// [`link::BUSY_LINE`] or [`link::ERROR_PREFIX`] and the reason).
-fn main(spec: Option<OsString>) -> ExitCode {
+pub fn main(spec: Option<OsString>) -> ExitCode {
     let spec = match spec
         .as_ref()
         .and_then(|s| s.to_str())

@@ -24,15 +24,11 @@ use spa::pod::{ChoiceValue, Object, Pod, Property, Value};
 use spa::utils::{Choice, ChoiceEnum, ChoiceFlags, Fraction, Id, Rectangle};
 use v4l2loopback_glue::{no_signal_grey, Converter, Src, YuyvPath};
 
-use super::link::{Port as PortId, Spec, State, Wire};
+use sdi_camera_link::{
+    data_description, view_description, Port as PortId, Spec, State, Wire, DATA_NODE, FRAME_LOG,
+    VIEW_NODE,
+};
 
-/// Node name of the view stream (what `pipewiresrc target-object=` takes).
-pub const VIEW_NODE: &str = "sdi-camera";
-/// Node name of the raw Y16 data stream.
-pub const DATA_NODE: &str = "sdi-camera-data";
-/// `tracing` target of the per-frame log (CRC-32 of each published buffer),
-/// enabled with `RUST_LOG=sdid::pipewire::frames=trace`.
-pub const FRAME_LOG: &str = "sdid::pipewire::frames";
 /// How long [`Nodes::open`] waits for the PipeWire thread to connect.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 /// Buffers per stream: the reader may hold some while we fill another.
@@ -134,14 +130,6 @@ pub struct Nodes {
     no_signal_data: Vec<u8>,
 }
 
-/// The node description readers show, e.g. "SDI camera (depth-edge)".
-pub fn view_description(mode: &str) -> String {
-    format!("SDI camera ({mode})")
-}
-
-fn data_description(mode: &str) -> String {
-    format!("SDI camera raw data, Y16 DN+32768 ({mode})")
-}
 
 impl Nodes {
     /// Connects to the PipeWire daemon of this user (`$PIPEWIRE_REMOTE`, else
@@ -402,6 +390,12 @@ struct StreamState {
     wire: Option<Wire>,
     seq: u64,
     last_pts_ns: i64,
+}
+
+/// CLOCK_MONOTONIC now, microseconds (0 if the clock cannot be read): the
+/// clock of the link's timestamps.
+pub fn monotonic_now_us() -> u64 {
+    u64::try_from(monotonic_ns() / 1000).unwrap_or(0)
 }
 
 fn monotonic_ns() -> i64 {

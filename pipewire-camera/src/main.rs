@@ -1,0 +1,20 @@
+//! `sdi-pipewire-camera SPEC`: the per-user process that owns SDI's PipeWire
+//! camera nodes, so readers keep their stream while sdid restarts
+//! (WirePlumber ends a reader's stream when its target node goes away). sdid
+//! starts it when it is installed beside sdid and feeds it rendered frames
+//! over the socket protocol of `sdi-camera-link`; `sdid`'s
+//! `sink/pipewire.rs` is the other side.
+//!
+//! It is its own program, not a mode of sdid, so that sdid builds and runs on
+//! machines without libpipewire: only this crate links it.
+
+mod logging;
+mod nodes;
+mod server;
+
+use std::process::ExitCode;
+
+fn main() -> ExitCode {
+    logging::init();
+    server::main(std::env::args_os().nth(1))
+}
