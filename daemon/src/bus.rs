@@ -51,7 +51,7 @@ impl PrivateBus {
                 .name("sdid-bus-log".into())
                 .spawn(move || {
                     for line in BufReader::new(err).lines().map_while(Result::ok) {
-                        tracing::info!(target: "sdid::private_bus", "{line}");
+                        tracing::debug!(target: "sdid::private_bus", "{line}");
                     }
                 })?;
         }

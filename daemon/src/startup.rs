@@ -22,6 +22,7 @@ use crate::modes::{DisplayMap, DisplayRange, ModeId};
 use crate::recording::{Calibration, RecordingReader};
 use crate::sink::output::Output;
 use crate::sink::select as sink_select;
+use crate::sink::SinkInfo;
 use crate::stats::LoopStats;
 
 /// Everything sdid needs to start, parsed and validated.
@@ -89,6 +90,31 @@ pub fn exit_code(result: Result<(), StartError>) -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// sdid's first screen, after the private bus's lines: what is published,
+/// from where, why this sink, and what to open.
+fn first_screen(source: &str, mode: ModeId, sink: &SinkInfo, why: Option<&str>) -> String {
+    let published = match sink.kind {
+        "y4m" => "a y4m stream",
+        "pipewire" => "a PipeWire camera",
+        _ => "a V4L2 camera (v4l2loopback)",
+    };
+    let mut lines = vec![format!(
+        "sdid: {source}, mode {}, published as {published}",
+        mode.name()
+    )];
+    if let Some(why) = why.and_then(|w| w.strip_prefix("auto: ")) {
+        lines.push(format!("  why:     {why}"));
+    }
+    lines.push(format!(
+        "  view:    {}",
+        sink_select::how_to_watch(sink.kind, &sink.device)
+    ));
+    lines.push(
+        "  control: sdictl set-mode depth-edge   (sdictl modes: every mode; sdictl status)".into(),
+    );
+    lines.join("\n")
 }
 
 /// The display mapping of a validated `[display]` section.
@@ -170,19 +196,20 @@ pub async fn serve(
     let separation = config.separation.live_method();
     let sensor = backend.sensor().clone();
     let capture: CaptureSettings = backend.settings();
-    let (sink, why) = sink_select::open(
+    let chosen = sink_select::open(
         &config,
         sensor.width,
         sensor.height,
         capture.frame_rate_hz,
         mode,
     )
-    .map_err(StartError::Sink)?;
-    let mut output = Output::spawn(sink).map_err(|e| StartError::Sink(e.to_string()))?;
+    .map_err(|e| StartError::Sink(e.to_string()))?;
+    let why = chosen.why();
+    let mut output = Output::spawn(chosen.sink).map_err(|e| StartError::Sink(e.to_string()))?;
     output.set_mode(mode);
     let mut sink_info = output.info().clone();
+    let first_screen = first_screen(&backend.device(), mode, &sink_info, why.as_deref());
     if let Some(why) = why {
-        tracing::info!(sink = sink_info.kind, "sink {why}");
         sink_info.device = format!("{} [{why}]", sink_info.device);
     }
     let info = CameraInfo {
@@ -223,7 +250,7 @@ pub async fn serve(
         .name("sdid-frames".into())
         .spawn(move || frame_loop.run(cmd_rx))
         .map_err(|e| StartError::FrameLoop(e.to_string()))?;
-    tracing::info!(backend = %info.backend, device = %info.device, mode = mode.name(), "frame loop started");
+    tracing::debug!(backend = %info.backend, device = %info.device, mode = mode.name(), "frame loop started");
 
     let camera = Camera::new(
         info,
@@ -253,6 +280,7 @@ pub async fn serve(
         _ => return Err(StartError::NameTaken),
     }
     tracing::info!(name = BUS_NAME, path = OBJECT_PATH, "serving D-Bus API");
+    eprintln!("{first_screen}");
 
     // Stats change signals, about once a second while they change (the frame
     // rate decays to 0 when frames stop, without a new frame to say so).

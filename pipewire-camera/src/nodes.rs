@@ -130,7 +130,6 @@ pub struct Nodes {
     no_signal_data: Vec<u8>,
 }
 
-
 impl Nodes {
     /// Connects to the PipeWire daemon of this user (`$PIPEWIRE_REMOTE`, else
     /// `$XDG_RUNTIME_DIR/pipewire-0`) and creates both nodes; fails when no

@@ -44,7 +44,10 @@ pub fn bin(name: &str) -> PathBuf {
         }
         // sdid starts the PipeWire camera from beside itself, when it was built.
         if let Some(camera) = crate::pipewire::camera_program() {
-            link_file(&camera, &dir.join(sdi_daemon::sink::pipewire::CAMERA_PROGRAM));
+            link_file(
+                &camera,
+                &dir.join(sdi_daemon::sink::pipewire::CAMERA_PROGRAM),
+            );
         }
         dir
     })

@@ -361,7 +361,11 @@ fn an_unchanged_light_travel_warning_is_logged_once() {
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("sdid.log");
     // depth-edge's scene is deep enough for the warning at 12 MHz.
-    let d = spawn_logged(&bus, &["--mode", "depth-edge"], &log);
+    let d = spawn_logged(
+        &bus,
+        &["--mode", "depth-edge", "--modulation-hz", "12e6"],
+        &log,
+    );
     wait_answering(&d);
     for us in ["1000", "1500", "2000"] {
         let out = d.ctl(&["set", "exposure-us", us]);
@@ -384,4 +388,57 @@ fn an_unchanged_light_travel_warning_is_logged_once() {
     let text = std::fs::read_to_string(&log).unwrap();
     let n = text.matches("light travel").count();
     assert_eq!(n, 1, "{n} light-travel warnings:\n{text}");
+}
+
+/// The README's main job as a newcomer runs it (`--backend sim`, sink
+/// auto, no module, no PipeWire): a first screen that says which sink runs,
+/// why and what to open, and no warning in any mode with the defaults.
+#[test]
+fn the_defaults_give_a_clean_first_screen_in_every_mode() {
+    require_dbus!();
+    let bus = Bus::start();
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("sdid.log");
+    let child = Command::new(bin("sdid"))
+        .args(["--bus-address", &bus.address, "--backend", "sim"])
+        .env("RUST_LOG", "info")
+        .env("XDG_RUNTIME_DIR", dir.path())
+        .env_remove("PIPEWIRE_REMOTE")
+        .env_remove("INVOCATION_ID")
+        .env_remove("JOURNAL_STREAM")
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(&log).unwrap())
+        .spawn()
+        .expect("start sdid");
+    let d = Daemon {
+        child,
+        address: bus.address.clone(),
+    };
+    wait_answering(&d);
+    for mode in sdi_core::mode::ModeId::ALL {
+        let out = d.ctl(&["set-mode", mode.name()]);
+        assert!(out.status.success(), "{mode:?}: {out:?}");
+        // A few frames in the mode (the warnings come with the first).
+        std::thread::sleep(Duration::from_millis(300));
+    }
+    drop(d);
+    let text = std::fs::read_to_string(&log).unwrap();
+    for bad in [" WARN ", " ERROR "] {
+        assert!(!text.contains(bad), "{bad:?} with the defaults:\n{text}");
+    }
+    let fifo = dir.path().join("sdid-view.y4m");
+    for line in [
+        "sdid: simulator (TI OPT8241), mode raw, published as a y4m stream".to_string(),
+        "  why:     no v4l2loopback ".to_string(),
+        format!("  view:    ffplay {}", fifo.display()),
+        "  control: sdictl set-mode".to_string(),
+    ] {
+        assert!(text.contains(&line), "no {line:?} in:\n{text}");
+    }
+    // A few lines: nothing else at info level before the first screen ends.
+    let screen = text
+        .lines()
+        .take_while(|l| !l.starts_with("  control:"))
+        .count();
+    assert!(screen <= 6, "a first screen of {screen} lines:\n{text}");
 }

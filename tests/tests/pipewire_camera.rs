@@ -348,11 +348,15 @@ fn sink_auto_prefers_pipewire_then_y4m() {
         let device = d.ctl(&["get", "device"]);
         assert!(
             device.contains("PipeWire node")
-                && device.contains("auto: no v4l2loopback device labelled")
+                && device.contains("auto: no v4l2loopback")
                 && device.contains("PipeWire reachable"),
             "{device}"
         );
-        assert!(d.log.text().contains("sink auto:"), "{}", d.log.text());
+        assert!(
+            d.log.text().contains("published as a PipeWire camera"),
+            "{}",
+            d.log.text()
+        );
         wait_node(&s, VIEW);
     }
     // No PipeWire for this runtime directory: y4m, and it says why.
@@ -376,8 +380,8 @@ fn sink_auto_prefers_pipewire_then_y4m() {
     });
     assert!(
         device.contains("sdid-view.y4m")
-            && device.contains("auto: no v4l2loopback device")
-            && device.contains("no PipeWire daemon reachable"),
+            && device.contains("auto: no v4l2loopback")
+            && device.contains("no PipeWire running for this user"),
         "{device}"
     );
 }

@@ -342,13 +342,13 @@ fn separation_on_sdid_recordings_matches_numpy_truth_and_the_simulation() {
 }
 
 /// `sdictl status` tells the simulator's light-travel warning: the
-/// depth-edge scene at the TI preset's 12 MHz, not at 1 MHz, and not for a
-/// scene fixed with `sdid --scene` that has no depth.
+/// depth-edge scene at the board's 12 MHz, not at the simulator's default
+/// 1 MHz, and not for a scene fixed with `sdid --scene` that has no depth.
 #[test]
 fn status_warns_of_light_travel_where_it_matters() {
     require_dbus!();
     let bus = Bus::start();
-    let d = Daemon::start(&bus, &["--mode", "depth-edge"]);
+    let d = Daemon::start(&bus, &["--mode", "depth-edge", "--modulation-hz", "12e6"]);
     let status = ok(&d.ctl(&["status"]));
     assert!(status.contains("Warning: light travel"), "{status}");
     assert!(status.contains("24% of the charge"), "{status}");

@@ -236,7 +236,7 @@ mod tests {
             ("full_well", Box::new(|d| d.full_well_electrons = f64::NAN)),
             (
                 "modulation_hz",
-                Box::new(|d| d.max_modulation_hz = Some(1e6)),
+                Box::new(|d| d.max_modulation_hz = Some(0.5e6)),
             ),
         ];
         for (field, edit) in cases {

@@ -68,7 +68,10 @@ impl SensorPreset {
                     fixed_pattern_sigma_dn: 4.0,
                     exposure_us: 2000.0,
                     frame_rate_hz: 60.0,
-                    modulation_hz: 12e6,
+                    // The paper's prototype: an external generator at 1-5 MHz
+                    // (section 3), where light travel is negligible; the
+                    // board's own PLL starts near 9.4 MHz (its backend's limits).
+                    modulation_hz: 1e6,
                 }
             }
             SensorPreset::PmdCamBoardNano => {

@@ -21,7 +21,7 @@ pub struct LoopbackSink {
 }
 
 fn glue(e: v4l2loopback_glue::GlueError) -> SinkError {
-    SinkError::Unavailable(e.to_string())
+    SinkError::Loopback(e)
 }
 
 impl LoopbackSink {

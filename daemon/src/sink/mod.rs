@@ -28,6 +28,10 @@ pub struct SinkInfo {
 pub enum SinkError {
     #[error("output device unavailable: {0}")]
     Unavailable(String),
+    #[error("output device unavailable: {0}")]
+    Loopback(#[from] v4l2loopback_glue::GlueError),
+    #[error(transparent)]
+    CameraNotInstalled(#[from] pipewire_launch::NotInstalled),
     #[error("output I/O error: {0}")]
     Io(#[from] std::io::Error),
 }

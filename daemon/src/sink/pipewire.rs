@@ -15,9 +15,9 @@ use std::time::{Duration, Instant};
 use sdi_core::mode::ModeId;
 use v4l2loopback_glue::{Converter, LoopbackFormat, PixelFormat, Src, YuyvPath};
 
+use super::pipewire_launch as launch;
 use super::{Sink, SinkError, SinkInfo};
 use crate::modes::{DisplayMap, ModeOutput};
-use super::pipewire_launch as launch;
 use sdi_camera_link::{self as link, Message, Port, Spec, State, Wire};
 pub use sdi_camera_link::{
     view_description, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, VIEW_NODE,

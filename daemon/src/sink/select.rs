@@ -1,93 +1,148 @@
 //! The output sink the validated configuration asks for (`auto`:
-//! v4l2loopback, else PipeWire, else the y4m stream).
+//! v4l2loopback, else PipeWire, else the y4m stream), and for `auto` why.
 
 use std::path::PathBuf;
 
+use v4l2loopback_glue::GlueError;
+
 use super::loopback::LoopbackSink;
+use super::pipewire::{PipewireSink, VIEW_NODE};
+use super::pipewire_launch;
 use super::y4m::Y4mSink;
-use super::Sink;
+use super::{Sink, SinkError};
 use crate::config::{Config, SinkKind};
 use crate::modes::ModeId;
+
+/// The chosen sink and, for `auto`, why: each sink passed over in a phrase
+/// that names what to install (the full errors are at debug level), and
+/// what made the chosen one fit.
+pub struct Chosen {
+    pub sink: Box<dyn Sink>,
+    pub reasons: Option<Vec<String>>,
+}
+
+impl Chosen {
+    /// "auto: ...; ..." for `sdictl status`'s Device, when `auto` chose.
+    pub fn why(&self) -> Option<String> {
+        self.reasons
+            .as_ref()
+            .map(|p| format!("auto: {}", p.join("; ")))
+    }
+}
+
+/// Why `auto` passed over the loopback sink, for people.
+fn loopback_phrase(e: &SinkError, label: &str) -> String {
+    match e {
+        SinkError::Loopback(GlueError::ModuleNotLoaded { .. }) => {
+            "no v4l2loopback module loaded (package v4l2loopback-dkms)".into()
+        }
+        SinkError::Loopback(GlueError::DeviceNotFound { .. }) => {
+            format!("no v4l2loopback device labelled \"{label}\"")
+        }
+        e => format!("v4l2loopback unusable: {e}"),
+    }
+}
+
+/// Why `auto` passed over the PipeWire sink, for people.
+fn pipewire_phrase(e: &SinkError) -> String {
+    match e {
+        SinkError::CameraNotInstalled(_) => {
+            "the PipeWire camera is not installed (package sdi-pipewire-camera)".into()
+        }
+        e => format!("PipeWire unusable: {e}"),
+    }
+}
+
+/// The PipeWire daemon's socket for this user, if one is there: `auto`
+/// does not start the camera process where no PipeWire runs.
+fn pipewire_socket() -> Option<PathBuf> {
+    let remote = std::env::var_os("PIPEWIRE_REMOTE").unwrap_or_else(|| "pipewire-0".into());
+    let path = PathBuf::from(remote);
+    let path = match path.is_absolute() {
+        true => path,
+        false => PathBuf::from(std::env::var_os("XDG_RUNTIME_DIR")?).join(path),
+    };
+    path.exists().then_some(path)
+}
 
 fn open_pipewire(
     width: usize,
     height: usize,
     fps: f64,
     mode: ModeId,
-) -> Result<Box<dyn Sink>, String> {
-    use super::pipewire::{PipewireSink, VIEW_NODE};
-    let program = super::pipewire_launch::find_program().map_err(|e| e.to_string())?;
-    let s = PipewireSink::open(&program, width, height, fps, mode).map_err(|e| e.to_string())?;
-    tracing::info!(
-        device = %s.info().device,
-        "publishing as a PipeWire camera: e.g. gst-launch-1.0 pipewiresrc target-object={VIEW_NODE} ! videoconvert ! autovideosink"
-    );
+) -> Result<Box<dyn Sink>, SinkError> {
+    let program = pipewire_launch::find_program()?;
+    let s = PipewireSink::open(&program, width, height, fps, mode)?;
     Ok(Box::new(s))
 }
 
-/// The output sink, and for `auto` why it was chosen (shown in the log and
-/// in `sdictl status`'s Device).
+/// Opens the output sink.
 pub fn open(
     c: &Config,
     width: usize,
     height: usize,
     fps: f64,
     mode: ModeId,
-) -> Result<(Box<dyn Sink>, Option<String>), String> {
+) -> Result<Chosen, SinkError> {
     let kind = c.output.sink;
     let auto = kind == SinkKind::Auto;
     let mut passed = Vec::new();
     if auto || kind == SinkKind::Loopback {
         match LoopbackSink::open(&c.output.label, &c.output.data_label, width, height, fps) {
             Ok(s) => {
-                tracing::info!(device = %s.info().device, "publishing on v4l2loopback");
-                let why = auto.then(|| {
-                    format!(
-                        "auto: v4l2loopback device labelled \"{}\" found",
-                        c.output.label
-                    )
-                });
-                return Ok((Box::new(s), why));
-            }
-            Err(e) if !auto => return Err(e.to_string()),
-            Err(e) => {
-                tracing::warn!(
-                    "{e}\nNo usable v4l2loopback device labelled \"{}\". To publish a V4L2 camera: sudo apt install v4l2loopback-dkms && sudo {}\nTrying PipeWire, then a y4m stream.",
-                    c.output.label,
-                    v4l2loopback_glue::modprobe_command(&c.output.label)
-                );
                 passed.push(format!(
-                    "no v4l2loopback device labelled \"{}\"",
+                    "v4l2loopback device labelled \"{}\" found",
                     c.output.label
                 ));
-            }
-        }
-    }
-    if auto || kind == SinkKind::Pipewire {
-        match open_pipewire(width, height, fps, mode) {
-            Ok(s) => {
-                let why = auto.then(|| format!("auto: {}; PipeWire reachable", passed.join("; ")));
-                return Ok((s, why));
+                return Ok(Chosen {
+                    sink: Box::new(s),
+                    reasons: auto.then_some(passed),
+                });
             }
             Err(e) if !auto => return Err(e),
             Err(e) => {
-                tracing::info!("PipeWire sink unavailable ({e}); falling back to a y4m stream");
-                passed.push(e);
+                tracing::debug!("auto: v4l2loopback passed over: {e}");
+                passed.push(loopback_phrase(&e, &c.output.label));
+            }
+        }
+    }
+    if auto && pipewire_socket().is_none() {
+        passed.push("no PipeWire running for this user".into());
+    } else if auto || kind == SinkKind::Pipewire {
+        match open_pipewire(width, height, fps, mode) {
+            Ok(sink) => {
+                passed.push("PipeWire reachable".into());
+                return Ok(Chosen {
+                    sink,
+                    reasons: auto.then_some(passed),
+                });
+            }
+            Err(e) if !auto => return Err(e),
+            Err(e) => {
+                tracing::debug!("auto: PipeWire passed over: {e}");
+                passed.push(pipewire_phrase(&e));
             }
         }
     }
     let path = (!c.output.y4m_path.is_empty()).then(|| PathBuf::from(&c.output.y4m_path));
     let sink = Y4mSink::new(path.as_deref(), width, height, fps)
-        .map_err(|e| format!("y4m output: {e}"))?;
-    let loc = sink.location();
-    if loc == "stdout" {
-        tracing::info!("streaming y4m on stdout (e.g. sdid ... | ffplay -i -)");
-    } else {
-        tracing::info!("streaming y4m into the FIFO {loc}: watch with `ffplay {loc}`");
-        eprintln!("sdid: view the stream with: ffplay {loc}");
+        .map_err(|e| SinkError::Unavailable(format!("y4m output: {e}")))?;
+    Ok(Chosen {
+        sink: Box::new(sink),
+        reasons: auto.then_some(passed),
+    })
+}
+
+/// What a person opens to watch the sink, and how: the lines of sdid's
+/// first screen after the sink is chosen.
+pub fn how_to_watch(kind: &str, device: &str) -> String {
+    match kind {
+        "y4m" if device == "stdout" => "sdid ... | ffplay -i -".into(),
+        "y4m" => format!("ffplay {device}"),
+        "pipewire" => format!(
+            "any PipeWire camera picker (\"SDI camera\"), or \
+             gst-launch-1.0 pipewiresrc target-object={VIEW_NODE} ! videoconvert ! autovideosink"
+        ),
+        _ => format!("ffplay {device} (or any V4L2 camera application: \"SDI camera\")"),
     }
-    Ok((
-        Box::new(sink),
-        auto.then(|| format!("auto: {}", passed.join("; "))),
-    ))
 }
