@@ -32,14 +32,3 @@ pub enum SdiError {
     /// Anything else (I/O while writing a file, ...).
     Failed(String),
 }
-
-/// Checks that `value` is a finite number in `[lo, hi]`.
-pub fn check_range(name: &str, value: f64, lo: f64, hi: f64, unit: &str) -> Result<f64, SdiError> {
-    if value.is_finite() && value >= lo && value <= hi {
-        Ok(value)
-    } else {
-        Err(SdiError::OutOfRange(format!(
-            "{name} = {value} {unit} is out of range: allowed [{lo}, {hi}] {unit}"
-        )))
-    }
-}

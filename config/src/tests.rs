@@ -324,3 +324,16 @@ fn recording_bounds_are_validated() {
     // Negative numbers are refused when parsed.
     assert!(toml::from_str::<Config>("[recording]\nmax_bytes = -1").is_err());
 }
+
+/// Values in errors read as a person writes them (not 300 digits).
+#[test]
+fn out_of_range_values_are_printed_as_written() {
+    let check = crate::cli::in_range(sdi_core::sensor::capture_range::EXPOSURE_US);
+    let e = check("1e-300").unwrap_err();
+    assert_eq!(
+        e,
+        "exposure_us = 1e-300 us is out of range: allowed [1, 1000000] us"
+    );
+    let e = check("-1e300").unwrap_err();
+    assert!(e.starts_with("exposure_us = -1e300 us"), "{e}");
+}

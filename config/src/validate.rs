@@ -5,6 +5,7 @@
 use std::fmt;
 
 use sdi_core::display::MAX_RANGE_DN;
+use sdi_core::number::Number;
 use sdi_core::sensor::capture_range::{self, CaptureRange};
 use sdi_core::separation::{BilateralParams, LiveMethod, SeparationError};
 
@@ -96,7 +97,11 @@ impl Config {
             if e > period_us {
                 return Err(invalid(
                     "exposure_us",
-                    format!("{e} us is longer than the frame period {period_us} us of frame_rate_hz = {f}"),
+                    format!(
+                        "{} us is longer than the frame period {period_us:.1} us of frame_rate_hz = {}",
+                        Number(e),
+                        Number(f)
+                    ),
                 ));
             }
         }
@@ -111,7 +116,7 @@ impl Config {
         if r.is_nan() || r < 0.0 {
             return Err(invalid(
                 "display.range_max_abs_dn",
-                format!("{r} must be 0 (auto) or a positive number of DN"),
+                format!("{} must be 0 (auto) or a positive number of DN", Number(r)),
             ));
         }
         if r > MAX_RANGE_DN {

@@ -14,6 +14,7 @@ pub mod mode;
 pub mod modulation;
 pub mod named;
 pub mod npy;
+pub mod number;
 pub mod pixel_flags;
 pub mod scene;
 pub mod sensor;

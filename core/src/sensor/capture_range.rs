@@ -3,6 +3,8 @@
 //! and configuration, and the D-Bus setters all check against these.
 //! A backend may narrow them (the board's laser-safety limits), never widen.
 
+use crate::number::Number;
+
 /// A closed range `[min, max]` of one setting, with its name and unit.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CaptureRange {
@@ -17,7 +19,10 @@ pub struct CaptureRange {
 
 /// A value outside its [`CaptureRange`] (NaN and infinities included).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{name} = {value} {unit} is out of range: allowed [{min}, {max}] {unit}")]
+#[error(
+    "{name} = {} {unit} is out of range: allowed [{}, {}] {unit}",
+    Number(*.value), Number(*.min), Number(*.max)
+)]
 pub struct OutOfRange {
     pub name: &'static str,
     pub value: f64,

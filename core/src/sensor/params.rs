@@ -37,7 +37,7 @@ pub struct SensorParams {
 
 /// A parameter outside its physical range.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{name} = {value} is out of range: expected {allowed}")]
+#[error("{name} = {} is out of range: expected {allowed}", crate::number::Number(*.value))]
 pub struct ParamError {
     pub name: &'static str,
     pub value: f64,

@@ -14,7 +14,7 @@ pub enum SeparationError {
     },
     #[error("empty image")]
     Empty,
-    #[error("{name} = {value} is out of range: expected {allowed}")]
+    #[error("{name} = {} is out of range: expected {allowed}", crate::number::Number(*.value))]
     Parameter {
         name: &'static str,
         value: f64,

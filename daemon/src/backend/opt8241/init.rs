@@ -74,7 +74,10 @@ impl Default for BoardConfig {
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ConfigError {
-    #[error("{name} = {value} is out of range: expected {allowed}")]
+    #[error(
+        "{name} = {} is out of range: expected {allowed}",
+        sdi_core::number::Number(*.value)
+    )]
     OutOfRange {
         name: &'static str,
         value: f64,
