@@ -18,7 +18,6 @@ use std::path::PathBuf;
 use std::str::FromStr;
 
 use sdi_core::mode::ModeId;
-use v4l2loopback_glue::PixelFormat;
 
 /// File name of the socket in `$XDG_RUNTIME_DIR`.
 pub const SOCKET_NAME: &str = "sdi-camera.sock";
@@ -29,6 +28,19 @@ pub const LOCK_NAME: &str = "sdi-camera.lock";
 pub const CAMERA_PROGRAM: &str = "sdi-pipewire-camera";
 /// Where a package installs it, relative to the directory holding sdid.
 pub const CAMERA_LIBEXEC: &str = "../libexec/sdi";
+/// The Debian packages that build the camera program from source.
+pub const CAMERA_BUILD_PACKAGES: &str = "libpipewire-0.3-dev libspa-0.2-dev clang libclang-dev";
+
+/// Where sdid (and `sdictl doctor`) look for the camera program, given the
+/// directory of sdid's executable: beside it (a build tree, `make
+/// install`), then `../libexec/sdi/` (the package). The first that is a
+/// file is the one.
+pub fn camera_candidates(bin_dir: &std::path::Path) -> [PathBuf; 2] {
+    [
+        bin_dir.join(CAMERA_PROGRAM),
+        bin_dir.join(CAMERA_LIBEXEC).join(CAMERA_PROGRAM),
+    ]
+}
 /// How long the camera outlives sdid while no reader streams.
 pub const LINGER: std::time::Duration = std::time::Duration::from_secs(30);
 /// Node name of the view stream (what `pipewiresrc target-object=` takes).
@@ -81,16 +93,11 @@ impl Wire {
         Self::ALL.into_iter().find(|w| *w as u8 == c)
     }
 
-    pub fn glue(self) -> PixelFormat {
-        match self {
-            Wire::Yuyv => PixelFormat::Yuyv,
-            Wire::Rgb => PixelFormat::Rgb24,
-            Wire::Y16 => PixelFormat::Y16,
-        }
-    }
-
     pub fn bytes_per_pixel(self) -> usize {
-        self.glue().bytes_per_pixel()
+        match self {
+            Wire::Yuyv | Wire::Y16 => 2,
+            Wire::Rgb => 3,
+        }
     }
 
     pub fn name(self) -> &'static str {

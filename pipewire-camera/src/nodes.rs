@@ -42,6 +42,15 @@ fn spa_format(w: Wire) -> VideoFormat {
     }
 }
 
+/// The converter's name for a wire format.
+fn glue_format(w: Wire) -> v4l2loopback_glue::PixelFormat {
+    match w {
+        Wire::Yuyv => v4l2loopback_glue::PixelFormat::Yuyv,
+        Wire::Rgb => v4l2loopback_glue::PixelFormat::Rgb24,
+        Wire::Y16 => v4l2loopback_glue::PixelFormat::Y16,
+    }
+}
+
 fn wire_of(f: VideoFormat) -> Option<Wire> {
     Wire::ALL.into_iter().find(|w| spa_format(*w) == f)
 }
@@ -167,7 +176,7 @@ impl Nodes {
             let (wu, hu) = (w as usize, h as usize);
             let mut bytes = vec![0; wu * hu * wire.bytes_per_pixel()];
             let grey = no_signal_grey(wu, hu);
-            let _ = Converter::new(w, h, wire.glue(), YuyvPath::Scalar)
+            let _ = Converter::new(w, h, glue_format(wire), YuyvPath::Scalar)
                 .grey8(Src::packed(&grey, wu, hu, 1), &mut bytes);
             bytes
         };

@@ -626,6 +626,46 @@ fn pipewire_verdict(dump: Option<&str>, installed: bool, label: &str) -> Check {
     }
 }
 
+/// The PipeWire camera program, where sdid looks for it (pure over the
+/// candidates and which of them exist, unit-tested).
+fn camera_verdict(candidates: &[PathBuf], exists: impl Fn(&Path) -> bool) -> Check {
+    let program = sdi_camera_link::CAMERA_PROGRAM;
+    match candidates.iter().find(|p| exists(p)) {
+        Some(p) => Check::new(
+            "pipewire-camera",
+            Status::Ok,
+            format!("{program} installed: {}", p.display()),
+        ),
+        None => Check::new(
+            "pipewire-camera",
+            Status::Warn,
+            format!(
+                "the PipeWire camera ({program}) is not installed beside sdid (looked for {}): \
+                 without v4l2loopback sdid then streams y4m, and PipeWire apps see no \"SDI camera\"",
+                candidates
+                    .iter()
+                    .map(|p| p.display().to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        )
+        .fix(format!(
+            "sudo apt install ./sdi-pipewire-camera_*.deb (make deb builds it), or from a checkout: \
+             cargo build --release -p sdi-pipewire-camera, which needs {}",
+            sdi_camera_link::CAMERA_BUILD_PACKAGES
+        )),
+    }
+}
+
+/// [`camera_verdict`] for the sdid beside this sdictl.
+fn pipewire_camera() -> Check {
+    let dir = std::env::current_exe()
+        .ok()
+        .and_then(|e| e.parent().map(Path::to_path_buf))
+        .unwrap_or_default();
+    camera_verdict(&sdi_camera_link::camera_candidates(&dir), |p| p.is_file())
+}
+
 fn pipewire(label: &str) -> Check {
     let installed = output("pw-dump", &["--version"], Duration::from_secs(5)).is_some();
     let dump = if installed {
@@ -700,6 +740,7 @@ pub fn run(bus: &BusArgs, sysroot: &Path) -> ExitCode {
     };
     checks.push(daemon);
     checks.push(board_verdict(&boards(&sys)));
+    checks.push(pipewire_camera());
     checks.push(pipewire(labels[0]));
 
     let ok = !checks.iter().any(|c| c.status == Status::Fail);
@@ -828,6 +869,20 @@ mod tests {
             board_verdict(&[("bulk", "12".into(), "1-1".into())]).status,
             Status::Warn
         );
+    }
+
+    #[test]
+    fn a_missing_pipewire_camera_names_its_package() {
+        let c = sdi_camera_link::camera_candidates(Path::new("/usr/bin"));
+        let missing = camera_verdict(&c, |_| false);
+        assert_eq!(missing.status, Status::Warn);
+        let fix = missing.fix.as_deref().unwrap_or_default();
+        assert!(fix.contains("sdi-pipewire-camera"), "{fix}");
+        assert!(fix.contains("libpipewire-0.3-dev"), "{fix}");
+        assert!(missing.summary.contains("/usr/bin/sdi-pipewire-camera"));
+        let packaged = camera_verdict(&c, |p| p.starts_with("/usr/bin/../libexec"));
+        assert_eq!(packaged.status, Status::Ok);
+        assert!(packaged.summary.contains("libexec/sdi/sdi-pipewire-camera"));
     }
 
     #[test]

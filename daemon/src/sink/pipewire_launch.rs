@@ -14,8 +14,7 @@ use nix::sys::socket::{getsockopt, sockopt::PeerCredentials};
 
 use sdi_camera_link::{self as link, Message, Spec};
 
-/// The Debian packages that build the camera program from source.
-pub const BUILD_PACKAGES: &str = "libpipewire-0.3-dev libspa-0.2-dev clang libclang-dev";
+pub use link::CAMERA_BUILD_PACKAGES as BUILD_PACKAGES;
 
 /// The camera program is not installed where sdid looks for it.
 #[derive(Debug, thiserror::Error)]
@@ -29,24 +28,14 @@ pub struct NotInstalled {
     pub looked: String,
 }
 
-/// Where sdid looks for the camera program: beside its own executable (a
-/// build tree, `make install`), then `../libexec/sdi/` from it (the package).
-pub fn program_candidates() -> Vec<PathBuf> {
-    let Some(dir) = std::env::current_exe()
-        .ok()
-        .and_then(|e| e.parent().map(Path::to_path_buf))
-    else {
-        return Vec::new();
-    };
-    vec![
-        dir.join(link::CAMERA_PROGRAM),
-        dir.join(link::CAMERA_LIBEXEC).join(link::CAMERA_PROGRAM),
-    ]
-}
-
-/// The installed camera program, or where it was looked for.
+/// The installed camera program ([`link::camera_candidates`] from sdid's
+/// own directory), or where it was looked for.
 pub fn find_program() -> Result<PathBuf, NotInstalled> {
-    let candidates = program_candidates();
+    let candidates: Vec<PathBuf> = std::env::current_exe()
+        .ok()
+        .and_then(|e| e.parent().map(link::camera_candidates))
+        .map(Vec::from)
+        .unwrap_or_default();
     candidates
         .iter()
         .find(|p| p.is_file())
