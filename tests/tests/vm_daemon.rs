@@ -24,6 +24,7 @@ use sdi_tests::dbus::Bus;
 use sdi_tests::loopback;
 use sdi_tests::process::stdout_of;
 use sdi_tests::vm;
+use v4l2loopback_glue::CaptureReader;
 
 const NODE: u32 = 40;
 const LABEL: &str = "sdi-daemon-view";
@@ -181,7 +182,6 @@ type Dequeued = Vec<(i64, i64)>;
 /// with the reader's CLOCK_MONOTONIC right after its DQBUF.
 fn watch_stamps(dev: PathBuf, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<Dequeued> {
     std::thread::spawn(move || {
-        use v4l::io::traits::CaptureStream;
         while !loopback::advertises_capture(&dev) {
             assert!(
                 !stop.load(Ordering::Relaxed),
@@ -189,16 +189,15 @@ fn watch_stamps(dev: PathBuf, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<
             );
             std::thread::sleep(Duration::from_millis(20));
         }
-        let device = v4l::Device::with_path(&dev).expect("open the view node");
-        let mut stream =
-            v4l::io::mmap::Stream::with_buffers(&device, v4l::buffer::Type::VideoCapture, 4)
-                .expect("mmap streaming");
-        stream.set_timeout(Duration::from_secs(10));
+        let mut stream = CaptureReader::open(&dev, 4).expect("mmap streaming");
         let mut seen = Vec::new();
         while !stop.load(Ordering::Relaxed) {
-            let (_, meta) = stream.next().expect("dequeue");
+            let stamp_us = stream
+                .next(Duration::from_secs(10))
+                .expect("dequeue")
+                .timestamp_us;
             let now_us = i64::try_from(loopback::monotonic_us()).expect("clock");
-            seen.push((meta.timestamp.sec * 1_000_000 + meta.timestamp.usec, now_us));
+            seen.push((stamp_us, now_us));
         }
         seen
     })

@@ -11,8 +11,9 @@ use sdi_tests::loopback::{self, BackgroundWriter, Compliance, ModuleBuild, Modul
 use sdi_tests::sim_frames::{checksum, SimFrames};
 use sdi_tests::vm;
 use v4l2loopback_glue::{
-    control_version, create_device, find_device, query_device, remove_device, CreateOptions,
-    GlueError, IoMethod, LoopbackFormat, LoopbackWriter, ModuleVersion, PixelFormat,
+    control_version, create_device, driver_of, find_device, query_device, remove_device,
+    CaptureReader, CreateOptions, GlueError, IoMethod, LoopbackFormat, LoopbackWriter,
+    ModuleVersion, PixelFormat,
 };
 
 /// The TI OPT8241 model's size: the simulator frames are published as is.
@@ -141,7 +142,7 @@ fn check_round_trip(
             seen.len()
         );
     }
-    // and the Rust client (the v4l crate), mmap streaming
+    // and a Rust client (the glue's CaptureReader), mmap streaming
     let t0 = std::time::Instant::now();
     let data = v4l_read(&dev(nr), &cfg, 30);
     let (seen, cards) = check(&data, "v4l", 0);
@@ -155,35 +156,30 @@ fn check_round_trip(
     eprintln!("ok: {format} via {io:?}: {reads} reader(s), {frames} frames written");
 }
 
-/// Reads `frames` frames from `path` with the `v4l` crate (VIDIOC_G_FMT,
-/// mmap streaming), after checking that the node announces `cfg`'s format.
+/// Reads `frames` frames from `path` as a capture application does
+/// (VIDIOC_G_FMT, mmap streaming), after checking that the node announces
+/// `cfg`'s format.
 fn v4l_read(path: &Path, cfg: &LoopbackFormat, frames: usize) -> Vec<u8> {
-    use v4l::io::traits::CaptureStream;
-    use v4l::video::Capture;
-    let dev = v4l::Device::with_path(path).unwrap();
-    let caps = dev.query_caps().unwrap();
-    assert_eq!(caps.driver, "v4l2 loopback", "{}", path.display());
-    let fmt = dev.format().unwrap();
     assert_eq!(
-        (fmt.width, fmt.height, u32::from_le_bytes(fmt.fourcc.repr)),
+        driver_of(path).unwrap(),
+        "v4l2 loopback",
+        "{}",
+        path.display()
+    );
+    let mut stream = CaptureReader::open(path, 4).unwrap();
+    let fmt = stream.format().unwrap();
+    assert_eq!(
+        (fmt.width, fmt.height, fmt.fourcc),
         (cfg.width, cfg.height, cfg.format.fourcc()),
         "{}: capture format",
         path.display()
     );
-    let mut stream =
-        v4l::io::mmap::Stream::with_buffers(&dev, v4l::buffer::Type::VideoCapture, 4).unwrap();
-    stream.set_timeout(Duration::from_secs(10));
     let n = cfg.frame_bytes();
     let mut data = Vec::with_capacity(frames * n);
     for i in 0..frames {
-        let (buf, meta) = stream.next().unwrap();
-        assert_eq!(
-            meta.bytesused as usize,
-            n,
-            "{}: frame {i} size",
-            path.display()
-        );
-        data.extend_from_slice(&buf[..n]);
+        let frame = stream.next(Duration::from_secs(10)).unwrap();
+        assert_eq!(frame.bytes.len(), n, "{}: frame {i} size", path.display());
+        data.extend_from_slice(frame.bytes);
     }
     data
 }
@@ -203,7 +199,6 @@ fn v4l_read(path: &Path, cfg: &LoopbackFormat, frames: usize) -> Vec<u8> {
 fn check_small_reader_ring(nr: u32) {
     use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
     use std::sync::Arc;
-    use v4l::io::traits::CaptureStream;
     let cfg = LoopbackFormat {
         width: W,
         height: H,
@@ -256,15 +251,12 @@ fn check_small_reader_ring(nr: u32) {
     while !held.load(Ordering::SeqCst) {
         std::thread::sleep(Duration::from_millis(5));
     }
-    let device = v4l::Device::with_path(dev(nr)).unwrap();
-    let mut stream =
-        v4l::io::mmap::Stream::with_buffers(&device, v4l::buffer::Type::VideoCapture, 2).unwrap();
+    let mut stream = CaptureReader::open(&dev(nr), 2).unwrap();
     hold.store(false, Ordering::SeqCst);
-    stream.set_timeout(Duration::from_secs(10));
     let (mut last, mut max_lag) = (0u32, 0u32);
     for i in 0..60 {
         let newest = written.load(Ordering::SeqCst);
-        let (buf, _) = stream.next().unwrap();
+        let buf = stream.next(Duration::from_secs(10)).unwrap().bytes;
         let got = u32::from_le_bytes([buf[0], buf[1], buf[2], buf[3]]);
         assert!(got >= last, "frame {i}: counter {got} after {last}");
         if i > 0 {

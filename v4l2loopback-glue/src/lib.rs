@@ -40,9 +40,12 @@
 //! unwrap a `/dev/video*` name without digits or not UTF-8, its
 //! `Capabilities` unwraps a non-UTF-8 card label, which any user of the
 //! control device can set), lacks `device_caps` (exclusive_caps), and always
-//! opens `O_NONBLOCK` without adopting a descriptor; `v4l` is the independent
-//! Rust capture client in `tests/tests/vm_loopback.rs` instead.
+//! opens `O_NONBLOCK` without adopting a descriptor. The tests' Rust capture
+//! client is `capture.rs` over the same `sys.rs` (v4l's bindings need
+//! libclang to build); the independent readers are ffmpeg, GStreamer,
+//! OpenCV, v4l2-compliance and the browsers.
 
+mod capture;
 mod convert;
 mod device;
 mod error;
@@ -50,6 +53,7 @@ mod format;
 mod sys;
 mod writer;
 
+pub use capture::{capture_format, driver_of, CaptureFormat, CaptureReader, Captured};
 pub use convert::{dn_to_y16, Converter, Src, YuyvPath};
 pub use device::{
     control_version, create_device, find_device, modprobe_command, query_device, remove_device,

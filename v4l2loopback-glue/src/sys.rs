@@ -12,6 +12,7 @@ use std::os::fd::{AsRawFd, BorrowedFd};
 
 use nix::errno::Errno;
 
+pub const V4L2_BUF_TYPE_VIDEO_CAPTURE: u32 = 1;
 pub const V4L2_BUF_TYPE_VIDEO_OUTPUT: u32 = 2;
 pub const V4L2_MEMORY_MMAP: u32 = 1;
 pub const V4L2_FIELD_NONE: u32 = 1;
@@ -283,6 +284,7 @@ mod raw {
     nix::ioctl_readwrite!(reqbufs, b'V', 8, v4l2_requestbuffers);
     nix::ioctl_readwrite!(querybuf, b'V', 9, v4l2_buffer);
     nix::ioctl_readwrite!(qbuf, b'V', 15, v4l2_buffer);
+    nix::ioctl_readwrite!(dqbuf, b'V', 17, v4l2_buffer);
     nix::ioctl_write_ptr!(streamon, b'V', 18, libc::c_int);
     nix::ioctl_write_ptr!(streamoff, b'V', 19, libc::c_int);
     nix::ioctl_readwrite!(s_parm, b'V', 22, v4l2_streamparm);
@@ -327,6 +329,7 @@ safe_ioctl!(s_fmt, raw::s_fmt, mut v4l2_format);
 safe_ioctl!(reqbufs, raw::reqbufs, mut v4l2_requestbuffers);
 safe_ioctl!(querybuf, raw::querybuf, mut v4l2_buffer);
 safe_ioctl!(qbuf, raw::qbuf, mut v4l2_buffer);
+safe_ioctl!(dqbuf, raw::dqbuf, mut v4l2_buffer);
 safe_ioctl!(streamon, raw::streamon, const libc::c_int);
 safe_ioctl!(streamoff, raw::streamoff, const libc::c_int);
 safe_ioctl!(s_parm, raw::s_parm, mut v4l2_streamparm);
@@ -385,6 +388,12 @@ impl Mapping {
             )?
         };
         Ok(Self { ptr, len })
+    }
+
+    pub fn as_slice(&self) -> &[u8] {
+        // SAFETY: `ptr` is a live PROT_READ mapping of `len` bytes, borrowed
+        // through &self for the slice's lifetime.
+        unsafe { std::slice::from_raw_parts(self.ptr.as_ptr().cast::<u8>(), self.len) }
     }
 
     pub fn as_mut_slice(&mut self) -> &mut [u8] {

@@ -8,6 +8,8 @@
 
 use std::time::{Duration, Instant};
 
+use std::path::Path;
+
 use v4l2loopback_glue::{IoMethod, LoopbackFormat, LoopbackWriter, PixelFormat};
 
 fn parse_format(s: &str) -> PixelFormat {
@@ -104,21 +106,19 @@ fn monotonic_us() -> i64 {
 /// seen before (the module re-sending the last frame) is not a new frame and
 /// is skipped; one stamped earlier than the last is counted in B.
 fn latency(dev: &str, window: Duration) {
-    use v4l::io::traits::CaptureStream;
-    let device = v4l::Device::with_path(dev).expect("open the node");
     let mut stream =
-        v4l::io::mmap::Stream::with_buffers(&device, v4l::buffer::Type::VideoCapture, 4)
-            .expect("mmap streaming");
-    stream.set_timeout(Duration::from_secs(10));
+        v4l2loopback_glue::CaptureReader::open(Path::new(dev), 4).expect("mmap streaming");
     let start = Instant::now();
     let mut last_stamp_us = i64::MIN;
     let mut ages_us = Vec::new();
     // Buffers stamped earlier than the one before (never expected).
     let mut went_back = 0u64;
     while start.elapsed() < window {
-        let (_, meta) = stream.next().expect("dequeue");
+        let stamp_us = stream
+            .next(Duration::from_secs(10))
+            .expect("dequeue")
+            .timestamp_us;
         let now_us = monotonic_us();
-        let stamp_us = meta.timestamp.sec * 1_000_000 + meta.timestamp.usec;
         if stamp_us > last_stamp_us {
             ages_us.push(now_us - stamp_us);
             last_stamp_us = stamp_us;
