@@ -6,6 +6,7 @@
 mod common;
 use common::{scratch, sdictl};
 
+use std::io::Write;
 use std::path::Path;
 use std::process::{Command, Output};
 
@@ -128,7 +129,10 @@ fn m1_round_trip_from_data_alone_matches_truth_and_numpy() {
         "{rms_err} vs {rms_se}"
     );
     let Some(py) = numpy_python() else {
-        eprintln!("SKIPPED numpy comparison: no python3 with numpy");
+        let _ = writeln!(
+            std::io::stderr(),
+            "SKIPPED numpy comparison: no python3 with numpy (apt-get install python3-numpy)"
+        );
         return;
     };
     let h = mixing_with_adc(&SensorPreset::TiOpt8241.params());
@@ -239,7 +243,10 @@ fn m1_on_a_recording_equals_numpy_and_survives_truncation() {
         );
         assert!(d < 1e-5, "numpy and sdictl differ by {d} (relative)");
     } else {
-        eprintln!("SKIPPED numpy comparison: no python3 with numpy");
+        let _ = writeln!(
+            std::io::stderr(),
+            "SKIPPED numpy comparison: no python3 with numpy (apt-get install python3-numpy)"
+        );
     }
     // The same frames as .npy give the same result with the same sensor.
     let out2 = dir.join("s2.npy");

@@ -317,7 +317,7 @@ pub fn stats(d: &Daemon) -> serde_json::Value {
 macro_rules! require_dbus {
     () => {
         if !$crate::dbus::have_dbus() {
-            eprintln!("SKIPPED: dbus-daemon is not installed (apt-get install dbus)");
+            $crate::skipped!("SKIPPED: dbus-daemon is not installed (apt-get install dbus)");
             return;
         }
     };

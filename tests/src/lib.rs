@@ -9,5 +9,6 @@ pub mod loopback;
 pub mod pipewire;
 pub mod process;
 pub mod sim_frames;
+pub mod skip;
 pub mod udev;
 pub mod vm;

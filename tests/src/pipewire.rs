@@ -65,7 +65,7 @@ macro_rules! require_pipewire {
                 "PipeWire test cannot run and SDI_REQUIRE_VM is set: {why} \
                  (apt-get install pipewire pipewire-bin wireplumber gstreamer1.0-pipewire gstreamer1.0-tools)"
             );
-            eprintln!("SKIPPED: {why} (apt-get install pipewire pipewire-bin wireplumber gstreamer1.0-pipewire gstreamer1.0-tools)");
+            $crate::skipped!("SKIPPED: {why} (apt-get install pipewire pipewire-bin wireplumber gstreamer1.0-pipewire gstreamer1.0-tools)");
             return;
         }
     };

@@ -48,7 +48,7 @@ pub fn run_test_in_vm(name: &str, timeout_s: u32) -> bool {
             std::env::var_os("SDI_REQUIRE_VM").is_none(),
             "VM test {name} cannot run and SDI_REQUIRE_VM is set: {reason}"
         );
-        eprintln!("SKIPPED (no VM): {name}: {reason}");
+        crate::skipped!("SKIPPED (no VM): {name}: {reason}");
         return false;
     }
     let exe = std::env::current_exe().expect("test binary path");

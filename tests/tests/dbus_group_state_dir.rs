@@ -23,7 +23,7 @@ fn group_members_write_by_path_into_a_root_group_state_dir() {
     if !nix::unistd::geteuid().is_root()
         || Command::new("setpriv").arg("--version").output().is_err()
     {
-        eprintln!("SKIPPED: needs root and setpriv");
+        sdi_tests::skipped!("SKIPPED: needs root and setpriv (util-linux)");
         return;
     }
     for mode in [0o750, 0o770] {

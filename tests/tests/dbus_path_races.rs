@@ -218,11 +218,11 @@ impl Setup {
 
 fn skip() -> bool {
     if !nix::unistd::geteuid().is_root() {
-        eprintln!("SKIPPED: the races need a root sdid (run as root)");
+        sdi_tests::skipped!("SKIPPED: the races need a root sdid (run as root)");
         return true;
     }
     if Command::new("setpriv").arg("--version").output().is_err() {
-        eprintln!("SKIPPED: setpriv is not installed");
+        sdi_tests::skipped!("SKIPPED: setpriv is not installed (apt-get install util-linux)");
         return true;
     }
     false

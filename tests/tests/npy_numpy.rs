@@ -18,7 +18,7 @@ fn numpy(script: &str, args: &[&Path]) -> Option<String> {
             "numpy is needed and SDI_REQUIRE_VM is set: {PYTHON} -c 'import numpy' failed \
              (tests/vm/setup-host.sh installs python3-numpy)"
         );
-        eprintln!("skipped: no numpy for {PYTHON}");
+        sdi_tests::skipped!("SKIPPED: no numpy for {PYTHON} (apt-get install python3-numpy)");
         return None;
     }
     let out = Command::new(PYTHON)

@@ -186,7 +186,7 @@ fn separation_on_sdid_recordings_matches_numpy_truth_and_the_simulation() {
         eprintln!("numpy M1 against sdictl separate: max relative difference {diff:.2e}");
         assert!(diff < 1e-5, "numpy and sdictl differ by {diff} (relative)");
     } else {
-        eprintln!("SKIPPED numpy comparison: no numpy");
+        sdi_tests::skipped!("SKIPPED numpy comparison: no numpy (apt-get install python3-numpy)");
     }
 
     // 2. report separation on the recordings against the in-memory simulation.

@@ -107,7 +107,7 @@ fn sdictl_status_starts_sdid_by_activation() {
         .output()
         .is_err()
     {
-        eprintln!("SKIPPED: dbus-daemon is not installed (apt-get install dbus)");
+        sdi_tests::skipped!("SKIPPED: dbus-daemon is not installed (apt-get install dbus)");
         return;
     }
     let bin = |name: &str, var: &str| -> PathBuf {

@@ -93,7 +93,7 @@ fn have_systemd_analyze() -> bool {
         .output()
         .is_ok_and(|o| o.status.success());
     if !ok {
-        eprintln!("SKIPPED: systemd-analyze is not installed (apt-get install systemd)");
+        sdi_tests::skipped!("SKIPPED: systemd-analyze is not installed (apt-get install systemd)");
     }
     ok
 }
@@ -159,7 +159,7 @@ fn user_unit_passes_systemd_analyze_verify() {
 #[test]
 fn user_unit_stands_down_while_the_system_service_runs() {
     if Command::new("busctl").arg("--version").output().is_err() {
-        eprintln!("skipped: no busctl");
+        sdi_tests::skipped!("SKIPPED: busctl is not installed (apt-get install systemd)");
         return;
     }
     let dir = scratch("user-condition");

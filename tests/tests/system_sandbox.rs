@@ -26,7 +26,9 @@ fn sdid_serves_inside_the_unit_sandbox() {
     require_dbus!();
     // SAFETY: geteuid has no preconditions.
     if unsafe { libc::geteuid() } != 0 {
-        eprintln!("SKIPPED: needs root for the mount namespace of tests/system/sandbox.sh");
+        sdi_tests::skipped!(
+            "SKIPPED: needs root for the mount namespace of tests/system/sandbox.sh"
+        );
         return;
     }
     let state = tempfile::tempdir().unwrap();

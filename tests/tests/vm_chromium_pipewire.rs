@@ -102,7 +102,7 @@ fn in_vm_checks() {
             std::env::var_os("SDI_REQUIRE_VM").is_none(),
             "the PipeWire camera test needs {why}, and SDI_REQUIRE_VM is set"
         );
-        eprintln!("SKIPPED: the PipeWire camera test needs {why}");
+        sdi_tests::skipped!("SKIPPED: the PipeWire camera test needs {why}");
         return;
     }
     // WirePlumber 0.4.13 quits ("failed to start systemd logind monitor")
