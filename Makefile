@@ -5,6 +5,7 @@
 #   make                                  # cargo build --release
 #   make install [DESTDIR=...] [PREFIX=/usr/local]
 #   make uninstall [DESTDIR=...] [PREFIX=/usr/local]
+#   make deb                              # Debian packages in target/debian/
 #
 # With PREFIX=/usr the system-integration files go to the distribution's
 # directories (/usr/lib/..., /usr/share/...); with any other prefix they go
@@ -17,7 +18,8 @@ PREFIX      ?= /usr/local
 DESTDIR     ?=
 CARGO       ?= cargo
 INSTALL     ?= install
-TARGETDIR   ?= target/release
+# CARGO_TARGET_DIR moves cargo's output, and with it what is installed.
+TARGETDIR   ?= $(or $(CARGO_TARGET_DIR),target)/release
 
 BINDIR      ?= $(PREFIX)/bin
 DATADIR     ?= $(PREFIX)/share
@@ -47,7 +49,7 @@ BINARIES = sdid sdictl
 GENDIR    ?= target/dist
 GENERATED = $(GENDIR)/sdid.service $(GENDIR)/sdid-user.service $(GENDIR)/org.sdi.Daemon.service
 
-.PHONY: all build install uninstall clean-generated check-rules FORCE
+.PHONY: all build install uninstall clean-generated check-rules deb deb-package FORCE
 all: build
 
 build:
@@ -127,3 +129,20 @@ endif
 
 clean-generated:
 	rm -rf $(GENDIR)
+
+# Debian packages (docs/install.md): `make deb` builds the release binaries
+# (and the PipeWire camera when its crate builds here) and packages them;
+# `make deb-package` only packages what TARGETDIR holds. The packages are
+# dpkg-deb over a `make install DESTDIR=...` tree, see packaging/debian/mkdeb.sh
+# for why not cargo-deb.
+DEBDIR ?= target/debian
+
+deb: build
+	@if [ -f pipewire-camera/Cargo.toml ]; then \
+	  $(CARGO) build --release -p sdi-pipewire-camera \
+	    || echo "note: sdi-pipewire-camera did not build (libpipewire-0.3-dev, libspa-0.2-dev, clang, libclang-dev?): packaging sdi alone" >&2; \
+	fi
+	$(MAKE) --no-print-directory deb-package
+
+deb-package:
+	MAKE="$(MAKE)" packaging/debian/mkdeb.sh $(TARGETDIR) $(DEBDIR)

@@ -6,6 +6,7 @@ pub mod browser;
 pub mod clients;
 pub mod dbus;
 pub mod loopback;
+pub mod package;
 pub mod pipewire;
 pub mod process;
 pub mod sim_frames;

@@ -9,7 +9,8 @@
 //! database with inotify, and `udevadm trigger --settle` listens for the
 //! events it caused on the udev monitor.
 
-use std::path::Path;
+use std::fs;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
@@ -55,4 +56,18 @@ pub fn wait_initialized(devices: &[&Path]) {
 /// every event the trigger caused.
 pub fn trigger_settled(args: &[&str]) {
     must(udevadm().arg("trigger").args(args).arg("--settle"));
+}
+
+/// The enumerated USB device (sysfs path, canonical) with this
+/// vendor:product, e.g. the host side of a gadget.
+pub fn usb_device(vendor: &str, product: &str) -> Option<PathBuf> {
+    fs::read_dir("/sys/bus/usb/devices")
+        .ok()?
+        .flatten()
+        .find_map(|e| {
+            let p = e.path();
+            let attr = |name: &str| fs::read_to_string(p.join(name)).map(|s| s.trim().to_owned());
+            (attr("idVendor").ok()? == vendor && attr("idProduct").ok()? == product)
+                .then(|| fs::canonicalize(&p).unwrap_or(p))
+        })
 }

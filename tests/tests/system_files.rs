@@ -12,6 +12,9 @@ use std::os::unix::fs::PermissionsExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+// Every file `make install` puts under DESTDIR for PREFIX=/usr (the Debian
+// package holds them too: tests/tests/package_deb.rs).
+use sdi_tests::package::MAKE_INSTALL_FILES as INSTALLED;
 use sdi_tests::process::{must, repo_root, run};
 
 /// `systemd-analyze security` of the unit as shipped: no higher than the
@@ -344,24 +347,6 @@ fn modprobe_options_parse() {
         assert!(options.contains(wanted), "{wanted} missing in {options}");
     }
 }
-
-/// Every file `make install` puts under DESTDIR for PREFIX=/usr.
-const INSTALLED: &[&str] = &[
-    "usr/bin/sdid",
-    "usr/bin/sdictl",
-    "usr/lib/systemd/system/sdid.service",
-    "usr/lib/systemd/user/sdid.service",
-    "usr/lib/udev/rules.d/70-sdi-board.rules",
-    "usr/share/dbus-1/system.d/org.sdi.Daemon.conf",
-    "usr/share/dbus-1/system-services/org.sdi.Daemon.service",
-    "usr/lib/modprobe.d/sdi-v4l2loopback.conf",
-    "usr/lib/modules-load.d/sdi-v4l2loopback.conf",
-    "usr/lib/sysusers.d/sdi.conf",
-    "usr/share/man/man1/sdictl.1",
-    "usr/share/bash-completion/completions/sdictl",
-    "usr/share/zsh/vendor-completions/_sdictl",
-    "usr/share/fish/vendor_completions.d/sdictl.fish",
-];
 
 fn files_under(dir: &Path) -> Vec<PathBuf> {
     let mut out = Vec::new();

@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use sdi_tests::process::{must as run, repo_root, Reaped};
-use sdi_tests::udev::{start_udevd, udevadm, wait_initialized};
+use sdi_tests::udev::{start_udevd, udevadm, usb_device, wait_initialized};
 use sdi_tests::vm;
 
 const GADGET: &str = "/sys/kernel/config/usb_gadget/sdi-board";
@@ -30,19 +30,6 @@ fn wait_until(what: &str, mut ready: impl FnMut() -> bool) {
         assert!(Instant::now() < deadline, "timed out waiting for {what}");
         std::thread::sleep(Duration::from_millis(100));
     }
-}
-
-/// The enumerated USB device (host side of the gadget) with this vendor:product.
-fn usb_device(vendor: &str, product: &str) -> Option<PathBuf> {
-    fs::read_dir("/sys/bus/usb/devices")
-        .ok()?
-        .flatten()
-        .find_map(|e| {
-            let p = e.path();
-            let attr = |name: &str| fs::read_to_string(p.join(name)).map(|s| s.trim().to_owned());
-            (attr("idVendor").ok()? == vendor && attr("idProduct").ok()? == product)
-                .then(|| fs::canonicalize(&p).unwrap_or(p))
-        })
 }
 
 /// Builds the gadget (unbound) with one ACM function.
