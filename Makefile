@@ -22,6 +22,8 @@ INSTALL     ?= install
 TARGETDIR   ?= $(or $(CARGO_TARGET_DIR),target)/release
 
 BINDIR      ?= $(PREFIX)/bin
+# sdid looks for the PipeWire camera in ../libexec/sdi from its own directory.
+CAMERADIR   ?= $(PREFIX)/libexec/sdi
 DATADIR     ?= $(PREFIX)/share
 MANDIR      ?= $(DATADIR)/man
 SYSCONFDIR  ?= /etc
@@ -52,8 +54,12 @@ GENERATED = $(GENDIR)/sdid.service $(GENDIR)/sdid-user.service $(GENDIR)/org.sdi
 .PHONY: all build install uninstall clean-generated check-rules deb deb-package FORCE
 all: build
 
+# The PipeWire camera needs libpipewire-0.3-dev, libspa-0.2-dev, clang and
+# libclang-dev; where they are missing sdid and sdictl still build.
 build:
 	$(CARGO) build --release -p sdi-daemon -p sdi-cli
+	@$(CARGO) build --release -p sdi-pipewire-camera \
+	  || echo "note: the PipeWire camera did not build (needs libpipewire-0.3-dev libspa-0.2-dev clang libclang-dev); sdid and sdictl did" >&2
 
 $(GENDIR)/sdid.service: udev/systemd/sdid.service.in FORCE
 	@mkdir -p $(GENDIR)
@@ -75,6 +81,10 @@ install: $(GENERATED)
 	done
 	$(INSTALL) -d $(DESTDIR)$(BINDIR)
 	$(INSTALL) -m 0755 $(addprefix $(TARGETDIR)/,$(BINARIES)) $(DESTDIR)$(BINDIR)/
+	@if [ -x $(TARGETDIR)/sdi-pipewire-camera ]; then \
+	  echo "$(INSTALL) -D -m 0755 $(TARGETDIR)/sdi-pipewire-camera $(DESTDIR)$(CAMERADIR)/sdi-pipewire-camera"; \
+	  $(INSTALL) -D -m 0755 $(TARGETDIR)/sdi-pipewire-camera $(DESTDIR)$(CAMERADIR)/sdi-pipewire-camera; \
+	fi
 	$(INSTALL) -D -m 0644 $(GENDIR)/sdid.service $(DESTDIR)$(UNITDIR)/sdid.service
 	$(INSTALL) -D -m 0644 $(GENDIR)/sdid-user.service $(DESTDIR)$(USERUNITDIR)/sdid.service
 	$(INSTALL) -D -m 0644 udev/70-sdi-board.rules $(DESTDIR)$(UDEVRULESDIR)/70-sdi-board.rules
@@ -112,6 +122,8 @@ install-docs:
 
 uninstall:
 	rm -f $(addprefix $(DESTDIR)$(BINDIR)/,$(BINARIES))
+	rm -f $(DESTDIR)$(CAMERADIR)/sdi-pipewire-camera
+	-rmdir $(DESTDIR)$(CAMERADIR) 2>/dev/null
 	rm -f $(DESTDIR)$(UNITDIR)/sdid.service $(DESTDIR)$(USERUNITDIR)/sdid.service
 	rm -f $(DESTDIR)$(UDEVRULESDIR)/70-sdi-board.rules
 	rm -f $(DESTDIR)$(DBUSPOLICYDIR)/org.sdi.Daemon.conf
@@ -138,10 +150,6 @@ clean-generated:
 DEBDIR ?= target/debian
 
 deb: build
-	@if [ -f pipewire-camera/Cargo.toml ]; then \
-	  $(CARGO) build --release -p sdi-pipewire-camera \
-	    || echo "note: sdi-pipewire-camera did not build (libpipewire-0.3-dev, libspa-0.2-dev, clang, libclang-dev?): packaging sdi alone" >&2; \
-	fi
 	$(MAKE) --no-print-directory deb-package
 
 deb-package:
