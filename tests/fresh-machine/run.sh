@@ -436,13 +436,14 @@ if [ "$M_BUILD" = yes ]; then
     # publishes frames
     fifo=
     for _ in $(seq "$FRAME_WAIT_SECS"); do
-        fifo=$(sed -n 's/.*view the stream with: ffplay \(.*\)$/\1/p' "$MAIN_LOG" | tail -1)
+        # sdid's first screen: "  view:    ffplay PATH"
+        fifo=$(sed -n 's/^ *view: *ffplay \(.*\)$/\1/p' "$MAIN_LOG" | tail -1)
         [ -n "$fifo" ] && break
         sdid_running || break
         sleep 1
     done
     if [ -z "$fifo" ]; then
-        M_Y4M_NOTE="sdid announced no y4m stream (\"view the stream with: ffplay PATH\")"
+        M_Y4M_NOTE="sdid announced no y4m stream (\"view:    ffplay PATH\" on its first screen)"
     elif [ ! -p "$ROOT$fifo" ]; then
         M_Y4M_NOTE="$fifo (in the root) is not a FIFO"
     else
