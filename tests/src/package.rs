@@ -68,7 +68,7 @@ pub fn have_tools(what: &str, tools: &[(&str, &str)]) -> bool {
         std::env::var_os("SDI_REQUIRE_PACKAGING").is_none(),
         "{line}, and SDI_REQUIRE_PACKAGING is set"
     );
-    eprintln!("SKIPPED: {line}");
+    crate::skipped!("SKIPPED: {line}");
     false
 }
 

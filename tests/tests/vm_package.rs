@@ -9,6 +9,10 @@
 //! starts the packaged sdid by D-Bus activation (the guest has no systemd:
 //! the bus runs the activation file's `Exec=` through its launch helper),
 //! it drives the board and headless Chromium shows a frame of "SDI camera".
+//! The `sdi-pipewire-camera` package then installs beside it: in a user
+//! session (PipeWire, WirePlumber, a session bus), the packaged sdid finds
+//! the camera in /usr/libexec/sdi and GStreamer's pipewiresrc reads frames
+//! of "SDI camera"; its purge leaves none of its files.
 //! Then `apt-get remove` keeps the state directory and `apt-get purge`
 //! removes it, saying so, and leaves no file of `dpkg -L sdi` behind.
 //!
@@ -21,11 +25,15 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
+use nix::sys::signal::{kill, Signal};
+use nix::unistd::Pid;
+use sdi_daemon::sink::pipewire::VIEW_NODE;
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::browser::{Browser, PageServer};
 use sdi_tests::clients::wait_until;
 use sdi_tests::loopback;
 use sdi_tests::package;
+use sdi_tests::pipewire;
 use sdi_tests::process::{must, run, Reaped};
 use sdi_tests::udev::{start_udevd, udevadm, usb_device, wait_initialized};
 use sdi_tests::vm;
@@ -45,6 +53,19 @@ fn vm_apt_installs_activates_and_purges_the_package() {
         }
         let Some(debs) = package::debs() else { return };
         std::env::set_var("SDI_DEB", &debs.sdi);
+        match &debs.camera {
+            Some(camera) => std::env::set_var("SDI_CAMERA_DEB", camera),
+            None => {
+                let why = "no sdi-pipewire-camera package: the camera program was not built \
+                           (cargo build -p sdi-pipewire-camera, which needs libpipewire-0.3-dev \
+                           libspa-0.2-dev clang libclang-dev)";
+                assert!(
+                    std::env::var_os("SDI_REQUIRE_VM").is_none(),
+                    "{why}, and SDI_REQUIRE_VM is set"
+                );
+                sdi_tests::skipped!("SKIPPED: the camera package's part of {NAME}: {why}");
+            }
+        }
         // Chromium needs more than the default 1 GiB.
         std::env::set_var("VMRUN_MEM", "2560");
         std::env::set_var(
@@ -292,6 +313,10 @@ fn in_vm() {
     stop(pid);
     drop(emu);
 
+    if let Some(camera) = std::env::var_os("SDI_CAMERA_DEB") {
+        camera_package(Path::new(&camera));
+    }
+
     // What the service and the administrator leave in place.
     fs::create_dir_all("/var/lib/sdi").unwrap();
     fs::write("/var/lib/sdi/calibration.toml", "# test\n").unwrap();
@@ -354,6 +379,54 @@ fn in_vm() {
     );
 }
 
+/// The PipeWire camera package in a user session: installed beside sdi,
+/// started by the packaged sdid from /usr/libexec/sdi, read by pipewiresrc,
+/// purged without a trace.
+fn camera_package(deb: &Path) {
+    let t0 = Instant::now();
+    apt_get(&["install", deb.to_str().unwrap()]);
+    let listed = String::from_utf8_lossy(
+        &must(Command::new("dpkg").args(["-L", "sdi-pipewire-camera"])).stdout,
+    )
+    .into_owned();
+    let files: Vec<&str> = listed.lines().filter(|p| !Path::new(p).is_dir()).collect();
+    assert!(
+        files.contains(&"/usr/libexec/sdi/sdi-pipewire-camera"),
+        "{listed}"
+    );
+    {
+        let s = pipewire::Session::start();
+        let _sdid = Reaped(
+            s.command("/usr/bin/sdid")
+                .args(["--bus-address", &s.bus.address, "--backend", "sim"])
+                .args(["--sink", "pipewire", "--frame-rate-hz", "15"])
+                .env("RUST_LOG", "info")
+                .spawn()
+                .expect("start the packaged sdid"),
+        );
+        pipewire::wait_for(
+            "the packaged camera's sdi-camera node",
+            Duration::from_secs(120),
+            || s.node(VIEW_NODE),
+        );
+        let rgb = s.read_frames(
+            VIEW_NODE,
+            "video/x-raw,format=RGB",
+            5,
+            Duration::from_secs(120),
+        );
+        assert_eq!(rgb.len(), 5 * 640 * 480 * 3, "5 RGB frames of SDI camera");
+    }
+    apt_get(&["purge", "sdi-pipewire-camera"]);
+    for f in &files {
+        assert!(!Path::new(f).exists(), "{f} still there after purge");
+    }
+    eprintln!(
+        "camera package installed, read through PipeWire and purged in {:.1} s",
+        t0.elapsed().as_secs_f64()
+    );
+}
+
 /// SIGTERM to `pid`, then SIGKILL if it has not ended after 15 s. (The
 /// activated sdid's parent is gone; nobody reaps it here, so "ended" is a
 /// zombie.)
@@ -362,19 +435,14 @@ fn stop(pid: i32) {
         fs::read_to_string(format!("/proc/{pid}/stat"))
             .is_ok_and(|s| s.rsplit(") ").next().is_some_and(|r| !r.starts_with('Z')))
     };
-    // SAFETY: kill(2) on the pid the bus reported for sdid.
-    unsafe {
-        libc::kill(pid, libc::SIGTERM);
-    }
+    let pid = Pid::from_raw(pid);
+    let _ = kill(pid, Signal::SIGTERM);
     let deadline = Instant::now() + Duration::from_secs(15);
     while running() && Instant::now() < deadline {
         std::thread::sleep(Duration::from_millis(50));
     }
     if running() {
         eprintln!("sdid did not end on SIGTERM in 15 s: SIGKILL");
-        // SAFETY: as above.
-        unsafe {
-            libc::kill(pid, libc::SIGKILL);
-        }
+        let _ = kill(pid, Signal::SIGKILL);
     }
 }
