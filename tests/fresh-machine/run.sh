@@ -61,6 +61,8 @@ usage: $0 [options]          (as root)
   --runtime-dir       give the user /run/user/UID as XDG_RUNTIME_DIR, as a
                       logind session would (default: none)
   --tests-anyway      run command 2 even when command 1 did not build
+  --no-fail-fast      append --no-fail-fast to command 2 (every failing test
+                      binary in one run; the README's command stops at the first)
   --exact-env         run the tests without RUST_TEST_NOCAPTURE=1 (skip
                       messages of passing tests are then not shown)
   --build-timeout MIN main job build (default $BUILD_TIMEOUT_MIN)
@@ -82,6 +84,7 @@ while [ $# -gt 0 ]; do
         --as-root) AS_ROOT=1 ;;
         --runtime-dir) RUNTIME_DIR=1 ;;
         --tests-anyway) TESTS_ANYWAY=1 ;;
+        --no-fail-fast) NO_FAIL_FAST=1 ;;
         --exact-env) EXACT_ENV=1 ;;
         --build-timeout) BUILD_TIMEOUT_MIN=$2; shift ;;
         --test-timeout) TEST_TIMEOUT_MIN=$2; shift ;;
@@ -491,6 +494,7 @@ if [ "$M_BUILD" = yes ] || [ "$TESTS_ANYWAY" = 1 ]; then
     TENV=()
     [ "$EXACT_ENV" = 1 ] || TENV=(RUST_TEST_NOCAPTURE=1)
     T_RAN=yes
+    [ "${NO_FAIL_FAST:-0}" = 1 ] && CMD2="$CMD2 --no-fail-fast"
     t0=$(date +%s)
     T_RC=0
     run_timed $((TEST_TIMEOUT_MIN * 60)) env --default-signal=INT,QUIT nice -n 10 \

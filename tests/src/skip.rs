@@ -20,3 +20,29 @@ macro_rules! skipped {
         $crate::skip::line(format_args!($($arg)*))
     };
 }
+
+/// True when `program --version` (or `args`) runs here. Otherwise prints
+/// the skip line naming the Debian `package` and returns false; with
+/// `SDI_REQUIRE_VM` set (CI installs every package) that is a failure.
+pub fn have(program: &str, args: &[&str], package: &str, what: &str) -> bool {
+    let runs = std::process::Command::new(program)
+        .args(if args.is_empty() {
+            &["--version"]
+        } else {
+            args
+        })
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    if !runs {
+        assert!(
+            std::env::var_os("SDI_REQUIRE_VM").is_none(),
+            "{what} needs {program} and SDI_REQUIRE_VM is set (apt-get install {package})"
+        );
+        line(format_args!(
+            "SKIPPED: {what} needs {program} (apt-get install {package})"
+        ));
+    }
+    runs
+}
