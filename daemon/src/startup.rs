@@ -94,7 +94,7 @@ pub fn exit_code(result: Result<(), StartError>) -> ExitCode {
 
 /// sdid's first screen, after the private bus's lines: what is published,
 /// from where, why this sink, and what to open.
-fn first_screen(source: &str, mode: ModeId, sink: &SinkInfo, why: Option<&str>) -> String {
+fn first_screen(source: &str, mode: ModeId, sink: &SinkInfo, reasons: Option<&str>) -> String {
     let published = match sink.kind {
         "y4m" => "a y4m stream",
         "pipewire" => "a PipeWire camera",
@@ -104,8 +104,8 @@ fn first_screen(source: &str, mode: ModeId, sink: &SinkInfo, why: Option<&str>) 
         "sdid: {source}, mode {}, published as {published}",
         mode.name()
     )];
-    if let Some(why) = why.and_then(|w| w.strip_prefix("auto: ")) {
-        lines.push(format!("  why:     {why}"));
+    if let Some(reasons) = reasons {
+        lines.push(format!("  why:     {reasons}"));
     }
     lines.push(format!(
         "  view:    {}",
@@ -204,13 +204,13 @@ pub async fn serve(
         mode,
     )
     .map_err(|e| StartError::Sink(e.to_string()))?;
-    let why = chosen.why();
+    let reasons = chosen.reasons();
     let mut output = Output::spawn(chosen.sink).map_err(|e| StartError::Sink(e.to_string()))?;
     output.set_mode(mode);
     let mut sink_info = output.info().clone();
-    let first_screen = first_screen(&backend.device(), mode, &sink_info, why.as_deref());
-    if let Some(why) = why {
-        sink_info.device = format!("{} [{why}]", sink_info.device);
+    let first_screen = first_screen(&backend.device(), mode, &sink_info, reasons.as_deref());
+    if let Some(reasons) = reasons {
+        sink_info.device = format!("{} [auto: {reasons}]", sink_info.device);
     }
     let info = CameraInfo {
         backend: backend.kind().into(),

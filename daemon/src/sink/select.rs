@@ -22,11 +22,9 @@ pub struct Chosen {
 }
 
 impl Chosen {
-    /// "auto: ...; ..." for `sdictl status`'s Device, when `auto` chose.
-    pub fn why(&self) -> Option<String> {
-        self.reasons
-            .as_ref()
-            .map(|p| format!("auto: {}", p.join("; ")))
+    /// The reasons in one phrase ("...; ..."), when `auto` chose.
+    pub fn reasons(&self) -> Option<String> {
+        self.reasons.as_ref().map(|p| p.join("; "))
     }
 }
 
