@@ -42,34 +42,10 @@ pub struct Debs {
     pub camera: Option<PathBuf>,
 }
 
-/// True when every program in `tools` (name, Debian package) is installed.
-/// Otherwise prints one line naming the missing package and returns false,
-/// or fails when `SDI_REQUIRE_PACKAGING` is set (CI sets it).
+/// True when every program in `tools` (name, Debian package) is installed
+/// ([`crate::skip::have_all`]); CI sets `SDI_REQUIRE_PACKAGING`.
 pub fn have_tools(what: &str, tools: &[(&str, &str)]) -> bool {
-    let missing: Vec<&str> = tools
-        .iter()
-        .filter(|(program, _)| {
-            !Command::new("sh")
-                .args(["-c", &format!("command -v {program}")])
-                .output()
-                .is_ok_and(|o| o.status.success())
-        })
-        .map(|(_, package)| *package)
-        .collect();
-    if missing.is_empty() {
-        return true;
-    }
-    let line = format!(
-        "{what} needs the Debian packages {} (apt-get install {})",
-        missing.join(", "),
-        missing.join(" ")
-    );
-    assert!(
-        std::env::var_os("SDI_REQUIRE_PACKAGING").is_none(),
-        "{line}, and SDI_REQUIRE_PACKAGING is set"
-    );
-    crate::skipped!("SKIPPED: {line}");
-    false
+    crate::skip::have_all(what, tools, "SDI_REQUIRE_PACKAGING")
 }
 
 /// What building the packages needs.

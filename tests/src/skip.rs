@@ -21,28 +21,39 @@ macro_rules! skipped {
     };
 }
 
-/// True when `program --version` (or `args`) runs here. Otherwise prints
-/// the skip line naming the Debian `package` and returns false; with
-/// `SDI_REQUIRE_VM` set (CI installs every package) that is a failure.
-pub fn have(program: &str, args: &[&str], package: &str, what: &str) -> bool {
-    let runs = std::process::Command::new(program)
-        .args(if args.is_empty() {
-            &["--version"]
-        } else {
-            args
+/// True when every program in `tools` (name, Debian package) is on the
+/// PATH. Otherwise prints one line naming the missing packages and returns
+/// false, or fails when the environment variable `require` is set (CI sets
+/// each such flag).
+pub fn have_all(what: &str, tools: &[(&str, &str)], require: &str) -> bool {
+    let missing: Vec<&str> = tools
+        .iter()
+        .filter(|(program, _)| {
+            !std::process::Command::new("sh")
+                .args(["-c", &format!("command -v {program}")])
+                .output()
+                .is_ok_and(|o| o.status.success())
         })
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    if !runs {
-        assert!(
-            std::env::var_os("SDI_REQUIRE_VM").is_none(),
-            "{what} needs {program} and SDI_REQUIRE_VM is set (apt-get install {package})"
-        );
-        line(format_args!(
-            "SKIPPED: {what} needs {program} (apt-get install {package})"
-        ));
+        .map(|(_, package)| *package)
+        .collect();
+    if missing.is_empty() {
+        return true;
     }
-    runs
+    let text = format!(
+        "{what} needs the Debian packages {} (apt-get install {})",
+        missing.join(", "),
+        missing.join(" ")
+    );
+    assert!(
+        std::env::var_os(require).is_none(),
+        "{text}, and {require} is set"
+    );
+    line(format_args!("SKIPPED: {text}"));
+    false
+}
+
+/// [`have_all`] for one program, under `SDI_REQUIRE_VM` (CI installs every
+/// package the tests use).
+pub fn have(program: &str, package: &str, what: &str) -> bool {
+    have_all(what, &[(program, package)], "SDI_REQUIRE_VM")
 }

@@ -327,7 +327,7 @@ fn names_agree_across_unit_activation_and_policy() {
 
 #[test]
 fn modprobe_options_parse() {
-    if !sdi_tests::skip::have("modprobe", &[], "kmod", "parsing the modprobe.d options") {
+    if !sdi_tests::skip::have("modprobe", "kmod", "parsing the modprobe.d options") {
         return;
     }
     let conf = repo_root().join("udev/modprobe.d/sdi-v4l2loopback.conf");
