@@ -4,6 +4,7 @@
 //! dictionary on the wire (`a{sv}`) is a typed struct here ([`types`]);
 //! every error is a variant of [`SdiError`]. `daemon/dbus/org.sdi.Camera1.xml`
 //! is the served introspection, checked by `tests/tests/dbus_api.rs`.
+#![forbid(unsafe_code)]
 
 pub mod board_ids;
 pub mod bus;

@@ -11,6 +11,7 @@
 //! in the format a reader negotiated), `NoSignal`, `Mode`, `Quit`.
 //! Camera to sdid: `Ready` or `Refused` (answering `Hello`), and `State`
 //! (which formats readers stream, buffers published) whenever it changes.
+#![forbid(unsafe_code)]
 
 use std::fmt;
 use std::io::{self, Read, Write};

@@ -3,6 +3,7 @@
 //!
 //! Each subcommand lives in its own module; adding one is a variant here and a
 //! line in [`run`]'s dispatch.
+#![forbid(unsafe_code)]
 
 mod atomic_file;
 mod exit;

@@ -1,5 +1,6 @@
 //! sdictl: command-line control of the SDI daemon, and offline tools. The
 //! commands live in the library ([`sdi_cli::run`]).
+#![forbid(unsafe_code)]
 
 use std::process::ExitCode;
 

@@ -4,6 +4,7 @@
 //! checked once when the file is loaded ([`Config::validate`]: valid,
 //! adjusted or invalid), and `sdid`'s command line parses its overrides into
 //! the same types ([`cli`]).
+#![forbid(unsafe_code)]
 
 pub mod choice;
 pub mod cli;

@@ -4,6 +4,7 @@
 //! the [`sensor`] driven by a [`modulation`]) into a [`frame::Frame`]; a
 //! [`mode`] pipeline turns frames into signed images. No I/O happens here:
 //! callers hand in buffers and writers.
+#![forbid(unsafe_code)]
 
 pub mod calibration;
 pub mod dark_frame;

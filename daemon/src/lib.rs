@@ -3,6 +3,7 @@
 //!
 //! Data flows one way: backend -> frame_loop (pipeline) -> sink / recording;
 //! D-Bus talks to the frame loop only through its command channel.
+#![forbid(unsafe_code)]
 
 pub mod args;
 pub mod backend;

@@ -1,6 +1,7 @@
 //! sdid: the SDI difference-camera daemon. Start-up lives in the library
 //! ([`sdi_daemon::startup`]); this shell parses the command line, installs
 //! logging and maps the result to an exit code.
+#![forbid(unsafe_code)]
 
 use std::process::ExitCode;
 

@@ -2,6 +2,7 @@
 //! one definition shared by sdid's recorder and replay backend and by
 //! sdictl's offline commands. Format, reader and a file writer that is pure
 //! I/O; no threads, no D-Bus.
+#![forbid(unsafe_code)]
 
 pub mod file_writer;
 pub mod format;

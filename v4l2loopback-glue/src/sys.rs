@@ -5,7 +5,8 @@
 //! Struct layouts follow `linux/videodev2.h` for 64-bit Linux; the ioctl
 //! numbers encode the struct sizes, so a wrong layout fails with ENOTTY
 //! instead of corrupting memory (and the unit tests pin the sizes).
-
+// The V4L2 edge: ioctls on the device and its mmap'd buffers.
+#![allow(unsafe_code)]
 #![allow(non_camel_case_types)]
 
 use std::os::fd::{AsRawFd, BorrowedFd};
