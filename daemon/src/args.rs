@@ -1,5 +1,5 @@
 //! sdid's command line: flags parsed at the edge into the typed
-//! [`Config`](crate::config::Config) and the other [`StartOptions`].
+//! [`Config`](sdi_config::Config) and the other [`StartOptions`].
 
 use std::path::PathBuf;
 
@@ -8,8 +8,8 @@ use sdi_core::mode::ModeId;
 use sdi_core::sensor::capture_range;
 
 use crate::bus::BusChoice;
-use crate::config::{cli, BackendKind, Config, SensorSpec, SimScene, SinkKind};
 use crate::startup::{StartError, StartOptions};
+use sdi_config::{cli, BackendKind, Config, SensorSpec, SimScene, SinkKind};
 
 /// The SDI difference-camera daemon.
 #[derive(Debug, Parser)]

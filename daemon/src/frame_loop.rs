@@ -16,15 +16,17 @@ use crate::backend::pacer::Pacer;
 use crate::backend::{Backend, BackendError, CaptureSettings};
 use crate::dark_capture::{DarkCapture, DarkJob};
 use crate::job::{Running, Settling};
-use crate::modes::{self, DisplayMap, ModeOutput, Pipeline, PipelineConfig};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
 use crate::photon_transfer::PtcJob;
 use crate::publish_clock::PublishClock;
-use crate::recording::{Calibration, RecordingWriter};
+use crate::recorder::RecordingWriter;
 use crate::sink::output::Output;
 use crate::stats::{LoopStats, StatsWindow};
 use sdi_core::calibration::PhotonTransferFit;
+use sdi_core::display::DisplayMap;
+use sdi_core::mode::{build_pipeline, ModeOutput, Pipeline, PipelineConfig};
 use sdi_core::sensor::SkellamMixing;
+use sdi_recording::Calibration;
 
 /// Statistics of a dark-frame capture (computed in core).
 pub use sdi_core::dark_frame::DarkStats;
@@ -176,7 +178,7 @@ impl FrameLoop {
             h: backend.sensor().skellam(),
             ..LiveSeparatorConfig::default()
         };
-        let pipeline = modes::build_pipeline(
+        let pipeline = build_pipeline(
             mode,
             PipelineConfig {
                 separation,
@@ -216,7 +218,7 @@ impl FrameLoop {
 
     /// A fresh pipeline for the current mode, with the dark frame and H held.
     fn rebuild_pipeline(&mut self) {
-        self.pipeline = modes::build_pipeline(
+        self.pipeline = build_pipeline(
             self.mode,
             PipelineConfig {
                 dark_frame_dn: self.dark.as_ref().map(|d| d.1.clone()),
@@ -250,7 +252,7 @@ impl FrameLoop {
                 job.illumination(carrier_hz)
             } else if lit {
                 // Numbered as the frame will be: the two-shot pipeline pairs by it.
-                modes::illumination(self.mode, self.sequence + 1, carrier_hz)
+                self.mode.illumination(self.sequence + 1, carrier_hz)
             } else {
                 sdi_core::modulation::Illumination::dark(carrier_hz)
             };
@@ -621,10 +623,11 @@ mod tests {
     use super::{lights_needed, Command, FrameLoop};
     use crate::backend::sim::SimBackend;
     use crate::backend::{Backend, BackendError, CaptureSettings};
-    use crate::modes::{DisplayMap, ModeId, ModeOutput};
     use crate::monotonic::monotonic_now_us;
     use crate::sink::output::Output;
     use crate::sink::{Sink, SinkError, SinkInfo};
+    use sdi_core::display::DisplayMap;
+    use sdi_core::mode::{ModeId, ModeOutput};
     use sdi_core::modulation::Illumination;
     use sdi_core::sensor::{SensorParams, SensorPreset};
     use sdi_core::Frame;

@@ -14,16 +14,17 @@ use tokio::sync::watch;
 use crate::backend::{select as backend_select, CaptureSettings};
 use crate::bus::{self, BusChoice};
 use crate::calibration_store;
-use crate::config::Config;
 use crate::dbus::camera::{Camera, CameraInfo};
 use crate::dbus::{BUS_NAME, OBJECT_PATH};
 use crate::frame_loop::{Command, FrameLoop};
-use crate::modes::{DisplayMap, DisplayRange, ModeId};
-use crate::recording::{Calibration, RecordingReader};
 use crate::sink::output::Output;
 use crate::sink::select as sink_select;
 use crate::sink::SinkInfo;
 use crate::stats::LoopStats;
+use sdi_config::Config;
+use sdi_core::display::{DisplayMap, DisplayRange};
+use sdi_core::mode::ModeId;
+use sdi_recording::{Calibration, RecordingReader};
 
 /// Everything sdid needs to start, parsed and validated.
 #[derive(Debug, Clone)]

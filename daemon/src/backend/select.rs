@@ -13,8 +13,8 @@ use super::replay::ReplayBackend;
 use super::sim::SimBackend;
 use super::status::StatusHandle;
 use super::Backend;
-use crate::config::{BackendKind, Config};
 use crate::light::{driven, select as light_select};
+use sdi_config::{BackendKind, Config};
 
 /// What the board backend adds: live status and the on_unplug = "exit" signal.
 #[derive(Default)]

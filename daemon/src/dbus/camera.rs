@@ -20,14 +20,15 @@ use super::fairness::Fairness;
 use super::paths::OutputKind;
 use crate::backend::{BackendError, CaptureSettings, Limits};
 use crate::calibration_store;
-use crate::config::RecordingSection;
 use crate::frame_loop::{Command, DarkStats, FrameMark};
-use crate::modes::{Colormap, DisplayMap, DisplayRange};
-use crate::recording::{Calibration, Header as RecHeader, RecordingWriter, StopCause};
+use crate::recorder::{RecordingWriter, StopCause};
 use crate::sink::SinkInfo;
 use crate::stats::LoopStats;
 use sdi_api::{CalibrationReply, DarkFrameReply, RecordingReply};
+use sdi_config::RecordingSection;
 use sdi_core::calibration::CalibrationRecord;
+use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
+use sdi_recording::{Calibration, Header as RecHeader};
 
 /// Largest number of frames one dark-frame or calibration call may average.
 pub const MAX_AVERAGE_FRAMES: u32 = 10_000;

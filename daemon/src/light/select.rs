@@ -6,7 +6,7 @@ use super::board_output::BoardOutput;
 use super::gpio::GpioEnables;
 use super::scpi::{FunctionGenerator, TcpPort, UsbtmcPort};
 use super::{LightError, LightSource};
-use crate::config::{LightDriver, LightsSection};
+use sdi_config::{LightDriver, LightsSection};
 
 /// How long an instrument may take to connect or answer.
 pub const INSTRUMENT_TIMEOUT: Duration = Duration::from_secs(2);
