@@ -70,14 +70,11 @@ impl Args {
     /// and validates the result once (adjustments are logged).
     pub fn into_options(self) -> Result<StartOptions, StartError> {
         let (mut config, file) =
-            Config::read(self.config.as_deref()).map_err(|e| StartError::Config(e.to_string()))?;
+            Config::read(self.config.as_deref()).map_err(StartError::Config)?;
         self.apply(&mut config);
-        let adjusted = config.validate().map_err(|e| {
-            StartError::Config(match &file {
-                Some(path) => format!("{}: {e}", path.display()),
-                None => e.to_string(),
-            })
-        })?;
+        let adjusted = config
+            .validate()
+            .map_err(|source| StartError::Invalid { file, source })?;
         for a in adjusted {
             tracing::warn!("configuration: {a}");
         }

@@ -3,7 +3,9 @@
 
 use std::sync::Arc;
 
+use sdi_config::{BackendKind, Config, SensorSpecError};
 use sdi_core::mode::ModeId;
+use sdi_core::sensor::ParamError;
 use tokio::sync::Notify;
 
 use super::board::{self as board_backend, BoardBackend, OnUnplug};
@@ -12,9 +14,8 @@ use super::opt8241::BoardSelector;
 use super::replay::ReplayBackend;
 use super::sim::SimBackend;
 use super::status::StatusHandle;
-use super::Backend;
+use super::{Backend, BackendError};
 use crate::light::{driven, select as light_select};
-use sdi_config::{BackendKind, Config};
 
 /// What the board backend adds: live status and the on_unplug = "exit" signal.
 #[derive(Default)]
@@ -23,13 +24,35 @@ pub struct BoardExtras {
     pub exit: Option<Arc<Notify>>,
 }
 
+/// Why the configured backend could not be opened.
+#[derive(Debug, thiserror::Error)]
+pub enum OpenError {
+    #[error("{0}")]
+    Board(#[source] BackendError),
+    #[error("sensor {0}")]
+    Sensor(#[source] SensorSpecError),
+    #[error("{0}")]
+    Modulation(#[source] ParamError),
+    #[error("{0}")]
+    Simulator(#[source] BackendError),
+    #[error("backend replay needs a recording: --replay FILE")]
+    NoRecording,
+    #[error("{0}")]
+    Replay(#[source] BackendError),
+    #[error("[lights]: {0}")]
+    Lights(#[source] light_select::SelectError),
+}
+
+/// A backend and what the board adds to it.
+type Opened = (Box<dyn Backend>, BoardExtras);
+
 /// Opens the backend of `c`, wrapped so `[lights]` follow the mode.
-pub fn open(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), String> {
+pub fn open(c: &Config, mode: ModeId) -> Result<Opened, OpenError> {
     let (backend, extras) = build(c, mode)?;
     Ok((with_lights(c, backend)?, extras))
 }
 
-fn open_board(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), String> {
+fn open_board(c: &Config, mode: ModeId) -> Result<Opened, OpenError> {
     let on_unplug = c.board.on_unplug;
     let roi = c.board.roi.map(|[x, y, width, height]| Roi {
         x,
@@ -47,7 +70,7 @@ fn open_board(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras
         seed: c.seed,
         mode,
     })
-    .map_err(|e| e.to_string())?;
+    .map_err(OpenError::Board)?;
     let extras = BoardExtras {
         status: Some(b.status()),
         exit: (on_unplug == OnUnplug::Exit).then(|| b.exit_notify()),
@@ -55,7 +78,7 @@ fn open_board(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras
     Ok((Box::new(b), extras))
 }
 
-fn build(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), String> {
+fn build(c: &Config, mode: ModeId) -> Result<Opened, OpenError> {
     match c.backend {
         BackendKind::Opt8241 => open_board(c, mode),
         BackendKind::Auto => {
@@ -78,16 +101,17 @@ fn build(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), St
                 }
                 Err(e) => {
                     tracing::info!(
-                        "backend auto: cannot look for the board ({e}); using the simulator"
+                        "backend auto: cannot look for the board (libusb: {e}); using the simulator"
                     );
                     build(&sim, mode)
                 }
             }
         }
         BackendKind::Sim => {
-            let desc = c.sensor.load().map_err(|e| format!("sensor {e}"))?;
+            let desc = c.sensor.load().map_err(OpenError::Sensor)?;
             if let Some(hz) = c.modulation_hz {
-                desc.check_modulation_hz(hz).map_err(|e| e.to_string())?;
+                desc.check_modulation_hz(hz)
+                    .map_err(OpenError::Modulation)?;
             }
             if desc.dark_current_electrons_per_us > 0.0 {
                 tracing::warn!(
@@ -102,22 +126,18 @@ fn build(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), St
             Ok((
                 Box::new(
                     SimBackend::new(p, mode, c.seed, c.scene.and_then(|s| s.spec()))
-                        .map_err(|e| e.to_string())?,
+                        .map_err(OpenError::Simulator)?,
                 ),
                 BoardExtras::default(),
             ))
         }
         BackendKind::Replay => {
-            let path = c
-                .replay
-                .path
-                .as_ref()
-                .ok_or("backend replay needs a recording: --replay FILE")?;
-            let mut b = ReplayBackend::open(path, c.replay.looping).map_err(|e| e.to_string())?;
+            let path = c.replay.path.as_ref().ok_or(OpenError::NoRecording)?;
+            let mut b = ReplayBackend::open(path, c.replay.looping).map_err(OpenError::Replay)?;
             if let Some(fps) = c.frame_rate_hz {
                 let mut s = b.settings();
                 s.frame_rate_hz = fps;
-                b.configure(&s).map_err(|e| e.to_string())?;
+                b.configure(&s).map_err(OpenError::Replay)?;
             }
             Ok((Box::new(b), BoardExtras::default()))
         }
@@ -125,8 +145,8 @@ fn build(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), St
 }
 
 /// Wraps the backend so `[lights]` follow the mode.
-fn with_lights(c: &Config, backend: Box<dyn Backend>) -> Result<Box<dyn Backend>, String> {
-    match light_select::open(&c.lights).map_err(|e| format!("[lights]: {e}"))? {
+fn with_lights(c: &Config, backend: Box<dyn Backend>) -> Result<Box<dyn Backend>, OpenError> {
+    match light_select::open(&c.lights).map_err(OpenError::Lights)? {
         Some(lights) => Ok(Box::new(driven::LitBackend::new(
             backend,
             lights,
