@@ -14,10 +14,10 @@ use tokio::sync::{oneshot, watch};
 
 use crate::backend::pacer::Pacer;
 use crate::backend::{Backend, BackendError, CaptureSettings};
-use crate::dark_capture::{DarkCapture, DarkJob};
+use crate::dark_capture::{DarkCapture, DarkJob, NoUsablePixels};
 use crate::job::{Running, Settling};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
-use crate::photon_transfer::PtcJob;
+use crate::photon_transfer::{PtcError, PtcJob};
 use crate::publish_clock::PublishClock;
 use crate::recorder::RecordingWriter;
 use crate::sink::output::Output;
@@ -46,8 +46,22 @@ pub type Reply<T> = oneshot::Sender<T>;
 const MAX_COMMAND_WAIT: Duration = Duration::from_millis(100);
 const STALL_RETRY: Duration = Duration::from_millis(200);
 
-/// Refusal of a second dark capture or calibration while one runs.
-const JOB_RUNNING: &str = "a dark-frame capture or calibration is already running";
+/// Why a dark-frame capture or calibration gave no result.
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    /// A second dark capture or calibration while one runs.
+    #[error("a dark-frame capture or calibration is already running")]
+    AlreadyRunning,
+    #[error(transparent)]
+    Backend(#[from] BackendError),
+    #[error(transparent)]
+    NoUsablePixels(#[from] NoUsablePixels),
+    #[error(transparent)]
+    PhotonTransfer(#[from] PtcError),
+    /// The job finished but its capture settings could not be put back.
+    #[error("restoring the capture settings: {0}")]
+    Restore(#[source] BackendError),
+}
 
 /// The first frame produced under a new setting: every published output with
 /// `sequence >= self.sequence` (and timestamp `>= self.timestamp_us`) was
@@ -84,10 +98,10 @@ pub enum Command {
         Reply<FrameMark>,
     ),
     SetDisplay(DisplayMap, Reply<FrameMark>),
-    CaptureDark(u32, Reply<Result<DarkStats, BackendError>>),
+    CaptureDark(u32, Reply<Result<DarkStats, JobError>>),
     /// Photon-transfer calibration with this many frames per level; on
     /// success the separation mode's H uses the fitted gain and read variance.
-    PhotonTransfer(u32, Reply<Result<PhotonTransferFit, String>>),
+    PhotonTransfer(u32, Reply<Result<PhotonTransferFit, JobError>>),
     Snapshot(Reply<Option<SnapshotData>>),
     StartRecording(Box<RecordingWriter>, Reply<()>),
     /// Hands the recorder back; the caller finishes it (off this thread).
@@ -97,8 +111,8 @@ pub enum Command {
 
 /// The job running instead of the mode pipeline, with its reply.
 enum ActiveJob {
-    Dark(Running<DarkJob>, Reply<Result<DarkStats, BackendError>>),
-    PhotonTransfer(Running<PtcJob>, Reply<Result<PhotonTransferFit, String>>),
+    Dark(Running<DarkJob>, Reply<Result<DarkStats, JobError>>),
+    PhotonTransfer(Running<PtcJob>, Reply<Result<PhotonTransferFit, JobError>>),
 }
 
 impl ActiveJob {
@@ -114,11 +128,11 @@ impl ActiveJob {
         match self {
             Self::Dark(run, reply) => {
                 let _ = run.end(backend);
-                let _ = reply.send(Err(e));
+                let _ = reply.send(Err(e.into()));
             }
             Self::PhotonTransfer(run, reply) => {
                 let _ = run.end(backend);
-                let _ = reply.send(Err(e.to_string()));
+                let _ = reply.send(Err(e.into()));
             }
         }
     }
@@ -499,19 +513,19 @@ impl FrameLoop {
                 self.await_first_frame(reply);
             }
             Command::CaptureDark(_, reply) if self.job.is_some() => {
-                let _ = reply.send(Err(BackendError::Failed(JOB_RUNNING.into())));
+                let _ = reply.send(Err(JobError::AlreadyRunning));
             }
             Command::CaptureDark(n, reply) => {
                 let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
                 match Running::start(DarkJob::new(n, w, h), &mut *self.backend) {
                     Ok(run) => self.job = Some(ActiveJob::Dark(run, reply)),
                     Err(e) => {
-                        let _ = reply.send(Err(e));
+                        let _ = reply.send(Err(e.into()));
                     }
                 }
             }
             Command::PhotonTransfer(_, reply) if self.job.is_some() => {
-                let _ = reply.send(Err(JOB_RUNNING.into()));
+                let _ = reply.send(Err(JobError::AlreadyRunning));
             }
             Command::PhotonTransfer(frames, reply) => {
                 let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
@@ -525,7 +539,7 @@ impl FrameLoop {
                 match Running::start(job, &mut *self.backend) {
                     Ok(run) => self.job = Some(ActiveJob::PhotonTransfer(run, reply)),
                     Err(e) => {
-                        let _ = reply.send(Err(e.to_string()));
+                        let _ = reply.send(Err(e.into()));
                     }
                 }
             }
@@ -564,7 +578,7 @@ impl FrameLoop {
                     let _ = run.end(backend);
                     let r = done
                         .map(|capture| self.finish_dark(capture))
-                        .map_err(|e| BackendError::Failed(e.to_string()));
+                        .map_err(JobError::from);
                     let _ = reply.send(r);
                 }
                 Err(e) => ActiveJob::Dark(run, reply).fail(backend, e),
@@ -583,9 +597,9 @@ impl FrameLoop {
     /// Uses a successful fit for H and replies.
     fn finish_photon_transfer(
         &mut self,
-        r: Result<PhotonTransferFit, String>,
+        r: Result<PhotonTransferFit, PtcError>,
         restored: Result<(), BackendError>,
-        reply: Reply<Result<PhotonTransferFit, String>>,
+        reply: Reply<Result<PhotonTransferFit, JobError>>,
     ) {
         if let Ok(fit) = &r {
             self.set_gain(SkellamMixing::new(
@@ -594,8 +608,8 @@ impl FrameLoop {
             ));
         }
         let r = match (r, restored) {
-            (Ok(_), Err(e)) => Err(format!("restoring the capture settings: {e}")),
-            (r, _) => r,
+            (Ok(_), Err(e)) => Err(JobError::Restore(e)),
+            (r, _) => r.map_err(JobError::from),
         };
         let _ = reply.send(r);
     }
