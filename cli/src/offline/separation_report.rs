@@ -242,7 +242,7 @@ pub fn run_cli(args: &SeparationReportArgs, json: bool) -> Result<(), CliError> 
         None => Some(scene_of(args)?),
     };
     let mut names = vec!["separation.tsv"];
-    // Measured data has no plot (as before).
+    // Measured data has no plot.
     if scene.is_some() {
         names.push("separation.svg");
     }
@@ -303,6 +303,18 @@ fn publish(report: Report, files: ReportFiles, json: bool) -> Result<(), CliErro
     Ok(())
 }
 
+/// M1 without subtracting sigma_read^2 first (the paper's Fig. pol
+/// compares both).
+const NO_READ: UnmixOptions = UnmixOptions {
+    subtract_read_noise: false,
+    nonnegative: false,
+};
+/// M1 constrained to I+, I- >= 0.
+const NON_NEG: UnmixOptions = UnmixOptions {
+    subtract_read_noise: true,
+    nonnegative: true,
+};
+
 /// Runs the report on the simulator (frames streamed, constant memory in N).
 fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Report, ReportError> {
     let mut sensor = args.sensor.params();
@@ -313,171 +325,23 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
     let mut config = SimConfig::new(sensor.clone(), scene);
     config.seed = args.seed;
     let mut sim = Simulator::new(config)?;
+    let dark_cal = dark_calibration(&mut sim)?;
     let (w, ht) = (sensor.width, sensor.height);
-    let mut frame = Frame::new(w, ht);
-
-    // 100 dark frames, averaged and subtracted before separating (section 6).
-    let dark = Illumination::dark(sensor.modulation_hz);
-    let mut darks = DarkAccumulator::new(w, ht);
-    for _ in 0..100 {
-        sim.capture(&dark, &mut frame);
-        darks
-            .push(&frame)
-            .map_err(|e| ReportError::Dark(e.to_string()))?;
-    }
-    let dark_cal = DarkCalibration::from_accumulator(&darks)?;
-
-    let light = Illumination::snapshot(sensor.modulation_hz);
-    let n_max = args.max_frames.max(2);
     let chart = (name == "colour-chart").then(|| ColourChart::new(w, ht, 1.0, 1.0));
     let patch: Option<Vec<Option<usize>>> =
         chart.map(|c| (0..w * ht).map(|i| c.patch_at(i % w, i / w)).collect());
-    let with_read = UnmixOptions::default();
-    let no_read = UnmixOptions {
-        subtract_read_noise: false,
-        nonnegative: false,
-    };
-    let nonneg = UnmixOptions {
-        subtract_read_noise: true,
-        nonnegative: true,
-    };
-    let mut rows = Vec::new();
     let chosen = Chosen(args.estimators.clone());
-
-    // M1 over N frames (time: per pushed frame, plus the final inversion),
-    // one accumulator read out at each N.
-    let mut ns: Vec<usize> = [10, 30, 100, 300, 1000, 3000]
-        .into_iter()
-        .filter(|&n| n <= n_max)
-        .collect();
-    if ns.last() != Some(&n_max) {
-        ns.push(n_max);
-    }
-    let mut acc = Welford::new(w, ht);
-    let mut truths = TruthSums::new(w * ht);
-    let mut push_time = Duration::ZERO;
-    let mut first: Option<(Frame, Truth)> = None;
-    for n in 1..=n_max {
-        sim.capture(&light, &mut frame);
-        dark_cal.subtract(&mut frame)?;
-        truths.push(sim.last_expectation());
-        if first.is_none() {
-            first = Some((frame.clone(), truths.mean(&patch)));
-        }
-        let t0 = Instant::now();
-        acc.push(&frame)?;
-        push_time += t0.elapsed();
-        if !ns.contains(&n) {
-            continue;
-        }
-        let truth = truths.mean(&patch);
-        let t0 = Instant::now();
-        let m = acc.moments()?;
-        let sep = unmix(&m, &h, with_read)?;
-        let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
-        if chosen.has(Estimator::M1) {
-            let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
-            r.floor = Some(m1_floor(&truth, &h, n));
-            rows.push(r);
-        }
-        if n == n_max && chosen.has(Estimator::M1Pooled) {
-            let t0 = Instant::now();
-            let pooled = pool_moments(&m, PoolParams::default())?;
-            let sep = unmix(&pooled, &h, with_read)?;
-            let extra = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
-            let r = PoolParams::default().radius_px;
-            rows.push(row(
-                "M1 pooled",
-                format!("N={n}, r={r}"),
-                &sep,
-                &truth,
-                ms + extra,
-            ));
-        }
-        if n == n_max && chosen.has(Estimator::M1) {
-            rows.push(row(
-                "M1",
-                format!("N={n}, read:=0"),
-                &unmix(&m, &h, no_read)?,
-                &truth,
-                ms,
-            ));
-            rows.push(row(
-                "M1",
-                format!("N={n}, non-neg"),
-                &unmix(&m, &h, nonneg)?,
-                &truth,
-                ms,
-            ));
-        }
-    }
-
+    let m1 = M1Run {
+        h: &h,
+        patch: &patch,
+        n_max: args.max_frames.max(2),
+        chosen: &chosen,
+    };
+    let (mut rows, first) = m1.rows(&mut sim, &dark_cal)?;
     // Single-frame estimators on the first frame, against its own truth.
     let (one, truth) = first.ok_or(ReportError::NoFrames)?;
-    let one = &one;
-    let truth = &truth;
-    // M3's range scale from the frame itself (robust MAD), never from the truth.
-    let noise_dn = noise_sigma(one);
-    let radii: &[usize] = if chosen.has(Estimator::M2) {
-        &[1, 2, 4]
-    } else {
-        &[]
-    };
-    for &radius in radii {
-        let p = SegmentParams {
-            smooth_radius_px: radius,
-            ..SegmentParams::default()
-        };
-        let t0 = Instant::now();
-        let seg = auto_segment(one, p)?;
-        let m = segment_moments(one, &seg.labels, Some(&seg.interior))?;
-        let sep = unmix(&m, &h, with_read)?;
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        rows.push(row(
-            "M2 auto",
-            format!("smooth r={radius}"),
-            &sep,
-            truth,
-            ms,
-        ));
-    }
-    for sd in [1.5, 3.0] {
-        for k in [2.0, 4.0] {
-            let p = BilateralParams::new(sd, k * noise_dn);
-            let params = format!("sd={sd} sr={k}sigma");
-            if chosen.has(Estimator::M3Exact) {
-                let (sep, ms) =
-                    median_of_3(|| Ok(unmix(&bilateral_exact(one, p)?, &h, with_read)?))?;
-                rows.push(row("M3 exact", params.clone(), &sep, truth, ms));
-            }
-            // The fast variants as the daemon runs them: buffers kept, f32 unmix.
-            let mut out = Separated::default();
-            if chosen.has(Estimator::M3Separable) {
-                let mut separable = SeparableBilateral::new();
-                let ((), ms) = median_of_3(|| {
-                    Ok(unmix_local_into(
-                        separable.compute(one, p)?,
-                        &h,
-                        with_read,
-                        &mut out,
-                    )?)
-                })?;
-                rows.push(row("M3 separable", params.clone(), &out, truth, ms));
-            }
-            if chosen.has(Estimator::M3Grid) {
-                let mut grid = BilateralGrid::new();
-                let ((), ms) = median_of_3(|| {
-                    Ok(unmix_local_into(
-                        grid.compute(one, p)?,
-                        &h,
-                        with_read,
-                        &mut out,
-                    )?)
-                })?;
-                rows.push(row("M3 grid", params.clone(), &out, truth, ms));
-            }
-        }
-    }
+    rows.extend(m2_rows(&one, &truth, &h, &chosen)?);
+    rows.extend(m3_rows(&one, &truth, &h, &chosen)?);
     if rows.is_empty() {
         return Err(ReportError::NoRows);
     }
@@ -494,6 +358,197 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
         truth_se: None,
         rows,
     })
+}
+
+/// 100 dark frames, averaged, to subtract before separating (section 6).
+fn dark_calibration(sim: &mut Simulator) -> Result<DarkCalibration, ReportError> {
+    let (w, ht) = (sim.params().width, sim.params().height);
+    let dark = Illumination::dark(sim.params().modulation_hz);
+    let mut frame = Frame::new(w, ht);
+    let mut darks = DarkAccumulator::new(w, ht);
+    for _ in 0..100 {
+        sim.capture(&dark, &mut frame);
+        darks
+            .push(&frame)
+            .map_err(|e| ReportError::Dark(e.to_string()))?;
+    }
+    Ok(DarkCalibration::from_accumulator(&darks)?)
+}
+
+/// The N at which M1 is read out: a few decades up to `n_max`, and `n_max`.
+fn m1_checkpoints(n_max: usize) -> Vec<usize> {
+    let mut ns: Vec<usize> = [10, 30, 100, 300, 1000, 3000]
+        .into_iter()
+        .filter(|&n| n <= n_max)
+        .collect();
+    if ns.last() != Some(&n_max) {
+        ns.push(n_max);
+    }
+    ns
+}
+
+/// M1 over N frames streamed from the simulator.
+struct M1Run<'a> {
+    h: &'a SkellamMixing,
+    patch: &'a Option<Vec<Option<usize>>>,
+    n_max: usize,
+    chosen: &'a Chosen,
+}
+
+impl M1Run<'_> {
+    /// M1's rows (time: per pushed frame, plus the final inversion), one
+    /// accumulator read out at each checkpoint; and the first frame with
+    /// its truth, for the single-frame estimators.
+    fn rows(
+        &self,
+        sim: &mut Simulator,
+        dark_cal: &DarkCalibration,
+    ) -> Result<(Vec<Row>, Option<(Frame, Truth)>), ReportError> {
+        let (w, ht) = (sim.params().width, sim.params().height);
+        let light = Illumination::snapshot(sim.params().modulation_hz);
+        let ns = m1_checkpoints(self.n_max);
+        let mut frame = Frame::new(w, ht);
+        let mut acc = Welford::new(w, ht);
+        let mut truths = TruthSums::new(w * ht);
+        let mut push_time = Duration::ZERO;
+        let mut first: Option<(Frame, Truth)> = None;
+        let mut rows = Vec::new();
+        for n in 1..=self.n_max {
+            sim.capture(&light, &mut frame);
+            dark_cal.subtract(&mut frame)?;
+            truths.push(sim.last_expectation());
+            if first.is_none() {
+                first = Some((frame.clone(), truths.mean(self.patch)));
+            }
+            let t0 = Instant::now();
+            acc.push(&frame)?;
+            push_time += t0.elapsed();
+            if ns.contains(&n) {
+                let truth = truths.mean(self.patch);
+                self.rows_at(n, &acc, &truth, push_time, &mut rows)?;
+            }
+        }
+        Ok((rows, first))
+    }
+
+    /// The rows of M1 read out after `n` frames (at `n_max` also pooled,
+    /// with read:=0 and non-negative).
+    fn rows_at(
+        &self,
+        n: usize,
+        acc: &Welford,
+        truth: &Truth,
+        push_time: Duration,
+        rows: &mut Vec<Row>,
+    ) -> Result<(), ReportError> {
+        let h = self.h;
+        let with_read = UnmixOptions::default();
+        let t0 = Instant::now();
+        let m = acc.moments()?;
+        let sep = unmix(&m, h, with_read)?;
+        let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
+        let last = n == self.n_max;
+        if self.chosen.has(Estimator::M1) {
+            let mut r = row("M1", format!("N={n}"), &sep, truth, ms);
+            r.floor = Some(m1_floor(truth, h, n));
+            rows.push(r);
+        }
+        if last && self.chosen.has(Estimator::M1Pooled) {
+            let t0 = Instant::now();
+            let pooled = pool_moments(&m, PoolParams::default())?;
+            let sep = unmix(&pooled, h, with_read)?;
+            let extra = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
+            let r = PoolParams::default().radius_px;
+            let params = format!("N={n}, r={r}");
+            rows.push(row("M1 pooled", params, &sep, truth, ms + extra));
+        }
+        if last && self.chosen.has(Estimator::M1) {
+            let sep = unmix(&m, h, NO_READ)?;
+            rows.push(row("M1", format!("N={n}, read:=0"), &sep, truth, ms));
+            let sep = unmix(&m, h, NON_NEG)?;
+            rows.push(row("M1", format!("N={n}, non-neg"), &sep, truth, ms));
+        }
+        Ok(())
+    }
+}
+
+/// M2 (automatic segments of one frame) at a few smoothing radii.
+fn m2_rows(
+    one: &Frame,
+    truth: &Truth,
+    h: &SkellamMixing,
+    chosen: &Chosen,
+) -> Result<Vec<Row>, ReportError> {
+    let mut rows = Vec::new();
+    if !chosen.has(Estimator::M2) {
+        return Ok(rows);
+    }
+    for radius in [1, 2, 4] {
+        let p = SegmentParams {
+            smooth_radius_px: radius,
+            ..SegmentParams::default()
+        };
+        let t0 = Instant::now();
+        let seg = auto_segment(one, p)?;
+        let m = segment_moments(one, &seg.labels, Some(&seg.interior))?;
+        let sep = unmix(&m, h, UnmixOptions::default())?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        let params = format!("smooth r={radius}");
+        rows.push(row("M2 auto", params, &sep, truth, ms));
+    }
+    Ok(rows)
+}
+
+/// M3 (local moments by a bilateral filter on one frame), each chosen
+/// variant at a few domain and range scales; the range scale comes from
+/// the frame itself (robust MAD), never from the truth.
+fn m3_rows(
+    one: &Frame,
+    truth: &Truth,
+    h: &SkellamMixing,
+    chosen: &Chosen,
+) -> Result<Vec<Row>, ReportError> {
+    let with_read = UnmixOptions::default();
+    let noise_dn = noise_sigma(one);
+    let mut rows = Vec::new();
+    for sd in [1.5, 3.0] {
+        for k in [2.0, 4.0] {
+            let p = BilateralParams::new(sd, k * noise_dn);
+            let params = format!("sd={sd} sr={k}sigma");
+            if chosen.has(Estimator::M3Exact) {
+                let (sep, ms) =
+                    median_of_3(|| Ok(unmix(&bilateral_exact(one, p)?, h, with_read)?))?;
+                rows.push(row("M3 exact", params.clone(), &sep, truth, ms));
+            }
+            // The fast variants as the daemon runs them: buffers kept, f32 unmix.
+            let mut out = Separated::default();
+            if chosen.has(Estimator::M3Separable) {
+                let mut separable = SeparableBilateral::new();
+                let ((), ms) = median_of_3(|| {
+                    Ok(unmix_local_into(
+                        separable.compute(one, p)?,
+                        h,
+                        with_read,
+                        &mut out,
+                    )?)
+                })?;
+                rows.push(row("M3 separable", params.clone(), &out, truth, ms));
+            }
+            if chosen.has(Estimator::M3Grid) {
+                let mut grid = BilateralGrid::new();
+                let ((), ms) = median_of_3(|| {
+                    Ok(unmix_local_into(
+                        grid.compute(one, p)?,
+                        h,
+                        with_read,
+                        &mut out,
+                    )?)
+                })?;
+                rows.push(row("M3 grid", params.clone(), &out, truth, ms));
+            }
+        }
+    }
+    Ok(rows)
 }
 
 /// The last result of three runs and their median wall time, ms (the
