@@ -24,8 +24,8 @@ impl PrivateBus {
             "--print-address=1",
         ];
         // Its stderr comes through our log, a line at a time: written
-        // straight to ours, its start-up warnings landed in the middle of
-        // the address announcement below (a test read a garbled address).
+        // straight to ours, its start-up warnings could land in the middle
+        // of the address announcement below and garble the address.
         let spawn = |program: &str, args: &[&str]| {
             Command::new(program)
                 .args(args)

@@ -40,10 +40,10 @@ pub struct SnapshotData {
 
 pub type Reply<T> = oneshot::Sender<T>;
 
-/// Wait before trying a failed capture again.
 /// Longest a command waiting for a frame waits for a paced source's frame
 /// clock; beyond it the frame is captured at once (slow frame rates).
 const MAX_COMMAND_WAIT: Duration = Duration::from_millis(100);
+/// Wait before trying a failed capture again.
 const STALL_RETRY: Duration = Duration::from_millis(200);
 
 /// Why a dark-frame capture or calibration gave no result.
@@ -729,7 +729,7 @@ mod tests {
             sim: SimBackend::new(p, mode, 1, None).unwrap(),
             fails,
             attempt: 0,
-            // The capture the old anchoring dated every later frame by.
+            // A slow first capture: later frames must not be dated from it.
             first_capture: Some(Duration::from_millis(40)),
         };
         let written = Written::default();
