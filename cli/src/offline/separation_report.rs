@@ -913,10 +913,8 @@ fn stream_frames(
     Ok((n, info))
 }
 
-/// Per-pixel mean over up to `max` frames (unusable samples skipped), DN,
-/// and the frame size.
 /// The per-pixel mean and its sampling variance (sample variance / frames,
-/// 0 below two samples), DN and DN^2.
+/// 0 below two samples), DN and DN^2, and the frame size.
 struct MeanDn {
     mean: Vec<f64>,
     var_of_mean: Vec<f64>,
@@ -924,6 +922,7 @@ struct MeanDn {
     height: usize,
 }
 
+/// Per-pixel mean over up to `max` frames (unusable samples skipped).
 fn mean_dn(path: &Path, max: usize, alone: Alone) -> Result<MeanDn, CliError> {
     let (mut s, mut q, mut k) = (Vec::new(), Vec::new(), Vec::new());
     let (_, info) = stream_frames(path, max, Some(alone), |f| {
@@ -983,7 +982,6 @@ fn truth_rel_se(var_dn2: &[f64], truth: &[f64], g: f64) -> f64 {
 /// the frame) on the both-sources frames. Every input streams (constant
 /// memory in N).
 fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
-    let us = |e: SeparationError| CliError::Usage(e.to_string());
     let (Some(input), Some(tp), Some(tm)) = (&args.input, &args.truth_plus, &args.truth_minus)
     else {
         return Err(CliError::Usage(
@@ -993,36 +991,43 @@ fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
     let n_max = args.max_frames.clamp(2, MAX_REPORT_FRAMES);
     let plus = mean_dn(tp, n_max, Alone::Ls1)?;
     let minus = mean_dn(tm, n_max, Alone::Ls2)?;
-    let (wp, hp, wm, hm) = (plus.width, plus.height, minus.width, minus.height);
-    // M1's accumulator over the both-sources frames, timed per push; the
-    // first frame kept for the single-frame estimators.
-    let mut acc: Option<Welford> = None;
-    let mut first: Option<Frame> = None;
-    let mut push_time = Duration::ZERO;
-    let (n, info) = stream_frames(input, n_max, None, |f| {
-        let a = acc.get_or_insert_with(|| Welford::new(f.width(), f.height()));
-        let t0 = Instant::now();
-        a.push(f).map_err(us)?;
-        push_time += t0.elapsed();
-        first.get_or_insert_with(|| f.clone());
-        Ok(())
-    })?;
-    let (w, ht) = (info.width, info.height);
-    if (wp, hp) != (w, ht) || (wm, hm) != (w, ht) {
+    let both = BothSources::stream(input, n_max)?;
+    let (w, ht) = (both.info.width, both.info.height);
+    if (plus.width, plus.height) != (w, ht) || (minus.width, minus.height) != (w, ht) {
         return Err(CliError::Usage(
             "the truth frames differ in size from --in".into(),
         ));
     }
-    let (Some(acc), Some(one)) = (acc, first) else {
-        return Err(CliError::Usage(format!(
-            "'{}' holds no frames",
-            input.display()
-        )));
-    };
     // A recording's own sensor wins; an .npy uses --sensor.
-    let sensor = info.sensor.is_none().then_some(&args.sensor);
-    let h = super::separate::choose_mixing(None, sensor, &info)?.h;
-    let g = h.gain_dn_per_electron;
+    let sensor = both.info.sensor.is_none().then_some(&args.sensor);
+    let h = super::separate::choose_mixing(None, sensor, &both.info)?.h;
+    let (truth, truth_se) = measured_truth(&plus, &minus, h.gain_dn_per_electron);
+    let chosen = Chosen(args.estimators.clone());
+    let mut rows = both.m1_rows(&truth, &h, &chosen)?;
+    rows.extend(both.single_frame_rows(&truth, &h, &chosen)?);
+    if rows.is_empty() {
+        return Err(CliError::Usage(ReportError::NoRows.to_string()));
+    }
+    Ok(Report {
+        scene: format!("measured {}", input.display()),
+        model: "measured".into(),
+        width: w,
+        height: ht,
+        truth: "the mean of the LS1-only and LS2-only frames through g",
+        truth_se: Some(truth_se),
+        rows,
+    })
+}
+
+/// A measured-data report's estimator error: a usage error (the input
+/// does not suit the estimator).
+fn usage(e: SeparationError) -> CliError {
+    CliError::Usage(e.to_string())
+}
+
+/// The truth from the LS1-only and LS2-only means through `g` (DN per
+/// electron), and its relative standard error (I+, I-).
+fn measured_truth(plus: &MeanDn, minus: &MeanDn, g: f64) -> (Truth, (f64, f64)) {
     // LS2 alone lands in I- (negative D) when driven out of phase, as in the
     // snapshot; two-shot's B frames drive it in phase (positive D). The
     // pooled sign tells which.
@@ -1041,65 +1046,109 @@ fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
         truth_rel_se(&plus.var_of_mean, &truth.plus, g),
         truth_rel_se(&minus.var_of_mean, &truth.minus, g),
     );
-    let opts = UnmixOptions::default();
-    let chosen = Chosen(args.estimators.clone());
-    let mut rows = Vec::new();
-    if n >= 2 {
+    (truth, truth_se)
+}
+
+/// The both-sources frames of measured data, streamed once: M1's
+/// accumulator (timed per push) and the first frame, kept for the
+/// single-frame estimators.
+struct BothSources {
+    frames: usize,
+    info: super::frames::InputInfo,
+    acc: Welford,
+    first: Frame,
+    push_time: Duration,
+}
+
+impl BothSources {
+    fn stream(input: &Path, n_max: usize) -> Result<Self, CliError> {
+        let mut acc: Option<Welford> = None;
+        let mut first: Option<Frame> = None;
+        let mut push_time = Duration::ZERO;
+        let (frames, info) = stream_frames(input, n_max, None, |f| {
+            let a = acc.get_or_insert_with(|| Welford::new(f.width(), f.height()));
+            let t0 = Instant::now();
+            a.push(f).map_err(usage)?;
+            push_time += t0.elapsed();
+            first.get_or_insert_with(|| f.clone());
+            Ok(())
+        })?;
+        let (Some(acc), Some(first)) = (acc, first) else {
+            return Err(CliError::Usage(format!(
+                "'{}' holds no frames",
+                input.display()
+            )));
+        };
+        Ok(Self {
+            frames,
+            info,
+            acc,
+            first,
+            push_time,
+        })
+    }
+
+    /// M1 and pooled M1 over every frame (two at least).
+    fn m1_rows(
+        &self,
+        truth: &Truth,
+        h: &SkellamMixing,
+        chosen: &Chosen,
+    ) -> Result<Vec<Row>, CliError> {
+        let (n, opts) = (self.frames, UnmixOptions::default());
+        let mut rows = Vec::new();
+        if n < 2 {
+            return Ok(rows);
+        }
         let t0 = Instant::now();
-        let m = acc.moments().map_err(us)?;
-        let sep = unmix(&m, &h, opts).map_err(us)?;
-        let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
+        let m = self.acc.moments().map_err(usage)?;
+        let sep = unmix(&m, h, opts).map_err(usage)?;
+        let ms = (self.push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
         if chosen.has(Estimator::M1) {
-            let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
-            r.floor = Some(m1_floor(&truth, &h, n));
+            let mut r = row("M1", format!("N={n}"), &sep, truth, ms);
+            r.floor = Some(m1_floor(truth, h, n));
             rows.push(r);
         }
         if chosen.has(Estimator::M1Pooled) {
-            let pooled = pool_moments(&m, PoolParams::default()).map_err(us)?;
-            let sep = unmix(&pooled, &h, opts).map_err(us)?;
-            rows.push(row("M1 pooled", format!("N={n}"), &sep, &truth, ms));
+            let pooled = pool_moments(&m, PoolParams::default()).map_err(usage)?;
+            let sep = unmix(&pooled, h, opts).map_err(usage)?;
+            rows.push(row("M1 pooled", format!("N={n}"), &sep, truth, ms));
         }
+        Ok(rows)
     }
-    let one = &one;
-    if chosen.has(Estimator::M2) {
-        let t0 = Instant::now();
-        let seg = auto_segment(one, SegmentParams::default()).map_err(us)?;
-        let m = segment_moments(one, &seg.labels, Some(&seg.interior)).map_err(us)?;
-        let sep = unmix(&m, &h, opts).map_err(us)?;
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        rows.push(row("M2 auto", "smooth r=2".into(), &sep, &truth, ms));
+
+    /// M2 auto and M3 separable (range scale from the frame) on the first frame.
+    fn single_frame_rows(
+        &self,
+        truth: &Truth,
+        h: &SkellamMixing,
+        chosen: &Chosen,
+    ) -> Result<Vec<Row>, CliError> {
+        let (one, opts) = (&self.first, UnmixOptions::default());
+        let mut rows = Vec::new();
+        if chosen.has(Estimator::M2) {
+            let t0 = Instant::now();
+            let seg = auto_segment(one, SegmentParams::default()).map_err(usage)?;
+            let m = segment_moments(one, &seg.labels, Some(&seg.interior)).map_err(usage)?;
+            let sep = unmix(&m, h, opts).map_err(usage)?;
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            rows.push(row("M2 auto", "smooth r=2".into(), &sep, truth, ms));
+        }
+        if !chosen.has(Estimator::M3Separable) {
+            return Ok(rows);
+        }
+        let noise = noise_sigma(one);
+        for k in [2.0, 4.0] {
+            let p = BilateralParams::new(1.5, k * noise);
+            let mut out = Separated::default();
+            let mut separable = SeparableBilateral::new();
+            let t0 = Instant::now();
+            let local = separable.compute(one, p).map_err(usage)?;
+            unmix_local_into(local, h, opts, &mut out).map_err(usage)?;
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let params = format!("sd=1.5 sr={k}sigma");
+            rows.push(row("M3 separable", params, &out, truth, ms));
+        }
+        Ok(rows)
     }
-    let noise = noise_sigma(one);
-    let ks: &[f64] = if chosen.has(Estimator::M3Separable) {
-        &[2.0, 4.0]
-    } else {
-        &[]
-    };
-    for &k in ks {
-        let p = BilateralParams::new(1.5, k * noise);
-        let mut out = Separated::default();
-        let mut separable = SeparableBilateral::new();
-        let t0 = Instant::now();
-        unmix_local_into(separable.compute(one, p).map_err(us)?, &h, opts, &mut out).map_err(us)?;
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        rows.push(row(
-            "M3 separable",
-            format!("sd=1.5 sr={k}sigma"),
-            &out,
-            &truth,
-            ms,
-        ));
-    }
-    if rows.is_empty() {
-        return Err(CliError::Usage(ReportError::NoRows.to_string()));
-    }
-    Ok(Report {
-        scene: format!("measured {}", input.display()),
-        model: "measured".into(),
-        width: w,
-        height: ht,
-        truth: "the mean of the LS1-only and LS2-only frames through g",
-        truth_se: Some(truth_se),
-        rows,
-    })
 }
