@@ -387,6 +387,9 @@ fn m1_checkpoints(n_max: usize) -> Vec<usize> {
     ns
 }
 
+/// The first frame and its own truth, for the single-frame estimators.
+type FirstFrame = (Frame, Truth);
+
 /// M1 over N frames streamed from the simulator.
 struct M1Run<'a> {
     h: &'a SkellamMixing,
@@ -403,7 +406,7 @@ impl M1Run<'_> {
         &self,
         sim: &mut Simulator,
         dark_cal: &DarkCalibration,
-    ) -> Result<(Vec<Row>, Option<(Frame, Truth)>), ReportError> {
+    ) -> Result<(Vec<Row>, Option<FirstFrame>), ReportError> {
         let (w, ht) = (sim.params().width, sim.params().height);
         let light = Illumination::snapshot(sim.params().modulation_hz);
         let ns = m1_checkpoints(self.n_max);
@@ -411,7 +414,7 @@ impl M1Run<'_> {
         let mut acc = Welford::new(w, ht);
         let mut truths = TruthSums::new(w * ht);
         let mut push_time = Duration::ZERO;
-        let mut first: Option<(Frame, Truth)> = None;
+        let mut first: Option<FirstFrame> = None;
         let mut rows = Vec::new();
         for n in 1..=self.n_max {
             sim.capture(&light, &mut frame);
