@@ -81,67 +81,73 @@ fn open_board(c: &Config, mode: ModeId) -> Result<Opened, OpenError> {
 fn build(c: &Config, mode: ModeId) -> Result<Opened, OpenError> {
     match c.backend {
         BackendKind::Opt8241 => open_board(c, mode),
-        BackendKind::Auto => {
-            let mut sim = c.clone();
-            sim.backend = BackendKind::Sim;
-            match board_backend::board_attached() {
-                Ok(true) => match open_board(c, mode) {
-                    Ok(b) => {
-                        tracing::info!("backend auto: an OPT8241-CDK is attached; using it");
-                        Ok(b)
-                    }
-                    Err(e) => {
-                        tracing::warn!("backend auto: a board is attached but cannot be used ({e}); using the simulator");
-                        build(&sim, mode)
-                    }
-                },
-                Ok(false) => {
-                    tracing::info!("backend auto: no OPT8241-CDK (USB IDs of udev/board-ids) attached; using the simulator");
-                    build(&sim, mode)
-                }
-                Err(e) => {
-                    tracing::info!(
-                        "backend auto: cannot look for the board (libusb: {e}); using the simulator"
-                    );
-                    build(&sim, mode)
-                }
+        BackendKind::Auto => open_auto(c, mode),
+        BackendKind::Sim => open_sim(c, mode),
+        BackendKind::Replay => open_replay(c),
+    }
+}
+
+/// The board when one is attached and usable, else the simulator; the log
+/// says which and why.
+fn open_auto(c: &Config, mode: ModeId) -> Result<Opened, OpenError> {
+    let mut sim = c.clone();
+    sim.backend = BackendKind::Sim;
+    match board_backend::board_attached() {
+        Ok(true) => match open_board(c, mode) {
+            Ok(b) => {
+                tracing::info!("backend auto: an OPT8241-CDK is attached; using it");
+                Ok(b)
             }
+            Err(e) => {
+                tracing::warn!("backend auto: a board is attached but cannot be used ({e}); using the simulator");
+                build(&sim, mode)
+            }
+        },
+        Ok(false) => {
+            tracing::info!("backend auto: no OPT8241-CDK (USB IDs of udev/board-ids) attached; using the simulator");
+            build(&sim, mode)
         }
-        BackendKind::Sim => {
-            let desc = c.sensor.load().map_err(OpenError::Sensor)?;
-            if let Some(hz) = c.modulation_hz {
-                desc.check_modulation_hz(hz)
-                    .map_err(OpenError::Modulation)?;
-            }
-            if desc.dark_current_electrons_per_us > 0.0 {
-                tracing::warn!(
-                    "sensor '{}': dark current is not simulated by sdid (sdictl sim adds it)",
-                    c.sensor
-                );
-            }
-            let mut p = desc.params();
-            p.exposure_us = c.exposure_us.unwrap_or(p.exposure_us);
-            p.frame_rate_hz = c.frame_rate_hz.unwrap_or(p.frame_rate_hz);
-            p.modulation_hz = c.modulation_hz.unwrap_or(p.modulation_hz);
-            Ok((
-                Box::new(
-                    SimBackend::new(p, mode, c.seed, c.scene.and_then(|s| s.spec()))
-                        .map_err(OpenError::Simulator)?,
-                ),
-                BoardExtras::default(),
-            ))
-        }
-        BackendKind::Replay => {
-            let path = c.replay.path.as_ref().ok_or(OpenError::NoRecording)?;
-            let mut b = ReplayBackend::open(path, c.replay.looping).map_err(OpenError::Replay)?;
-            if let Some(fps) = c.frame_rate_hz {
-                let mut s = b.settings();
-                s.frame_rate_hz = fps;
-                b.configure(&s).map_err(OpenError::Replay)?;
-            }
-            Ok((Box::new(b), BoardExtras::default()))
+        Err(e) => {
+            tracing::info!(
+                "backend auto: cannot look for the board (libusb: {e}); using the simulator"
+            );
+            build(&sim, mode)
         }
     }
+}
+
+/// The simulator of the configured sensor, with the configured overrides.
+fn open_sim(c: &Config, mode: ModeId) -> Result<Opened, OpenError> {
+    let desc = c.sensor.load().map_err(OpenError::Sensor)?;
+    if let Some(hz) = c.modulation_hz {
+        desc.check_modulation_hz(hz)
+            .map_err(OpenError::Modulation)?;
+    }
+    if desc.dark_current_electrons_per_us > 0.0 {
+        tracing::warn!(
+            "sensor '{}': dark current is not simulated by sdid (sdictl sim adds it)",
+            c.sensor
+        );
+    }
+    let mut p = desc.params();
+    p.exposure_us = c.exposure_us.unwrap_or(p.exposure_us);
+    p.frame_rate_hz = c.frame_rate_hz.unwrap_or(p.frame_rate_hz);
+    p.modulation_hz = c.modulation_hz.unwrap_or(p.modulation_hz);
+    let sim = SimBackend::new(p, mode, c.seed, c.scene.and_then(|s| s.spec()))
+        .map_err(OpenError::Simulator)?;
+    Ok((Box::new(sim), BoardExtras::default()))
+}
+
+/// The recording `[replay]` names, at the configured frame rate if any.
+fn open_replay(c: &Config) -> Result<Opened, OpenError> {
+    let path = c.replay.path.as_ref().ok_or(OpenError::NoRecording)?;
+    let mut b = ReplayBackend::open(path, c.replay.looping).map_err(OpenError::Replay)?;
+    if let Some(fps) = c.frame_rate_hz {
+        let mut s = b.settings();
+        s.frame_rate_hz = fps;
+        b.configure(&s).map_err(OpenError::Replay)?;
+    }
+    Ok((Box::new(b), BoardExtras::default()))
 }
 
 /// Wraps the backend so `[lights]` follow the mode.
