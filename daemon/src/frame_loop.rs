@@ -8,6 +8,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use sdi_core::mode::ModeId;
+use sdi_core::modulation::Illumination;
 use sdi_core::separation::{LiveMethod, LiveSeparatorConfig};
 use sdi_core::{Frame, Image};
 use tokio::sync::{oneshot, watch};
@@ -116,7 +117,7 @@ enum ActiveJob {
 }
 
 impl ActiveJob {
-    fn illumination(&self, carrier_hz: f64) -> sdi_core::modulation::Illumination {
+    fn illumination(&self, carrier_hz: f64) -> Illumination {
         match self {
             Self::Dark(run, _) => run.illumination(carrier_hz),
             Self::PhotonTransfer(run, _) => run.illumination(carrier_hz),
@@ -255,21 +256,8 @@ impl FrameLoop {
             if !self.wait_turn(&commands, &pacer, retry_at) {
                 return self.recorder.take();
             }
-            let carrier_hz = self.backend.settings().modulation_hz;
-            let lit = self.job.is_none()
-                && lights_needed(
-                    self.output.watchers(),
-                    self.recorder.is_some(),
-                    !self.pending_snapshots.is_empty(),
-                );
-            let illumination = if let Some(job) = &self.job {
-                job.illumination(carrier_hz)
-            } else if lit {
-                // Numbered as the frame will be: the two-shot pipeline pairs by it.
-                self.mode.illumination(self.sequence + 1, carrier_hz)
-            } else {
-                sdi_core::modulation::Illumination::dark(carrier_hz)
-            };
+            let lit = self.lights_wanted();
+            let illumination = self.illumination(lit);
             let paced = self.backend.paced_rate_hz();
             let captured_at = Instant::now();
             let captured_at_us = monotonic_now_us();
@@ -282,23 +270,7 @@ impl FrameLoop {
                         tracing::warn!("backend: {e}; showing no-signal");
                         stalled = true;
                     }
-                    self.stats.stalled(match e {
-                        BackendError::EndOfStream => "end of recording",
-                        BackendError::Unavailable(_) => "device unavailable",
-                        BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
-                    });
-                    if let Some(job) = self.job.take() {
-                        job.fail(&mut *self.backend, e);
-                    }
-                    self.lights.change();
-                    self.answer_pending_snapshots();
-                    self.answer_marks_while_stalled();
-                    // No output pairs a frame from before the card with one
-                    // after it (it would carry a stamp older than the card's).
-                    self.pipeline.reset();
-                    let card_us = self.stamps.no_signal(monotonic_now_us());
-                    self.output.send_no_signal(card_us);
-                    self.stats_tx.send_replace(self.stats.current.clone());
+                    self.capture_failed(e);
                     retry_at = Instant::now() + STALL_RETRY;
                     continue;
                 }
@@ -307,55 +279,118 @@ impl FrameLoop {
                 pacer.tick(rate_hz, captured_at);
             }
             let t0 = Instant::now();
-            let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
-            let now_us = monotonic_now_us();
-            // A paced source was captured when this loop's clock said (or a
-            // command asked): that moment is its stamp, passed through. A
-            // device's own clock is mapped onto the monotonic one.
-            let captured_us = if paced.is_some() {
-                captured_at_us
-            } else {
-                self.clock.map(frame.timestamp_us, period_us, now_us)
-            };
-            frame.timestamp_us = self.stamps.frame(captured_us, now_us);
-            self.sequence = self.next_sequence(frame.sequence);
-            frame.sequence = self.sequence;
-            self.mark_capture(&frame);
+            self.stamp(&mut frame, paced.map(|_| captured_at_us));
             if lit {
                 self.lights.capture();
             } else {
                 self.lights.change();
             }
-            if let Some(dark) = self.backend.take_dark_frame() {
-                self.set_dark(dark.0, dark.1);
-            }
-            if let (Some(rec), None) = (&self.recorder, &self.job) {
-                rec.push_frame(self.mode.name(), &frame);
-            }
-            if self.job.is_some() {
-                self.job_step(&frame);
-                self.answer_marks(u64::MAX);
-            } else if let Some(out) = self.pipeline.process(&frame) {
-                let out = Arc::new(out.clone());
-                self.output.send(out.clone(), self.display);
-                let published = out.sequence;
-                self.last = Some(out);
-                self.answer_marks(published);
-                if self.lights.is_settled() {
-                    self.answer_pending_snapshots();
-                }
-            }
+            self.process(&frame);
             if self.stats.frame(t0.elapsed()) || resumed {
-                let mut s = self.stats.current.clone();
-                s.counters.dropped_view = self.output.dropped();
-                s.counters.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
-                    r.counters()
-                        .dropped
-                        .load(std::sync::atomic::Ordering::Relaxed)
-                });
-                self.stats_tx.send_replace(s);
+                self.publish_stats();
             }
         }
+    }
+
+    /// Whether the mode's light sources are to be on for the next capture
+    /// (never during a job: it drives them itself).
+    fn lights_wanted(&mut self) -> bool {
+        self.job.is_none()
+            && lights_needed(
+                self.output.watchers(),
+                self.recorder.is_some(),
+                !self.pending_snapshots.is_empty(),
+            )
+    }
+
+    /// How the sources are driven for the next capture: as the job asks,
+    /// as the mode asks when `lit`, else dark.
+    fn illumination(&self, lit: bool) -> Illumination {
+        let carrier_hz = self.backend.settings().modulation_hz;
+        if let Some(job) = &self.job {
+            job.illumination(carrier_hz)
+        } else if lit {
+            // Numbered as the frame will be: the two-shot pipeline pairs by it.
+            self.mode.illumination(self.sequence + 1, carrier_hz)
+        } else {
+            Illumination::dark(carrier_hz)
+        }
+    }
+
+    /// The capture failed: the job fails, waiting calls are answered, and
+    /// the "no signal" card goes out with Stats saying why.
+    fn capture_failed(&mut self, e: BackendError) {
+        self.stats.stalled(match e {
+            BackendError::EndOfStream => "end of recording",
+            BackendError::Unavailable(_) => "device unavailable",
+            BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
+        });
+        if let Some(job) = self.job.take() {
+            job.fail(&mut *self.backend, e);
+        }
+        self.lights.change();
+        self.answer_pending_snapshots();
+        self.answer_marks_while_stalled();
+        // No output pairs a frame from before the card with one
+        // after it (it would carry a stamp older than the card's).
+        self.pipeline.reset();
+        let card_us = self.stamps.no_signal(monotonic_now_us());
+        self.output.send_no_signal(card_us);
+        self.stats_tx.send_replace(self.stats.current.clone());
+    }
+
+    /// Gives the captured frame its published timestamp and sdid's sequence
+    /// number. `paced_at_us`: when this loop captured a paced source.
+    fn stamp(&mut self, frame: &mut Frame, paced_at_us: Option<u64>) {
+        let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
+        let now_us = monotonic_now_us();
+        // A paced source was captured when this loop's clock said (or a
+        // command asked): that moment is its stamp, passed through. A
+        // device's own clock is mapped onto the monotonic one.
+        let captured_us = match paced_at_us {
+            Some(at_us) => at_us,
+            None => self.clock.map(frame.timestamp_us, period_us, now_us),
+        };
+        frame.timestamp_us = self.stamps.frame(captured_us, now_us);
+        self.sequence = self.next_sequence(frame.sequence);
+        frame.sequence = self.sequence;
+        self.mark_capture(frame);
+    }
+
+    /// Records the frame and feeds it to the job or the mode pipeline,
+    /// publishing the output and answering the calls that waited for it.
+    fn process(&mut self, frame: &Frame) {
+        if let Some(dark) = self.backend.take_dark_frame() {
+            self.set_dark(dark.0, dark.1);
+        }
+        if let (Some(rec), None) = (&self.recorder, &self.job) {
+            rec.push_frame(self.mode.name(), frame);
+        }
+        if self.job.is_some() {
+            self.job_step(frame);
+            self.answer_marks(u64::MAX);
+        } else if let Some(out) = self.pipeline.process(frame) {
+            let out = Arc::new(out.clone());
+            self.output.send(out.clone(), self.display);
+            let published = out.sequence;
+            self.last = Some(out);
+            self.answer_marks(published);
+            if self.lights.is_settled() {
+                self.answer_pending_snapshots();
+            }
+        }
+    }
+
+    /// Sends Stats with the drop counters of the output and the recorder.
+    fn publish_stats(&mut self) {
+        let mut s = self.stats.current.clone();
+        s.counters.dropped_view = self.output.dropped();
+        s.counters.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
+            r.counters()
+                .dropped
+                .load(std::sync::atomic::Ordering::Relaxed)
+        });
+        self.stats_tx.send_replace(s);
     }
 
     /// Handles commands until the next capture is due: at once for a source
@@ -515,34 +550,11 @@ impl FrameLoop {
             Command::CaptureDark(_, reply) if self.job.is_some() => {
                 let _ = reply.send(Err(JobError::AlreadyRunning));
             }
-            Command::CaptureDark(n, reply) => {
-                let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
-                match Running::start(DarkJob::new(n, w, h), &mut *self.backend) {
-                    Ok(run) => self.job = Some(ActiveJob::Dark(run, reply)),
-                    Err(e) => {
-                        let _ = reply.send(Err(e.into()));
-                    }
-                }
-            }
+            Command::CaptureDark(frames, reply) => self.start_dark(frames, reply),
             Command::PhotonTransfer(_, reply) if self.job.is_some() => {
                 let _ = reply.send(Err(JobError::AlreadyRunning));
             }
-            Command::PhotonTransfer(frames, reply) => {
-                let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
-                let job = PtcJob::new(
-                    self.backend.settings(),
-                    frames,
-                    self.dark.as_ref().map(|d| d.1.clone()),
-                    w,
-                    h,
-                );
-                match Running::start(job, &mut *self.backend) {
-                    Ok(run) => self.job = Some(ActiveJob::PhotonTransfer(run, reply)),
-                    Err(e) => {
-                        let _ = reply.send(Err(e.into()));
-                    }
-                }
-            }
+            Command::PhotonTransfer(frames, reply) => self.start_photon_transfer(frames, reply),
             Command::Snapshot(reply) if !self.lights.is_settled() => {
                 // lights off (nobody watched) or just switched on
                 self.pending_snapshots.push(reply);
@@ -562,6 +574,42 @@ impl FrameLoop {
                 let _ = reply.send(self.recorder.take());
             }
             Command::Shutdown => {}
+        }
+    }
+
+    /// Starts averaging `frames` dark frames; a backend that refuses the
+    /// job's settings answers at once.
+    fn start_dark(&mut self, frames: u32, reply: Reply<Result<DarkStats, JobError>>) {
+        let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
+        match Running::start(DarkJob::new(frames, w, h), &mut *self.backend) {
+            Ok(run) => self.job = Some(ActiveJob::Dark(run, reply)),
+            Err(e) => {
+                let _ = reply.send(Err(e.into()));
+            }
+        }
+    }
+
+    /// Starts the photon-transfer calibration, `frames` frames per level,
+    /// with the dark frame held; a backend that refuses the first level's
+    /// settings answers at once.
+    fn start_photon_transfer(
+        &mut self,
+        frames: u32,
+        reply: Reply<Result<PhotonTransferFit, JobError>>,
+    ) {
+        let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
+        let job = PtcJob::new(
+            self.backend.settings(),
+            frames,
+            self.dark.as_ref().map(|d| d.1.clone()),
+            w,
+            h,
+        );
+        match Running::start(job, &mut *self.backend) {
+            Ok(run) => self.job = Some(ActiveJob::PhotonTransfer(run, reply)),
+            Err(e) => {
+                let _ = reply.send(Err(e.into()));
+            }
         }
     }
 
