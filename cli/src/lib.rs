@@ -49,7 +49,7 @@ enum Command {
 #[derive(Debug, Subcommand)]
 enum Report {
     /// Error against run time of every separation estimator (I+, I- recovery).
-    Separation(offline::report::SeparationReportArgs),
+    Separation(offline::separation_report::SeparationReportArgs),
     /// Variance against intensity, snapshot vs two-shot, and the ratio of the low-light intercepts (section 5.5).
     Noise(offline::noise_report::NoiseReportArgs),
 }
@@ -61,7 +61,9 @@ pub fn run(cli: Cli) -> ExitCode {
         Command::Sim(args) => offline::sim::run(args, json),
         Command::Separate(args) => offline::separate::run(args, json),
         Command::Report(Report::Noise(args)) => offline::noise_report::run(&args, json),
-        Command::Report(Report::Separation(args)) => offline::report::run_cli(&args, json),
+        Command::Report(Report::Separation(args)) => {
+            offline::separation_report::run_cli(&args, json)
+        }
         Command::Online(cmd) => return online::run(cmd, cli.bus),
         // Both generators write to memory first: clap_complete panics on a
         // failed write, and stdout.rs says what a failed stdout means.

@@ -51,7 +51,7 @@ fn nan_inf_become_zero_and_flagged_saturation_kept() {
     let out = p.process(&f).unwrap();
     assert_eq!(out.signed_dn.data, vec![0.0, 0.0, 2047.0, -5.0]);
     assert_eq!(
-        out.saturated.data,
+        out.flags.data,
         vec![
             PixelFlags::NONFINITE.bits(),
             PixelFlags::NONFINITE.bits(),

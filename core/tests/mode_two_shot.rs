@@ -48,7 +48,7 @@ fn saturation_of_either_frame_is_flagged() {
     let mut b = frame(1, 1.0);
     b.saturated.data[1] = 1;
     p.process(&a);
-    assert_eq!(p.process(&b).unwrap().saturated.data, vec![1, 1]);
+    assert_eq!(p.process(&b).unwrap().flags.data, vec![1, 1]);
 }
 
 /// Per-pixel variance over `n` outputs, averaged over pixels; and the mean.

@@ -1,5 +1,5 @@
 //! sdid's command line: flags parsed at the edge into the typed
-//! [`Config`](crate::config::Config) and the other [`StartOptions`].
+//! [`Config`](sdi_config::Config) and the other [`StartOptions`].
 
 use std::path::PathBuf;
 
@@ -8,8 +8,8 @@ use sdi_core::mode::ModeId;
 use sdi_core::sensor::capture_range;
 
 use crate::bus::BusChoice;
-use crate::config::{cli, BackendKind, Config, SensorSpec, SimScene, SinkKind};
 use crate::startup::{StartError, StartOptions};
+use sdi_config::{cli, BackendKind, Config, SensorSpec, SimScene, SinkKind};
 
 /// The SDI difference-camera daemon.
 #[derive(Debug, Parser)]
@@ -70,14 +70,11 @@ impl Args {
     /// and validates the result once (adjustments are logged).
     pub fn into_options(self) -> Result<StartOptions, StartError> {
         let (mut config, file) =
-            Config::read(self.config.as_deref()).map_err(|e| StartError::Config(e.to_string()))?;
+            Config::read(self.config.as_deref()).map_err(StartError::Config)?;
         self.apply(&mut config);
-        let adjusted = config.validate().map_err(|e| {
-            StartError::Config(match &file {
-                Some(path) => format!("{}: {e}", path.display()),
-                None => e.to_string(),
-            })
-        })?;
+        let adjusted = config
+            .validate()
+            .map_err(|source| StartError::Invalid { file, source })?;
         for a in adjusted {
             tracing::warn!("configuration: {a}");
         }

@@ -24,8 +24,8 @@ impl PrivateBus {
             "--print-address=1",
         ];
         // Its stderr comes through our log, a line at a time: written
-        // straight to ours, its start-up warnings landed in the middle of
-        // the address announcement below (a test read a garbled address).
+        // straight to ours, its start-up warnings could land in the middle
+        // of the address announcement below and garble the address.
         let spawn = |program: &str, args: &[&str]| {
             Command::new(program)
                 .args(args)
@@ -88,9 +88,22 @@ pub enum BusChoice {
     Address(String),
 }
 
+/// Why the chosen bus could not be reached.
+#[derive(Debug, thiserror::Error)]
+pub enum ConnectError {
+    #[error("no session bus and cannot start dbus-daemon: {0} (install dbus)")]
+    NoDbusDaemon(#[source] std::io::Error),
+    #[error("{0}")]
+    Address(#[source] zbus::Error),
+    #[error("connecting to D-Bus: {0}")]
+    Connect(#[source] zbus::Error),
+}
+
 /// Connects to the chosen bus; the private bus started for
 /// [`BusChoice::Session`], if any, lives as long as the returned handle.
-pub async fn connect(choice: &BusChoice) -> Result<(zbus::Connection, Option<PrivateBus>), String> {
+pub async fn connect(
+    choice: &BusChoice,
+) -> Result<(zbus::Connection, Option<PrivateBus>), ConnectError> {
     let mut private = None;
     let builder = match choice {
         BusChoice::Address(a) => zbus::connection::Builder::address(a.as_str()),
@@ -98,9 +111,7 @@ pub async fn connect(choice: &BusChoice) -> Result<(zbus::Connection, Option<Pri
             let addr = match session_address() {
                 Some(a) => a,
                 None => {
-                    let p = PrivateBus::spawn().map_err(|e| {
-                        format!("no session bus and cannot start dbus-daemon: {e} (install dbus)")
-                    })?;
+                    let p = PrivateBus::spawn().map_err(ConnectError::NoDbusDaemon)?;
                     // One write: the announcement stays whole beside
                     // other writers of the same stderr.
                     let announcement = format!(
@@ -120,10 +131,7 @@ pub async fn connect(choice: &BusChoice) -> Result<(zbus::Connection, Option<Pri
         }
         BusChoice::System => zbus::connection::Builder::system(),
     }
-    .map_err(|e| e.to_string())?;
-    let conn = builder
-        .build()
-        .await
-        .map_err(|e| format!("connecting to D-Bus: {e}"))?;
+    .map_err(ConnectError::Address)?;
+    let conn = builder.build().await.map_err(ConnectError::Connect)?;
     Ok((conn, private))
 }

@@ -8,23 +8,26 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use sdi_core::mode::ModeId;
+use sdi_core::modulation::Illumination;
 use sdi_core::separation::{LiveMethod, LiveSeparatorConfig};
 use sdi_core::{Frame, Image};
 use tokio::sync::{oneshot, watch};
 
 use crate::backend::pacer::Pacer;
 use crate::backend::{Backend, BackendError, CaptureSettings};
-use crate::dark_capture::{DarkCapture, DarkJob};
+use crate::dark_capture::{DarkCapture, DarkJob, NoUsablePixels};
 use crate::job::{Running, Settling};
-use crate::modes::{self, DisplayMap, ModeOutput, Pipeline, PipelineConfig};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
-use crate::photon_transfer::PtcJob;
+use crate::photon_transfer::{PtcError, PtcJob};
 use crate::publish_clock::PublishClock;
-use crate::recording::{Calibration, RecordingWriter};
+use crate::recorder::RecordingWriter;
 use crate::sink::output::Output;
 use crate::stats::{LoopStats, StatsWindow};
 use sdi_core::calibration::PhotonTransferFit;
+use sdi_core::display::DisplayMap;
+use sdi_core::mode::{build_pipeline, ModeOutput, Pipeline, PipelineConfig};
 use sdi_core::sensor::SkellamMixing;
+use sdi_recording::Calibration;
 
 /// Statistics of a dark-frame capture (computed in core).
 pub use sdi_core::dark_frame::DarkStats;
@@ -38,14 +41,28 @@ pub struct SnapshotData {
 
 pub type Reply<T> = oneshot::Sender<T>;
 
-/// Wait before trying a failed capture again.
 /// Longest a command waiting for a frame waits for a paced source's frame
 /// clock; beyond it the frame is captured at once (slow frame rates).
 const MAX_COMMAND_WAIT: Duration = Duration::from_millis(100);
+/// Wait before trying a failed capture again.
 const STALL_RETRY: Duration = Duration::from_millis(200);
 
-/// Refusal of a second dark capture or calibration while one runs.
-const JOB_RUNNING: &str = "a dark-frame capture or calibration is already running";
+/// Why a dark-frame capture or calibration gave no result.
+#[derive(Debug, thiserror::Error)]
+pub enum JobError {
+    /// A second dark capture or calibration while one runs.
+    #[error("a dark-frame capture or calibration is already running")]
+    AlreadyRunning,
+    #[error(transparent)]
+    Backend(#[from] BackendError),
+    #[error(transparent)]
+    NoUsablePixels(#[from] NoUsablePixels),
+    #[error(transparent)]
+    PhotonTransfer(#[from] PtcError),
+    /// The job finished but its capture settings could not be put back.
+    #[error("restoring the capture settings: {0}")]
+    Restore(#[source] BackendError),
+}
 
 /// The first frame produced under a new setting: every published output with
 /// `sequence >= self.sequence` (and timestamp `>= self.timestamp_us`) was
@@ -82,10 +99,10 @@ pub enum Command {
         Reply<FrameMark>,
     ),
     SetDisplay(DisplayMap, Reply<FrameMark>),
-    CaptureDark(u32, Reply<Result<DarkStats, BackendError>>),
+    CaptureDark(u32, Reply<Result<DarkStats, JobError>>),
     /// Photon-transfer calibration with this many frames per level; on
     /// success the separation mode's H uses the fitted gain and read variance.
-    PhotonTransfer(u32, Reply<Result<PhotonTransferFit, String>>),
+    PhotonTransfer(u32, Reply<Result<PhotonTransferFit, JobError>>),
     Snapshot(Reply<Option<SnapshotData>>),
     StartRecording(Box<RecordingWriter>, Reply<()>),
     /// Hands the recorder back; the caller finishes it (off this thread).
@@ -95,12 +112,12 @@ pub enum Command {
 
 /// The job running instead of the mode pipeline, with its reply.
 enum ActiveJob {
-    Dark(Running<DarkJob>, Reply<Result<DarkStats, BackendError>>),
-    PhotonTransfer(Running<PtcJob>, Reply<Result<PhotonTransferFit, String>>),
+    Dark(Running<DarkJob>, Reply<Result<DarkStats, JobError>>),
+    PhotonTransfer(Running<PtcJob>, Reply<Result<PhotonTransferFit, JobError>>),
 }
 
 impl ActiveJob {
-    fn illumination(&self, carrier_hz: f64) -> sdi_core::modulation::Illumination {
+    fn illumination(&self, carrier_hz: f64) -> Illumination {
         match self {
             Self::Dark(run, _) => run.illumination(carrier_hz),
             Self::PhotonTransfer(run, _) => run.illumination(carrier_hz),
@@ -112,11 +129,11 @@ impl ActiveJob {
         match self {
             Self::Dark(run, reply) => {
                 let _ = run.end(backend);
-                let _ = reply.send(Err(e));
+                let _ = reply.send(Err(e.into()));
             }
             Self::PhotonTransfer(run, reply) => {
                 let _ = run.end(backend);
-                let _ = reply.send(Err(e.to_string()));
+                let _ = reply.send(Err(e.into()));
             }
         }
     }
@@ -176,7 +193,7 @@ impl FrameLoop {
             h: backend.sensor().skellam(),
             ..LiveSeparatorConfig::default()
         };
-        let pipeline = modes::build_pipeline(
+        let pipeline = build_pipeline(
             mode,
             PipelineConfig {
                 separation,
@@ -216,7 +233,7 @@ impl FrameLoop {
 
     /// A fresh pipeline for the current mode, with the dark frame and H held.
     fn rebuild_pipeline(&mut self) {
-        self.pipeline = modes::build_pipeline(
+        self.pipeline = build_pipeline(
             self.mode,
             PipelineConfig {
                 dark_frame_dn: self.dark.as_ref().map(|d| d.1.clone()),
@@ -239,21 +256,8 @@ impl FrameLoop {
             if !self.wait_turn(&commands, &pacer, retry_at) {
                 return self.recorder.take();
             }
-            let carrier_hz = self.backend.settings().modulation_hz;
-            let lit = self.job.is_none()
-                && lights_needed(
-                    self.output.watchers(),
-                    self.recorder.is_some(),
-                    !self.pending_snapshots.is_empty(),
-                );
-            let illumination = if let Some(job) = &self.job {
-                job.illumination(carrier_hz)
-            } else if lit {
-                // Numbered as the frame will be: the two-shot pipeline pairs by it.
-                modes::illumination(self.mode, self.sequence + 1, carrier_hz)
-            } else {
-                sdi_core::modulation::Illumination::dark(carrier_hz)
-            };
+            let lit = self.lights_wanted();
+            let illumination = self.illumination(lit);
             let paced = self.backend.paced_rate_hz();
             let captured_at = Instant::now();
             let captured_at_us = monotonic_now_us();
@@ -266,23 +270,7 @@ impl FrameLoop {
                         tracing::warn!("backend: {e}; showing no-signal");
                         stalled = true;
                     }
-                    self.stats.stalled(match e {
-                        BackendError::EndOfStream => "end of recording",
-                        BackendError::Unavailable(_) => "device unavailable",
-                        BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
-                    });
-                    if let Some(job) = self.job.take() {
-                        job.fail(&mut *self.backend, e);
-                    }
-                    self.lights.change();
-                    self.answer_pending_snapshots();
-                    self.answer_marks_while_stalled();
-                    // No output pairs a frame from before the card with one
-                    // after it (it would carry a stamp older than the card's).
-                    self.pipeline.reset();
-                    let card_us = self.stamps.no_signal(monotonic_now_us());
-                    self.output.send_no_signal(card_us);
-                    self.stats_tx.send_replace(self.stats.current.clone());
+                    self.capture_failed(e);
                     retry_at = Instant::now() + STALL_RETRY;
                     continue;
                 }
@@ -291,55 +279,118 @@ impl FrameLoop {
                 pacer.tick(rate_hz, captured_at);
             }
             let t0 = Instant::now();
-            let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
-            let now_us = monotonic_now_us();
-            // A paced source was captured when this loop's clock said (or a
-            // command asked): that moment is its stamp, passed through. A
-            // device's own clock is mapped onto the monotonic one.
-            let captured_us = if paced.is_some() {
-                captured_at_us
-            } else {
-                self.clock.map(frame.timestamp_us, period_us, now_us)
-            };
-            frame.timestamp_us = self.stamps.frame(captured_us, now_us);
-            self.sequence = self.next_sequence(frame.sequence);
-            frame.sequence = self.sequence;
-            self.mark_capture(&frame);
+            self.stamp(&mut frame, paced.map(|_| captured_at_us));
             if lit {
                 self.lights.capture();
             } else {
                 self.lights.change();
             }
-            if let Some(dark) = self.backend.take_dark_frame() {
-                self.set_dark(dark.0, dark.1);
-            }
-            if let (Some(rec), None) = (&self.recorder, &self.job) {
-                rec.push_frame(self.mode.name(), &frame);
-            }
-            if self.job.is_some() {
-                self.job_step(&frame);
-                self.answer_marks(u64::MAX);
-            } else if let Some(out) = self.pipeline.process(&frame) {
-                let out = Arc::new(out.clone());
-                self.output.send(out.clone(), self.display);
-                let published = out.sequence;
-                self.last = Some(out);
-                self.answer_marks(published);
-                if self.lights.is_settled() {
-                    self.answer_pending_snapshots();
-                }
-            }
+            self.process(&frame);
             if self.stats.frame(t0.elapsed()) || resumed {
-                let mut s = self.stats.current.clone();
-                s.counters.dropped_view = self.output.dropped();
-                s.counters.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
-                    r.counters()
-                        .dropped
-                        .load(std::sync::atomic::Ordering::Relaxed)
-                });
-                self.stats_tx.send_replace(s);
+                self.publish_stats();
             }
         }
+    }
+
+    /// Whether the mode's light sources are to be on for the next capture
+    /// (never during a job: it drives them itself).
+    fn lights_wanted(&mut self) -> bool {
+        self.job.is_none()
+            && lights_needed(
+                self.output.watchers(),
+                self.recorder.is_some(),
+                !self.pending_snapshots.is_empty(),
+            )
+    }
+
+    /// How the sources are driven for the next capture: as the job asks,
+    /// as the mode asks when `lit`, else dark.
+    fn illumination(&self, lit: bool) -> Illumination {
+        let carrier_hz = self.backend.settings().modulation_hz;
+        if let Some(job) = &self.job {
+            job.illumination(carrier_hz)
+        } else if lit {
+            // Numbered as the frame will be: the two-shot pipeline pairs by it.
+            self.mode.illumination(self.sequence + 1, carrier_hz)
+        } else {
+            Illumination::dark(carrier_hz)
+        }
+    }
+
+    /// The capture failed: the job fails, waiting calls are answered, and
+    /// the "no signal" card goes out with Stats saying why.
+    fn capture_failed(&mut self, e: BackendError) {
+        self.stats.stalled(match e {
+            BackendError::EndOfStream => "end of recording",
+            BackendError::Unavailable(_) => "device unavailable",
+            BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
+        });
+        if let Some(job) = self.job.take() {
+            job.fail(&mut *self.backend, e);
+        }
+        self.lights.change();
+        self.answer_pending_snapshots();
+        self.answer_marks_while_stalled();
+        // No output pairs a frame from before the card with one
+        // after it (it would carry a stamp older than the card's).
+        self.pipeline.reset();
+        let card_us = self.stamps.no_signal(monotonic_now_us());
+        self.output.send_no_signal(card_us);
+        self.stats_tx.send_replace(self.stats.current.clone());
+    }
+
+    /// Gives the captured frame its published timestamp and sdid's sequence
+    /// number. `paced_at_us`: when this loop captured a paced source.
+    fn stamp(&mut self, frame: &mut Frame, paced_at_us: Option<u64>) {
+        let period_us = (1e6 / self.backend.settings().frame_rate_hz.max(1e-3)) as u64;
+        let now_us = monotonic_now_us();
+        // A paced source was captured when this loop's clock said (or a
+        // command asked): that moment is its stamp, passed through. A
+        // device's own clock is mapped onto the monotonic one.
+        let captured_us = match paced_at_us {
+            Some(at_us) => at_us,
+            None => self.clock.map(frame.timestamp_us, period_us, now_us),
+        };
+        frame.timestamp_us = self.stamps.frame(captured_us, now_us);
+        self.sequence = self.next_sequence(frame.sequence);
+        frame.sequence = self.sequence;
+        self.mark_capture(frame);
+    }
+
+    /// Records the frame and feeds it to the job or the mode pipeline,
+    /// publishing the output and answering the calls that waited for it.
+    fn process(&mut self, frame: &Frame) {
+        if let Some(dark) = self.backend.take_dark_frame() {
+            self.set_dark(dark.0, dark.1);
+        }
+        if let (Some(rec), None) = (&self.recorder, &self.job) {
+            rec.push_frame(self.mode.name(), frame);
+        }
+        if self.job.is_some() {
+            self.job_step(frame);
+            self.answer_marks(u64::MAX);
+        } else if let Some(out) = self.pipeline.process(frame) {
+            let out = Arc::new(out.clone());
+            self.output.send(out.clone(), self.display);
+            let published = out.sequence;
+            self.last = Some(out);
+            self.answer_marks(published);
+            if self.lights.is_settled() {
+                self.answer_pending_snapshots();
+            }
+        }
+    }
+
+    /// Sends Stats with the drop counters of the output and the recorder.
+    fn publish_stats(&mut self) {
+        let mut s = self.stats.current.clone();
+        s.counters.dropped_view = self.output.dropped();
+        s.counters.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
+            r.counters()
+                .dropped
+                .load(std::sync::atomic::Ordering::Relaxed)
+        });
+        self.stats_tx.send_replace(s);
     }
 
     /// Handles commands until the next capture is due: at once for a source
@@ -497,36 +548,13 @@ impl FrameLoop {
                 self.await_first_frame(reply);
             }
             Command::CaptureDark(_, reply) if self.job.is_some() => {
-                let _ = reply.send(Err(BackendError::Failed(JOB_RUNNING.into())));
+                let _ = reply.send(Err(JobError::AlreadyRunning));
             }
-            Command::CaptureDark(n, reply) => {
-                let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
-                match Running::start(DarkJob::new(n, w, h), &mut *self.backend) {
-                    Ok(run) => self.job = Some(ActiveJob::Dark(run, reply)),
-                    Err(e) => {
-                        let _ = reply.send(Err(e));
-                    }
-                }
-            }
+            Command::CaptureDark(frames, reply) => self.start_dark(frames, reply),
             Command::PhotonTransfer(_, reply) if self.job.is_some() => {
-                let _ = reply.send(Err(JOB_RUNNING.into()));
+                let _ = reply.send(Err(JobError::AlreadyRunning));
             }
-            Command::PhotonTransfer(frames, reply) => {
-                let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
-                let job = PtcJob::new(
-                    self.backend.settings(),
-                    frames,
-                    self.dark.as_ref().map(|d| d.1.clone()),
-                    w,
-                    h,
-                );
-                match Running::start(job, &mut *self.backend) {
-                    Ok(run) => self.job = Some(ActiveJob::PhotonTransfer(run, reply)),
-                    Err(e) => {
-                        let _ = reply.send(Err(e.to_string()));
-                    }
-                }
-            }
+            Command::PhotonTransfer(frames, reply) => self.start_photon_transfer(frames, reply),
             Command::Snapshot(reply) if !self.lights.is_settled() => {
                 // lights off (nobody watched) or just switched on
                 self.pending_snapshots.push(reply);
@@ -549,6 +577,42 @@ impl FrameLoop {
         }
     }
 
+    /// Starts averaging `frames` dark frames; a backend that refuses the
+    /// job's settings answers at once.
+    fn start_dark(&mut self, frames: u32, reply: Reply<Result<DarkStats, JobError>>) {
+        let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
+        match Running::start(DarkJob::new(frames, w, h), &mut *self.backend) {
+            Ok(run) => self.job = Some(ActiveJob::Dark(run, reply)),
+            Err(e) => {
+                let _ = reply.send(Err(e.into()));
+            }
+        }
+    }
+
+    /// Starts the photon-transfer calibration, `frames` frames per level,
+    /// with the dark frame held; a backend that refuses the first level's
+    /// settings answers at once.
+    fn start_photon_transfer(
+        &mut self,
+        frames: u32,
+        reply: Reply<Result<PhotonTransferFit, JobError>>,
+    ) {
+        let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
+        let job = PtcJob::new(
+            self.backend.settings(),
+            frames,
+            self.dark.as_ref().map(|d| d.1.clone()),
+            w,
+            h,
+        );
+        match Running::start(job, &mut *self.backend) {
+            Ok(run) => self.job = Some(ActiveJob::PhotonTransfer(run, reply)),
+            Err(e) => {
+                let _ = reply.send(Err(e.into()));
+            }
+        }
+    }
+
     /// Feeds the running job a frame; applies and answers its result once done.
     fn job_step(&mut self, frame: &Frame) {
         let Some(job) = self.job.take() else {
@@ -562,7 +626,7 @@ impl FrameLoop {
                     let _ = run.end(backend);
                     let r = done
                         .map(|capture| self.finish_dark(capture))
-                        .map_err(|e| BackendError::Failed(e.to_string()));
+                        .map_err(JobError::from);
                     let _ = reply.send(r);
                 }
                 Err(e) => ActiveJob::Dark(run, reply).fail(backend, e),
@@ -581,9 +645,9 @@ impl FrameLoop {
     /// Uses a successful fit for H and replies.
     fn finish_photon_transfer(
         &mut self,
-        r: Result<PhotonTransferFit, String>,
+        r: Result<PhotonTransferFit, PtcError>,
         restored: Result<(), BackendError>,
-        reply: Reply<Result<PhotonTransferFit, String>>,
+        reply: Reply<Result<PhotonTransferFit, JobError>>,
     ) {
         if let Ok(fit) = &r {
             self.set_gain(SkellamMixing::new(
@@ -592,8 +656,8 @@ impl FrameLoop {
             ));
         }
         let r = match (r, restored) {
-            (Ok(_), Err(e)) => Err(format!("restoring the capture settings: {e}")),
-            (r, _) => r,
+            (Ok(_), Err(e)) => Err(JobError::Restore(e)),
+            (r, _) => r.map_err(JobError::from),
         };
         let _ = reply.send(r);
     }
@@ -621,10 +685,11 @@ mod tests {
     use super::{lights_needed, Command, FrameLoop};
     use crate::backend::sim::SimBackend;
     use crate::backend::{Backend, BackendError, CaptureSettings};
-    use crate::modes::{DisplayMap, ModeId, ModeOutput};
     use crate::monotonic::monotonic_now_us;
     use crate::sink::output::Output;
     use crate::sink::{Sink, SinkError, SinkInfo};
+    use sdi_core::display::DisplayMap;
+    use sdi_core::mode::{ModeId, ModeOutput};
     use sdi_core::modulation::Illumination;
     use sdi_core::sensor::{SensorParams, SensorPreset};
     use sdi_core::Frame;
@@ -712,7 +777,7 @@ mod tests {
             sim: SimBackend::new(p, mode, 1, None).unwrap(),
             fails,
             attempt: 0,
-            // The capture the old anchoring dated every later frame by.
+            // A slow first capture: later frames must not be dated from it.
             first_capture: Some(Duration::from_millis(40)),
         };
         let written = Written::default();

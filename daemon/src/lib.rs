@@ -1,7 +1,7 @@
 //! sdid: captures frames from a backend, runs the chosen mode's pipeline,
 //! publishes the result on an output sink, and serves the D-Bus API.
 //!
-//! Data flows one way: backend -> frame_loop (pipeline) -> sink / recording;
+//! Data flows one way: backend -> frame_loop (pipeline) -> sink / recorder;
 //! D-Bus talks to the frame loop only through its command channel.
 #![forbid(unsafe_code)]
 
@@ -9,18 +9,16 @@ pub mod args;
 pub mod backend;
 pub mod bus;
 pub mod calibration_store;
-pub mod config;
 pub mod dark_capture;
 pub mod dbus;
 pub mod frame_loop;
 pub mod job;
 pub mod light;
 pub mod logging;
-pub mod modes;
 pub mod monotonic;
 pub mod photon_transfer;
 pub mod publish_clock;
-pub mod recording;
+pub mod recorder;
 pub mod sink;
 pub mod snapshot;
 pub mod startup;

@@ -3,10 +3,10 @@
 //! (M1, Welford), then the straight-line fit sigma^2 = g |mu| + sigma_read^2
 //! (eq. skellamvar with I- = 0) for g = rho eta and the read variance.
 
-use sdi_core::calibration::{fit_photon_transfer, PhotonTransferFit, PtcPoint};
+use sdi_core::calibration::{fit_photon_transfer, CalibrationError, PhotonTransferFit, PtcPoint};
 use sdi_core::dark_frame::subtract_dark;
 use sdi_core::modulation::{Illumination, ModulationPattern, SourceDrive};
-use sdi_core::separation::Welford;
+use sdi_core::separation::{SeparationError, Welford};
 use sdi_core::{Frame, Image};
 
 use crate::backend::CaptureSettings;
@@ -14,6 +14,17 @@ use crate::job::{Job, Step};
 
 /// Exposures of the levels, as fractions of the current exposure.
 pub const LEVELS: [f64; 5] = [0.2, 0.4, 0.6, 0.8, 1.0];
+
+/// Why the photon-transfer calibration gave no fit.
+#[derive(Debug, thiserror::Error)]
+pub enum PtcError {
+    /// A level's frames gave no moments (a frame of another size, too few).
+    #[error(transparent)]
+    Moments(#[from] SeparationError),
+    /// The levels gave no point or no fit.
+    #[error(transparent)]
+    Fit(#[from] CalibrationError),
+}
 
 pub struct PtcJob {
     base: CaptureSettings,
@@ -58,7 +69,7 @@ impl PtcJob {
 }
 
 impl Job for PtcJob {
-    type Output = Result<PhotonTransferFit, String>;
+    type Output = Result<PhotonTransferFit, PtcError>;
 
     /// The first level's exposure.
     fn prepare(&mut self) -> Option<CaptureSettings> {
@@ -82,7 +93,7 @@ impl Job for PtcJob {
             subtract_dark(&mut self.scratch.dn.data, &d.data);
         }
         if let Err(e) = self.welford.push(&self.scratch) {
-            return Step::Done(Err(e.to_string()));
+            return Step::Done(Err(e.into()));
         }
         if self.seen < self.frames_per_level {
             return Step::Continue;
@@ -90,8 +101,8 @@ impl Job for PtcJob {
         let point = self
             .welford
             .moments()
-            .map_err(|e| e.to_string())
-            .and_then(|m| PtcPoint::from_moments(&m).map_err(|e| e.to_string()));
+            .map_err(PtcError::from)
+            .and_then(|m| PtcPoint::from_moments(&m).map_err(PtcError::from));
         match point {
             Ok(p) => self.points.push(p),
             Err(e) => return Step::Done(Err(e)),
@@ -102,7 +113,7 @@ impl Job for PtcJob {
         if self.level < LEVELS.len() {
             Step::Configure(self.settings())
         } else {
-            Step::Done(fit_photon_transfer(&self.points).map_err(|e| e.to_string()))
+            Step::Done(fit_photon_transfer(&self.points).map_err(PtcError::from))
         }
     }
 

@@ -4,25 +4,31 @@
 //! with `on_unplug = "exit"`). `sdid`'s `main` only parses the command line
 //! ([`crate::args`]), installs logging and calls [`run`].
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::mpsc;
+use std::sync::Arc;
+use std::thread::JoinHandle;
 use std::time::Duration;
 
-use tokio::sync::watch;
+use sdi_config::{Config, ConfigError, Invalid};
+use sdi_core::display::{DisplayMap, DisplayRange};
+use sdi_core::mode::ModeId;
+use sdi_core::sensor::SkellamMixing;
+use sdi_recording::{Calibration, RecordingReader};
+use tokio::sync::{watch, Notify};
 
-use crate::backend::{select as backend_select, CaptureSettings};
-use crate::bus::{self, BusChoice};
+use crate::backend::select::{self as backend_select, OpenError};
+use crate::backend::{Backend, CaptureSettings};
+use crate::bus::{self, BusChoice, ConnectError, PrivateBus};
 use crate::calibration_store;
-use crate::config::Config;
 use crate::dbus::camera::{Camera, CameraInfo};
 use crate::dbus::{BUS_NAME, OBJECT_PATH};
 use crate::frame_loop::{Command, FrameLoop};
-use crate::modes::{DisplayMap, DisplayRange, ModeId};
-use crate::recording::{Calibration, RecordingReader};
+use crate::recorder::RecordingWriter;
 use crate::sink::output::Output;
 use crate::sink::select as sink_select;
-use crate::sink::SinkInfo;
+use crate::sink::{SinkError, SinkInfo};
 use crate::stats::LoopStats;
 
 /// Everything sdid needs to start, parsed and validated.
@@ -42,19 +48,48 @@ pub struct StartOptions {
 #[derive(Debug, thiserror::Error)]
 pub enum StartError {
     #[error("{0}")]
-    Config(String),
+    Config(#[source] ConfigError),
+    #[error("{}{source}", in_file(.file.as_deref()))]
+    Invalid {
+        /// The configuration file the setting came from, if any.
+        file: Option<PathBuf>,
+        #[source]
+        source: Invalid,
+    },
     #[error("{0}")]
-    Backend(String),
+    Backend(#[from] OpenError),
     #[error("{0}")]
-    Sink(String),
+    Sink(#[from] SinkError),
     #[error("{0}")]
-    Bus(String),
+    OutputThread(#[source] std::io::Error),
+    #[error("{0}")]
+    Connect(#[from] ConnectError),
+    #[error("asking the bus about {BUS_NAME}: {0}")]
+    OwnerProxy(#[source] zbus::Error),
+    #[error("asking the bus about {BUS_NAME}: {0}")]
+    AskOwner(#[source] zbus::fdo::Error),
+    #[error("{0}")]
+    BusName(#[source] zbus::names::Error),
+    #[error("{0}")]
+    Serve(#[source] zbus::Error),
+    #[error("requesting {BUS_NAME}: {0}")]
+    RequestName(#[source] zbus::Error),
     #[error("{BUS_NAME} is already owned: is another sdid running?")]
     NameTaken,
     #[error("cannot start the runtime: {0}")]
-    Runtime(std::io::Error),
+    Runtime(#[source] std::io::Error),
     #[error("{0}")]
-    FrameLoop(String),
+    SpawnFrameLoop(#[source] std::io::Error),
+    #[error("{0}")]
+    JoinFrameLoop(#[source] tokio::task::JoinError),
+    #[error("frame loop panicked")]
+    FrameLoopPanicked,
+}
+
+/// "FILE: " before a message about a setting read from FILE.
+fn in_file(file: Option<&Path>) -> String {
+    file.map(|f| format!("{}: ", f.display()))
+        .unwrap_or_default()
 }
 
 /// Shutdown stays within the unit's TimeoutStopSec (15 s) whatever hangs:
@@ -166,46 +201,82 @@ pub async fn serve(
     options: StartOptions,
     stop: impl std::future::Future<Output = &'static str>,
 ) -> Result<(), StartError> {
-    let config = options.config;
     // On the bus, and sure the name is free, before touching the device or
     // a sink: a second sdid must not write into the first one's FIFO or
     // take its board. (The name itself is requested once the object is
     // served, so a client that sees it can call at once.)
-    let (conn, private_bus) = bus::connect(&options.bus).await.map_err(StartError::Bus)?;
+    let (conn, private_bus) = connect_unowned(&options.bus).await?;
+    let opened = open_camera(&options)?;
+    let exit = opened.exit.clone();
+    let first_screen = opened.first_screen.clone();
+    let (camera, frames) = start_frame_loop(opened, &options.config)?;
+    serve_bus(&conn, camera).await?;
+    tracing::info!(name = BUS_NAME, path = OBJECT_PATH, "serving D-Bus API");
+    // Shown where info is (the default; the tests run sdid at warn).
+    if tracing::enabled!(tracing::Level::INFO) {
+        eprintln!("{first_screen}");
+    }
+    let stats_task = tokio::spawn(emit_stats(conn.clone()));
+    let why = wait_for_stop(stop, exit).await;
+    tracing::info!("{why}: shutting down");
+    stats_task.abort();
+    shut_down(&conn, frames).await?;
+    drop(conn);
+    drop(private_bus);
+    Ok(())
+}
+
+/// Connects to the bus and checks that no one owns sdid's name yet.
+async fn connect_unowned(
+    choice: &BusChoice,
+) -> Result<(zbus::Connection, Option<PrivateBus>), StartError> {
+    let (conn, private_bus) = bus::connect(choice).await?;
     let owned = zbus::fdo::DBusProxy::new(&conn)
         .await
-        .map_err(|e| StartError::Bus(format!("asking the bus about {BUS_NAME}: {e}")))?
-        .name_has_owner(
-            BUS_NAME
-                .try_into()
-                .map_err(|e| StartError::Bus(format!("{e}")))?,
-        )
+        .map_err(StartError::OwnerProxy)?
+        .name_has_owner(BUS_NAME.try_into().map_err(StartError::BusName)?)
         .await
-        .map_err(|e| StartError::Bus(format!("asking the bus about {BUS_NAME}: {e}")))?;
+        .map_err(StartError::AskOwner)?;
     if owned {
         return Err(StartError::NameTaken);
     }
+    Ok((conn, private_bus))
+}
+
+/// The backend and the output, opened, with what the bus serves about them.
+struct Opened {
+    backend: Box<dyn Backend>,
+    /// Notified when the board is unplugged with `on_unplug = "exit"`.
+    exit: Option<Arc<Notify>>,
+    mode: ModeId,
+    capture: CaptureSettings,
+    display: DisplayMap,
+    output: Output,
+    info: CameraInfo,
+    first_screen: String,
+}
+
+/// Opens the backend and the sink the configuration asks for.
+fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
+    let config = &options.config;
+    let (backend, extras) = backend_select::open(config, config.mode)?;
     let mut mode = config.mode;
-    let (backend, extras) = backend_select::open(&config, mode).map_err(StartError::Backend)?;
     if backend.kind() == "replay" && !options.mode_given {
-        if let Some(m) = recorded_mode(&config) {
+        if let Some(m) = recorded_mode(config) {
             mode = m;
         }
     }
-    let display = display_from(&config);
-    let separation = config.separation.live_method();
     let sensor = backend.sensor().clone();
-    let capture: CaptureSettings = backend.settings();
+    let capture = backend.settings();
     let chosen = sink_select::open(
-        &config,
+        config,
         sensor.width,
         sensor.height,
         capture.frame_rate_hz,
         mode,
-    )
-    .map_err(|e| StartError::Sink(e.to_string()))?;
+    )?;
     let reasons = chosen.reasons();
-    let mut output = Output::spawn(chosen.sink).map_err(|e| StartError::Sink(e.to_string()))?;
+    let mut output = Output::spawn(chosen.sink).map_err(StartError::OutputThread)?;
     output.set_mode(mode);
     let mut sink_info = output.info().clone();
     let first_screen = first_screen(&backend.device(), mode, &sink_info, reasons.as_deref());
@@ -217,107 +288,163 @@ pub async fn serve(
         device: backend.device(),
         sink: sink_info,
         limits: backend.limits(),
-        sensor: sensor.clone(),
+        sensor,
         state_dir: calibration_store::state_dir(options.state_dir.as_deref()),
         status: extras.status,
         recording: config.recording,
     };
-    let stored = info.state_dir.as_deref().and_then(|dir| {
-        calibration_store::load(dir, &sensor.model, &info.device)
-            .map_err(|e| tracing::warn!("reading the stored calibration in {}: {e}", dir.display()))
-            .ok()
-            .flatten()
-    });
+    Ok(Opened {
+        backend,
+        exit: extras.exit,
+        mode,
+        capture,
+        display: display_from(config),
+        output,
+        info,
+        first_screen,
+    })
+}
+
+/// The frame loop's thread and its command channel.
+struct FrameLoopHandle {
+    commands: mpsc::Sender<Command>,
+    thread: JoinHandle<Option<RecordingWriter>>,
+}
+
+/// Starts the frame loop on its own thread, with the stored calibration's
+/// H if there is one; returns the D-Bus object that talks to it.
+fn start_frame_loop(o: Opened, config: &Config) -> Result<(Camera, FrameLoopHandle), StartError> {
     let (stats_tx, stats_rx) = watch::channel(LoopStats::default());
     let (cal_tx, cal_rx) = watch::channel(Calibration::default());
     let (cmd_tx, cmd_rx) = mpsc::channel::<Command>();
-    let mut frame_loop = FrameLoop::new(backend, mode, display, output, stats_tx, cal_tx)
-        .with_separation(separation);
-    if let Some(rec) = stored {
-        match rec.skellam() {
-            Ok(h) => {
-                tracing::info!(
-                    gain_dn_per_electron = h.gain_dn_per_electron,
-                    read_variance_dn2 = h.read_variance_dn2,
-                    "calibration loaded"
-                );
-                frame_loop.set_gain(h);
-            }
-            Err(e) => tracing::warn!("stored calibration ignored: {e}"),
-        }
+    let mut frame_loop = FrameLoop::new(o.backend, o.mode, o.display, o.output, stats_tx, cal_tx)
+        .with_separation(config.separation.live_method());
+    if let Some(h) = stored_calibration(&o.info) {
+        frame_loop.set_gain(h);
     }
-    let loop_thread = std::thread::Builder::new()
+    let thread = std::thread::Builder::new()
         .name("sdid-frames".into())
         .spawn(move || frame_loop.run(cmd_rx))
-        .map_err(|e| StartError::FrameLoop(e.to_string()))?;
-    tracing::debug!(backend = %info.backend, device = %info.device, mode = mode.name(), "frame loop started");
-
+        .map_err(StartError::SpawnFrameLoop)?;
+    tracing::debug!(backend = %o.info.backend, device = %o.info.device, mode = o.mode.name(), "frame loop started");
     let camera = Camera::new(
-        info,
-        mode,
-        capture,
-        display,
+        o.info,
+        o.mode,
+        o.capture,
+        o.display,
         cmd_tx.clone(),
         stats_rx,
         cal_rx,
     );
+    let handle = FrameLoopHandle {
+        commands: cmd_tx,
+        thread,
+    };
+    Ok((camera, handle))
+}
+
+/// The gain and read variance of the calibration stored for this sensor
+/// and device, if any and usable.
+fn stored_calibration(info: &CameraInfo) -> Option<SkellamMixing> {
+    let dir = info.state_dir.as_deref()?;
+    let record = calibration_store::load(dir, &info.sensor.model, &info.device)
+        .map_err(|e| tracing::warn!("reading the stored calibration in {}: {e}", dir.display()))
+        .ok()
+        .flatten()?;
+    match record.skellam() {
+        Ok(h) => {
+            tracing::info!(
+                gain_dn_per_electron = h.gain_dn_per_electron,
+                read_variance_dn2 = h.read_variance_dn2,
+                "calibration loaded"
+            );
+            Some(h)
+        }
+        Err(e) => {
+            tracing::warn!("stored calibration ignored: {e}");
+            None
+        }
+    }
+}
+
+/// Serves `camera` and then requests the name: a client that sees the
+/// name can call it at once.
+async fn serve_bus(conn: &zbus::Connection, camera: Camera) -> Result<(), StartError> {
+    use zbus::fdo::{RequestNameFlags, RequestNameReply};
     conn.object_server()
         .at(OBJECT_PATH, camera)
         .await
-        .map_err(|e| StartError::Bus(e.to_string()))?;
-    // The object is served before the name is requested: a client that sees
-    // the name can call it at once.
-    use zbus::fdo::{RequestNameFlags, RequestNameReply};
+        .map_err(StartError::Serve)?;
     match conn
         .request_name_with_flags(BUS_NAME, RequestNameFlags::DoNotQueue.into())
         .await
         .map_err(|e| match e {
             // zbus reports RequestNameReply::Exists as this error.
             zbus::Error::NameTaken => StartError::NameTaken,
-            e => StartError::Bus(format!("requesting {BUS_NAME}: {e}")),
+            e => StartError::RequestName(e),
         })? {
-        RequestNameReply::PrimaryOwner | RequestNameReply::AlreadyOwner => {}
-        _ => return Err(StartError::NameTaken),
+        RequestNameReply::PrimaryOwner | RequestNameReply::AlreadyOwner => Ok(()),
+        _ => Err(StartError::NameTaken),
     }
-    tracing::info!(name = BUS_NAME, path = OBJECT_PATH, "serving D-Bus API");
-    // Shown where info is (the default; the tests run sdid at warn).
-    if tracing::enabled!(tracing::Level::INFO) {
-        eprintln!("{first_screen}");
-    }
+}
 
-    // Stats change signals, about once a second while they change (the frame
-    // rate decays to 0 when frames stop, without a new frame to say so).
-    let stats_conn = conn.clone();
-    let stats_task = tokio::spawn(async move {
-        let Ok(iface) = stats_conn
-            .object_server()
-            .interface::<_, Camera>(OBJECT_PATH)
-            .await
-        else {
-            return;
-        };
-        let mut last = None;
-        loop {
-            tokio::time::sleep(Duration::from_secs(1)).await;
-            let cam = iface.get().await;
-            let now = cam.current_stats();
-            if last.as_ref() != Some(&now) {
-                last = Some(now);
-                let _ = cam.stats_changed(iface.signal_emitter()).await;
-            }
+/// Emits the Stats change signal about once a second while they change
+/// (the frame rate decays to 0 when frames stop, without a new frame to
+/// say so).
+async fn emit_stats(conn: zbus::Connection) {
+    let Ok(iface) = conn
+        .object_server()
+        .interface::<_, Camera>(OBJECT_PATH)
+        .await
+    else {
+        return;
+    };
+    let mut last = None;
+    loop {
+        tokio::time::sleep(Duration::from_secs(1)).await;
+        let cam = iface.get().await;
+        let now = cam.current_stats();
+        if last.as_ref() != Some(&now) {
+            last = Some(now);
+            let _ = cam.stats_changed(iface.signal_emitter()).await;
         }
-    });
+    }
+}
 
-    let why = match extras.exit {
+/// Waits for `stop` or, with `on_unplug = "exit"`, the board's unplugging;
+/// the reason, for the log.
+async fn wait_for_stop(
+    stop: impl std::future::Future<Output = &'static str>,
+    exit: Option<Arc<Notify>>,
+) -> &'static str {
+    match exit {
         Some(exit) => tokio::select! {
             why = stop => why,
             _ = exit.notified() => "board unplugged and [board] on_unplug = \"exit\"",
         },
         None => stop.await,
-    };
-    tracing::info!("{why}: shutting down");
-    stats_task.abort();
-    let recording = match conn
+    }
+}
+
+/// Releases the name, stops the frame loop and finishes a running
+/// recording, each within its timeout.
+async fn shut_down(conn: &zbus::Connection, frames: FrameLoopHandle) -> Result<(), StartError> {
+    let recording = recording_label(conn).await;
+    if tokio::time::timeout(NAME_RELEASE_TIMEOUT, conn.release_name(BUS_NAME))
+        .await
+        .is_err()
+    {
+        tracing::warn!("releasing {BUS_NAME} took over {NAME_RELEASE_TIMEOUT:?}; going on");
+    }
+    if let Some(recorder) = stop_frame_loop(frames, &recording).await? {
+        finish_recording(recorder).await;
+    }
+    Ok(())
+}
+
+/// The file being recorded to, "" when none.
+async fn recording_label(conn: &zbus::Connection) -> String {
+    match conn
         .object_server()
         .interface::<_, Camera>(OBJECT_PATH)
         .await
@@ -329,23 +456,26 @@ pub async fn serve(
             .map(|p| p.display().to_string())
             .unwrap_or_default(),
         Err(_) => String::new(),
-    };
-    if tokio::time::timeout(NAME_RELEASE_TIMEOUT, conn.release_name(BUS_NAME))
-        .await
-        .is_err()
-    {
-        tracing::warn!("releasing {BUS_NAME} took over {NAME_RELEASE_TIMEOUT:?}; going on");
     }
-    let _ = cmd_tx.send(Command::Shutdown);
+}
+
+/// Stops the frame loop; its recorder, if one runs, for the caller to
+/// finish. A loop that does not stop in time is abandoned (`None`).
+async fn stop_frame_loop(
+    frames: FrameLoopHandle,
+    recording: &str,
+) -> Result<Option<RecordingWriter>, StartError> {
+    let _ = frames.commands.send(Command::Shutdown);
+    let thread = frames.thread;
     let joined = tokio::time::timeout(
         FRAME_LOOP_STOP_TIMEOUT,
-        tokio::task::spawn_blocking(move || loop_thread.join()),
+        tokio::task::spawn_blocking(move || thread.join()),
     )
     .await;
-    let result = match joined {
+    match joined {
         Ok(r) => r
-            .map_err(|e| StartError::FrameLoop(e.to_string()))?
-            .map_err(|_| StartError::FrameLoop("frame loop panicked".into()))?,
+            .map_err(StartError::JoinFrameLoop)?
+            .map_err(|_| StartError::FrameLoopPanicked),
         Err(_) => {
             let lost = if recording.is_empty() {
                 String::new()
@@ -355,25 +485,25 @@ pub async fn serve(
             tracing::error!(
                 "the frame loop did not stop within {FRAME_LOOP_STOP_TIMEOUT:?} (the source is stuck); abandoning it{lost}"
             );
-            None
-        }
-    };
-    if let Some(rec) = result {
-        // within the unit's TimeoutStopSec (15 s), even on frozen storage
-        let path = rec.path().display().to_string();
-        match tokio::task::spawn_blocking(move || rec.finish_within(RECORDING_FINISH_TIMEOUT)).await
-        {
-            Ok(Ok(s)) => tracing::info!(
-                path,
-                frames = s.frames,
-                dropped = s.dropped,
-                "recording finalized"
-            ),
-            Ok(Err(e)) => tracing::error!(path, "recording abandoned at shutdown: {e}"),
-            Err(e) => tracing::error!(path, "recording abandoned at shutdown: {e}"),
+            Ok(None)
         }
     }
-    drop(conn);
-    drop(private_bus);
-    Ok(())
+}
+
+/// Finishes the recording within the unit's TimeoutStopSec, even on
+/// frozen storage.
+async fn finish_recording(recorder: RecordingWriter) {
+    let path = recorder.path().display().to_string();
+    match tokio::task::spawn_blocking(move || recorder.finish_within(RECORDING_FINISH_TIMEOUT))
+        .await
+    {
+        Ok(Ok(s)) => tracing::info!(
+            path,
+            frames = s.frames,
+            dropped = s.dropped,
+            "recording finalized"
+        ),
+        Ok(Err(e)) => tracing::error!(path, "recording abandoned at shutdown: {e}"),
+        Err(e) => tracing::error!(path, "recording abandoned at shutdown: {e}"),
+    }
 }

@@ -4,17 +4,18 @@
 //! file    := magic u32:len json[len] u32:crc32(json)       magic: "SDIREC02" (v2) or "SDIREC01" (v1)
 //! record  := "SDIR" u8:kind u32:len payload[len] u32:crc32(kind, len, payload)
 //! kind 1  := frame v1:   u64 sequence, u64 timestamp_us, u8 mode_len, mode, u32 width,
-//!                        u32 height, f32[w*h] dn, u8[w*h] saturated
+//!                        u32 height, f32[w*h] dn, u8[w*h] flags
 //! kind 2  := dark frame: u32 width, u32 height, u32 frames, f32[w*h] dn
 //! kind 3  := end:        u64 frames written, u64 frames dropped
 //! kind 4  := frame v2:   u64 sequence, u64 timestamp_us, u8 mode_len, mode, u32 width,
 //!                        u32 height, u8 samples, u8 compression, body
-//!            body (after decompression) := samples[w*h] ‖ u8[w*h] saturated
+//!            body (after decompression) := samples[w*h] ‖ u8[w*h] flags
 //!            samples 0: f32 DN; 1: i16 DN; 2: i16 half-DN (dn * 2)
 //!            compression 0: none; 1: zstd; i16 samples are stored as all low
 //!            bytes, then all high bytes (compresses better)
 //! ```
-//! All integers and floats little-endian. Records are appended and written
+//! `flags` are the frame's per-pixel [`PixelFlags`](sdi_core::PixelFlags)
+//! bits (a sensor sets SATURATED). All integers and floats little-endian. Records are appended and written
 //! out whole, so a killed writer leaves at most one incomplete record at the
 //! tail, which readers detect (length or CRC) and skip.
 
@@ -45,8 +46,8 @@ pub const MAX_SIDE_PX: usize = 4096;
 pub const MAX_PIXELS: usize = 4096 * 4096;
 /// Longest mode name stored with a frame.
 pub const MAX_MODE_BYTES: usize = 255;
-/// zstd level for frame bodies: level 1 is fast (about 1 ms per 320x240
-/// frame) and takes most of the gain.
+/// zstd level for frame bodies: the fastest level takes most of the size
+/// gain (`cargo bench -p sdi-recording --bench frame_encoding` times it).
 const ZSTD_LEVEL: i32 = 1;
 
 const SAMPLES_F32: u8 = 0;
@@ -194,7 +195,7 @@ fn truncate_utf8(s: &str, max: usize) -> &str {
 }
 
 /// Encodes a version-1 frame record's payload (kind 1, f32 samples): kept
-/// so tests can write the old format and the bench can compare sizes.
+/// so tests can write the version-1 format and the bench can compare sizes.
 pub fn encode_frame_v1(mode: &str, frame: &Frame, out: &mut Vec<u8>) {
     frame_prefix(mode, frame, out);
     for v in &frame.dn.data {
@@ -373,7 +374,7 @@ fn f32s(b: &[u8]) -> Vec<f32> {
 fn frame(
     (w, h): (usize, usize),
     dn: Vec<f32>,
-    saturated: Vec<u8>,
+    flags: Vec<u8>,
     timestamp_us: u64,
     sequence: u64,
 ) -> Frame {
@@ -386,7 +387,7 @@ fn frame(
         saturated: Image {
             width: w,
             height: h,
-            data: saturated,
+            data: flags,
         },
         timestamp_us,
         sequence,
@@ -409,7 +410,7 @@ pub fn decode(kind: u8, payload: &[u8], size: (usize, usize)) -> Result<Record, 
             let mode_len = c.u8()? as usize;
             let mode = String::from_utf8_lossy(c.take(mode_len)?).into_owned();
             let wh = c.size(size)?;
-            let (dn, saturated) = if kind == KIND_FRAME_V1 {
+            let (dn, flags) = if kind == KIND_FRAME_V1 {
                 let dn = f32s(c.take(px * 4)?);
                 (dn, c.take(px)?.to_vec())
             } else {
@@ -435,7 +436,7 @@ pub fn decode(kind: u8, payload: &[u8], size: (usize, usize)) -> Result<Record, 
                 if body.len() != body_len {
                     return Err(c.err(format!("body of {} bytes, expected {body_len}", body.len())));
                 }
-                let (s, sat) = body.split_at(px * sample_bytes);
+                let (s, flags) = body.split_at(px * sample_bytes);
                 let dn = match samples {
                     SAMPLES_F32 => f32s(s),
                     _ => {
@@ -447,12 +448,12 @@ pub fn decode(kind: u8, payload: &[u8], size: (usize, usize)) -> Result<Record, 
                             .collect()
                     }
                 };
-                (dn, sat.to_vec())
+                (dn, flags.to_vec())
             };
             c.done()?;
             Ok(Record::Frame {
                 mode,
-                frame: frame(wh, dn, saturated, timestamp_us, sequence),
+                frame: frame(wh, dn, flags, timestamp_us, sequence),
             })
         }
         KIND_DARK => {

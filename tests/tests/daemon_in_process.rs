@@ -5,9 +5,9 @@
 
 use std::time::{Duration, Instant};
 
+use sdi_config::{BackendKind, Config, SinkKind};
 use sdi_core::mode::ModeId;
 use sdi_daemon::bus::BusChoice;
-use sdi_daemon::config::{BackendKind, Config, SinkKind};
 use sdi_daemon::startup::{serve, StartError, StartOptions};
 use sdi_tests::dbus::Bus;
 use sdi_tests::require_dbus;

@@ -2,9 +2,9 @@
 
 pub mod frames;
 pub mod noise_report;
-pub mod report;
 pub mod report_files;
 pub mod sensor_arg;
 pub mod separate;
+pub mod separation_report;
 pub mod sim;
 pub mod sim_truth;

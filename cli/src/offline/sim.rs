@@ -5,14 +5,15 @@
 //! averaged (LEDs off, 50/50 modulation so uncorrelated light cancels in the
 //! mean) and then subtracted by the pipeline of modes that need it.
 
-use std::io::Write;
+use std::fs::File;
+use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use clap::builder::PossibleValuesParser;
 use clap::Args;
 use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
-use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
+use sdi_core::mode::{build_pipeline, ModeId, ModeOutput, PipelineConfig};
 use sdi_core::modulation::Illumination;
 use sdi_core::npy::NpyF32Writer;
 use sdi_core::scene::SceneSpec;
@@ -163,6 +164,32 @@ fn check_outputs(args: &SimArgs) -> Result<(), CliError> {
 /// Runs `sdictl sim`.
 /// With `json`, the summary on stdout is one JSON object.
 pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
+    let mut sim = simulator(&args)?;
+    let (w, h) = (sim.params().width, sim.params().height);
+    if args.two_shot_frames.is_some() && args.mode != ModeId::TwoShot {
+        return Err(CliError::Usage(
+            "--two-shot-frames needs --mode two-shot".into(),
+        ));
+    }
+    check_outputs(&args)?;
+    let mut out = Outputs::create(&args, w, h)?;
+    let mut frame = Frame::new(w, h);
+    let dark = average_dark(&mut sim, args.dark_frames, &mut frame)?;
+    let last = simulate(&args, &mut sim, &mut out, &dark, &mut frame)?;
+    let display = DisplayMap::new(args.colormap, args.range);
+    out.commit(&args, &display, &last, sim.scene_is_static())?;
+    let summary = Summary {
+        scene: sim.config().scene.name(),
+        width: w,
+        height: h,
+        dark_frames: dark.frames(),
+        png_max_abs_dn: args.png.as_ref().map(|_| display.max_abs_dn(&last)),
+    };
+    print_summary(&args, &summary, json)
+}
+
+/// The simulator of `args`' scene, sensor, exposure, ambient light and seed.
+fn simulator(args: &SimArgs) -> Result<Simulator, CliError> {
     let scene = match &args.scene {
         Some(name) => SceneSpec::from_name(name).ok_or_else(|| {
             CliError::Usage(format!(
@@ -191,51 +218,132 @@ pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
     {
         eprintln!("warning: {w}");
     }
-    let mut sim = Simulator::new(config).map_err(|e| CliError::Usage(e.to_string()))?;
-    let (w, h) = (sim.params().width, sim.params().height);
-    if args.two_shot_frames.is_some() && args.mode != ModeId::TwoShot {
-        return Err(CliError::Usage(
-            "--two-shot-frames needs --mode two-shot".into(),
-        ));
+    Simulator::new(config).map_err(|e| CliError::Usage(e.to_string()))
+}
+
+/// The output files, written under temporary names until [`Outputs::commit`].
+struct Outputs {
+    npy_file: AtomicFile,
+    png_file: Option<AtomicFile>,
+    /// Where the `.npy` is written until it is committed.
+    tmp: PathBuf,
+    npy: NpyF32Writer<BufWriter<File>>,
+    extras: super::sim_truth::Extras,
+}
+
+impl Outputs {
+    /// Creates the `.npy` (frames of `width` x `height`, two channels in
+    /// the separation mode), the PNG and the truth files.
+    fn create(args: &SimArgs, width: usize, height: usize) -> Result<Self, CliError> {
+        let npy_file =
+            AtomicFile::new(&args.out).map_err(|e| io_error("bad output", &args.out, e))?;
+        let png_file = match &args.png {
+            Some(p) => Some(AtomicFile::new(p).map_err(|e| io_error("bad output", p, e))?),
+            None => None,
+        };
+        let tmp = npy_file.tmp_path().to_path_buf();
+        let writer = npy_file
+            .create()
+            .map_err(|e| io_error("cannot create", &tmp, e))?;
+        let shape: &[usize] = if args.mode == ModeId::Separation {
+            &[args.frames, 2, height, width]
+        } else {
+            &[args.frames, height, width]
+        };
+        let npy =
+            NpyF32Writer::new(writer, shape).map_err(|e| io_error("cannot write", &tmp, e))?;
+        let extras = super::sim_truth::Extras::open(
+            args.truth.as_deref(),
+            args.two_shot_frames.as_deref(),
+            width,
+            height,
+        )?;
+        Ok(Self {
+            npy_file,
+            png_file,
+            tmp,
+            npy,
+            extras,
+        })
     }
 
-    check_outputs(&args)?;
-    let npy_file = AtomicFile::new(&args.out).map_err(|e| io_error("bad output", &args.out, e))?;
-    let png_file = match &args.png {
-        Some(p) => Some(AtomicFile::new(p).map_err(|e| io_error("bad output", p, e))?),
-        None => None,
-    };
-    let tmp = npy_file.tmp_path().to_path_buf();
-    let writer = npy_file
-        .create()
-        .map_err(|e| io_error("cannot create", &tmp, e))?;
-    let separated = args.mode == ModeId::Separation;
-    let shape: &[usize] = if separated {
-        &[args.frames, 2, h, w]
-    } else {
-        &[args.frames, h, w]
-    };
-    let mut npy =
-        NpyF32Writer::new(writer, shape).map_err(|e| io_error("cannot write", &tmp, e))?;
-    let mut extras = super::sim_truth::Extras::open(
-        args.truth.as_deref(),
-        args.two_shot_frames.as_deref(),
-        w,
-        h,
-    )?;
-    let truth_illumination = Illumination::snapshot(carrier_hz);
-    let static_scene = sim.scene_is_static();
+    /// Appends one output: both channels in the separation mode, else the
+    /// signed difference.
+    fn write(&mut self, out: &ModeOutput, separated: bool) -> Result<(), CliError> {
+        let tmp = &self.tmp;
+        match (&out.channels, separated) {
+            (Some(c), true) => self
+                .npy
+                .write(&c.i_plus_electrons.data)
+                .and_then(|()| self.npy.write(&c.i_minus_electrons.data))
+                .map_err(|e| io_error("cannot write", tmp, e)),
+            (None, true) => Err(CliError::Runtime(
+                "the separation pipeline gave no channels".into(),
+            )),
+            _ => self
+                .npy
+                .write(&out.signed_dn.data)
+                .map_err(|e| io_error("cannot write", tmp, e)),
+        }
+    }
 
-    let mut frame = Frame::new(w, h);
-    let mut next_sequence = 0u64;
+    /// Finishes the `.npy`, renders `last` into the PNG, and moves every
+    /// file to its name.
+    fn commit(
+        self,
+        args: &SimArgs,
+        display: &DisplayMap,
+        last: &Image<f32>,
+        static_scene: bool,
+    ) -> Result<(), CliError> {
+        let tmp = self.tmp;
+        self.npy
+            .finish()
+            .and_then(|mut w| w.flush())
+            .map_err(|e| io_error("cannot write", &tmp, e))?;
+        if let Some(png) = &self.png_file {
+            write_png(png.tmp_path(), display, last)?;
+        }
+        self.extras.finish(static_scene)?;
+        self.npy_file
+            .commit()
+            .map_err(|e| io_error("cannot write", &args.out, e))?;
+        if let (Some(png), Some(path)) = (self.png_file, &args.png) {
+            png.commit()
+                .map_err(|e| io_error("cannot write", path, e))?;
+        }
+        Ok(())
+    }
+}
+
+/// Averages `frames` captures with the sources off: the dark frame the
+/// pipeline subtracts (section 4, measurement procedure).
+fn average_dark(
+    sim: &mut Simulator,
+    frames: u32,
+    frame: &mut Frame,
+) -> Result<DarkAccumulator, CliError> {
+    let (w, h) = (sim.params().width, sim.params().height);
     let mut dark = DarkAccumulator::new(w, h);
-    let dark_illumination = Illumination::dark(carrier_hz);
-    for _ in 0..args.dark_frames {
-        sim.capture(&dark_illumination, &mut frame);
-        next_sequence = frame.sequence + 1;
-        dark.push(&frame)
+    let dark_illumination = Illumination::dark(sim.params().modulation_hz);
+    for _ in 0..frames {
+        sim.capture(&dark_illumination, frame);
+        dark.push(frame)
             .map_err(|e| CliError::Runtime(e.to_string()))?;
     }
+    Ok(dark)
+}
+
+/// Captures and processes until `args.frames` outputs are written; the
+/// last output's signed difference, for the PNG.
+fn simulate(
+    args: &SimArgs,
+    sim: &mut Simulator,
+    out: &mut Outputs,
+    dark: &DarkAccumulator,
+    frame: &mut Frame,
+) -> Result<Image<f32>, CliError> {
+    let carrier_hz = sim.params().modulation_hz;
     let dark_dn = dark.mean_dn();
     let mut pipeline = build_pipeline(
         args.mode,
@@ -248,8 +356,17 @@ pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
             ..PipelineConfig::default()
         },
     );
-
-    let mut last = Image::<f32>::new(w, h);
+    let truth_illumination = Illumination::snapshot(carrier_hz);
+    let static_scene = sim.scene_is_static();
+    let separated = args.mode == ModeId::Separation;
+    let two_shot = args.mode == ModeId::TwoShot;
+    // Numbered on from the dark captures: the two-shot pipeline pairs by it.
+    let mut next_sequence = if args.dark_frames > 0 {
+        frame.sequence + 1
+    } else {
+        0
+    };
+    let mut last = Image::<f32>::new(frame.width(), frame.height());
     let mut written = 0usize;
     // Two-shot needs two captures per output; anything beyond that is a bug.
     let max_captures = args.frames.saturating_mul(2).saturating_add(2);
@@ -262,62 +379,43 @@ pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
             )));
         }
         let t0_us = sim.time_us();
-        sim.capture(
-            &args.mode.illumination(next_sequence, carrier_hz),
-            &mut frame,
-        );
+        sim.capture(&args.mode.illumination(next_sequence, carrier_hz), frame);
         captures += 1;
         next_sequence = frame.sequence + 1;
-        extras.captured(&frame, dark_dn.as_ref(), t0_us);
-        if let Some(out) = pipeline.process(&frame) {
-            match (&out.channels, separated) {
-                (Some(c), true) => {
-                    npy.write(&c.i_plus_electrons.data)
-                        .and_then(|()| npy.write(&c.i_minus_electrons.data))
-                        .map_err(|e| io_error("cannot write", &tmp, e))?;
-                }
-                (None, true) => {
-                    return Err(CliError::Runtime(
-                        "the separation pipeline gave no channels".into(),
-                    ))
-                }
-                _ => npy
-                    .write(&out.signed_dn.data)
-                    .map_err(|e| io_error("cannot write", &tmp, e))?,
+        out.extras.captured(frame, dark_dn.as_ref(), t0_us);
+        let Some(output) = pipeline.process(frame) else {
+            continue;
+        };
+        out.write(output, separated)?;
+        if !static_scene || written == 0 {
+            if two_shot {
+                sim.expect_wells(&truth_illumination, out.extras.first_t0_us());
             }
-            let two_shot = args.mode == ModeId::TwoShot;
-            if !static_scene || written == 0 {
-                if two_shot {
-                    sim.expect_wells(&truth_illumination, extras.first_t0_us());
-                }
-                extras.output(sim.last_expectation(), !two_shot)?;
-            } else {
-                extras.output_pair_only()?;
-            }
-            written += 1;
-            if written == args.frames {
-                last.data.copy_from_slice(&out.signed_dn.data);
-            }
+            out.extras.output(sim.last_expectation(), !two_shot)?;
+        } else {
+            out.extras.output_pair_only()?;
+        }
+        written += 1;
+        if written == args.frames {
+            last.data.copy_from_slice(&output.signed_dn.data);
         }
     }
-    npy.finish()
-        .and_then(|mut w| w.flush())
-        .map_err(|e| io_error("cannot write", &tmp, e))?;
+    Ok(last)
+}
 
-    let display = DisplayMap::new(args.colormap, args.range);
-    if let Some(png) = &png_file {
-        write_png(png.tmp_path(), &display, &last)?;
-    }
-    extras.finish(static_scene)?;
-    npy_file
-        .commit()
-        .map_err(|e| io_error("cannot write", &args.out, e))?;
-    if let (Some(png), Some(path)) = (png_file, &args.png) {
-        png.commit()
-            .map_err(|e| io_error("cannot write", path, e))?;
-    }
-    let scene_name = sim.config().scene.name();
-    let display_max_abs_dn = args.png.as_ref().map(|_| display.max_abs_dn(&last));
+/// What `sdictl sim` reports besides its arguments.
+struct Summary {
+    scene: &'static str,
+    width: usize,
+    height: usize,
+    dark_frames: u32,
+    /// The display range of the PNG, DN (when one was written).
+    png_max_abs_dn: Option<f32>,
+}
+
+/// Prints the summary line, or with `json` one JSON object.
+fn print_summary(args: &SimArgs, s: &Summary, json: bool) -> Result<(), CliError> {
+    let (w, h) = (s.width, s.height);
     if json {
         let path = |p: Option<&Path>| p.map(|p| p.display().to_string());
         outln!(
@@ -327,27 +425,26 @@ pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
                 "width": w,
                 "height": h,
                 "mode": args.mode.to_string(),
-                "scene": scene_name,
-                "dark_frames": dark.frames(),
+                "scene": s.scene,
+                "dark_frames": s.dark_frames,
                 "out": args.out.display().to_string(),
                 "png": path(args.png.as_deref()),
-                "png_max_abs_dn": display_max_abs_dn,
+                "png_max_abs_dn": s.png_max_abs_dn,
                 "truth": path(args.truth.as_deref()),
                 "two_shot_frames": path(args.two_shot_frames.as_deref()),
             })
         )?;
     } else {
         outln!(
-            "wrote {} frames of {w}x{h} ({} on scene {scene_name}, {} dark frames averaged) to {}{}",
+            "wrote {} frames of {w}x{h} ({} on scene {}, {} dark frames averaged) to {}{}",
             args.frames,
             args.mode,
-            dark.frames(),
+            s.scene,
+            s.dark_frames,
             args.out.display(),
-            match (&args.png, display_max_abs_dn) {
-                (Some(p), Some(max)) => format!(
-                    "; display frame (+-{max:.1} DN) to {}",
-                    p.display()
-                ),
+            match (&args.png, s.png_max_abs_dn) {
+                (Some(p), Some(max)) =>
+                    format!("; display frame (+-{max:.1} DN) to {}", p.display()),
                 _ => String::new(),
             }
         )?;

@@ -8,7 +8,7 @@ pub struct ModeOutput {
     /// Signed difference, DN: positive where LS1 (I+) dominates.
     pub signed_dn: Image<f32>,
     /// [`PixelFlags`](crate::PixelFlags) bits per pixel (SATURATED, NONFINITE); 0 = valid.
-    pub saturated: Image<u8>,
+    pub flags: Image<u8>,
     /// Start of the (first) exposure that produced this output, microseconds.
     pub timestamp_us: u64,
     /// Sequence number of the (last) frame that completed this output.
@@ -31,7 +31,7 @@ impl ModeOutput {
     pub fn new(width: usize, height: usize) -> Self {
         Self {
             signed_dn: Image::new(width, height),
-            saturated: Image::new(width, height),
+            flags: Image::new(width, height),
             timestamp_us: 0,
             sequence: 0,
             channels: None,

@@ -64,7 +64,7 @@ impl Pipeline for SeparationPipeline {
         let out = &mut self.out;
         out.ensure_size(frame.width(), frame.height());
         out.signed_dn.data.copy_from_slice(&signed.signed_dn.data);
-        out.saturated.data.copy_from_slice(&signed.saturated.data);
+        out.flags.data.copy_from_slice(&signed.flags.data);
         out.timestamp_us = signed.timestamp_us;
         out.sequence = signed.sequence;
         fill_scratch(&mut self.scratch, frame, self.signed.dark_frame());

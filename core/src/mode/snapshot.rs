@@ -51,7 +51,7 @@ impl Pipeline for SnapshotPipeline {
         handle_invalid(
             &mut out.signed_dn.data,
             &frame.saturated.data,
-            &mut out.saturated.data,
+            &mut out.flags.data,
             self.config.zero_saturated,
         );
         out.timestamp_us = frame.timestamp_us;

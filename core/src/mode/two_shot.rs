@@ -99,7 +99,7 @@ impl Pipeline for TwoShotPipeline {
         handle_invalid(
             &mut out.signed_dn.data,
             &self.saturated_either,
-            &mut out.saturated.data,
+            &mut out.flags.data,
             self.config.zero_saturated,
         );
         out.timestamp_us = self.first.timestamp_us;

@@ -480,8 +480,8 @@ pub fn board_config(
 
 /// Is a board attached (any ID of `udev/board-ids`)? `Err` says why libusb
 /// could not look.
-pub fn board_attached() -> Result<bool, String> {
-    let ctx = rusb::Context::new().map_err(|e| format!("libusb: {e}"))?;
+pub fn board_attached() -> Result<bool, rusb::Error> {
+    let ctx = rusb::Context::new()?;
     Ok(super::opt8241::usb::board_present(&ctx))
 }
 

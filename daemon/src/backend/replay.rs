@@ -9,7 +9,7 @@ use sdi_core::sensor::SensorParams;
 use sdi_core::{Frame, Image};
 
 use super::{Backend, BackendError, CaptureSettings};
-use crate::recording::{Header, Record, RecordingReader};
+use sdi_recording::{Header, Record, RecordingReader};
 
 pub struct ReplayBackend {
     path: PathBuf,

@@ -10,7 +10,6 @@ use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::Frame;
 
 use super::{Backend, BackendError, CaptureSettings};
-use crate::modes;
 
 /// Distinct light-travel warnings remembered (each scene and carrier gives
 /// one; a sweep of modulation frequencies must not grow memory).
@@ -36,9 +35,7 @@ impl SimBackend {
         seed: u64,
         fixed_scene: Option<SceneSpec>,
     ) -> Result<Self, BackendError> {
-        let scene = fixed_scene
-            .clone()
-            .unwrap_or_else(|| modes::default_scene(mode));
+        let scene = fixed_scene.clone().unwrap_or_else(|| mode.default_scene());
         let sim = build(sensor, scene.clone(), seed)?;
         let mut b = Self {
             sim,
@@ -123,7 +120,7 @@ impl Backend for SimBackend {
         if self.fixed_scene.is_some() {
             return;
         }
-        let scene = modes::default_scene(mode);
+        let scene = mode.default_scene();
         if scene != self.scene {
             self.seed = self.seed.wrapping_add(1);
             if let Ok(sim) = build(self.sim.params().clone(), scene.clone(), self.seed) {

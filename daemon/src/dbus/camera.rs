@@ -15,19 +15,23 @@ use zbus::{interface, Connection};
 
 use super::client_fd::{self, recording_label};
 use super::client_file;
-use super::errors::{check_range, invalid_mode, SdiError};
+use super::errors::{
+    calibration_failed, check_range, configure_refused, dark_failed, frame_loop_stopped,
+    invalid_mode, job_running, SdiError,
+};
 use super::fairness::Fairness;
 use super::paths::OutputKind;
-use crate::backend::{BackendError, CaptureSettings, Limits};
+use crate::backend::{CaptureSettings, Limits};
 use crate::calibration_store;
-use crate::config::RecordingSection;
 use crate::frame_loop::{Command, DarkStats, FrameMark};
-use crate::modes::{Colormap, DisplayMap, DisplayRange};
-use crate::recording::{Calibration, Header as RecHeader, RecordingWriter, StopCause};
+use crate::recorder::{RecordingWriter, StopCause};
 use crate::sink::SinkInfo;
 use crate::stats::LoopStats;
 use sdi_api::{CalibrationReply, DarkFrameReply, RecordingReply};
+use sdi_config::RecordingSection;
 use sdi_core::calibration::CalibrationRecord;
+use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
+use sdi_recording::{Calibration, Header as RecHeader};
 
 /// Largest number of frames one dark-frame or calibration call may average.
 pub const MAX_AVERAGE_FRAMES: u32 = 10_000;
@@ -157,8 +161,7 @@ impl Camera {
             .commands
             .lock()
             .map_err(|_| SdiError::Failed("command channel poisoned".into()))?;
-        tx.send(cmd)
-            .map_err(|_| SdiError::DeviceUnavailable("the frame loop has stopped".into()))
+        tx.send(cmd).map_err(frame_loop_stopped)
     }
 
     async fn ask<T>(
@@ -167,15 +170,12 @@ impl Camera {
     ) -> Result<T, SdiError> {
         let (tx, rx) = oneshot::channel();
         self.send(make(tx))?;
-        rx.await
-            .map_err(|_| SdiError::DeviceUnavailable("the frame loop has stopped".into()))
+        rx.await.map_err(frame_loop_stopped)
     }
 
     /// Waits for the frame loop's answer to a setting change.
     async fn first_frame(rx: oneshot::Receiver<FrameMark>) -> Result<(u64, u64), SdiError> {
-        let m = rx
-            .await
-            .map_err(|_| SdiError::DeviceUnavailable("the frame loop has stopped".into()))?;
+        let m = rx.await.map_err(frame_loop_stopped)?;
         Ok((m.sequence, m.timestamp_us))
     }
 
@@ -200,11 +200,7 @@ impl Camera {
         let result = self
             .ask(|tx| Command::Configure(capture, tx, first_tx))
             .await?;
-        let applied = result.map_err(|e| match e {
-            BackendError::OutOfRange(m) => SdiError::OutOfRange(m),
-            BackendError::Unavailable(m) => SdiError::DeviceUnavailable(m),
-            other => SdiError::Failed(other.to_string()),
-        })?;
+        let applied = result.map_err(configure_refused)?;
         self.update(|s| s.capture = applied);
         // Other changes may go ahead while this one waits for its frame.
         drop(guard);
@@ -238,11 +234,9 @@ impl Camera {
             )));
         }
         self.require_device()?;
-        let _guard = self.long_op.try_lock().map_err(|_| {
-            SdiError::Busy("a dark-frame capture or calibration is already running".into())
-        })?;
+        let _guard = self.long_op.try_lock().map_err(job_running)?;
         let r = self.ask(|tx| Command::CaptureDark(frames, tx)).await?;
-        r.map_err(|e| SdiError::DeviceUnavailable(e.to_string()))
+        r.map_err(dark_failed)
     }
 }
 
@@ -544,13 +538,11 @@ impl Camera {
     ) -> Result<CalibrationReply, SdiError> {
         let _turn = self.fairness.turn(&hdr).await;
         let s = self.dark(frames, 2).await?;
-        let _guard = self.long_op.try_lock().map_err(|_| {
-            SdiError::Busy("a dark-frame capture or calibration is already running".into())
-        })?;
+        let _guard = self.long_op.try_lock().map_err(job_running)?;
         let fit = self
             .ask(|tx| Command::PhotonTransfer(frames, tx))
             .await?
-            .map_err(|e| SdiError::Failed(format!("photon transfer: {e}")))?;
+            .map_err(calibration_failed)?;
         let mut reply = CalibrationReply {
             frames: s.frames,
             mean_dn: s.mean_dn,

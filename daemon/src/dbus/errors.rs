@@ -1,10 +1,14 @@
 //! The interface's errors are `sdi_api::SdiError` (`org.sdi.Error.*`), the
-//! one definition shared with clients; this module adds what needs the daemon.
-
-use sdi_core::mode::ModeId;
+//! one definition shared with clients; this module adds what needs the
+//! daemon: range checks, and the one mapping of the frame loop's typed
+//! replies onto it.
 
 pub use sdi_api::error::SdiError;
+use sdi_core::mode::ModeId;
 use sdi_core::number::Number;
+
+use crate::backend::BackendError;
+use crate::frame_loop::JobError;
 
 /// Checks that `value` is a finite number in `[lo, hi]`.
 pub fn check_range(name: &str, value: f64, lo: f64, hi: f64, unit: &str) -> Result<f64, SdiError> {
@@ -27,4 +31,33 @@ pub fn invalid_mode(given: &str) -> SdiError {
         given.escape_debug(),
         ModeId::names().join(", ")
     ))
+}
+
+/// The frame loop is gone: its command channel or a reply closed.
+pub fn frame_loop_stopped<E>(_closed: E) -> SdiError {
+    SdiError::DeviceUnavailable("the frame loop has stopped".into())
+}
+
+/// A second dark-frame capture or calibration while one runs.
+pub fn job_running<E>(_held: E) -> SdiError {
+    SdiError::Busy(JobError::AlreadyRunning.to_string())
+}
+
+/// Capture settings the backend refused.
+pub fn configure_refused(e: BackendError) -> SdiError {
+    match e {
+        BackendError::OutOfRange(m) => SdiError::OutOfRange(m),
+        BackendError::Unavailable(m) => SdiError::DeviceUnavailable(m),
+        other => SdiError::Failed(other.to_string()),
+    }
+}
+
+/// A dark-frame capture that gave no dark frame.
+pub fn dark_failed(e: JobError) -> SdiError {
+    SdiError::DeviceUnavailable(e.to_string())
+}
+
+/// A photon-transfer calibration that gave no fit.
+pub fn calibration_failed(e: JobError) -> SdiError {
+    SdiError::Failed(format!("photon transfer: {e}"))
 }

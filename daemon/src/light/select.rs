@@ -6,7 +6,7 @@ use super::board_output::BoardOutput;
 use super::gpio::GpioEnables;
 use super::scpi::{FunctionGenerator, TcpPort, UsbtmcPort};
 use super::{LightError, LightSource};
-use crate::config::{LightDriver, LightsSection};
+use sdi_config::{LightDriver, LightsSection};
 
 /// How long an instrument may take to connect or answer.
 pub const INSTRUMENT_TIMEOUT: Duration = Duration::from_secs(2);
@@ -53,7 +53,7 @@ mod tests {
     fn names_and_missing_settings_give_clear_errors() {
         let mut c = LightsSection::default();
         assert!(open(&c).unwrap().is_none());
-        // An unknown driver name no longer reaches here: the file refuses it.
+        // An unknown driver name does not reach here: the file refuses it.
         assert!("laser".parse::<LightDriver>().is_err());
         c.driver = LightDriver::ScpiTcp;
         assert!(matches!(open(&c), Err(SelectError::NoAddress)));

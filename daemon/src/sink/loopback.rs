@@ -6,7 +6,8 @@ use sdi_core::image::Image;
 use v4l2loopback_glue::{find_device, Input, LoopbackFormat, LoopbackWriter, PixelFormat};
 
 use super::{Sink, SinkError, SinkInfo};
-use crate::modes::{DisplayMap, DisplayRange, ModeOutput};
+use sdi_core::display::{DisplayMap, DisplayRange};
+use sdi_core::mode::ModeOutput;
 
 pub struct LoopbackSink {
     view: LoopbackWriter,
@@ -222,8 +223,9 @@ impl Sink for LoopbackSink {
 #[cfg(test)]
 mod tests {
     use super::{letterbox, yuyv_view};
-    use crate::modes::{Colormap, DisplayMap, DisplayRange, ModeOutput};
+    use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
     use sdi_core::image::Image;
+    use sdi_core::mode::ModeOutput;
     use v4l2loopback_glue::{Converter, PixelFormat, Src, YuyvPath};
 
     /// The RGB path the direct YUYV view replaces: render, letterbox, glue scalar RGB to YUYV.

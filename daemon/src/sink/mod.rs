@@ -10,7 +10,8 @@ pub mod pipewire_launch;
 pub mod select;
 pub mod y4m;
 
-use crate::modes::{DisplayMap, ModeId, ModeOutput};
+use sdi_core::display::DisplayMap;
+use sdi_core::mode::{ModeId, ModeOutput};
 
 /// What a sink publishes, for the D-Bus properties.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -8,8 +8,9 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use super::{Sink, SinkInfo};
-use crate::modes::{DisplayMap, ModeId, ModeOutput};
 use crate::monotonic::monotonic_now_us;
+use sdi_core::display::DisplayMap;
+use sdi_core::mode::{ModeId, ModeOutput};
 
 enum Msg {
     Frame(Arc<ModeOutput>, DisplayMap, Option<ModeId>),

@@ -17,11 +17,12 @@ use v4l2loopback_glue::{Converter, LoopbackFormat, PixelFormat, Src, YuyvPath};
 
 use super::pipewire_launch as launch;
 use super::{Sink, SinkError, SinkInfo};
-use crate::modes::{DisplayMap, ModeOutput};
 use sdi_camera_link::{self as link, Message, Port, Spec, State, Wire};
 pub use sdi_camera_link::{
     view_description, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, VIEW_NODE,
 };
+use sdi_core::display::DisplayMap;
+use sdi_core::mode::ModeOutput;
 
 /// Between attempts to reach a camera process that went away.
 const RETRY: Duration = Duration::from_secs(2);

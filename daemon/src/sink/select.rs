@@ -10,8 +10,8 @@ use super::pipewire::{PipewireSink, VIEW_NODE};
 use super::pipewire_launch;
 use super::y4m::Y4mSink;
 use super::{Sink, SinkError};
-use crate::config::{Config, SinkKind};
-use crate::modes::ModeId;
+use sdi_config::{Config, SinkKind};
+use sdi_core::mode::ModeId;
 
 /// The chosen sink and, for `auto`, why: each sink passed over in a phrase
 /// that names what to install (the full errors are at debug level), and

@@ -18,7 +18,8 @@ use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 
 use super::{Sink, SinkError, SinkInfo};
-use crate::modes::{DisplayMap, ModeOutput};
+use sdi_core::display::DisplayMap;
+use sdi_core::mode::ModeOutput;
 
 enum Target {
     Stdout {

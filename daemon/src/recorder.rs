@@ -18,7 +18,7 @@ use sdi_core::{Frame, Image};
 use sdi_recording::{Header, RecordingFile};
 use tokio::sync::oneshot;
 
-use crate::config::RecordingSection;
+use sdi_config::RecordingSection;
 
 /// Frames queued between the frame loop and the disk.
 pub const QUEUE_FRAMES: usize = 64;

@@ -242,7 +242,7 @@ pub fn run_cli(args: &SeparationReportArgs, json: bool) -> Result<(), CliError> 
         None => Some(scene_of(args)?),
     };
     let mut names = vec!["separation.tsv"];
-    // Measured data has no plot (as before).
+    // Measured data has no plot.
     if scene.is_some() {
         names.push("separation.svg");
     }
@@ -303,6 +303,18 @@ fn publish(report: Report, files: ReportFiles, json: bool) -> Result<(), CliErro
     Ok(())
 }
 
+/// M1 without subtracting sigma_read^2 first (the paper's Fig. pol
+/// compares both).
+const NO_READ: UnmixOptions = UnmixOptions {
+    subtract_read_noise: false,
+    nonnegative: false,
+};
+/// M1 constrained to I+, I- >= 0.
+const NON_NEG: UnmixOptions = UnmixOptions {
+    subtract_read_noise: true,
+    nonnegative: true,
+};
+
 /// Runs the report on the simulator (frames streamed, constant memory in N).
 fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Report, ReportError> {
     let mut sensor = args.sensor.params();
@@ -313,171 +325,23 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
     let mut config = SimConfig::new(sensor.clone(), scene);
     config.seed = args.seed;
     let mut sim = Simulator::new(config)?;
+    let dark_cal = dark_calibration(&mut sim)?;
     let (w, ht) = (sensor.width, sensor.height);
-    let mut frame = Frame::new(w, ht);
-
-    // 100 dark frames, averaged and subtracted before separating (section 6).
-    let dark = Illumination::dark(sensor.modulation_hz);
-    let mut darks = DarkAccumulator::new(w, ht);
-    for _ in 0..100 {
-        sim.capture(&dark, &mut frame);
-        darks
-            .push(&frame)
-            .map_err(|e| ReportError::Dark(e.to_string()))?;
-    }
-    let dark_cal = DarkCalibration::from_accumulator(&darks)?;
-
-    let light = Illumination::snapshot(sensor.modulation_hz);
-    let n_max = args.max_frames.max(2);
     let chart = (name == "colour-chart").then(|| ColourChart::new(w, ht, 1.0, 1.0));
     let patch: Option<Vec<Option<usize>>> =
         chart.map(|c| (0..w * ht).map(|i| c.patch_at(i % w, i / w)).collect());
-    let with_read = UnmixOptions::default();
-    let no_read = UnmixOptions {
-        subtract_read_noise: false,
-        nonnegative: false,
-    };
-    let nonneg = UnmixOptions {
-        subtract_read_noise: true,
-        nonnegative: true,
-    };
-    let mut rows = Vec::new();
     let chosen = Chosen(args.estimators.clone());
-
-    // M1 over N frames (time: per pushed frame, plus the final inversion),
-    // one accumulator read out at each N.
-    let mut ns: Vec<usize> = [10, 30, 100, 300, 1000, 3000]
-        .into_iter()
-        .filter(|&n| n <= n_max)
-        .collect();
-    if ns.last() != Some(&n_max) {
-        ns.push(n_max);
-    }
-    let mut acc = Welford::new(w, ht);
-    let mut truths = TruthSums::new(w * ht);
-    let mut push_time = Duration::ZERO;
-    let mut first: Option<(Frame, Truth)> = None;
-    for n in 1..=n_max {
-        sim.capture(&light, &mut frame);
-        dark_cal.subtract(&mut frame)?;
-        truths.push(sim.last_expectation());
-        if first.is_none() {
-            first = Some((frame.clone(), truths.mean(&patch)));
-        }
-        let t0 = Instant::now();
-        acc.push(&frame)?;
-        push_time += t0.elapsed();
-        if !ns.contains(&n) {
-            continue;
-        }
-        let truth = truths.mean(&patch);
-        let t0 = Instant::now();
-        let m = acc.moments()?;
-        let sep = unmix(&m, &h, with_read)?;
-        let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
-        if chosen.has(Estimator::M1) {
-            let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
-            r.floor = Some(m1_floor(&truth, &h, n));
-            rows.push(r);
-        }
-        if n == n_max && chosen.has(Estimator::M1Pooled) {
-            let t0 = Instant::now();
-            let pooled = pool_moments(&m, PoolParams::default())?;
-            let sep = unmix(&pooled, &h, with_read)?;
-            let extra = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
-            let r = PoolParams::default().radius_px;
-            rows.push(row(
-                "M1 pooled",
-                format!("N={n}, r={r}"),
-                &sep,
-                &truth,
-                ms + extra,
-            ));
-        }
-        if n == n_max && chosen.has(Estimator::M1) {
-            rows.push(row(
-                "M1",
-                format!("N={n}, read:=0"),
-                &unmix(&m, &h, no_read)?,
-                &truth,
-                ms,
-            ));
-            rows.push(row(
-                "M1",
-                format!("N={n}, non-neg"),
-                &unmix(&m, &h, nonneg)?,
-                &truth,
-                ms,
-            ));
-        }
-    }
-
+    let m1 = M1Run {
+        h: &h,
+        patch: &patch,
+        n_max: args.max_frames.max(2),
+        chosen: &chosen,
+    };
+    let (mut rows, first) = m1.rows(&mut sim, &dark_cal)?;
     // Single-frame estimators on the first frame, against its own truth.
     let (one, truth) = first.ok_or(ReportError::NoFrames)?;
-    let one = &one;
-    let truth = &truth;
-    // M3's range scale from the frame itself (robust MAD), never from the truth.
-    let noise_dn = noise_sigma(one);
-    let radii: &[usize] = if chosen.has(Estimator::M2) {
-        &[1, 2, 4]
-    } else {
-        &[]
-    };
-    for &radius in radii {
-        let p = SegmentParams {
-            smooth_radius_px: radius,
-            ..SegmentParams::default()
-        };
-        let t0 = Instant::now();
-        let seg = auto_segment(one, p)?;
-        let m = segment_moments(one, &seg.labels, Some(&seg.interior))?;
-        let sep = unmix(&m, &h, with_read)?;
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        rows.push(row(
-            "M2 auto",
-            format!("smooth r={radius}"),
-            &sep,
-            truth,
-            ms,
-        ));
-    }
-    for sd in [1.5, 3.0] {
-        for k in [2.0, 4.0] {
-            let p = BilateralParams::new(sd, k * noise_dn);
-            let params = format!("sd={sd} sr={k}sigma");
-            if chosen.has(Estimator::M3Exact) {
-                let (sep, ms) =
-                    median_of_3(|| Ok(unmix(&bilateral_exact(one, p)?, &h, with_read)?))?;
-                rows.push(row("M3 exact", params.clone(), &sep, truth, ms));
-            }
-            // The fast variants as the daemon runs them: buffers kept, f32 unmix.
-            let mut out = Separated::default();
-            if chosen.has(Estimator::M3Separable) {
-                let mut separable = SeparableBilateral::new();
-                let ((), ms) = median_of_3(|| {
-                    Ok(unmix_local_into(
-                        separable.compute(one, p)?,
-                        &h,
-                        with_read,
-                        &mut out,
-                    )?)
-                })?;
-                rows.push(row("M3 separable", params.clone(), &out, truth, ms));
-            }
-            if chosen.has(Estimator::M3Grid) {
-                let mut grid = BilateralGrid::new();
-                let ((), ms) = median_of_3(|| {
-                    Ok(unmix_local_into(
-                        grid.compute(one, p)?,
-                        &h,
-                        with_read,
-                        &mut out,
-                    )?)
-                })?;
-                rows.push(row("M3 grid", params.clone(), &out, truth, ms));
-            }
-        }
-    }
+    rows.extend(m2_rows(&one, &truth, &h, &chosen)?);
+    rows.extend(m3_rows(&one, &truth, &h, &chosen)?);
     if rows.is_empty() {
         return Err(ReportError::NoRows);
     }
@@ -494,6 +358,200 @@ fn run(args: &SeparationReportArgs, name: &str, scene: SceneSpec) -> Result<Repo
         truth_se: None,
         rows,
     })
+}
+
+/// 100 dark frames, averaged, to subtract before separating (section 6).
+fn dark_calibration(sim: &mut Simulator) -> Result<DarkCalibration, ReportError> {
+    let (w, ht) = (sim.params().width, sim.params().height);
+    let dark = Illumination::dark(sim.params().modulation_hz);
+    let mut frame = Frame::new(w, ht);
+    let mut darks = DarkAccumulator::new(w, ht);
+    for _ in 0..100 {
+        sim.capture(&dark, &mut frame);
+        darks
+            .push(&frame)
+            .map_err(|e| ReportError::Dark(e.to_string()))?;
+    }
+    Ok(DarkCalibration::from_accumulator(&darks)?)
+}
+
+/// The N at which M1 is read out: a few decades up to `n_max`, and `n_max`.
+fn m1_checkpoints(n_max: usize) -> Vec<usize> {
+    let mut ns: Vec<usize> = [10, 30, 100, 300, 1000, 3000]
+        .into_iter()
+        .filter(|&n| n <= n_max)
+        .collect();
+    if ns.last() != Some(&n_max) {
+        ns.push(n_max);
+    }
+    ns
+}
+
+/// The first frame and its own truth, for the single-frame estimators.
+type FirstFrame = (Frame, Truth);
+
+/// M1 over N frames streamed from the simulator.
+struct M1Run<'a> {
+    h: &'a SkellamMixing,
+    patch: &'a Option<Vec<Option<usize>>>,
+    n_max: usize,
+    chosen: &'a Chosen,
+}
+
+impl M1Run<'_> {
+    /// M1's rows (time: per pushed frame, plus the final inversion), one
+    /// accumulator read out at each checkpoint; and the first frame with
+    /// its truth, for the single-frame estimators.
+    fn rows(
+        &self,
+        sim: &mut Simulator,
+        dark_cal: &DarkCalibration,
+    ) -> Result<(Vec<Row>, Option<FirstFrame>), ReportError> {
+        let (w, ht) = (sim.params().width, sim.params().height);
+        let light = Illumination::snapshot(sim.params().modulation_hz);
+        let ns = m1_checkpoints(self.n_max);
+        let mut frame = Frame::new(w, ht);
+        let mut acc = Welford::new(w, ht);
+        let mut truths = TruthSums::new(w * ht);
+        let mut push_time = Duration::ZERO;
+        let mut first: Option<FirstFrame> = None;
+        let mut rows = Vec::new();
+        for n in 1..=self.n_max {
+            sim.capture(&light, &mut frame);
+            dark_cal.subtract(&mut frame)?;
+            truths.push(sim.last_expectation());
+            if first.is_none() {
+                first = Some((frame.clone(), truths.mean(self.patch)));
+            }
+            let t0 = Instant::now();
+            acc.push(&frame)?;
+            push_time += t0.elapsed();
+            if ns.contains(&n) {
+                let truth = truths.mean(self.patch);
+                self.rows_at(n, &acc, &truth, push_time, &mut rows)?;
+            }
+        }
+        Ok((rows, first))
+    }
+
+    /// The rows of M1 read out after `n` frames (at `n_max` also pooled,
+    /// with read:=0 and non-negative).
+    fn rows_at(
+        &self,
+        n: usize,
+        acc: &Welford,
+        truth: &Truth,
+        push_time: Duration,
+        rows: &mut Vec<Row>,
+    ) -> Result<(), ReportError> {
+        let h = self.h;
+        let with_read = UnmixOptions::default();
+        let t0 = Instant::now();
+        let m = acc.moments()?;
+        let sep = unmix(&m, h, with_read)?;
+        let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
+        let last = n == self.n_max;
+        if self.chosen.has(Estimator::M1) {
+            let mut r = row("M1", format!("N={n}"), &sep, truth, ms);
+            r.floor = Some(m1_floor(truth, h, n));
+            rows.push(r);
+        }
+        if last && self.chosen.has(Estimator::M1Pooled) {
+            let t0 = Instant::now();
+            let pooled = pool_moments(&m, PoolParams::default())?;
+            let sep = unmix(&pooled, h, with_read)?;
+            let extra = t0.elapsed().as_secs_f64() * 1e3 / n as f64;
+            let r = PoolParams::default().radius_px;
+            let params = format!("N={n}, r={r}");
+            rows.push(row("M1 pooled", params, &sep, truth, ms + extra));
+        }
+        if last && self.chosen.has(Estimator::M1) {
+            let sep = unmix(&m, h, NO_READ)?;
+            rows.push(row("M1", format!("N={n}, read:=0"), &sep, truth, ms));
+            let sep = unmix(&m, h, NON_NEG)?;
+            rows.push(row("M1", format!("N={n}, non-neg"), &sep, truth, ms));
+        }
+        Ok(())
+    }
+}
+
+/// M2 (automatic segments of one frame) at a few smoothing radii.
+fn m2_rows(
+    one: &Frame,
+    truth: &Truth,
+    h: &SkellamMixing,
+    chosen: &Chosen,
+) -> Result<Vec<Row>, ReportError> {
+    let mut rows = Vec::new();
+    if !chosen.has(Estimator::M2) {
+        return Ok(rows);
+    }
+    for radius in [1, 2, 4] {
+        let p = SegmentParams {
+            smooth_radius_px: radius,
+            ..SegmentParams::default()
+        };
+        let t0 = Instant::now();
+        let seg = auto_segment(one, p)?;
+        let m = segment_moments(one, &seg.labels, Some(&seg.interior))?;
+        let sep = unmix(&m, h, UnmixOptions::default())?;
+        let ms = t0.elapsed().as_secs_f64() * 1e3;
+        let params = format!("smooth r={radius}");
+        rows.push(row("M2 auto", params, &sep, truth, ms));
+    }
+    Ok(rows)
+}
+
+/// M3 (local moments by a bilateral filter on one frame), each chosen
+/// variant at a few domain and range scales; the range scale comes from
+/// the frame itself (robust MAD), never from the truth.
+fn m3_rows(
+    one: &Frame,
+    truth: &Truth,
+    h: &SkellamMixing,
+    chosen: &Chosen,
+) -> Result<Vec<Row>, ReportError> {
+    let with_read = UnmixOptions::default();
+    let noise_dn = noise_sigma(one);
+    let mut rows = Vec::new();
+    for sd in [1.5, 3.0] {
+        for k in [2.0, 4.0] {
+            let p = BilateralParams::new(sd, k * noise_dn);
+            let params = format!("sd={sd} sr={k}sigma");
+            if chosen.has(Estimator::M3Exact) {
+                let (sep, ms) =
+                    median_of_3(|| Ok(unmix(&bilateral_exact(one, p)?, h, with_read)?))?;
+                rows.push(row("M3 exact", params.clone(), &sep, truth, ms));
+            }
+            // The fast variants as the daemon runs them: buffers kept, f32 unmix.
+            let mut out = Separated::default();
+            if chosen.has(Estimator::M3Separable) {
+                let mut separable = SeparableBilateral::new();
+                let ((), ms) = median_of_3(|| {
+                    Ok(unmix_local_into(
+                        separable.compute(one, p)?,
+                        h,
+                        with_read,
+                        &mut out,
+                    )?)
+                })?;
+                rows.push(row("M3 separable", params.clone(), &out, truth, ms));
+            }
+            if chosen.has(Estimator::M3Grid) {
+                let mut grid = BilateralGrid::new();
+                let ((), ms) = median_of_3(|| {
+                    Ok(unmix_local_into(
+                        grid.compute(one, p)?,
+                        h,
+                        with_read,
+                        &mut out,
+                    )?)
+                })?;
+                rows.push(row("M3 grid", params.clone(), &out, truth, ms));
+            }
+        }
+    }
+    Ok(rows)
 }
 
 /// The last result of three runs and their median wall time, ms (the
@@ -858,10 +916,8 @@ fn stream_frames(
     Ok((n, info))
 }
 
-/// Per-pixel mean over up to `max` frames (unusable samples skipped), DN,
-/// and the frame size.
 /// The per-pixel mean and its sampling variance (sample variance / frames,
-/// 0 below two samples), DN and DN^2.
+/// 0 below two samples), DN and DN^2, and the frame size.
 struct MeanDn {
     mean: Vec<f64>,
     var_of_mean: Vec<f64>,
@@ -869,6 +925,7 @@ struct MeanDn {
     height: usize,
 }
 
+/// Per-pixel mean over up to `max` frames (unusable samples skipped).
 fn mean_dn(path: &Path, max: usize, alone: Alone) -> Result<MeanDn, CliError> {
     let (mut s, mut q, mut k) = (Vec::new(), Vec::new(), Vec::new());
     let (_, info) = stream_frames(path, max, Some(alone), |f| {
@@ -928,7 +985,6 @@ fn truth_rel_se(var_dn2: &[f64], truth: &[f64], g: f64) -> f64 {
 /// the frame) on the both-sources frames. Every input streams (constant
 /// memory in N).
 fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
-    let us = |e: SeparationError| CliError::Usage(e.to_string());
     let (Some(input), Some(tp), Some(tm)) = (&args.input, &args.truth_plus, &args.truth_minus)
     else {
         return Err(CliError::Usage(
@@ -938,36 +994,43 @@ fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
     let n_max = args.max_frames.clamp(2, MAX_REPORT_FRAMES);
     let plus = mean_dn(tp, n_max, Alone::Ls1)?;
     let minus = mean_dn(tm, n_max, Alone::Ls2)?;
-    let (wp, hp, wm, hm) = (plus.width, plus.height, minus.width, minus.height);
-    // M1's accumulator over the both-sources frames, timed per push; the
-    // first frame kept for the single-frame estimators.
-    let mut acc: Option<Welford> = None;
-    let mut first: Option<Frame> = None;
-    let mut push_time = Duration::ZERO;
-    let (n, info) = stream_frames(input, n_max, None, |f| {
-        let a = acc.get_or_insert_with(|| Welford::new(f.width(), f.height()));
-        let t0 = Instant::now();
-        a.push(f).map_err(us)?;
-        push_time += t0.elapsed();
-        first.get_or_insert_with(|| f.clone());
-        Ok(())
-    })?;
-    let (w, ht) = (info.width, info.height);
-    if (wp, hp) != (w, ht) || (wm, hm) != (w, ht) {
+    let both = BothSources::stream(input, n_max)?;
+    let (w, ht) = (both.info.width, both.info.height);
+    if (plus.width, plus.height) != (w, ht) || (minus.width, minus.height) != (w, ht) {
         return Err(CliError::Usage(
             "the truth frames differ in size from --in".into(),
         ));
     }
-    let (Some(acc), Some(one)) = (acc, first) else {
-        return Err(CliError::Usage(format!(
-            "'{}' holds no frames",
-            input.display()
-        )));
-    };
     // A recording's own sensor wins; an .npy uses --sensor.
-    let sensor = info.sensor.is_none().then_some(&args.sensor);
-    let h = super::separate::choose_mixing(None, sensor, &info)?.h;
-    let g = h.gain_dn_per_electron;
+    let sensor = both.info.sensor.is_none().then_some(&args.sensor);
+    let h = super::separate::choose_mixing(None, sensor, &both.info)?.h;
+    let (truth, truth_se) = measured_truth(&plus, &minus, h.gain_dn_per_electron);
+    let chosen = Chosen(args.estimators.clone());
+    let mut rows = both.m1_rows(&truth, &h, &chosen)?;
+    rows.extend(both.single_frame_rows(&truth, &h, &chosen)?);
+    if rows.is_empty() {
+        return Err(CliError::Usage(ReportError::NoRows.to_string()));
+    }
+    Ok(Report {
+        scene: format!("measured {}", input.display()),
+        model: "measured".into(),
+        width: w,
+        height: ht,
+        truth: "the mean of the LS1-only and LS2-only frames through g",
+        truth_se: Some(truth_se),
+        rows,
+    })
+}
+
+/// A measured-data report's estimator error: a usage error (the input
+/// does not suit the estimator).
+fn usage(e: SeparationError) -> CliError {
+    CliError::Usage(e.to_string())
+}
+
+/// The truth from the LS1-only and LS2-only means through `g` (DN per
+/// electron), and its relative standard error (I+, I-).
+fn measured_truth(plus: &MeanDn, minus: &MeanDn, g: f64) -> (Truth, (f64, f64)) {
     // LS2 alone lands in I- (negative D) when driven out of phase, as in the
     // snapshot; two-shot's B frames drive it in phase (positive D). The
     // pooled sign tells which.
@@ -986,65 +1049,109 @@ fn run_measured(args: &SeparationReportArgs) -> Result<Report, CliError> {
         truth_rel_se(&plus.var_of_mean, &truth.plus, g),
         truth_rel_se(&minus.var_of_mean, &truth.minus, g),
     );
-    let opts = UnmixOptions::default();
-    let chosen = Chosen(args.estimators.clone());
-    let mut rows = Vec::new();
-    if n >= 2 {
+    (truth, truth_se)
+}
+
+/// The both-sources frames of measured data, streamed once: M1's
+/// accumulator (timed per push) and the first frame, kept for the
+/// single-frame estimators.
+struct BothSources {
+    frames: usize,
+    info: super::frames::InputInfo,
+    acc: Welford,
+    first: Frame,
+    push_time: Duration,
+}
+
+impl BothSources {
+    fn stream(input: &Path, n_max: usize) -> Result<Self, CliError> {
+        let mut acc: Option<Welford> = None;
+        let mut first: Option<Frame> = None;
+        let mut push_time = Duration::ZERO;
+        let (frames, info) = stream_frames(input, n_max, None, |f| {
+            let a = acc.get_or_insert_with(|| Welford::new(f.width(), f.height()));
+            let t0 = Instant::now();
+            a.push(f).map_err(usage)?;
+            push_time += t0.elapsed();
+            first.get_or_insert_with(|| f.clone());
+            Ok(())
+        })?;
+        let (Some(acc), Some(first)) = (acc, first) else {
+            return Err(CliError::Usage(format!(
+                "'{}' holds no frames",
+                input.display()
+            )));
+        };
+        Ok(Self {
+            frames,
+            info,
+            acc,
+            first,
+            push_time,
+        })
+    }
+
+    /// M1 and pooled M1 over every frame (two at least).
+    fn m1_rows(
+        &self,
+        truth: &Truth,
+        h: &SkellamMixing,
+        chosen: &Chosen,
+    ) -> Result<Vec<Row>, CliError> {
+        let (n, opts) = (self.frames, UnmixOptions::default());
+        let mut rows = Vec::new();
+        if n < 2 {
+            return Ok(rows);
+        }
         let t0 = Instant::now();
-        let m = acc.moments().map_err(us)?;
-        let sep = unmix(&m, &h, opts).map_err(us)?;
-        let ms = (push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
+        let m = self.acc.moments().map_err(usage)?;
+        let sep = unmix(&m, h, opts).map_err(usage)?;
+        let ms = (self.push_time + t0.elapsed()).as_secs_f64() * 1e3 / n as f64;
         if chosen.has(Estimator::M1) {
-            let mut r = row("M1", format!("N={n}"), &sep, &truth, ms);
-            r.floor = Some(m1_floor(&truth, &h, n));
+            let mut r = row("M1", format!("N={n}"), &sep, truth, ms);
+            r.floor = Some(m1_floor(truth, h, n));
             rows.push(r);
         }
         if chosen.has(Estimator::M1Pooled) {
-            let pooled = pool_moments(&m, PoolParams::default()).map_err(us)?;
-            let sep = unmix(&pooled, &h, opts).map_err(us)?;
-            rows.push(row("M1 pooled", format!("N={n}"), &sep, &truth, ms));
+            let pooled = pool_moments(&m, PoolParams::default()).map_err(usage)?;
+            let sep = unmix(&pooled, h, opts).map_err(usage)?;
+            rows.push(row("M1 pooled", format!("N={n}"), &sep, truth, ms));
         }
+        Ok(rows)
     }
-    let one = &one;
-    if chosen.has(Estimator::M2) {
-        let t0 = Instant::now();
-        let seg = auto_segment(one, SegmentParams::default()).map_err(us)?;
-        let m = segment_moments(one, &seg.labels, Some(&seg.interior)).map_err(us)?;
-        let sep = unmix(&m, &h, opts).map_err(us)?;
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        rows.push(row("M2 auto", "smooth r=2".into(), &sep, &truth, ms));
+
+    /// M2 auto and M3 separable (range scale from the frame) on the first frame.
+    fn single_frame_rows(
+        &self,
+        truth: &Truth,
+        h: &SkellamMixing,
+        chosen: &Chosen,
+    ) -> Result<Vec<Row>, CliError> {
+        let (one, opts) = (&self.first, UnmixOptions::default());
+        let mut rows = Vec::new();
+        if chosen.has(Estimator::M2) {
+            let t0 = Instant::now();
+            let seg = auto_segment(one, SegmentParams::default()).map_err(usage)?;
+            let m = segment_moments(one, &seg.labels, Some(&seg.interior)).map_err(usage)?;
+            let sep = unmix(&m, h, opts).map_err(usage)?;
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            rows.push(row("M2 auto", "smooth r=2".into(), &sep, truth, ms));
+        }
+        if !chosen.has(Estimator::M3Separable) {
+            return Ok(rows);
+        }
+        let noise = noise_sigma(one);
+        for k in [2.0, 4.0] {
+            let p = BilateralParams::new(1.5, k * noise);
+            let mut out = Separated::default();
+            let mut separable = SeparableBilateral::new();
+            let t0 = Instant::now();
+            let local = separable.compute(one, p).map_err(usage)?;
+            unmix_local_into(local, h, opts, &mut out).map_err(usage)?;
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let params = format!("sd=1.5 sr={k}sigma");
+            rows.push(row("M3 separable", params, &out, truth, ms));
+        }
+        Ok(rows)
     }
-    let noise = noise_sigma(one);
-    let ks: &[f64] = if chosen.has(Estimator::M3Separable) {
-        &[2.0, 4.0]
-    } else {
-        &[]
-    };
-    for &k in ks {
-        let p = BilateralParams::new(1.5, k * noise);
-        let mut out = Separated::default();
-        let mut separable = SeparableBilateral::new();
-        let t0 = Instant::now();
-        unmix_local_into(separable.compute(one, p).map_err(us)?, &h, opts, &mut out).map_err(us)?;
-        let ms = t0.elapsed().as_secs_f64() * 1e3;
-        rows.push(row(
-            "M3 separable",
-            format!("sd=1.5 sr={k}sigma"),
-            &out,
-            &truth,
-            ms,
-        ));
-    }
-    if rows.is_empty() {
-        return Err(CliError::Usage(ReportError::NoRows.to_string()));
-    }
-    Ok(Report {
-        scene: format!("measured {}", input.display()),
-        model: "measured".into(),
-        width: w,
-        height: ht,
-        truth: "the mean of the LS1-only and LS2-only frames through g",
-        truth_se: Some(truth_se),
-        rows,
-    })
 }
