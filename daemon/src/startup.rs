@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use tokio::sync::watch;
 
-use crate::backend::{select as backend_select, CaptureSettings};
+use crate::backend::{select as backend_select, BackendName, CaptureSettings};
 use crate::bus::{self, BusChoice};
 use crate::calibration_store;
 use crate::config::Config;
@@ -22,7 +22,7 @@ use crate::modes::{DisplayMap, DisplayRange, ModeId};
 use crate::recording::{Calibration, RecordingReader};
 use crate::sink::output::Output;
 use crate::sink::select as sink_select;
-use crate::sink::SinkInfo;
+use crate::sink::{SinkInfo, SinkKindName};
 use crate::stats::LoopStats;
 
 /// Everything sdid needs to start, parsed and validated.
@@ -96,9 +96,9 @@ pub fn exit_code(result: Result<(), StartError>) -> ExitCode {
 /// from where, why this sink, and what to open.
 fn first_screen(source: &str, mode: ModeId, sink: &SinkInfo, reasons: Option<&str>) -> String {
     let published = match sink.kind {
-        "y4m" => "a y4m stream",
-        "pipewire" => "a PipeWire camera",
-        _ => "a V4L2 camera (v4l2loopback)",
+        SinkKindName::Y4m => "a y4m stream",
+        SinkKindName::Pipewire => "a PipeWire camera",
+        SinkKindName::Loopback => "a V4L2 camera (v4l2loopback)",
     };
     let mut lines = vec![format!(
         "sdid: {source}, mode {}, published as {published}",
@@ -187,7 +187,7 @@ pub async fn serve(
     }
     let mut mode = config.mode;
     let (backend, extras) = backend_select::open(&config, mode).map_err(StartError::Backend)?;
-    if backend.kind() == "replay" && !options.mode_given {
+    if backend.kind() == BackendName::Replay && !options.mode_given {
         if let Some(m) = recorded_mode(&config) {
             mode = m;
         }
@@ -213,7 +213,7 @@ pub async fn serve(
         sink_info.device = format!("{} [auto: {reasons}]", sink_info.device);
     }
     let info = CameraInfo {
-        backend: backend.kind().into(),
+        backend: backend.kind(),
         device: backend.device(),
         sink: sink_info,
         limits: backend.limits(),

@@ -19,10 +19,10 @@ use std::time::Duration;
 use pipewire as pw;
 use pw::spa;
 use sdi_core::mode::ModeId;
+use sdi_core::view::{no_signal_card, PixelFormat};
 use spa::param::video::VideoFormat;
 use spa::pod::{ChoiceValue, Object, Pod, Property, Value};
 use spa::utils::{Choice, ChoiceEnum, ChoiceFlags, Fraction, Id, Rectangle};
-use v4l2loopback_glue::{no_signal_grey, Converter, Src, YuyvPath};
 
 use sdi_camera_link::{
     data_description, view_description, Port as PortId, Spec, State, Wire, DATA_NODE, FRAME_LOG,
@@ -42,12 +42,12 @@ fn spa_format(w: Wire) -> VideoFormat {
     }
 }
 
-/// The converter's name for a wire format.
-fn glue_format(w: Wire) -> v4l2loopback_glue::PixelFormat {
+/// The view's pixel format of a wire format.
+fn pixel_format(w: Wire) -> PixelFormat {
     match w {
-        Wire::Yuyv => v4l2loopback_glue::PixelFormat::Yuyv,
-        Wire::Rgb => v4l2loopback_glue::PixelFormat::Rgb24,
-        Wire::Y16 => v4l2loopback_glue::PixelFormat::Y16,
+        Wire::Yuyv => PixelFormat::Yuyv,
+        Wire::Rgb => PixelFormat::Rgb24,
+        Wire::Y16 => PixelFormat::Y16,
     }
 }
 
@@ -172,14 +172,8 @@ impl Nodes {
                 ));
             }
         }
-        let card = |w: u32, h: u32, wire: Wire| {
-            let (wu, hu) = (w as usize, h as usize);
-            let mut bytes = vec![0; wu * hu * wire.bytes_per_pixel()];
-            let grey = no_signal_grey(wu, hu);
-            let _ = Converter::new(w, h, glue_format(wire), YuyvPath::Scalar)
-                .grey8(Src::packed(&grey, wu, hu, 1), &mut bytes);
-            bytes
-        };
+        let card =
+            |w: u32, h: u32, wire: Wire| no_signal_card(pixel_format(wire), w as usize, h as usize);
         let no_signal_view = Wire::ALL
             .iter()
             .map(|&wire| (wire, card(spec.view_width, spec.view_height, wire)))

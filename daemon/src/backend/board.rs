@@ -340,8 +340,8 @@ fn describe(board: &Opt8241) -> String {
 }
 
 impl Backend for BoardBackend {
-    fn kind(&self) -> &'static str {
-        "opt8241"
+    fn kind(&self) -> super::BackendName {
+        super::BackendName::Opt8241
     }
 
     fn device(&self) -> String {

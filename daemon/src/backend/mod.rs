@@ -55,10 +55,19 @@ pub enum BackendError {
     Failed(String),
 }
 
+/// Which backend delivers frames; its name (strum's Display) is the D-Bus
+/// `Backend` property and the recordings' `backend`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, strum::Display, strum::IntoStaticStr)]
+#[strum(serialize_all = "lowercase")]
+pub enum BackendName {
+    Sim,
+    Replay,
+    Opt8241,
+}
+
 /// A source of sensor frames.
 pub trait Backend: Send {
-    /// Short kind name: "sim", "replay", "opt8241".
-    fn kind(&self) -> &'static str;
+    fn kind(&self) -> BackendName;
     /// Human-readable device (model, file or USB path).
     fn device(&self) -> String;
     fn sensor(&self) -> &SensorParams;

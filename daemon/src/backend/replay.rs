@@ -74,8 +74,8 @@ impl ReplayBackend {
 }
 
 impl Backend for ReplayBackend {
-    fn kind(&self) -> &'static str {
-        "replay"
+    fn kind(&self) -> super::BackendName {
+        super::BackendName::Replay
     }
 
     fn device(&self) -> String {

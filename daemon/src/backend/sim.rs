@@ -78,8 +78,8 @@ fn build(sensor: SensorParams, scene: SceneSpec, seed: u64) -> Result<Simulator,
 }
 
 impl Backend for SimBackend {
-    fn kind(&self) -> &'static str {
-        "sim"
+    fn kind(&self) -> super::BackendName {
+        super::BackendName::Sim
     }
 
     /// "simulator (MODEL)", and ", scene NAME" with a fixed scene (`sdictl

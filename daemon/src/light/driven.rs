@@ -87,7 +87,7 @@ impl LitBackend {
 }
 
 impl Backend for LitBackend {
-    fn kind(&self) -> &'static str {
+    fn kind(&self) -> crate::backend::BackendName {
         self.inner.kind()
     }
 
