@@ -1,6 +1,7 @@
 //! The view every sink publishes: a mode's output colormapped
 //! ([`crate::display`]), letterboxed into the sink's geometry and packed into
-//! its pixel format (YUYV, RGB24, GREY, Y16), plus the "no signal" cards.
+//! its pixel format (YUYV, RGB24, GREY, Y16) by [`ViewRenderer`], plus the
+//! "no signal" cards ([`no_signal_card`]).
 //! One renderer for the v4l2loopback, PipeWire and y4m sinks, so a sink only
 //! publishes bytes and each colour conversion has one definition.
 //!

@@ -2,7 +2,7 @@
 
 use super::letterbox::{letterbox_rgb8, LetterboxRect};
 use super::pack::{PackError, Packer, Src};
-use super::{no_signal_card, PixelFormat};
+use super::PixelFormat;
 use crate::display::{DisplayMap, DisplayRange};
 use crate::image::Image;
 use crate::mode::ModeOutput;
@@ -24,7 +24,6 @@ pub struct ViewRenderer {
     content: Vec<u8>,
     /// The packed frame handed to the sink.
     frame: Vec<u8>,
-    no_signal: Vec<u8>,
 }
 
 impl ViewRenderer {
@@ -38,7 +37,6 @@ impl ViewRenderer {
             scaled_dn: Image::new(0, 0),
             content: Vec::new(),
             frame: Vec::new(),
-            no_signal: no_signal_card(format, width, height),
         }
     }
 
@@ -88,11 +86,6 @@ impl ViewRenderer {
             &mut self.frame,
         )?;
         Ok(&self.frame)
-    }
-
-    /// The "no signal" card in the output format ([`no_signal_card`]).
-    pub fn no_signal(&self) -> &[u8] {
-        &self.no_signal
     }
 
     /// The YUYV frame of a signed image without separated channels, rendered
@@ -221,6 +214,5 @@ mod tests {
         assert!(!view.direct_yuyv(&out, &map));
         let got = view.render(&out, &map).expect("render").to_vec();
         assert_eq!(got, via_rgb(&out, &map, 16, 8));
-        assert_eq!(view.no_signal().len(), 16 * 8 * 2);
     }
 }

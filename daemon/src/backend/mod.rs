@@ -105,3 +105,16 @@ pub trait Backend: Send {
 
 /// Backends selectable by name ("auto": the board when one is attached, else the simulator).
 pub use sdi_config::BackendKind;
+
+#[cfg(test)]
+mod tests {
+    use super::BackendName;
+
+    /// The D-Bus `Backend` property and the recordings' `backend`, as before.
+    #[test]
+    fn backend_names() {
+        let names =
+            [BackendName::Sim, BackendName::Replay, BackendName::Opt8241].map(|b| b.to_string());
+        assert_eq!(names, ["sim", "replay", "opt8241"]);
+    }
+}

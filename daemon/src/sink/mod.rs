@@ -71,3 +71,20 @@ pub trait Sink: Send {
     /// The mode of the frames that follow (e.g. for a node description).
     fn set_mode(&mut self, _mode: ModeId) {}
 }
+
+#[cfg(test)]
+mod tests {
+    use super::SinkKindName;
+
+    /// The names sdid has always shown for its sinks.
+    #[test]
+    fn sink_kind_names() {
+        let names = [
+            SinkKindName::Loopback,
+            SinkKindName::Pipewire,
+            SinkKindName::Y4m,
+        ]
+        .map(|k| k.to_string());
+        assert_eq!(names, ["loopback", "pipewire", "y4m"]);
+    }
+}
