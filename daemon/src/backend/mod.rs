@@ -67,6 +67,7 @@ pub enum BackendName {
 
 /// A source of sensor frames.
 pub trait Backend: Send {
+    /// Which backend this is (a wrapper reports the backend it wraps).
     fn kind(&self) -> BackendName;
     /// Human-readable device (model, file or USB path).
     fn device(&self) -> String;
