@@ -1,7 +1,7 @@
 //! Side-by-side benchmark, one run, one core: the display path at 640x480
 //! (auto range, colormap to RGB8, YUYV packing) for the diverging and grey
 //! colormaps, against the previous implementation (scalar colormap, then
-//! v4l2loopback-glue's RGB to YUYV), numpy + OpenCV doing the same, and a
+//! `sdi_core::view`'s RGB to YUYV packing), numpy + OpenCV doing the same, and a
 //! plain copy of the output bytes (the goal: at most 3x the copy, taken
 //! from alternating rounds of the two).
 //!
@@ -20,7 +20,7 @@ use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use sdi_core::display::{reference, robust_max_abs, Colormap, DisplayMap, DisplayRange};
 use sdi_core::image::Image;
-use v4l2loopback_glue::{Converter, PixelFormat, Src, YuyvPath};
+use sdi_core::view::{Packer, PixelFormat, Src};
 
 const W: usize = 640;
 const H: usize = 480;
@@ -174,13 +174,12 @@ fn main() {
         cell(copy)
     );
     println!(
-        "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>17} {:>9} {:>9} {:>9}",
+        "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>9} {:>9} {:>9}",
         "colormap",
         "ours rgb8",
         "ours yuyv",
         "ours rgb8+yuyv",
         "previous",
-        "previous(simd)",
         "numpy+opencv",
         "prev/ours",
         "cv/ours",
@@ -208,49 +207,36 @@ fn main() {
                 std::hint::black_box((&copy_rgb, &copy_yuyv));
             },
         );
-        // The previous daemon path: scalar colormap, then the glue's packing
-        // (its scalar loop, and yuvutils where AVX2 makes that the faster).
-        let mut previous = |path| {
-            let mut conv = Converter::new(W as u32, H as u32, PixelFormat::Yuyv, path);
-            let mut old_rgb = vec![0u8; W * H * 3];
-            time_ms(SLOW_REPS, || {
-                reference::render_rgb8(&map, &img, &mut old_rgb);
-                let r = conv.rgb8(Src::packed(&old_rgb, W, H, 3), &mut yuyv);
-                std::hint::black_box(r.is_ok());
-            })
-        };
-        let old_scalar = previous(YuyvPath::Scalar);
-        let old_simd = previous(YuyvPath::Simd);
-        // Agreement with the previous path's bytes, from this run's image.
+        // The previous daemon path: scalar colormap, then RGB to YUYV packing.
+        let packer = Packer::new(W, H, PixelFormat::Yuyv);
         let mut old_rgb = vec![0u8; W * H * 3];
+        let old_scalar = time_ms(SLOW_REPS, || {
+            reference::render_rgb8(&map, &img, &mut old_rgb);
+            let r = packer.rgb8(Src::packed(&old_rgb, W, H, 3), &mut yuyv);
+            std::hint::black_box(r.is_ok());
+        });
+        // Agreement with the previous path's bytes, from this run's image.
         reference::render_rgb8(&map, &img, &mut old_rgb);
         map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv);
-        let mut worst = [0u8; 2];
-        for (k, path) in [YuyvPath::Scalar, YuyvPath::Simd].into_iter().enumerate() {
-            let mut old_yuyv = vec![0u8; W * H * 2];
-            let mut conv = Converter::new(W as u32, H as u32, PixelFormat::Yuyv, path);
-            if conv
-                .rgb8(Src::packed(&old_rgb, W, H, 3), &mut old_yuyv)
-                .is_ok()
-            {
-                worst[k] = yuyv
-                    .iter()
-                    .zip(&old_yuyv)
-                    .map(|(a, b)| a.abs_diff(*b))
-                    .max()
-                    .unwrap_or(0);
-            }
-        }
+        let mut old_yuyv = vec![0u8; W * H * 2];
+        let worst = match packer.rgb8(Src::packed(&old_rgb, W, H, 3), &mut old_yuyv) {
+            Ok(()) => yuyv
+                .iter()
+                .zip(&old_yuyv)
+                .map(|(a, b)| a.abs_diff(*b))
+                .max()
+                .unwrap_or(0),
+            Err(_) => u8::MAX,
+        };
         agreement.push(format!(
-            "{:<10} bytes vs previous: rgb8 {} | yuyv max diff {} (glue scalar), {} (yuvutils)",
+            "{:<10} bytes vs previous: rgb8 {} | yuyv max diff {}",
             colormap.name(),
             if rgb == old_rgb {
                 "identical"
             } else {
                 "DIFFERENT"
             },
-            worst[0],
-            worst[1]
+            worst
         ));
         let cv = reference_cv[k];
         let fixed = DisplayMap::new(colormap, DisplayRange::Fixed { max_abs_dn: 400.0 });
@@ -289,13 +275,12 @@ fn main() {
             3.0 * ns_px(copy)
         ));
         println!(
-            "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>17} {:>8.1}x {:>8.1}x {:>8.2}x",
+            "{:<10} {:>17} {:>17} {:>17} {:>17} {:>17} {:>8.1}x {:>8.1}x {:>8.2}x",
             colormap.name(),
             cell(only_rgb),
             cell(only_yuyv),
             cell(both),
             cell(old_scalar),
-            cell(old_simd),
             cell(cv),
             old_scalar.1 / both.1,
             cv.1 / both.1,
@@ -312,7 +297,7 @@ fn main() {
     println!(
         "ours rgb8+yuyv: auto range, colormap, RGB8 and YUYV in one pass (what the goal times)"
     );
-    println!("previous: old colormap + glue scalar RGB->YUYV; previous(simd): + yuvutils");
+    println!("previous: old colormap + scalar RGB->YUYV packing");
     println!(
         "prev/ours, cv/ours and ours/copy: ratios of CPU time (numpy+OpenCV makes both outputs too); \
          ours/copy: median of the ratios of alternating rounds of the two (goal: at most 3x)"

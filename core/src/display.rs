@@ -171,7 +171,7 @@ struct Tables {
 }
 
 /// Per pixel: half the chroma offset 128 << 9 plus half the rounding 256,
-/// so (U0 + U1 + 2 * CHROMA_BIAS) >> 9 is v4l2loopback-glue's scalar
+/// so (U0 + U1 + 2 * CHROMA_BIAS) >> 9 is `view`'s packing
 /// ((U0 + U1 + 256) >> 9) + 128; |U|, |V| <= 112 * 255 keep each biased
 /// value in 0..2^16 and the pair sum's byte in 16..=240.
 const CHROMA_BIAS: i32 = (128 << 8) + 128;
@@ -247,7 +247,7 @@ impl DisplayMap {
 
     /// Writes YUYV (BT.601 limited range, 2 bytes per pixel, chroma from the
     /// mean of each horizontal pixel pair) of the colormapped image: the
-    /// bytes v4l2loopback-glue's scalar RGB to YUYV packing makes of
+    /// bytes [`crate::view::Packer`]'s RGB to YUYV packing makes of
     /// [`Self::render_rgb8`]'s output. Rows or pairs beyond a shorter `out`
     /// are skipped; with an odd width the last 2 bytes of each row are not written.
     pub fn render_yuyv(&self, img: &Image<f32>, out: &mut [u8]) {
@@ -747,8 +747,9 @@ mod tests {
         v
     }
 
-    /// v4l2loopback-glue's scalar RGB to YUYV row packing, copied verbatim.
-    fn glue_rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
+    /// The scalar RGB to YUYV row packing of `view::Packer`, copied
+    /// verbatim: an oracle independent of the code under test.
+    fn scalar_rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
         for (o, p) in d.chunks_exact_mut(4).zip(s.chunks_exact(6)) {
             let (r0, g0, b0) = (i32::from(p[0]), i32::from(p[1]), i32::from(p[2]));
             let (r1, g1, b1) = (i32::from(p[3]), i32::from(p[4]), i32::from(p[5]));
@@ -780,13 +781,13 @@ mod tests {
                 map.render_grey8(&img, &mut fast);
                 reference::render_grey8(&map, &img, &mut slow);
                 assert_eq!(fast, slow, "{map:?}");
-                // YUYV: the glue's packing of the reference RGB, row by row.
+                // YUYV: the scalar packing of the reference RGB, row by row.
                 let mut want = vec![7u8; 2 * n];
                 for (s, d) in slow_rgb(&map, &img)
                     .chunks(3 * img.width)
                     .zip(want.chunks_mut(2 * img.width))
                 {
-                    glue_rgb_row_to_yuyv(s, d);
+                    scalar_rgb_row_to_yuyv(s, d);
                 }
                 let (mut rgb, mut yuyv) = (vec![0u8; 3 * n], vec![7u8; 2 * n]);
                 map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv);

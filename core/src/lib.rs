@@ -21,6 +21,7 @@ pub mod scene;
 pub mod sensor;
 pub mod separation;
 pub mod simulator;
+pub mod view;
 
 pub use frame::Frame;
 pub use image::Image;

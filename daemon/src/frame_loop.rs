@@ -706,8 +706,8 @@ mod tests {
     }
 
     impl Backend for Scripted {
-        fn kind(&self) -> &'static str {
-            "scripted"
+        fn kind(&self) -> crate::backend::BackendName {
+            self.sim.kind()
         }
         fn device(&self) -> String {
             self.sim.device()
@@ -744,7 +744,7 @@ mod tests {
     impl Sink for Seen {
         fn info(&self) -> SinkInfo {
             SinkInfo {
-                kind: "seen",
+                kind: crate::sink::SinkKindName::Y4m,
                 device: String::new(),
                 format: String::new(),
                 width: 0,

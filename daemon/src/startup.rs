@@ -19,7 +19,7 @@ use sdi_recording::{Calibration, RecordingReader};
 use tokio::sync::{watch, Notify};
 
 use crate::backend::select::{self as backend_select, OpenError};
-use crate::backend::{Backend, CaptureSettings};
+use crate::backend::{Backend, BackendName, CaptureSettings};
 use crate::bus::{self, BusChoice, ConnectError, PrivateBus};
 use crate::calibration_store;
 use crate::dbus::camera::{Camera, CameraInfo};
@@ -28,7 +28,7 @@ use crate::frame_loop::{Command, FrameLoop};
 use crate::recorder::RecordingWriter;
 use crate::sink::output::Output;
 use crate::sink::select as sink_select;
-use crate::sink::{SinkError, SinkInfo};
+use crate::sink::{SinkError, SinkInfo, SinkKindName};
 use crate::stats::LoopStats;
 
 /// Everything sdid needs to start, parsed and validated.
@@ -131,9 +131,9 @@ pub fn exit_code(result: Result<(), StartError>) -> ExitCode {
 /// from where, why this sink, and what to open.
 fn first_screen(source: &str, mode: ModeId, sink: &SinkInfo, reasons: Option<&str>) -> String {
     let published = match sink.kind {
-        "y4m" => "a y4m stream",
-        "pipewire" => "a PipeWire camera",
-        _ => "a V4L2 camera (v4l2loopback)",
+        SinkKindName::Y4m => "a y4m stream",
+        SinkKindName::Pipewire => "a PipeWire camera",
+        SinkKindName::Loopback => "a V4L2 camera (v4l2loopback)",
     };
     let mut lines = vec![format!(
         "sdid: {source}, mode {}, published as {published}",
@@ -261,7 +261,7 @@ fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
     let config = &options.config;
     let (backend, extras) = backend_select::open(config, config.mode)?;
     let mut mode = config.mode;
-    if backend.kind() == "replay" && !options.mode_given {
+    if backend.kind() == BackendName::Replay && !options.mode_given {
         if let Some(m) = recorded_mode(config) {
             mode = m;
         }
@@ -284,7 +284,7 @@ fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
         sink_info.device = format!("{} [auto: {reasons}]", sink_info.device);
     }
     let info = CameraInfo {
-        backend: backend.kind().into(),
+        backend: backend.kind(),
         device: backend.device(),
         sink: sink_info,
         limits: backend.limits(),

@@ -19,15 +19,47 @@ use std::time::Duration;
 use pipewire as pw;
 use pw::spa;
 use sdi_core::mode::ModeId;
+use sdi_core::view::{no_signal_card, PixelFormat};
+use spa::buffer::Data;
 use spa::param::video::VideoFormat;
 use spa::pod::{ChoiceValue, Object, Pod, Property, Value};
 use spa::utils::{Choice, ChoiceEnum, ChoiceFlags, Fraction, Id, Rectangle};
-use v4l2loopback_glue::{no_signal_grey, Converter, Src, YuyvPath};
 
 use sdi_camera_link::{
-    data_description, view_description, Port as PortId, Spec, State, Wire, DATA_NODE, FRAME_LOG,
-    VIEW_NODE,
+    data_description, view_description, Port, Spec, State, Wire, DATA_NODE, FRAME_LOG, VIEW_NODE,
 };
+
+/// Why the nodes could not be made; the messages are what the starting sdid
+/// reports.
+#[derive(Debug, thiserror::Error)]
+pub enum NodesError {
+    #[error("starting the PipeWire thread: {0}")]
+    Thread(#[source] std::io::Error),
+    #[error("PipeWire did not answer within {} s", CONNECT_TIMEOUT.as_secs())]
+    Timeout,
+    #[error("PipeWire: {what}: {source}")]
+    Pipewire {
+        what: &'static str,
+        #[source]
+        source: pw::Error,
+    },
+    #[error("no PipeWire daemon reachable at {socket}: {source}")]
+    Unreachable {
+        socket: String,
+        #[source]
+        source: pw::Error,
+    },
+    #[error("PipeWire stream {node}: {source}")]
+    Stream {
+        node: &'static str,
+        #[source]
+        source: pw::Error,
+    },
+    #[error("serializing a SPA pod: {0:?}")]
+    Pod(#[source] spa::pod::serialize::GenError),
+    #[error("PipeWire: invalid format pod")]
+    InvalidPod,
+}
 
 /// How long [`Nodes::open`] waits for the PipeWire thread to connect.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
@@ -42,12 +74,12 @@ fn spa_format(w: Wire) -> VideoFormat {
     }
 }
 
-/// The converter's name for a wire format.
-fn glue_format(w: Wire) -> v4l2loopback_glue::PixelFormat {
+/// The view's pixel format of a wire format.
+fn pixel_format(w: Wire) -> PixelFormat {
     match w {
-        Wire::Yuyv => v4l2loopback_glue::PixelFormat::Yuyv,
-        Wire::Rgb => v4l2loopback_glue::PixelFormat::Rgb24,
-        Wire::Y16 => v4l2loopback_glue::PixelFormat::Y16,
+        Wire::Yuyv => PixelFormat::Yuyv,
+        Wire::Rgb => PixelFormat::Rgb24,
+        Wire::Y16 => PixelFormat::Y16,
     }
 }
 
@@ -73,7 +105,7 @@ struct Slot {
 }
 
 /// One stream as both threads see it.
-struct Port {
+struct SharedStream {
     /// `Wire` code negotiated while a reader streams; 0 when nobody does.
     streaming: AtomicU8,
     slot: Mutex<Slot>,
@@ -81,7 +113,7 @@ struct Port {
     published: AtomicU64,
 }
 
-impl Port {
+impl SharedStream {
     fn new() -> Self {
         Self {
             streaming: AtomicU8::new(0),
@@ -101,8 +133,8 @@ impl Port {
 }
 
 struct Shared {
-    view: Port,
-    data: Port,
+    view: SharedStream,
+    data: SharedStream,
     /// A wake-up is queued on the loop's channel (keeps the channel at one message).
     woken: AtomicBool,
     /// Set by the loop when the PipeWire connection is lost.
@@ -110,10 +142,10 @@ struct Shared {
 }
 
 impl Shared {
-    fn port(&self, id: PortId) -> &Port {
-        match id {
-            PortId::View => &self.view,
-            PortId::Data => &self.data,
+    fn stream(&self, port: Port) -> &SharedStream {
+        match port {
+            Port::View => &self.view,
+            Port::Data => &self.data,
         }
     }
 }
@@ -143,21 +175,21 @@ impl Nodes {
     /// Connects to the PipeWire daemon of this user (`$PIPEWIRE_REMOTE`, else
     /// `$XDG_RUNTIME_DIR/pipewire-0`) and creates both nodes; fails when no
     /// daemon answers.
-    pub fn open(spec: &Spec) -> Result<Self, String> {
+    pub fn open(spec: &Spec) -> Result<Self, NodesError> {
         let shared = Arc::new(Shared {
-            view: Port::new(),
-            data: Port::new(),
+            view: SharedStream::new(),
+            data: SharedStream::new(),
             woken: AtomicBool::new(false),
             broken: AtomicBool::new(false),
         });
         let (tx, rx) = pw::channel::channel::<Msg>();
-        let (ready_tx, ready_rx) = mpsc::channel::<Result<(), String>>();
+        let (ready_tx, ready_rx) = mpsc::channel::<Result<(), NodesError>>();
         let loop_shared = shared.clone();
         let loop_spec = spec.clone();
         let thread = std::thread::Builder::new()
             .name("sdi-camera-pw".into())
             .spawn(move || run_loop(loop_spec, loop_shared, rx, ready_tx))
-            .map_err(|e| format!("starting the PipeWire thread: {e}"))?;
+            .map_err(NodesError::Thread)?;
         match ready_rx.recv_timeout(CONNECT_TIMEOUT) {
             Ok(Ok(())) => {}
             Ok(Err(e)) => {
@@ -166,20 +198,11 @@ impl Nodes {
             }
             Err(_) => {
                 let _ = tx.send(Msg::Quit);
-                return Err(format!(
-                    "PipeWire did not answer within {} s",
-                    CONNECT_TIMEOUT.as_secs()
-                ));
+                return Err(NodesError::Timeout);
             }
         }
-        let card = |w: u32, h: u32, wire: Wire| {
-            let (wu, hu) = (w as usize, h as usize);
-            let mut bytes = vec![0; wu * hu * wire.bytes_per_pixel()];
-            let grey = no_signal_grey(wu, hu);
-            let _ = Converter::new(w, h, glue_format(wire), YuyvPath::Scalar)
-                .grey8(Src::packed(&grey, wu, hu, 1), &mut bytes);
-            bytes
-        };
+        let card =
+            |w: u32, h: u32, wire: Wire| no_signal_card(pixel_format(wire), w as usize, h as usize);
         let no_signal_view = Wire::ALL
             .iter()
             .map(|&wire| (wire, card(spec.view_width, spec.view_height, wire)))
@@ -225,12 +248,12 @@ impl Nodes {
     /// nobody streams that format.
     pub fn offer<E>(
         &self,
-        port: PortId,
+        port: Port,
         wire: Wire,
         timestamp_us: u64,
         fill: impl FnOnce(&mut Vec<u8>) -> Result<(), E>,
     ) -> Result<bool, E> {
-        let port_state = self.shared.port(port);
+        let port_state = self.shared.stream(port);
         if port_state.wire() != Some(wire) {
             return Ok(false);
         }
@@ -257,11 +280,11 @@ impl Nodes {
     pub fn no_signal(&self, timestamp_us: u64) {
         if let Some(wire) = self.shared.view.wire() {
             if let Some((_, card)) = self.no_signal_view.iter().find(|(w, _)| *w == wire) {
-                let _ = self.offer(PortId::View, wire, timestamp_us, copy(card));
+                let _ = self.offer(Port::View, wire, timestamp_us, copy(card));
             }
         }
         let _ = self.offer(
-            PortId::Data,
+            Port::Data,
             Wire::Y16,
             timestamp_us,
             copy(&self.no_signal_data),
@@ -303,13 +326,13 @@ impl Drop for Nodes {
 }
 
 /// Serializes a pod object.
-fn pod_bytes(object: Object) -> Result<Vec<u8>, String> {
+fn pod_bytes(object: Object) -> Result<Vec<u8>, NodesError> {
     spa::pod::serialize::PodSerializer::serialize(
         std::io::Cursor::new(Vec::new()),
         &Value::Object(object),
     )
     .map(|(cursor, _)| cursor.into_inner())
-    .map_err(|e| format!("serializing a SPA pod: {e:?}"))
+    .map_err(NodesError::Pod)
 }
 
 /// The EnumFormats a stream offers: raw video at one size and rate, one
@@ -322,7 +345,7 @@ fn enum_formats(
     width: u32,
     height: u32,
     frame_rate_hz: u32,
-) -> Result<Vec<Vec<u8>>, String> {
+) -> Result<Vec<Vec<u8>>, NodesError> {
     use spa::param::format::{FormatProperties, MediaSubtype, MediaType};
     wires
         .iter()
@@ -352,7 +375,7 @@ fn enum_formats(
 }
 
 /// Buffers (count, one plane of `size_bytes`) and the header metadata (PTS).
-fn buffer_params(size_bytes: usize, stride_bytes: usize) -> Result<[Vec<u8>; 2], String> {
+fn buffer_params(size_bytes: usize, stride_bytes: usize) -> Result<[Vec<u8>; 2], NodesError> {
     use spa::sys;
     let int = |v: usize| Value::Int(i32::try_from(v).unwrap_or(i32::MAX));
     let (default, min, max) = BUFFERS;
@@ -413,7 +436,7 @@ fn monotonic_ns() -> i64 {
 }
 
 /// Copies `port`'s pending frame into a free buffer of `stream` and queues it.
-fn publish(stream: &pw::stream::Stream, port: &Port, state: &mut StreamState) {
+fn publish(stream: &pw::stream::Stream, port: &SharedStream, state: &mut StreamState) {
     let Some(frame) = port.slot().pending.take() else {
         return;
     };
@@ -421,12 +444,16 @@ fn publish(stream: &pw::stream::Stream, port: &Port, state: &mut StreamState) {
     if state.wire != Some(frame.0.wire) {
         return;
     }
+    // Taken raw, not as the crate's `Buffer`: its `find_meta` gives the
+    // header metadata read-only, and the PTS has to be written there.
     // SAFETY: dequeue on the loop thread that owns the stream; a null result
     // (no free buffer: the reader holds them all) is checked below.
     let pwb = unsafe { stream.dequeue_raw_buffer() };
     if pwb.is_null() {
         return;
     }
+    // SAFETY: `pwb` came from dequeue and is ours until queued below.
+    let buf = unsafe { (*pwb).buffer };
     let bytes = &frame.0.bytes;
     let stride = state.width as usize * frame.0.wire.bytes_per_pixel();
     // PTS is the capture time (spa_meta_header.pts: ns, CLOCK_MONOTONIC),
@@ -440,37 +467,24 @@ fn publish(stream: &pw::stream::Stream, port: &Port, state: &mut StreamState) {
     state.last_pts_ns = pts_ns;
     state.seq += 1;
     let mut written = 0;
-    // SAFETY: `pwb` came from dequeue and is ours until queued; its spa_buffer,
-    // data planes, chunks and metas are set up by PipeWire for the negotiated
-    // Buffers/Meta params; MAP_BUFFERS maps `data` for `maxsize` bytes. We
-    // write at most `maxsize` bytes and check every pointer for null.
-    unsafe {
-        let buf = (*pwb).buffer;
-        if !buf.is_null() && (*buf).n_datas >= 1 && !(*buf).datas.is_null() {
-            let d = &mut *(*buf).datas;
-            if !d.data.is_null() && !d.chunk.is_null() {
-                written = bytes.len().min(d.maxsize as usize);
-                std::ptr::copy_nonoverlapping(bytes.as_ptr(), d.data.cast::<u8>(), written);
-                let chunk = &mut *d.chunk;
-                chunk.offset = 0;
-                chunk.size = written as u32;
-                chunk.stride = stride as i32;
-                chunk.flags = 0;
+    if !buf.is_null() {
+        // SAFETY: PipeWire set `buf` up for the negotiated Buffers param:
+        // `datas` holds `n_datas` planes, valid and ours while we hold `pwb`.
+        // libspa's `Data` is `repr(transparent)` over `spa_data`, the cast
+        // its own `Buffer::datas_mut` makes.
+        let planes: &mut [Data] = unsafe {
+            let n = (*buf).n_datas as usize;
+            match (*buf).datas.cast::<Data>() {
+                d if d.is_null() || n == 0 => &mut [],
+                d => std::slice::from_raw_parts_mut(d, n),
             }
-            let h = spa::sys::spa_buffer_find_meta_data(
-                buf,
-                spa::sys::SPA_META_Header,
-                std::mem::size_of::<spa::sys::spa_meta_header>(),
-            )
-            .cast::<spa::sys::spa_meta_header>();
-            if !h.is_null() {
-                (*h).flags = 0;
-                (*h).offset = 0;
-                (*h).pts = pts_ns;
-                (*h).dts_offset = 0;
-                (*h).seq = state.seq;
-            }
+        };
+        if let Some(plane) = planes.first_mut() {
+            written = fill_plane(plane, bytes, stride);
         }
+        // SAFETY: `buf` is valid while we hold `pwb`; PipeWire's lookup
+        // returns a header of at least the size asked for, or null.
+        unsafe { stamp_header(buf, pts_ns, state.seq) };
     }
     if tracing::enabled!(target: FRAME_LOG, tracing::Level::TRACE) {
         tracing::trace!(
@@ -492,8 +506,53 @@ fn publish(stream: &pw::stream::Stream, port: &Port, state: &mut StreamState) {
     port.published.fetch_add(1, Ordering::Relaxed);
 }
 
+/// Copies `bytes` into a mapped plane (MAP_BUFFERS maps it for `maxsize`
+/// bytes) and describes them in its chunk; the bytes written.
+fn fill_plane(plane: &mut Data, bytes: &[u8], stride_bytes: usize) -> usize {
+    // `chunk_mut` asserts a chunk; PipeWire gives every plane one.
+    if plane.as_raw().chunk.is_null() {
+        return 0;
+    }
+    let Some(dst) = plane.data() else {
+        return 0;
+    };
+    let written = bytes.len().min(dst.len());
+    dst[..written].copy_from_slice(&bytes[..written]);
+    let chunk = plane.chunk_mut();
+    *chunk.offset_mut() = 0;
+    *chunk.size_mut() = written as u32;
+    *chunk.stride_mut() = stride_bytes as i32;
+    written
+}
+
+/// Writes the frame's PTS and sequence number into the buffer's header
+/// metadata (the Meta param asks for one); the safe API only reads it.
+///
+/// # Safety
+///
+/// `buf` is a valid `spa_buffer` of a dequeued, not yet queued, buffer.
+unsafe fn stamp_header(buf: *mut spa::sys::spa_buffer, pts_ns: i64, seq: u64) {
+    // SAFETY: the caller's contract; the lookup checks the header's size.
+    let h = unsafe {
+        spa::sys::spa_buffer_find_meta_data(
+            buf,
+            spa::sys::SPA_META_Header,
+            std::mem::size_of::<spa::sys::spa_meta_header>(),
+        )
+    }
+    .cast::<spa::sys::spa_meta_header>();
+    // SAFETY: non-null: a header of the asked size inside the buffer's metas.
+    if let Some(h) = unsafe { h.as_mut() } {
+        h.flags = 0;
+        h.offset = 0;
+        h.pts = pts_ns;
+        h.dts_offset = 0;
+        h.seq = seq;
+    }
+}
+
 /// Returns the frame's allocation to the slot when dropped.
-struct Returned<'a>(Pending, &'a Port);
+struct Returned<'a>(Pending, &'a SharedStream);
 
 impl Drop for Returned<'_> {
     fn drop(&mut self) {
@@ -505,7 +564,8 @@ impl Drop for Returned<'_> {
     }
 }
 
-/// Sets a stream's node description.
+/// Sets a stream's node description (raw: the crate's `Stream` has no
+/// `update_properties`).
 fn describe(stream: &pw::stream::Stream, description: &str) {
     let props = pw::properties::properties! { *pw::keys::NODE_DESCRIPTION => description };
     // SAFETY: the stream is alive and used on its loop thread; the dict is
@@ -524,11 +584,11 @@ fn run_loop(
     spec: Spec,
     shared: Arc<Shared>,
     rx: pw::channel::Receiver<Msg>,
-    ready: mpsc::Sender<Result<(), String>>,
+    ready: mpsc::Sender<Result<(), NodesError>>,
 ) {
     pw::init();
     let ready = RefCell::new(Some(ready));
-    let report = |r: Result<(), String>| {
+    let report = |r: Result<(), NodesError>| {
         if let Some(tx) = ready.borrow_mut().take() {
             let _ = tx.send(r);
         }
@@ -546,20 +606,20 @@ fn serve(
     spec: &Spec,
     shared: &Arc<Shared>,
     rx: pw::channel::Receiver<Msg>,
-    report: &dyn Fn(Result<(), String>),
-) -> Result<(), String> {
-    fn err(what: &'static str) -> impl Fn(pw::Error) -> String {
-        move |e| format!("PipeWire: {what}: {e}")
+    report: &dyn Fn(Result<(), NodesError>),
+) -> Result<(), NodesError> {
+    fn err(what: &'static str) -> impl Fn(pw::Error) -> NodesError {
+        move |source| NodesError::Pipewire { what, source }
     }
     let mainloop = pw::main_loop::MainLoopRc::new(None).map_err(err("creating the loop"))?;
     let context =
         pw::context::ContextRc::new(&mainloop, None).map_err(err("creating a context"))?;
-    let core = context.connect_rc(None).map_err(|e| {
+    let core = context.connect_rc(None).map_err(|source| {
         let socket = std::env::var("PIPEWIRE_REMOTE").unwrap_or_else(|_| {
             std::env::var("XDG_RUNTIME_DIR")
                 .map_or("(no XDG_RUNTIME_DIR)".into(), |d| format!("{d}/pipewire-0"))
         });
-        format!("no PipeWire daemon reachable at {socket}: {e}")
+        NodesError::Unreachable { socket, source }
     })?;
     let lost = {
         let (shared, mainloop) = (shared.clone(), mainloop.downgrade());
@@ -670,9 +730,10 @@ fn make_stream(
     core: &pw::core::CoreRc,
     shared: &Arc<Shared>,
     spec: StreamSpec,
-    port_of: fn(&Shared) -> &Port,
-) -> Result<MadeStream, String> {
-    let err = |e: pw::Error| format!("PipeWire stream {}: {e}", spec.node);
+    port_of: fn(&Shared) -> &SharedStream,
+) -> Result<MadeStream, NodesError> {
+    let node = spec.node;
+    let err = |source: pw::Error| NodesError::Stream { node, source };
     let mut props = pw::properties::properties! {
         *pw::keys::MEDIA_TYPE => "Video",
         *pw::keys::MEDIA_CATEGORY => "Capture",
@@ -766,7 +827,7 @@ fn make_stream(
     let formats = enum_formats(spec.wires, spec.width, spec.height, spec.frame_rate_hz)?;
     let mut pods = formats
         .iter()
-        .map(|f| Pod::from_bytes(f).ok_or("PipeWire: invalid format pod"))
+        .map(|f| Pod::from_bytes(f).ok_or(NodesError::InvalidPod))
         .collect::<Result<Vec<&Pod>, _>>()?;
     stream
         .connect(

@@ -13,6 +13,7 @@ use std::io::Write;
 use std::os::fd::AsFd;
 use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
 use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -26,7 +27,49 @@ use nix::sys::socket::{getsockopt, sockopt::PeerCredentials};
 
 use sdi_camera_link::{self as link, LinkError, Message, Port, Spec, State, Wire, LINGER};
 
-use crate::nodes::{monotonic_now_us, Nodes};
+use crate::nodes::{monotonic_now_us, Nodes, NodesError};
+
+/// Why the camera process stops serving; the messages are the reasons the
+/// starting sdid reports (before the ready line) or the log shows.
+#[derive(Debug, thiserror::Error)]
+enum ServeError {
+    #[error("the camera spec argument is missing")]
+    NoSpec,
+    /// The spec argument does not parse.
+    #[error("{0}")]
+    Spec(String),
+    /// No runtime directory for the lock and the socket.
+    #[error("{0}")]
+    RuntimeDir(String),
+    #[error("{}: {source}", path.display())]
+    Lock {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("locking {}: {source}", path.display())]
+    Locking {
+        path: PathBuf,
+        #[source]
+        source: Errno,
+    },
+    #[error(transparent)]
+    Nodes(#[from] NodesError),
+    #[error("binding {}: {source}", path.display())]
+    Bind {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("{}: {source}", path.display())]
+    Socket {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("the PipeWire connection was lost")]
+    ConnectionLost,
+}
 /// The "no signal" card's period while sdid is away (sdid's own rate).
 const NO_SIGNAL_PERIOD: Duration = Duration::from_millis(200);
 /// The main loop's tick: state reports, the card, the linger check (a
@@ -46,8 +89,8 @@ pub fn main(spec: Option<OsString>) -> ExitCode {
         .map(str::parse::<Spec>)
     {
         Some(Ok(s)) => s,
-        Some(Err(e)) => return fail(&e),
-        None => return fail("the camera spec argument is missing"),
+        Some(Err(e)) => return fail(&ServeError::Spec(e)),
+        None => return fail(&ServeError::NoSpec),
     };
     match run(spec) {
         Ok(()) => ExitCode::SUCCESS,
@@ -60,7 +103,7 @@ pub fn main(spec: Option<OsString>) -> ExitCode {
 /// next, e.g. falls back to y4m).
 static SERVING: AtomicBool = AtomicBool::new(false);
 
-fn fail(why: &str) -> ExitCode {
+fn fail(why: &ServeError) -> ExitCode {
     if SERVING.load(Ordering::Relaxed) {
         tracing::warn!("PipeWire camera: {why}");
     } else {
@@ -76,8 +119,8 @@ fn announce(line: &str) {
     let _ = out.flush();
 }
 
-fn run(spec: Spec) -> Result<(), String> {
-    let dir = link::runtime_dir()?;
+fn run(spec: Spec) -> Result<(), ServeError> {
+    let dir = link::runtime_dir().map_err(ServeError::RuntimeDir)?;
     let lock_path = dir.join(link::LOCK_NAME);
     let lock_file = OpenOptions::new()
         .create(true)
@@ -86,7 +129,10 @@ fn run(spec: Spec) -> Result<(), String> {
         .mode(0o600)
         .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC)
         .open(&lock_path)
-        .map_err(|e| format!("{}: {e}", lock_path.display()))?;
+        .map_err(|source| ServeError::Lock {
+            path: lock_path.clone(),
+            source,
+        })?;
     let _lock = match Flock::lock(lock_file, FlockArg::LockExclusiveNonblock) {
         Ok(l) => l,
         Err((_, Errno::EWOULDBLOCK)) => {
@@ -94,18 +140,28 @@ fn run(spec: Spec) -> Result<(), String> {
             announce(link::BUSY_LINE);
             return Ok(());
         }
-        Err((_, e)) => return Err(format!("locking {}: {e}", lock_path.display())),
+        Err((_, source)) => {
+            return Err(ServeError::Locking {
+                path: lock_path,
+                source,
+            })
+        }
     };
     let nodes = Arc::new(Nodes::open(&spec)?);
     let sock = dir.join(link::SOCKET_NAME);
     // Left over from a camera that was killed (we hold the lock now).
     let _ = std::fs::remove_file(&sock);
-    let listener =
-        UnixListener::bind(&sock).map_err(|e| format!("binding {}: {e}", sock.display()))?;
+    let listener = UnixListener::bind(&sock).map_err(|source| ServeError::Bind {
+        path: sock.clone(),
+        source,
+    })?;
     let _ = std::fs::set_permissions(&sock, std::fs::Permissions::from_mode(0o600));
     listener
         .set_nonblocking(true)
-        .map_err(|e| format!("{}: {e}", sock.display()))?;
+        .map_err(|source| ServeError::Socket {
+            path: sock.clone(),
+            source,
+        })?;
     tracing::info!(socket = %sock.display(), spec = %spec, "PipeWire camera serving");
     announce(link::READY_LINE);
     SERVING.store(true, Ordering::Relaxed);
@@ -125,7 +181,7 @@ struct Feed {
     reported_at: Instant,
 }
 
-fn serve(listener: &UnixListener, nodes: &Arc<Nodes>) -> Result<(), String> {
+fn serve(listener: &UnixListener, nodes: &Arc<Nodes>) -> Result<(), ServeError> {
     let quit = Arc::new(AtomicBool::new(false));
     let mut feed: Option<Feed> = None;
     let mut away_since = Instant::now();
@@ -143,7 +199,7 @@ fn serve(listener: &UnixListener, nodes: &Arc<Nodes>) -> Result<(), String> {
             Err(e) => tracing::warn!("accepting sdid: {e}"),
         }
         if nodes.broken() {
-            return Err("the PipeWire connection was lost".into());
+            return Err(ServeError::ConnectionLost);
         }
         if quit.load(Ordering::Acquire) {
             tracing::info!("PipeWire camera: asked to quit");

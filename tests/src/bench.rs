@@ -7,9 +7,8 @@ use std::process::Command;
 use std::time::Instant;
 
 use nix::sys::resource::{getrusage, UsageWho};
-use v4l2loopback_glue::{
-    Converter, IoMethod, LoopbackFormat, LoopbackWriter, PixelFormat, Src, YuyvPath,
-};
+use sdi_core::view::{Packer, Src};
+use v4l2loopback_glue::{IoMethod, LoopbackFormat, LoopbackWriter, PixelFormat};
 
 fn cpu_s(who: UsageWho) -> f64 {
     getrusage(who).map_or(0.0, |u| {
@@ -26,15 +25,27 @@ fn ours(dev: &str, cfg: LoopbackFormat, frames: u32, packed: bool) -> (f64, f64)
     let rgb: Vec<u8> = (0..wd * ht * 3).map(|i| (i % 251) as u8).collect();
     let dn: Vec<f32> = (0..wd * ht).map(|i| (i % 4000) as f32 - 2000.0).collect();
     let raw = vec![0x55u8; cfg.frame_bytes()];
+    let packer = Packer::new(wd, ht, cfg.format);
+    let mut frame = vec![0u8; cfg.frame_bytes()];
     let (c0, t0) = (cpu_s(UsageWho::RUSAGE_THREAD), Instant::now());
     for k in 0..frames {
         let ts = u64::from(k) * 33_333;
-        match cfg.format {
-            _ if packed => w.write(v4l2loopback_glue::Input::Packed(&raw), ts),
-            PixelFormat::Y16 => w.write_signed_y16(&dn, ts),
-            _ => w.write_rgb8(&rgb, ts),
-        }
-        .expect("write frame");
+        let bytes = match cfg.format {
+            _ if packed => &raw,
+            PixelFormat::Y16 => {
+                packer
+                    .signed_dn(Src::packed(&dn, wd, ht, 1), &mut frame)
+                    .expect("pack Y16");
+                &frame
+            }
+            _ => {
+                packer
+                    .rgb8(Src::packed(&rgb, wd, ht, 3), &mut frame)
+                    .expect("pack RGB");
+                &frame
+            }
+        };
+        w.write(bytes, ts).expect("write frame");
     }
     let (dt, dc) = (
         t0.elapsed().as_secs_f64(),
@@ -101,28 +112,26 @@ fn ffmpeg(dev: &str, cfg: LoopbackFormat, raw: &Path, frames: u32) -> (f64, f64,
     )
 }
 
-/// RGB->YUYV conversion alone: scalar loop vs yuvutils-rs (ms per frame).
-pub fn converters(frames: u32) -> (f64, f64) {
+/// RGB->YUYV packing alone (ms per frame).
+pub fn converter(frames: u32) -> f64 {
     let (w, h) = (640usize, 480usize);
     let rgb: Vec<u8> = (0..w * h * 3).map(|i| (i % 251) as u8).collect();
     let mut out = vec![0u8; w * h * 2];
-    let mut time = |path| {
-        let mut c = Converter::new(640, 480, PixelFormat::Yuyv, path);
-        let t0 = Instant::now();
-        for _ in 0..frames {
-            c.rgb8(Src::packed(&rgb, w, h, 3), &mut out)
-                .expect("convert");
-        }
-        t0.elapsed().as_secs_f64() * 1e3 / f64::from(frames)
-    };
-    (time(YuyvPath::Scalar), time(YuyvPath::Simd))
+    let packer = Packer::new(w, h, PixelFormat::Yuyv);
+    let t0 = Instant::now();
+    for _ in 0..frames {
+        packer
+            .rgb8(Src::packed(&rgb, w, h, 3), &mut out)
+            .expect("convert");
+    }
+    t0.elapsed().as_secs_f64() * 1e3 / f64::from(frames)
 }
 
 /// Runs all cases; `dev_ours` and `dev_ffmpeg` are separate nodes per
 /// format pair: ours uses `{dev}` for YUYV and the next number for Y16.
 pub fn run(dev_ours: &str, dev_ffmpeg: &str, frames: u32) {
-    let (scalar, simd) = converters(frames);
-    println!("convert RGB8->YUYV 640x480: scalar {scalar:.3} ms/frame, yuvutils {simd:.3} ms/frame (scalar/simd = {:.2})", scalar / simd);
+    let ms = converter(frames);
+    println!("convert RGB8->YUYV 640x480: {ms:.3} ms/frame");
     let next = |d: &str| {
         let n: u32 = d
             .trim_start_matches("/dev/video")

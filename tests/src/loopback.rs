@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use v4l2loopback_glue::{GlueError, Input, LoopbackFormat, LoopbackWriter, Src};
+use v4l2loopback_glue::{GlueError, LoopbackFormat, LoopbackWriter};
 
 /// Which v4l2loopback build a VM test loads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -227,18 +227,11 @@ pub fn modprobe(nodes: &[(u32, &str)]) {
     }
 }
 
-/// What the background writer publishes each frame.
-#[derive(Clone)]
-pub enum Pattern {
-    Rgb8(Vec<u8>),
-    Grey8(Vec<u8>),
-    SignedDn(Vec<f32>),
-}
-
 /// `LoopbackWriter::watchers()` as last seen by the writer thread.
 const WATCHERS_UNKNOWN: u32 = u32::MAX;
 
-/// A writer thread publishing `patterns` in turn at `fps` until stopped,
+/// A writer thread publishing `frames` (packed in the node's format) in
+/// turn at `fps` until stopped,
 /// stamped with CLOCK_MONOTONIC (the clock V4L2 timestamps use) and paced
 /// to deadlines, so a slow frame does not lower the rate.
 pub struct BackgroundWriter {
@@ -257,26 +250,20 @@ pub fn monotonic_us() -> u64 {
 impl BackgroundWriter {
     /// Takes a writer opened on this thread (so open errors surface here)
     /// and moves it to a thread.
-    pub fn start(mut writer: LoopbackWriter, patterns: Vec<Pattern>) -> Self {
-        assert!(!patterns.is_empty(), "no frames to write");
+    pub fn start(mut writer: LoopbackWriter, frames: Vec<Vec<u8>>) -> Self {
+        assert!(!frames.is_empty(), "no frames to write");
         let stop = Arc::new(AtomicBool::new(false));
         let watchers = Arc::new(AtomicU32::new(WATCHERS_UNKNOWN));
         let (flag, seen) = (stop.clone(), watchers.clone());
         let cfg = writer.config();
-        let (w, h) = (cfg.width as usize, cfg.height as usize);
         let handle = std::thread::spawn(move || {
             let period = Duration::from_micros(1_000_000 / u64::from(cfg.fps));
             let mut deadline = Instant::now();
-            for pattern in patterns.iter().cycle() {
+            for frame in frames.iter().cycle() {
                 if flag.load(Ordering::Relaxed) {
                     break;
                 }
-                let input = match pattern {
-                    Pattern::Rgb8(d) => Input::Rgb8(Src::packed(d, w, h, 3)),
-                    Pattern::Grey8(d) => Input::Grey8(Src::packed(d, w, h, 1)),
-                    Pattern::SignedDn(d) => Input::SignedDn(Src::packed(d, w, h, 1)),
-                };
-                writer.write(input, monotonic_us())?;
+                writer.write(frame, monotonic_us())?;
                 seen.store(
                     writer.watchers().unwrap_or(WATCHERS_UNKNOWN),
                     Ordering::Relaxed,

@@ -13,10 +13,8 @@ use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
 use sdi_core::modulation::Illumination;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
+use sdi_core::view::{Packer, PixelFormat, Src};
 use sdi_core::{Frame, Image};
-use v4l2loopback_glue::{Converter, PixelFormat, Src, YuyvPath};
-
-use crate::loopback::Pattern;
 
 /// `n` processed simulator frames (signed DN, sensor size).
 pub struct SimFrames {
@@ -69,40 +67,36 @@ impl SimFrames {
         }
     }
 
-    /// What a writer hands the glue for `format`, one per frame, and the
-    /// bytes each must arrive as (converted independently of the writer).
-    pub fn patterns(&self, format: PixelFormat) -> (Vec<Pattern>, Vec<Vec<u8>>) {
+    /// The frames packed in `format`, one per simulator frame: what a
+    /// writer hands the glue and each must arrive as on the node.
+    pub fn patterns(&self, format: PixelFormat) -> Vec<Vec<u8>> {
         let (w, h) = (self.width, self.height);
-        let mut conv = Converter::new(w as u32, h as u32, format, YuyvPath::fastest());
-        let mut inputs = Vec::new();
-        let mut expected = Vec::new();
+        let packer = Packer::new(w, h, format);
+        let mut frames = Vec::new();
         for img in &self.frames {
             let mut bytes = vec![0u8; w * h * format.bytes_per_pixel()];
-            let p = match format {
-                PixelFormat::Y16 => {
-                    conv.signed_dn(Src::packed(&img.data, w, h, 1), &mut bytes)
-                        .expect("pack Y16");
-                    Pattern::SignedDn(img.data.clone())
-                }
+            match format {
+                PixelFormat::Y16 => packer
+                    .signed_dn(Src::packed(&img.data, w, h, 1), &mut bytes)
+                    .expect("pack Y16"),
                 PixelFormat::Grey => {
                     let mut g = vec![0u8; w * h];
                     self.display.render_grey8(img, &mut g);
-                    conv.grey8(Src::packed(&g, w, h, 1), &mut bytes)
-                        .expect("pack GREY");
-                    Pattern::Grey8(g)
+                    packer
+                        .grey8(Src::packed(&g, w, h, 1), &mut bytes)
+                        .expect("pack GREY")
                 }
                 PixelFormat::Yuyv | PixelFormat::Rgb24 => {
                     let mut rgb = vec![0u8; w * h * 3];
                     self.display.render_rgb8(img, &mut rgb);
-                    conv.rgb8(Src::packed(&rgb, w, h, 3), &mut bytes)
-                        .expect("pack RGB");
-                    Pattern::Rgb8(rgb)
+                    packer
+                        .rgb8(Src::packed(&rgb, w, h, 3), &mut bytes)
+                        .expect("pack RGB")
                 }
-            };
-            inputs.push(p);
-            expected.push(bytes);
+            }
+            frames.push(bytes);
         }
-        (inputs, expected)
+        frames
     }
 }
 

@@ -293,7 +293,7 @@ fn pipewire_camera_node_frames_mode_switch_and_restart() {
 
 /// The no-signal card as RGB at the view size.
 fn no_signal_rgb() -> Vec<u8> {
-    v4l2loopback_glue::no_signal_grey(VIEW_W, VIEW_H)
+    sdi_core::view::no_signal_grey(VIEW_W, VIEW_H)
         .iter()
         .flat_map(|&g| [g, g, g])
         .collect()

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::time::Duration;
 
-use sdi_tests::loopback::{self, BackgroundWriter, Compliance, ModuleBuild, ModuleParams, Pattern};
+use sdi_tests::loopback::{self, BackgroundWriter, Compliance, ModuleBuild, ModuleParams};
 use sdi_tests::sim_frames::{checksum, SimFrames};
 use sdi_tests::vm;
 use v4l2loopback_glue::{
@@ -89,7 +89,8 @@ fn check_round_trip(
         assert_eq!(writer.features().buffers, ring, "{format}: ring");
     }
     let card = checksum(writer.no_signal_frame());
-    let (patterns, expected) = sim.patterns(format);
+    let expected = sim.patterns(format);
+    let patterns = expected.clone();
     let index: HashMap<u64, usize> = expected
         .iter()
         .enumerate()
@@ -231,12 +232,7 @@ fn check_small_reader_ring(nr: u32) {
                     break;
                 }
                 frame[..4].copy_from_slice(&k.to_le_bytes());
-                writer
-                    .write(
-                        v4l2loopback_glue::Input::Packed(&frame),
-                        u64::from(k) * 33_333,
-                    )
-                    .unwrap();
+                writer.write(&frame, u64::from(k) * 33_333).unwrap();
                 written.store(k, Ordering::SeqCst);
                 std::thread::sleep(Duration::from_millis(20));
             }
@@ -462,15 +458,13 @@ fn module_checks(build: ModuleBuild, sim: &SimFrames, tmp: &Path) {
     );
     assert_eq!(f.client_usage_event, view.version.has_client_usage_event());
     let mut rgb = vec![0u8; 640 * 480 * 3];
-    sdi_daemon::sink::loopback::letterbox(
-        &sim_rgb(sim),
-        W as usize,
-        H as usize,
-        &mut rgb,
-        640,
-        480,
-    );
-    let bg = BackgroundWriter::start(writer, vec![Pattern::Rgb8(rgb)]);
+    sdi_core::view::letterbox_rgb8(&sim_rgb(sim), W as usize, H as usize, &mut rgb, 640, 480);
+    let view_cfg = writer.config();
+    let mut packed = vec![0u8; view_cfg.frame_bytes()];
+    sdi_core::view::Packer::new(640, 480, view_cfg.format)
+        .rgb8(sdi_core::view::Src::packed(&rgb, 640, 480, 3), &mut packed)
+        .expect("pack the view frame");
+    let bg = BackgroundWriter::start(writer, vec![packed]);
     let capture_ready = (0..100).any(|_| {
         std::thread::sleep(Duration::from_millis(50));
         loopback::advertises_capture(&view.path)
@@ -586,10 +580,7 @@ fn check_daemon_output(version: ModuleVersion) {
 
 /// The first simulator frame through the display mapping, RGB8.
 fn sim_rgb(sim: &SimFrames) -> Vec<u8> {
-    match sim.patterns(PixelFormat::Rgb24).0.swap_remove(0) {
-        Pattern::Rgb8(rgb) => rgb,
-        _ => unreachable!("RGB24 patterns are RGB8"),
-    }
+    sim.patterns(PixelFormat::Rgb24).swap_remove(0)
 }
 
 fn in_vm_checks() {

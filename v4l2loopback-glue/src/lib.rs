@@ -8,8 +8,8 @@
 //! # fn main() -> Result<(), v4l2loopback_glue::GlueError> {
 //! let dev = find_device("SDI view")?; // path + module version
 //! let mut view = LoopbackWriter::open(&dev.path, LoopbackFormat::view(30))?;
-//! let rgb = vec![0u8; 640 * 480 * 3];
-//! view.write_rgb8(&rgb, 1_000_000)?; // sensor timestamp in µs
+//! let yuyv = vec![0u8; 640 * 480 * 2]; // packed by sdi_core::view
+//! view.write(&yuyv, 1_000_000)?; // sensor timestamp in µs
 //! view.write_no_signal(1_033_333)?; // sensor paused: after the last frame
 //! let _watchers: Option<u32> = view.watchers(); // None on 0.12.x
 //! # Ok(()) }
@@ -30,8 +30,9 @@
 //! * Two profiles: [`LoopbackFormat::view`] (YUYV 640x480, browser-safe) and
 //!   [`LoopbackFormat::raw`] (Y16 at the sensor size; signed DN are stored as
 //!   `dn + 32768`, see [`PixelFormat::Y16`]).
-//! * Inputs are plain slices with width/height/stride ([`Src`], [`Input`]):
-//!   RGB8, grey8, signed DN as f32. No allocation per frame.
+//! * Frames arrive packed in the node's format: the glue does device I/O
+//!   only, rendering and colour conversion are `sdi_core::view`'s. No
+//!   allocation per frame.
 //! * Errors are typed ([`GlueError`]): EBUSY, EINVAL, ENODEV, a locked format
 //!   under streaming readers, a missing module (with its modprobe command).
 //!
@@ -46,7 +47,6 @@
 //! OpenCV, v4l2-compliance and the browsers.
 
 mod capture;
-mod convert;
 mod device;
 mod error;
 mod format;
@@ -54,11 +54,10 @@ mod sys;
 mod writer;
 
 pub use capture::{capture_format, driver_of, CaptureFormat, CaptureReader, Captured};
-pub use convert::{dn_to_y16, Converter, Src, YuyvPath};
 pub use device::{
     control_version, create_device, find_device, modprobe_command, query_device, remove_device,
     video_nr, CreateOptions, LoopbackDevice, ModuleVersion, NodeInfo,
 };
 pub use error::GlueError;
 pub use format::{IoMethod, LoopbackFormat, PixelFormat, Y16_ZERO_DN};
-pub use writer::{no_signal_grey, DriverFeatures, Input, LoopbackWriter};
+pub use writer::{DriverFeatures, LoopbackWriter};

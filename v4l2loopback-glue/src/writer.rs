@@ -9,12 +9,12 @@ use std::path::{Path, PathBuf};
 
 use nix::errno::Errno;
 
-use crate::convert::{Converter, Src, YuyvPath};
 use crate::device::ModuleVersion;
 use crate::error::err;
 use crate::format::{IoMethod, LoopbackFormat, PixelFormat};
 use crate::sys;
 use crate::GlueError;
+use sdi_core::view::no_signal_card;
 
 /// Driver buffers requested for mmap streaming; the writer's request sets
 /// the node's ring, which readers share. v4l2loopback grants at most its
@@ -35,19 +35,6 @@ const MMAP_BUFFERS: u32 = 10;
 const MMAP_BUFFERS_UNLOCKED_QUEUE: u32 = 4;
 /// Driver name reported by VIDIOC_QUERYCAP.
 const LOOPBACK_DRIVER: &str = "v4l2 loopback";
-
-/// One source image handed to [`LoopbackWriter::write`].
-#[derive(Clone, Copy, Debug)]
-pub enum Input<'a> {
-    /// Interleaved RGB8.
-    Rgb8(Src<'a, u8>),
-    /// 8-bit grey, full range.
-    Grey8(Src<'a, u8>),
-    /// Signed difference image in DN.
-    SignedDn(Src<'a, f32>),
-    /// Bytes already packed in the output format (exactly `frame_bytes`).
-    Packed(&'a [u8]),
-}
 
 enum Io {
     /// Driver buffers, filled round-robin (`next` is the next index).
@@ -74,9 +61,8 @@ enum Io {
         offsets: Vec<u32>,
         next: usize,
     },
-    Write {
-        frame: Vec<u8>,
-    },
+    /// Plain `write()` of the caller's frame.
+    Write,
 }
 
 /// Which optional driver features took effect at open.
@@ -116,7 +102,6 @@ pub struct LoopbackWriter {
     config: LoopbackFormat,
     io: Io,
     io_method: IoMethod,
-    conv: Converter,
     no_signal: Vec<u8>,
     version: Option<ModuleVersion>,
     features: DriverFeatures,
@@ -150,40 +135,11 @@ fn describe(fmt: &sys::v4l2_pix_format) -> String {
     )
 }
 
-/// The "no signal" card: 32-pixel checkerboard of two dark greys with a
-/// bright horizontal bar through the middle.
-/// The "no signal" card in 8-bit grey: a checkerboard with a bright bar.
-pub fn no_signal_grey(width: usize, height: usize) -> Vec<u8> {
-    let mut img = vec![0u8; width * height];
-    for (y, row) in img.chunks_exact_mut(width).enumerate() {
-        let bar = y >= height * 7 / 16 && y < height * 9 / 16;
-        for (x, p) in row.iter_mut().enumerate() {
-            *p = if bar {
-                200
-            } else if (x / 32 + y / 32) % 2 == 0 {
-                40
-            } else {
-                72
-            };
-        }
-    }
-    img
-}
-
 impl LoopbackWriter {
     /// Opens `path`, negotiates `config` (S_FMT on the output type, S_PARM),
-    /// starts streaming and shows the "no signal" card, so readers can start
-    /// at once.
+    /// starts streaming and shows the "no signal" card
+    /// ([`sdi_core::view::no_signal_card`]), so readers can start at once.
     pub fn open(path: impl AsRef<Path>, config: LoopbackFormat) -> Result<Self, GlueError> {
-        Self::open_with(path, config, YuyvPath::fastest())
-    }
-
-    /// [`open`](Self::open) with an explicit RGB->YUYV implementation.
-    pub fn open_with(
-        path: impl AsRef<Path>,
-        config: LoopbackFormat,
-        yuyv_path: YuyvPath,
-    ) -> Result<Self, GlueError> {
         let path = path.as_ref().to_path_buf();
         config
             .validate()
@@ -215,9 +171,8 @@ impl LoopbackWriter {
             file,
             path,
             config,
-            io: Io::Write { frame: Vec::new() },
+            io: Io::Write,
             io_method: IoMethod::Write,
-            conv: Converter::new(config.width, config.height, config.format, yuyv_path),
             no_signal: Vec::new(),
             version: ModuleVersion::of_loaded_module().ok(),
             features: DriverFeatures::default(),
@@ -326,10 +281,7 @@ impl LoopbackWriter {
             let ty = sys::V4L2_BUF_TYPE_VIDEO_OUTPUT as libc::c_int;
             sys::streamon(self.file.as_fd(), &ty).map_err(err("VIDIOC_STREAMON"))?;
         }
-        let grey = no_signal_grey(cfg.width as usize, cfg.height as usize);
-        self.no_signal = vec![0; cfg.frame_bytes()];
-        let src = Src::packed(&grey, cfg.width as usize, cfg.height as usize, 1);
-        self.conv.grey8(src, &mut self.no_signal)?;
+        self.no_signal = no_signal_card(cfg.format, cfg.width as usize, cfg.height as usize);
         Ok(())
     }
 
@@ -343,9 +295,7 @@ impl LoopbackWriter {
 
     fn write_io(&mut self) -> Io {
         self.io_method = IoMethod::Write;
-        Io::Write {
-            frame: vec![0; self.config.frame_bytes()],
-        }
+        Io::Write
     }
 
     /// The driver's output buffers mapped, with the mmap offset of each.
@@ -487,16 +437,9 @@ impl LoopbackWriter {
         self.set_control(sys::CID_KEEP_FORMAT, 0);
         let old = self.config;
         self.config = config;
-        self.conv = Converter::new(
-            config.width,
-            config.height,
-            config.format,
-            YuyvPath::fastest(),
-        );
         if let Err(e) = self.negotiate() {
             // back to the old geometry so the writer stays usable
             self.config = old;
-            self.conv = Converter::new(old.width, old.height, old.format, YuyvPath::fastest());
             self.release_buffers();
             self.negotiate()?;
             self.set_control(sys::CID_KEEP_FORMAT, i32::from(self.features.keep_format));
@@ -519,30 +462,23 @@ impl LoopbackWriter {
             };
             let _ = sys::reqbufs(self.file.as_fd(), &mut req);
         }
-        self.io = Io::Write { frame: Vec::new() };
+        self.io = Io::Write;
     }
 
-    /// Publishes one frame; `timestamp_us` is the capture timestamp
-    /// (CLOCK_MONOTONIC; 0: the driver stamps it), moved just after a
-    /// driver restamp that dated older frames later (see below).
-    pub fn write(&mut self, input: Input<'_>, timestamp_us: u64) -> Result<(), GlueError> {
+    /// Publishes one frame, packed in the node's format (exactly
+    /// `frame_bytes`, as [`sdi_core::view::ViewRenderer`] renders it);
+    /// `timestamp_us` is the capture timestamp (CLOCK_MONOTONIC; 0: the
+    /// driver stamps it), moved just after a driver restamp that dated older
+    /// frames later (see below).
+    pub fn write(&mut self, frame: &[u8], timestamp_us: u64) -> Result<(), GlueError> {
         let bytes = self.config.frame_bytes();
-        let Self { io, conv, file, .. } = self;
-        let mut fill = |dst: &mut [u8]| -> Result<(), GlueError> {
-            match input {
-                Input::Rgb8(src) => conv.rgb8(src, dst),
-                Input::Grey8(src) => conv.grey8(src, dst),
-                Input::SignedDn(src) => conv.signed_dn(src, dst),
-                Input::Packed(data) if data.len() == bytes => {
-                    dst.copy_from_slice(data);
-                    Ok(())
-                }
-                Input::Packed(data) => Err(GlueError::InputMismatch {
-                    expected: format!("{bytes} packed bytes"),
-                    got: data.len().to_string(),
-                }),
-            }
-        };
+        if frame.len() != bytes {
+            return Err(GlueError::InputMismatch {
+                expected: format!("{bytes} packed bytes"),
+                got: frame.len().to_string(),
+            });
+        }
+        let Self { io, file, .. } = self;
         match io {
             Io::Mmap {
                 maps,
@@ -580,7 +516,7 @@ impl LoopbackWriter {
                     target = query(0)?.0.unwrap_or(0);
                 }
                 *next = (index + 1) % maps.len();
-                fill(&mut maps[target].as_mut_slice()[..bytes])?;
+                maps[target].as_mut_slice()[..bytes].copy_from_slice(frame);
                 // v4l2loopback 0.12.x restamps every buffer with the time of
                 // any opener's REQBUFS (`init_buffers`), e.g. a reader
                 // starting: readers then hold old frames dated that moment.
@@ -617,8 +553,7 @@ impl LoopbackWriter {
                 };
                 sys::qbuf(fd, &mut buf).map_err(err("VIDIOC_QBUF"))?;
             }
-            Io::Write { frame } => {
-                fill(frame)?;
+            Io::Write => {
                 let mut done = 0;
                 while done < frame.len() {
                     match nix::unistd::write(file.as_fd(), &frame[done..]) {
@@ -639,31 +574,12 @@ impl LoopbackWriter {
         Ok(())
     }
 
-    /// Publishes tightly packed RGB8 at the output size.
-    pub fn write_rgb8(&mut self, rgb: &[u8], timestamp_us: u64) -> Result<(), GlueError> {
-        let (w, h) = (self.config.width as usize, self.config.height as usize);
-        self.write(Input::Rgb8(Src::packed(rgb, w, h, 3)), timestamp_us)
-    }
-
-    /// Publishes tightly packed 8-bit grey at the output size.
-    pub fn write_grey8(&mut self, grey: &[u8], timestamp_us: u64) -> Result<(), GlueError> {
-        let (w, h) = (self.config.width as usize, self.config.height as usize);
-        self.write(Input::Grey8(Src::packed(grey, w, h, 1)), timestamp_us)
-    }
-
-    /// Publishes a signed difference image in DN (offset mapping of
-    /// [`PixelFormat::Y16`]).
-    pub fn write_signed_y16(&mut self, dn: &[f32], timestamp_us: u64) -> Result<(), GlueError> {
-        let (w, h) = (self.config.width as usize, self.config.height as usize);
-        self.write(Input::SignedDn(Src::packed(dn, w, h, 1)), timestamp_us)
-    }
-
     /// Shows the "no signal" card (sensor paused), stamped `timestamp_us`
     /// (CLOCK_MONOTONIC, on the clock of the frames around it: a producer
     /// stamps it after the last frame and before the next).
     pub fn write_no_signal(&mut self, timestamp_us: u64) -> Result<(), GlueError> {
         let card = std::mem::take(&mut self.no_signal);
-        let result = self.write(Input::Packed(&card), timestamp_us);
+        let result = self.write(&card, timestamp_us);
         self.no_signal = card;
         result
     }
@@ -723,14 +639,6 @@ impl Drop for LoopbackWriter {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn no_signal_card_has_bar_and_checkerboard() {
-        let img = no_signal_grey(64, 64);
-        assert_eq!(img[0], 40);
-        assert_eq!(img[32], 72);
-        assert_eq!(img[32 * 64], 200);
-    }
 
     #[test]
     fn opening_a_non_device_is_a_typed_error() {

@@ -25,7 +25,7 @@ use super::opt8241::registers::{safety, SYSTEM_CLOCK_HZ};
 use super::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
 use super::sim::SimBackend;
 use super::status::{DeviceStatus, StatusHandle};
-use super::{Backend, BackendError, CaptureSettings, Limits};
+use super::{Backend, BackendError, BackendName, CaptureSettings, Limits};
 
 /// How often a missing board is looked for by a bus scan.
 pub const RECONNECT_INTERVAL: Duration = Duration::from_millis(500);
@@ -340,8 +340,8 @@ fn describe(board: &Opt8241) -> String {
 }
 
 impl Backend for BoardBackend {
-    fn kind(&self) -> &'static str {
-        "opt8241"
+    fn kind(&self) -> BackendName {
+        BackendName::Opt8241
     }
 
     fn device(&self) -> String {

@@ -55,10 +55,20 @@ pub enum BackendError {
     Failed(String),
 }
 
+/// Which backend delivers frames; its name (strum's Display) is the D-Bus
+/// `Backend` property and the recordings' `backend`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, strum::Display, strum::IntoStaticStr)]
+#[strum(serialize_all = "lowercase")]
+pub enum BackendName {
+    Sim,
+    Replay,
+    Opt8241,
+}
+
 /// A source of sensor frames.
 pub trait Backend: Send {
-    /// Short kind name: "sim", "replay", "opt8241".
-    fn kind(&self) -> &'static str;
+    /// Which backend this is (a wrapper reports the backend it wraps).
+    fn kind(&self) -> BackendName;
     /// Human-readable device (model, file or USB path).
     fn device(&self) -> String;
     fn sensor(&self) -> &SensorParams;
@@ -96,3 +106,16 @@ pub trait Backend: Send {
 
 /// Backends selectable by name ("auto": the board when one is attached, else the simulator).
 pub use sdi_config::BackendKind;
+
+#[cfg(test)]
+mod tests {
+    use super::BackendName;
+
+    /// The D-Bus `Backend` property and the recordings' `backend`, as before.
+    #[test]
+    fn backend_names() {
+        let names =
+            [BackendName::Sim, BackendName::Replay, BackendName::Opt8241].map(|b| b.to_string());
+        assert_eq!(names, ["sim", "replay", "opt8241"]);
+    }
+}

@@ -8,7 +8,7 @@ use sdi_core::modulation::Illumination;
 use sdi_core::sensor::SensorParams;
 use sdi_core::{Frame, Image};
 
-use super::{Backend, BackendError, CaptureSettings};
+use super::{Backend, BackendError, BackendName, CaptureSettings};
 use sdi_recording::{Header, Record, RecordingReader};
 
 pub struct ReplayBackend {
@@ -74,8 +74,8 @@ impl ReplayBackend {
 }
 
 impl Backend for ReplayBackend {
-    fn kind(&self) -> &'static str {
-        "replay"
+    fn kind(&self) -> BackendName {
+        BackendName::Replay
     }
 
     fn device(&self) -> String {

@@ -9,7 +9,7 @@ use sdi_core::sensor::SensorParams;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::Frame;
 
-use super::{Backend, BackendError, CaptureSettings};
+use super::{Backend, BackendError, BackendName, CaptureSettings};
 
 /// Distinct light-travel warnings remembered (each scene and carrier gives
 /// one; a sweep of modulation frequencies must not grow memory).
@@ -75,8 +75,8 @@ fn build(sensor: SensorParams, scene: SceneSpec, seed: u64) -> Result<Simulator,
 }
 
 impl Backend for SimBackend {
-    fn kind(&self) -> &'static str {
-        "sim"
+    fn kind(&self) -> BackendName {
+        BackendName::Sim
     }
 
     /// "simulator (MODEL)", and ", scene NAME" with a fixed scene (`sdictl

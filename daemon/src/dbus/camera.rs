@@ -41,7 +41,7 @@ pub use sdi_core::display::MAX_RANGE_DN;
 /// Fixed facts about this camera, known at start.
 #[derive(Debug, Clone)]
 pub struct CameraInfo {
-    pub backend: String,
+    pub backend: crate::backend::BackendName,
     pub device: String,
     pub sink: SinkInfo,
     pub limits: Limits,
@@ -283,7 +283,7 @@ impl Camera {
         RecHeader {
             format_version: 1,
             mode: st.mode.name().into(),
-            backend: self.info.backend.clone(),
+            backend: self.info.backend.to_string(),
             sensor,
             exposure_us: st.capture.exposure_us,
             frame_rate_hz: st.capture.frame_rate_hz,
@@ -751,7 +751,7 @@ impl Camera {
     async fn backend(&self) -> String {
         match &self.info.status {
             Some(h) => h.get().backend,
-            None => self.info.backend.clone(),
+            None => self.info.backend.to_string(),
         }
     }
 

@@ -15,7 +15,7 @@ use sdi_core::sensor::SensorParams;
 use sdi_core::{Frame, Image};
 
 use super::{LightDrive, LightSource};
-use crate::backend::{Backend, BackendError, CaptureSettings, Limits};
+use crate::backend::{Backend, BackendError, BackendName, CaptureSettings, Limits};
 
 /// Shared on/off switch of the light sources (on by default).
 #[derive(Debug, Clone)]
@@ -87,7 +87,7 @@ impl LitBackend {
 }
 
 impl Backend for LitBackend {
-    fn kind(&self) -> &'static str {
+    fn kind(&self) -> BackendName {
         self.inner.kind()
     }
 

@@ -1,5 +1,6 @@
 //! Where processed frames go: a v4l2loopback device, PipeWire nodes, or the
-//! y4m fallback.
+//! y4m fallback. Each sink renders through [`sdi_core::view::ViewRenderer`]
+//! and only publishes the bytes.
 //! Sinks run on their own thread ([`output`]) so a slow reader never stalls
 //! the frame loop.
 
@@ -13,10 +14,19 @@ pub mod y4m;
 use sdi_core::display::DisplayMap;
 use sdi_core::mode::{ModeId, ModeOutput};
 
+/// Which sink publishes; its name (strum's Display) is the one sdid shows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, strum::Display, strum::IntoStaticStr)]
+#[strum(serialize_all = "lowercase")]
+pub enum SinkKindName {
+    Loopback,
+    Pipewire,
+    Y4m,
+}
+
 /// What a sink publishes, for the D-Bus properties.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct SinkInfo {
-    pub kind: &'static str,
+    pub kind: SinkKindName,
     pub device: String,
     /// Pixel format as a FourCC-like name ("YUYV", "C444" ...).
     pub format: String,
@@ -28,11 +38,18 @@ pub struct SinkInfo {
 #[derive(Debug, thiserror::Error)]
 pub enum SinkError {
     #[error("output device unavailable: {0}")]
-    Unavailable(String),
-    #[error("output device unavailable: {0}")]
     Loopback(#[from] v4l2loopback_glue::GlueError),
     #[error(transparent)]
     CameraNotInstalled(#[from] pipewire_launch::NotInstalled),
+    #[error("output device unavailable: {0}")]
+    Camera(#[from] pipewire_launch::ConnectError),
+    /// Between attempts to start the camera process again.
+    #[error("output device unavailable: the PipeWire camera process is gone")]
+    CameraGone,
+    #[error("output device unavailable: rendering the view: {0}")]
+    Render(#[from] sdi_core::view::PackError),
+    #[error("output device unavailable: y4m output: {0}")]
+    Y4m(#[source] std::io::Error),
     #[error("output I/O error: {0}")]
     Io(#[from] std::io::Error),
 }
@@ -54,4 +71,21 @@ pub trait Sink: Send {
     }
     /// The mode of the frames that follow (e.g. for a node description).
     fn set_mode(&mut self, _mode: ModeId) {}
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SinkKindName;
+
+    /// The names sdid has always shown for its sinks.
+    #[test]
+    fn sink_kind_names() {
+        let names = [
+            SinkKindName::Loopback,
+            SinkKindName::Pipewire,
+            SinkKindName::Y4m,
+        ]
+        .map(|k| k.to_string());
+        assert_eq!(names, ["loopback", "pipewire", "y4m"]);
+    }
 }

@@ -50,6 +50,54 @@ pub fn find_program() -> Result<PathBuf, NotInstalled> {
         })
 }
 
+/// Why sdid could not reach a camera process; the messages are what sdid's
+/// log and first screen show.
+#[derive(Debug, thiserror::Error)]
+pub enum ConnectError {
+    /// No runtime directory to hold the camera's socket.
+    #[error("{0}")]
+    RuntimeDir(String),
+    #[error("the PipeWire camera process at {} did not take sdid: {last}", socket.display())]
+    NotTaken {
+        socket: PathBuf,
+        #[source]
+        last: GreetError,
+    },
+    #[error("starting {}: {source}", program.display())]
+    Spawn {
+        program: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    #[error("the PipeWire camera process did not start in time")]
+    StartTimeout,
+    /// The camera process's own reason (e.g. "no PipeWire daemon reachable at ...").
+    #[error("{0}")]
+    Camera(String),
+    #[error("the PipeWire camera process ended without a word ({0:?})")]
+    NoWord(String),
+}
+
+/// Why one greeting of a running camera process failed.
+#[derive(Debug, thiserror::Error)]
+pub enum GreetError {
+    #[error("greeting the camera process: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("the camera socket's peer credentials: {0}")]
+    PeerCredentials(#[source] nix::Error),
+    #[error("the camera socket is served by uid {0}, not this user")]
+    OtherUser(u32),
+    /// The camera is ending (new sizes) or busy with another sdid.
+    #[error("{0}")]
+    Refused(String),
+    #[error("the camera process answered {0}")]
+    Unexpected(String),
+    #[error(transparent)]
+    Link(#[from] link::LinkError),
+    #[error("another camera process is starting")]
+    AnotherStarting,
+}
+
 /// How long [`connect`] tries, start-up of a new camera process included.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(8);
 /// Between attempts while a camera process is starting or ending.
@@ -65,8 +113,10 @@ pub struct Connected {
 /// Connects to this user's camera process, starting `program SPEC` when
 /// none runs; fails with the camera's own
 /// reason (e.g. "no PipeWire daemon reachable at ...").
-pub fn connect(program: &Path, spec: &Spec) -> Result<Connected, String> {
-    let sock = link::runtime_dir()?.join(link::SOCKET_NAME);
+pub fn connect(program: &Path, spec: &Spec) -> Result<Connected, ConnectError> {
+    let sock = link::runtime_dir()
+        .map_err(ConnectError::RuntimeDir)?
+        .join(link::SOCKET_NAME);
     let deadline = Instant::now() + CONNECT_TIMEOUT;
     let mut last;
     loop {
@@ -78,43 +128,32 @@ pub fn connect(program: &Path, spec: &Spec) -> Result<Connected, String> {
             },
             Err(_) => match start(program, spec, deadline)? {
                 Started::Ready => continue,
-                Started::Busy => last = "another camera process is starting".into(),
+                Started::Busy => last = GreetError::AnotherStarting,
             },
         }
         if Instant::now() >= deadline {
-            return Err(format!(
-                "the PipeWire camera process at {} did not take sdid: {last}",
-                sock.display()
-            ));
+            return Err(ConnectError::NotTaken { socket: sock, last });
         }
         std::thread::sleep(RETRY);
     }
 }
 
-fn greet(stream: UnixStream, spec: &Spec) -> Result<Connected, String> {
-    let io = |e: std::io::Error| format!("greeting the camera process: {e}");
+fn greet(stream: UnixStream, spec: &Spec) -> Result<Connected, GreetError> {
     // Frames go only to a camera process of this user, as it takes them only from one.
-    let peer = getsockopt(&stream, PeerCredentials)
-        .map_err(|e| format!("the camera socket's peer credentials: {e}"))?;
+    let peer = getsockopt(&stream, PeerCredentials).map_err(GreetError::PeerCredentials)?;
     if peer.uid() != nix::unistd::getuid().as_raw() {
-        return Err(format!(
-            "the camera socket is served by uid {}, not this user",
-            peer.uid()
-        ));
+        return Err(GreetError::OtherUser(peer.uid()));
     }
-    stream.set_read_timeout(Some(CONNECT_TIMEOUT)).map_err(io)?;
-    stream
-        .set_write_timeout(Some(Duration::from_secs(2)))
-        .map_err(io)?;
+    stream.set_read_timeout(Some(CONNECT_TIMEOUT))?;
+    stream.set_write_timeout(Some(Duration::from_secs(2)))?;
     let mut s = &stream;
-    link::write(&mut s, &Message::Hello(spec.clone())).map_err(io)?;
-    match link::read(&mut s) {
-        Ok(Message::Ready) => {}
-        Ok(Message::Refused(why)) => return Err(why),
-        Ok(m) => return Err(format!("the camera process answered {m:?}")),
-        Err(e) => return Err(e.to_string()),
+    link::write(&mut s, &Message::Hello(spec.clone()))?;
+    match link::read(&mut s)? {
+        Message::Ready => {}
+        Message::Refused(why) => return Err(GreetError::Refused(why)),
+        m => return Err(GreetError::Unexpected(format!("{m:?}"))),
     }
-    stream.set_read_timeout(None).map_err(io)?;
+    stream.set_read_timeout(None)?;
     let camera_pid = u32::try_from(peer.pid()).ok();
     Ok(Connected { stream, camera_pid })
 }
@@ -125,7 +164,7 @@ enum Started {
 }
 
 /// Starts the camera process and waits for its first line.
-fn start(program: &Path, spec: &Spec, deadline: Instant) -> Result<Started, String> {
+fn start(program: &Path, spec: &Spec, deadline: Instant) -> Result<Started, ConnectError> {
     let mut child = Command::new(program)
         .arg(spec.to_string())
         .stdin(Stdio::null())
@@ -133,7 +172,10 @@ fn start(program: &Path, spec: &Spec, deadline: Instant) -> Result<Started, Stri
         // Its own group: a Ctrl-C or a kill of sdid's group leaves it running.
         .process_group(0)
         .spawn()
-        .map_err(|e| format!("starting {}: {e}", program.display()))?;
+        .map_err(|source| ConnectError::Spawn {
+            program: program.to_owned(),
+            source,
+        })?;
     let pid = child.id();
     let (tx, rx) = mpsc::channel();
     if let Some(out) = child.stdout.take() {
@@ -153,7 +195,7 @@ fn start(program: &Path, spec: &Spec, deadline: Instant) -> Result<Started, Stri
     let wait = deadline.saturating_duration_since(Instant::now());
     let line = rx
         .recv_timeout(wait)
-        .map_err(|_| "the PipeWire camera process did not start in time".to_string())?;
+        .map_err(|_| ConnectError::StartTimeout)?;
     let line = line.trim_end();
     if line == link::READY_LINE {
         tracing::info!(pid, "started the PipeWire camera process");
@@ -161,10 +203,8 @@ fn start(program: &Path, spec: &Spec, deadline: Instant) -> Result<Started, Stri
     } else if line == link::BUSY_LINE {
         Ok(Started::Busy)
     } else if let Some(why) = line.strip_prefix(link::ERROR_PREFIX) {
-        Err(why.to_string())
+        Err(ConnectError::Camera(why.to_string()))
     } else {
-        Err(format!(
-            "the PipeWire camera process ended without a word ({line:?})"
-        ))
+        Err(ConnectError::NoWord(line.to_string()))
     }
 }

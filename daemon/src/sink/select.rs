@@ -9,7 +9,7 @@ use super::loopback::LoopbackSink;
 use super::pipewire::{PipewireSink, VIEW_NODE};
 use super::pipewire_launch;
 use super::y4m::Y4mSink;
-use super::{Sink, SinkError};
+use super::{Sink, SinkError, SinkKindName};
 use sdi_config::{Config, SinkKind};
 use sdi_core::mode::ModeId;
 
@@ -123,8 +123,7 @@ pub fn open(
         }
     }
     let path = (!c.output.y4m_path.is_empty()).then(|| PathBuf::from(&c.output.y4m_path));
-    let sink = Y4mSink::new(path.as_deref(), width, height, fps)
-        .map_err(|e| SinkError::Unavailable(format!("y4m output: {e}")))?;
+    let sink = Y4mSink::new(path.as_deref(), width, height, fps).map_err(SinkError::Y4m)?;
     Ok(Chosen {
         sink: Box::new(sink),
         reasons: auto.then_some(passed),
@@ -133,14 +132,16 @@ pub fn open(
 
 /// What a person opens to watch the sink, and how: the lines of sdid's
 /// first screen after the sink is chosen.
-pub fn how_to_watch(kind: &str, device: &str) -> String {
+pub fn how_to_watch(kind: SinkKindName, device: &str) -> String {
     match kind {
-        "y4m" if device == "stdout" => "sdid ... | ffplay -i -".into(),
-        "y4m" => format!("ffplay {device}"),
-        "pipewire" => format!(
+        SinkKindName::Y4m if device == "stdout" => "sdid ... | ffplay -i -".into(),
+        SinkKindName::Y4m => format!("ffplay {device}"),
+        SinkKindName::Pipewire => format!(
             "any PipeWire camera picker (\"SDI camera\"), or \
              gst-launch-1.0 pipewiresrc target-object={VIEW_NODE} ! videoconvert ! autovideosink"
         ),
-        _ => format!("ffplay {device} (or any V4L2 camera application: \"SDI camera\")"),
+        SinkKindName::Loopback => {
+            format!("ffplay {device} (or any V4L2 camera application: \"SDI camera\")")
+        }
     }
 }

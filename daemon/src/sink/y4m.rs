@@ -17,7 +17,9 @@ use std::io::{self, Write};
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 
-use super::{Sink, SinkError, SinkInfo};
+use sdi_core::view::{no_signal_stripes_rgb8, rgb8_to_yuv444_planes, PixelFormat, ViewRenderer};
+
+use super::{Sink, SinkError, SinkInfo, SinkKindName};
 use sdi_core::display::DisplayMap;
 use sdi_core::mode::ModeOutput;
 
@@ -43,7 +45,9 @@ pub struct Y4mSink {
     width: usize,
     height: usize,
     frame_rate_hz: f64,
-    rgb: Vec<u8>,
+    /// Renders each frame as RGB8 at the sensor size; the card in RGB8.
+    view: ViewRenderer,
+    card: Vec<u8>,
     out: Vec<u8>,
     header_sent: bool,
 }
@@ -76,7 +80,8 @@ impl Y4mSink {
             width,
             height,
             frame_rate_hz,
-            rgb: vec![0; width * height * 3],
+            view: ViewRenderer::new(width, height, PixelFormat::Rgb24),
+            card: no_signal_stripes_rgb8(width, height),
             out: Vec::with_capacity(width * height * 3 + 16),
             header_sent: false,
         })
@@ -98,14 +103,15 @@ impl Y4mSink {
         )
     }
 
-    fn pack_frame(&mut self) {
-        let n = self.width * self.height;
-        self.out.clear();
-        self.out.extend_from_slice(b"FRAME\n");
-        self.out.resize(6 + 3 * n, 0);
-        let (y, uv) = self.out[6..].split_at_mut(n);
+    /// One y4m frame of `rgb` (the sensor size) into `out`.
+    fn pack_frame(out: &mut Vec<u8>, rgb: &[u8]) {
+        let n = rgb.len() / 3;
+        out.clear();
+        out.extend_from_slice(b"FRAME\n");
+        out.resize(6 + 3 * n, 0);
+        let (y, uv) = out[6..].split_at_mut(n);
         let (u, v) = uv.split_at_mut(n);
-        yuv444_planes(&self.rgb, y, u, v);
+        rgb8_to_yuv444_planes(rgb, y, u, v);
     }
 
     fn send(&mut self) -> Result<(), SinkError> {
@@ -275,23 +281,6 @@ fn renew_fifo(path: &Path) -> io::Result<()> {
     std::fs::rename(&next, path)
 }
 
-/// BT.601 full-range RGB -> Y, U, V planes in 16.16 fixed point: within one
-/// code of the float formula (tested on every colour), and integer-only so
-/// it vectorizes; the float version with `round()` was 57% of sdid's CPU in
-/// raw mode (tests/bench/daemon_cpu.sh).
-fn yuv444_planes(rgb: &[u8], y: &mut [u8], u: &mut [u8], v: &mut [u8]) {
-    const HALF: i32 = 1 << 15;
-    const OFFSET: i32 = 128 << 16;
-    for (((px, y), u), v) in rgb.chunks_exact(3).zip(y).zip(u).zip(v) {
-        let (r, g, b) = (i32::from(px[0]), i32::from(px[1]), i32::from(px[2]));
-        // Coefficients x 65536: Y 0.299 0.587 0.114; U -0.168736 -0.331264
-        // 0.5; V 0.5 -0.418688 -0.081312 (each row sums to 65536 or 0).
-        *y = ((19595 * r + 38470 * g + 7471 * b + HALF) >> 16) as u8;
-        *u = ((-11059 * r - 21709 * g + 32768 * b + OFFSET + HALF) >> 16).clamp(0, 255) as u8;
-        *v = ((32768 * r - 27439 * g - 5329 * b + OFFSET + HALF) >> 16).clamp(0, 255) as u8;
-    }
-}
-
 fn set_blocking(f: &File) -> io::Result<()> {
     use nix::fcntl::{fcntl, FcntlArg, OFlag};
     use std::os::fd::AsRawFd;
@@ -304,7 +293,7 @@ fn set_blocking(f: &File) -> io::Result<()> {
 impl Sink for Y4mSink {
     fn info(&self) -> SinkInfo {
         SinkInfo {
-            kind: "y4m",
+            kind: SinkKindName::Y4m,
             device: self.location(),
             format: "C444".into(),
             width: self.width as u32,
@@ -316,19 +305,13 @@ impl Sink for Y4mSink {
         if output.signed_dn.width != self.width || output.signed_dn.height != self.height {
             return Ok(());
         }
-        display.render_output_rgb8(output, &mut self.rgb);
-        self.pack_frame();
+        let rgb = self.view.render(output, display)?;
+        Self::pack_frame(&mut self.out, rgb);
         self.send()
     }
 
     fn write_no_signal(&mut self, _timestamp_us: u64) -> Result<(), SinkError> {
-        // Dark grey with a diagonal stripe pattern.
-        for (i, px) in self.rgb.chunks_exact_mut(3).enumerate() {
-            let (x, y) = (i % self.width, i / self.width);
-            let g = if (x + y) / 16 % 2 == 0 { 40 } else { 60 };
-            px.copy_from_slice(&[g, g, g]);
-        }
-        self.pack_frame();
+        Self::pack_frame(&mut self.out, &self.card);
         self.send()
     }
 }
@@ -336,37 +319,6 @@ impl Sink for Y4mSink {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn fixed_point_yuv_is_within_one_code_of_bt601_for_every_colour() {
-        let rgb: Vec<u8> = (0..1u32 << 24)
-            .flat_map(|c| [c as u8, (c >> 8) as u8, (c >> 16) as u8])
-            .collect();
-        let n = rgb.len() / 3;
-        let (mut y, mut u, mut v) = (vec![0; n], vec![0; n], vec![0; n]);
-        yuv444_planes(&rgb, &mut y, &mut u, &mut v);
-        let mut worst = 0;
-        for (i, px) in rgb.chunks_exact(3).enumerate() {
-            let (r, g, b) = (f32::from(px[0]), f32::from(px[1]), f32::from(px[2]));
-            let fy = (0.299 * r + 0.587 * g + 0.114 * b).round();
-            let fu = (128.0 - 0.168_736 * r - 0.331_264 * g + 0.5 * b)
-                .round()
-                .clamp(0.0, 255.0);
-            let fv = (128.0 + 0.5 * r - 0.418_688 * g - 0.081_312 * b)
-                .round()
-                .clamp(0.0, 255.0);
-            for (ours, float) in [(y[i], fy), (u[i], fu), (v[i], fv)] {
-                worst = worst.max((f32::from(ours) - float).abs() as u32);
-            }
-        }
-        assert!(worst <= 1, "worst difference {worst} codes");
-        // Grey stays grey: U = V = 128 exactly.
-        for g in 0..=255u8 {
-            let (mut y, mut u, mut v) = ([0], [0], [0]);
-            yuv444_planes(&[g, g, g], &mut y, &mut u, &mut v);
-            assert_eq!((y[0], u[0], v[0]), (g, 128, 128));
-        }
-    }
 
     /// Reads what is in the FIFO now (non-blocking reader).
     fn drain(f: &mut File) -> Vec<u8> {

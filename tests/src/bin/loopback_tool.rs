@@ -55,8 +55,10 @@ fn main() {
                 w.module_version(),
                 w.features()
             );
-            let n = (cfg.width * cfg.height) as usize;
-            let mut grey = vec![0u8; n];
+            let (gw, gh) = (cfg.width as usize, cfg.height as usize);
+            let mut grey = vec![0u8; gw * gh];
+            let packer = sdi_core::view::Packer::new(gw, gh, cfg.format);
+            let mut frame = vec![0u8; cfg.frame_bytes()];
             let start = Instant::now();
             let period = Duration::from_micros(1_000_000 / u64::from(cfg.fps));
             let mut k = 0u64;
@@ -64,7 +66,12 @@ fn main() {
                 for (i, g) in grey.iter_mut().enumerate() {
                     *g = (i as u64 + k) as u8;
                 }
-                if let Err(e) = w.write_grey8(&grey, start.elapsed().as_micros() as u64) {
+                let src = sdi_core::view::Src::packed(&grey, gw, gh, 1);
+                if let Err(e) = packer.grey8(src, &mut frame) {
+                    eprintln!("loopback_tool: {e}");
+                    std::process::exit(1);
+                }
+                if let Err(e) = w.write(&frame, start.elapsed().as_micros() as u64) {
                     eprintln!("loopback_tool: {e}");
                     std::process::exit(1);
                 }
@@ -74,8 +81,8 @@ fn main() {
             eprintln!("wrote {k} frames");
         }
         Some("convert") => {
-            let (scalar, simd) = sdi_tests::bench::converters(200);
-            println!("RGB8->YUYV 640x480: scalar {scalar:.3} ms, yuvutils {simd:.3} ms per frame");
+            let ms = sdi_tests::bench::converter(200);
+            println!("RGB8->YUYV 640x480: {ms:.3} ms per frame");
         }
         Some("bench") if args.len() >= 5 => {
             sdi_tests::bench::run(&args[2], &args[3], args[4].parse().expect("frames"))

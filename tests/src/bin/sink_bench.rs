@@ -21,6 +21,7 @@ use std::time::{Duration, Instant};
 use nix::sys::resource::{getrusage, UsageWho};
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
 use sdi_core::mode::ModeOutput;
+use sdi_core::view::{PixelFormat, ViewRenderer};
 use sdi_daemon::sink::loopback::LoopbackSink;
 use sdi_daemon::sink::pipewire::{PipewireSink, VIEW_NODE};
 use sdi_daemon::sink::y4m::Y4mSink;
@@ -101,17 +102,16 @@ impl Run {
     }
 }
 
-/// No sink: the colormap rendering and the 640x480 letterbox both sinks
-/// (the y4m sink without the letterbox) start with, for reference.
+/// No sink: the view rendering every sink starts with (RGB8 at the sensor
+/// size, as the y4m sink renders it), for reference.
 struct RenderOnly {
-    rgb: Vec<u8>,
-    scaled: Vec<u8>,
+    view: ViewRenderer,
 }
 
 impl Sink for RenderOnly {
     fn info(&self) -> sdi_daemon::sink::SinkInfo {
         sdi_daemon::sink::SinkInfo {
-            kind: "render-only",
+            kind: sdi_daemon::sink::SinkKindName::Y4m,
             device: String::new(),
             format: "RGB3".into(),
             width: WIDTH as u32,
@@ -124,15 +124,7 @@ impl Sink for RenderOnly {
         output: &ModeOutput,
         display: &DisplayMap,
     ) -> Result<(), sdi_daemon::sink::SinkError> {
-        display.render_output_rgb8(output, &mut self.rgb);
-        sdi_daemon::sink::loopback::letterbox(
-            &self.rgb,
-            WIDTH,
-            HEIGHT,
-            &mut self.scaled,
-            WIDTH,
-            HEIGHT,
-        );
+        self.view.render(output, display)?;
         Ok(())
     }
 
@@ -143,12 +135,11 @@ impl Sink for RenderOnly {
 
 fn bench_render(frames: usize, rate_hz: f64) -> Run {
     let mut sink = RenderOnly {
-        rgb: vec![0; WIDTH * HEIGHT * 3],
-        scaled: vec![0; WIDTH * HEIGHT * 3],
+        view: ViewRenderer::new(WIDTH, HEIGHT, PixelFormat::Rgb24),
     };
     let (wall_s, cpu) = drive(&mut sink, frames, rate_hz);
     Run {
-        name: "render only (colormap + letterbox)".into(),
+        name: "render only (colormap)".into(),
         wall_s,
         cpu_s: cpu,
         written: frames,

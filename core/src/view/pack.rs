@@ -1,9 +1,17 @@
-//! Packing the pipeline's output (RGB8, grey8 or signed DN as f32, each with
-//! its own stride) into the tightly packed output formats. Pure Rust, no I/O,
-//! no allocation per frame: scratch planes live in [`Converter`].
+//! Packing rendered pixels (RGB8, grey8 or signed DN as f32, each with its
+//! own stride) into the tightly packed published formats. The colour
+//! conversions here are BT.601: limited range for YUYV (browsers' camera
+//! format), full range for the y4m stream's 4:4:4 planes.
 
-use crate::format::{PixelFormat, Y16_ZERO_DN};
-use crate::GlueError;
+use super::{PixelFormat, Y16_ZERO_DN};
+
+/// A source image or output buffer that does not have the packer's geometry.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("input does not match the output format: expected {expected}, got {got}")]
+pub struct PackError {
+    pub expected: String,
+    pub got: String,
+}
 
 /// A borrowed source image; `stride` counts elements (bytes for `u8`).
 #[derive(Clone, Copy, Debug)]
@@ -25,7 +33,7 @@ impl<'a, T> Src<'a, T> {
         }
     }
 
-    fn check(&self, channels: usize, width: usize, height: usize) -> Result<(), GlueError> {
+    fn check(&self, channels: usize, width: usize, height: usize) -> Result<(), PackError> {
         let row = self.width * channels;
         let needed = if self.height == 0 {
             0
@@ -37,7 +45,7 @@ impl<'a, T> Src<'a, T> {
             || self.stride < row
             || self.data.len() < needed
         {
-            return Err(GlueError::InputMismatch {
+            return Err(PackError {
                 expected: format!("{width}x{height} with stride >= {}", width * channels),
                 got: format!(
                     "{}x{} stride {} ({} elements)",
@@ -56,39 +64,14 @@ impl<'a, T> Src<'a, T> {
     }
 }
 
-/// RGB to YUYV implementation (both are kept so the bench can compare).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum YuyvPath {
-    /// Hand-written fixed-point loop.
-    Scalar,
-    /// yuvutils-rs (SSE/AVX): RGB -> planar 4:2:2 -> YUYV.
-    Simd,
-}
-
-impl YuyvPath {
-    /// The faster one on this CPU (measured at 640x480, `loopback_tool
-    /// convert`): yuvutils 0.135 ms vs the loop 0.697 ms with AVX2, but
-    /// 10.1 ms vs 2.9 ms in the TCG VM's SSE4.2-only CPU.
-    pub fn fastest() -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            return Self::Simd;
-        }
-        Self::Scalar
-    }
-}
-
-/// Converts into one output geometry; owns the scratch planes.
-pub struct Converter {
+/// Packs into one output geometry and format.
+#[derive(Clone, Debug)]
+pub struct Packer {
     width: usize,
     height: usize,
     format: PixelFormat,
-    yuyv_path: YuyvPath,
     /// grey8 (full range) -> BT.601 limited-range luma.
     limited_luma: [u8; 256],
-    y_plane: Vec<u8>,
-    u_plane: Vec<u8>,
-    v_plane: Vec<u8>,
 }
 
 /// Full-range grey -> limited range luma (16..=235).
@@ -113,21 +96,23 @@ pub fn dn_to_y16(dn: f32) -> u16 {
     (dn + (Y16_ZERO_DN as f32 + 0.5)) as u16
 }
 
-impl Converter {
-    pub fn new(width: u32, height: u32, format: PixelFormat, yuyv_path: YuyvPath) -> Self {
-        let (w, h) = (width as usize, height as usize);
-        let simd = format == PixelFormat::Yuyv && yuyv_path == YuyvPath::Simd;
-        let chroma = if simd { w.div_ceil(2) * h } else { 0 };
+impl Packer {
+    pub fn new(width: usize, height: usize, format: PixelFormat) -> Self {
         Self {
-            width: w,
-            height: h,
+            width,
+            height,
             format,
-            yuyv_path,
             limited_luma: std::array::from_fn(|g| to_limited(g as u8)),
-            y_plane: vec![0; if simd { w * h } else { 0 }],
-            u_plane: vec![0; chroma],
-            v_plane: vec![0; chroma],
         }
+    }
+
+    pub fn format(&self) -> PixelFormat {
+        self.format
+    }
+
+    /// Bytes of one packed frame.
+    pub fn frame_bytes(&self) -> usize {
+        self.width * self.height * self.format.bytes_per_pixel()
     }
 
     fn dst_row<'d>(&self, dst: &'d mut [u8], y: usize) -> &'d mut [u8] {
@@ -135,10 +120,10 @@ impl Converter {
         &mut dst[y * bpl..(y + 1) * bpl]
     }
 
-    fn check_dst(&self, dst: &[u8]) -> Result<(), GlueError> {
-        let need = self.width * self.height * self.format.bytes_per_pixel();
+    fn check_dst(&self, dst: &[u8]) -> Result<(), PackError> {
+        let need = self.frame_bytes();
         if dst.len() < need {
-            return Err(GlueError::InputMismatch {
+            return Err(PackError {
                 expected: format!("{need} output bytes"),
                 got: format!("{}", dst.len()),
             });
@@ -147,12 +132,9 @@ impl Converter {
     }
 
     /// Packs interleaved RGB8.
-    pub fn rgb8(&mut self, src: Src<'_, u8>, dst: &mut [u8]) -> Result<(), GlueError> {
+    pub fn rgb8(&self, src: Src<'_, u8>, dst: &mut [u8]) -> Result<(), PackError> {
         src.check(3, self.width, self.height)?;
         self.check_dst(dst)?;
-        if self.format == PixelFormat::Yuyv && self.yuyv_path == YuyvPath::Simd {
-            return self.rgb8_yuyv_simd(src, dst);
-        }
         for y in 0..self.height {
             let s = src.row(y, 3);
             let d = self.dst_row(dst, y);
@@ -175,72 +157,34 @@ impl Converter {
         Ok(())
     }
 
-    fn rgb8_yuyv_simd(&mut self, src: Src<'_, u8>, dst: &mut [u8]) -> Result<(), GlueError> {
-        use yuvutils_rs::{
-            BufferStoreMut, YuvConversionMode, YuvPackedImageMut, YuvPlanarImageMut, YuvRange,
-            YuvStandardMatrix,
-        };
-        let (w, h) = (self.width as u32, self.height as u32);
-        let cw = w.div_ceil(2);
-        let simd_err = |e: yuvutils_rs::YuvError| GlueError::InputMismatch {
-            expected: "a frame yuvutils accepts".into(),
-            got: e.to_string(),
-        };
-        let mut planar = YuvPlanarImageMut {
-            y_plane: BufferStoreMut::Borrowed(&mut self.y_plane),
-            y_stride: w,
-            u_plane: BufferStoreMut::Borrowed(&mut self.u_plane),
-            u_stride: cw,
-            v_plane: BufferStoreMut::Borrowed(&mut self.v_plane),
-            v_stride: cw,
-            width: w,
-            height: h,
-        };
-        let rgb_len = (h as usize - 1) * src.stride + w as usize * 3;
-        yuvutils_rs::rgb_to_yuv422(
-            &mut planar,
-            &src.data[..rgb_len],
-            src.stride as u32,
-            YuvRange::Limited,
-            YuvStandardMatrix::Bt601,
-            YuvConversionMode::Balanced,
-        )
-        .map_err(simd_err)?;
-        let bytes = w as usize * h as usize * 2;
-        let mut packed = YuvPackedImageMut {
-            yuy: BufferStoreMut::Borrowed(&mut dst[..bytes]),
-            yuy_stride: w * 2,
-            width: w,
-            height: h,
-        };
-        yuvutils_rs::yuv422_to_yuyv422(&mut packed, &planar.to_fixed()).map_err(simd_err)
-    }
-
     /// Packs 8-bit grey (full range).
-    pub fn grey8(&mut self, src: Src<'_, u8>, dst: &mut [u8]) -> Result<(), GlueError> {
+    pub fn grey8(&self, src: Src<'_, u8>, dst: &mut [u8]) -> Result<(), PackError> {
         src.check(1, self.width, self.height)?;
         self.check_dst(dst)?;
+        self.pack_grey8(src, dst);
+        Ok(())
+    }
+
+    /// [`Self::grey8`] for a source and output of the packer's geometry.
+    pub(super) fn pack_grey8(&self, src: Src<'_, u8>, dst: &mut [u8]) {
         for y in 0..self.height {
             let s = src.row(y, 1);
-            let lut = self.limited_luma;
             let d = self.dst_row(dst, y);
-            grey_row(self.format, &lut, s, d);
+            grey_row(self.format, &self.limited_luma, s, d);
         }
-        Ok(())
     }
 
     /// Packs signed difference DN. Y16 keeps 16 bits (offset mapping, see
     /// [`PixelFormat::Y16`]); 8-bit outputs keep the high byte of that value,
     /// so 0 DN is mid-grey 128.
-    pub fn signed_dn(&mut self, src: Src<'_, f32>, dst: &mut [u8]) -> Result<(), GlueError> {
+    pub fn signed_dn(&self, src: Src<'_, f32>, dst: &mut [u8]) -> Result<(), PackError> {
         src.check(1, self.width, self.height)?;
         self.check_dst(dst)?;
-        let lut = self.limited_luma;
+        let lut = &self.limited_luma;
         for y in 0..self.height {
             let s = src.row(y, 1);
-            let format = self.format;
             let d = self.dst_row(dst, y);
-            match format {
+            match self.format {
                 PixelFormat::Y16 => {
                     for (o, &v) in d.chunks_exact_mut(2).zip(s) {
                         o.copy_from_slice(&dn_to_y16(v).to_le_bytes());
@@ -295,7 +239,8 @@ fn grey_row(format: PixelFormat, lut: &[u8; 256], s: &[u8], d: &mut [u8]) {
 }
 
 /// One row of RGB8 to YUYV, BT.601 limited range, chroma from the mean of
-/// each horizontal pixel pair.
+/// each horizontal pixel pair. [`crate::display`]'s tables give the same
+/// bytes for colormapped images without going through RGB.
 fn rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
     for (o, p) in d.chunks_exact_mut(4).zip(s.chunks_exact(6)) {
         let (r0, g0, b0) = (i32::from(p[0]), i32::from(p[1]), i32::from(p[2]));
@@ -311,12 +256,28 @@ fn rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
     }
 }
 
+/// BT.601 full-range RGB -> Y, U, V planes (the y4m stream's C444) in 16.16
+/// fixed point: within one code of the float formula (tested on every
+/// colour), and integer-only so it vectorizes.
+pub fn rgb8_to_yuv444_planes(rgb: &[u8], y: &mut [u8], u: &mut [u8], v: &mut [u8]) {
+    const HALF: i32 = 1 << 15;
+    const OFFSET: i32 = 128 << 16;
+    for (((px, y), u), v) in rgb.chunks_exact(3).zip(y).zip(u).zip(v) {
+        let (r, g, b) = (i32::from(px[0]), i32::from(px[1]), i32::from(px[2]));
+        // Coefficients x 65536: Y 0.299 0.587 0.114; U -0.168736 -0.331264
+        // 0.5; V 0.5 -0.418688 -0.081312 (each row sums to 65536 or 0).
+        *y = ((19595 * r + 38470 * g + 7471 * b + HALF) >> 16) as u8;
+        *u = ((-11059 * r - 21709 * g + 32768 * b + OFFSET + HALF) >> 16).clamp(0, 255) as u8;
+        *v = ((32768 * r - 27439 * g - 5329 * b + OFFSET + HALF) >> 16).clamp(0, 255) as u8;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
-    fn conv(f: PixelFormat, w: u32, h: u32) -> Converter {
-        Converter::new(w, h, f, YuyvPath::Scalar)
+    fn conv(f: PixelFormat, w: usize, h: usize) -> Packer {
+        Packer::new(w, h, f)
     }
 
     #[test]
@@ -359,7 +320,7 @@ mod tests {
     }
 
     #[test]
-    fn rgb_to_yuyv_known_colours_and_simd_agrees() {
+    fn rgb_to_yuyv_known_colours() {
         // white, black, red, blue pairs
         let px: [[u8; 3]; 4] = [[255, 255, 255], [255, 255, 255], [255, 0, 0], [255, 0, 0]];
         let data: Vec<u8> = px.iter().flatten().copied().collect();
@@ -371,37 +332,54 @@ mod tests {
         assert!((127..=129).contains(&out[1]));
         assert_eq!(out[4], 82); // red luma
         assert_eq!(out[7], 240); // red V
-                                 // SIMD path within 2 codes of the scalar one on a gradient
-        let (w, h) = (64usize, 8usize);
-        let grad: Vec<u8> = (0..w * h * 3).map(|i| (i * 7 % 256) as u8).collect();
-        let mut a = vec![0u8; w * h * 2];
-        let mut b = vec![0u8; w * h * 2];
-        let src = Src::packed(&grad, w, h, 3);
-        Converter::new(w as u32, h as u32, PixelFormat::Yuyv, YuyvPath::Scalar)
-            .rgb8(src, &mut a)
-            .unwrap();
-        Converter::new(w as u32, h as u32, PixelFormat::Yuyv, YuyvPath::Simd)
-            .rgb8(src, &mut b)
-            .unwrap();
-        let worst = a.iter().zip(&b).map(|(x, y)| x.abs_diff(*y)).max().unwrap();
-        assert!(worst <= 3, "SIMD and scalar YUYV differ by {worst}");
     }
 
     #[test]
     fn mismatched_input_is_a_typed_error() {
         let data = [0u8; 5];
         let mut out = [0u8; 8];
-        let e = conv(PixelFormat::Grey, 2, 2).grey8(Src::packed(&data, 2, 3, 1), &mut out);
-        assert!(matches!(e, Err(GlueError::InputMismatch { .. })));
-        let e = conv(PixelFormat::Grey, 2, 2).grey8(
-            Src {
-                data: &data,
-                width: 2,
-                height: 2,
-                stride: 4,
-            },
-            &mut out,
-        );
-        assert!(matches!(e, Err(GlueError::InputMismatch { .. })));
+        assert!(conv(PixelFormat::Grey, 2, 2)
+            .grey8(Src::packed(&data, 2, 3, 1), &mut out)
+            .is_err());
+        let strided = Src {
+            data: &data,
+            width: 2,
+            height: 2,
+            stride: 4,
+        };
+        assert!(conv(PixelFormat::Grey, 2, 2)
+            .grey8(strided, &mut out)
+            .is_err());
+    }
+
+    #[test]
+    fn fixed_point_yuv444_is_within_one_code_of_bt601_for_every_colour() {
+        let rgb: Vec<u8> = (0..1u32 << 24)
+            .flat_map(|c| [c as u8, (c >> 8) as u8, (c >> 16) as u8])
+            .collect();
+        let n = rgb.len() / 3;
+        let (mut y, mut u, mut v) = (vec![0; n], vec![0; n], vec![0; n]);
+        rgb8_to_yuv444_planes(&rgb, &mut y, &mut u, &mut v);
+        let mut worst = 0;
+        for (i, px) in rgb.chunks_exact(3).enumerate() {
+            let (r, g, b) = (f32::from(px[0]), f32::from(px[1]), f32::from(px[2]));
+            let fy = (0.299 * r + 0.587 * g + 0.114 * b).round();
+            let fu = (128.0 - 0.168_736 * r - 0.331_264 * g + 0.5 * b)
+                .round()
+                .clamp(0.0, 255.0);
+            let fv = (128.0 + 0.5 * r - 0.418_688 * g - 0.081_312 * b)
+                .round()
+                .clamp(0.0, 255.0);
+            for (ours, float) in [(y[i], fy), (u[i], fu), (v[i], fv)] {
+                worst = worst.max((f32::from(ours) - float).abs() as u32);
+            }
+        }
+        assert!(worst <= 1, "worst difference {worst} codes");
+        // Grey stays grey: U = V = 128 exactly.
+        for g in 0..=255u8 {
+            let (mut y, mut u, mut v) = ([0], [0], [0]);
+            rgb8_to_yuv444_planes(&[g, g, g], &mut y, &mut u, &mut v);
+            assert_eq!((y[0], u[0], v[0]), (g, 128, 128));
+        }
     }
 }

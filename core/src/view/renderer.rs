@@ -1,0 +1,218 @@
+//! [`ViewRenderer`]: a mode's output as the bytes of one published stream.
+
+use super::letterbox::{letterbox_rgb8, LetterboxRect};
+use super::pack::{PackError, Packer, Src};
+use super::PixelFormat;
+use crate::display::{DisplayMap, DisplayRange};
+use crate::image::Image;
+use crate::mode::ModeOutput;
+
+/// YUYV of black (RGB 0, 0, 0 through BT.601 limited range).
+const BLACK_YUYV: [u8; 4] = [16, 128, 16, 128];
+
+/// Renders into one geometry and pixel format; owns every scratch buffer,
+/// so a frame allocates nothing once the sizes have settled.
+pub struct ViewRenderer {
+    width: usize,
+    height: usize,
+    packer: Packer,
+    /// The mode's rendering at the source size, and letterboxed.
+    rgb: Vec<u8>,
+    scaled: Vec<u8>,
+    /// The direct YUYV path's scaled signed image and its YUYV.
+    scaled_dn: Image<f32>,
+    content: Vec<u8>,
+    /// The packed frame handed to the sink.
+    frame: Vec<u8>,
+}
+
+impl ViewRenderer {
+    pub fn new(width: usize, height: usize, format: PixelFormat) -> Self {
+        Self {
+            width,
+            height,
+            packer: Packer::new(width, height, format),
+            rgb: Vec::new(),
+            scaled: Vec::new(),
+            scaled_dn: Image::new(0, 0),
+            content: Vec::new(),
+            frame: Vec::new(),
+        }
+    }
+
+    pub fn format(&self) -> PixelFormat {
+        self.packer.format()
+    }
+
+    /// Bytes of one packed frame.
+    pub fn frame_bytes(&self) -> usize {
+        self.packer.frame_bytes()
+    }
+
+    /// The view of `output`: the separated channels as colour, or the signed
+    /// image through `display`'s colormap, letterboxed into the output size
+    /// and packed.
+    pub fn render(
+        &mut self,
+        output: &ModeOutput,
+        display: &DisplayMap,
+    ) -> Result<&[u8], PackError> {
+        let img = &output.signed_dn;
+        let (w, h) = (img.width, img.height);
+        let (dw, dh) = (self.width, self.height);
+        self.frame.resize(self.packer.frame_bytes(), 0);
+        if self.format() == PixelFormat::Yuyv && self.direct_yuyv(output, display) {
+            return Ok(&self.frame);
+        }
+        if (w, h) == (dw, dh) && self.format() == PixelFormat::Rgb24 {
+            display.render_output_rgb8(output, &mut self.frame);
+            return Ok(&self.frame);
+        }
+        self.rgb.resize(w * h * 3, 0);
+        display.render_output_rgb8(output, &mut self.rgb);
+        self.scaled.resize(dw * dh * 3, 0);
+        letterbox_rgb8(&self.rgb, w, h, &mut self.scaled, dw, dh);
+        self.packer
+            .rgb8(Src::packed(&self.scaled, dw, dh, 3), &mut self.frame)?;
+        Ok(&self.frame)
+    }
+
+    /// The signed image itself, packed (a data stream: Y16 keeps the DN,
+    /// see [`PixelFormat::Y16`]); its size must be the output size.
+    pub fn render_signed_dn(&mut self, img: &Image<f32>) -> Result<&[u8], PackError> {
+        self.frame.resize(self.packer.frame_bytes(), 0);
+        self.packer.signed_dn(
+            Src::packed(&img.data, img.width, img.height, 1),
+            &mut self.frame,
+        )?;
+        Ok(&self.frame)
+    }
+
+    /// The YUYV frame of a signed image without separated channels, rendered
+    /// straight to YUYV: the image scaled as [`letterbox_rgb8`] scales the
+    /// RGB, colormapped with the original image's range by
+    /// [`DisplayMap::render_yuyv`], black bars. The same bytes as the RGB
+    /// path (render, letterbox, pack) at a quarter of its cost. False where
+    /// pixel pairs would straddle a bar (odd bar or content width): the RGB
+    /// path handles those.
+    fn direct_yuyv(&mut self, output: &ModeOutput, display: &DisplayMap) -> bool {
+        let img = &output.signed_dn;
+        let (w, h) = (img.width, img.height);
+        let (dw, dh) = (self.width, self.height);
+        if output.channels.is_some() || w == 0 || h == 0 || img.data.len() != w * h {
+            return false;
+        }
+        let r = LetterboxRect::new(w, h, dw, dh);
+        let (x0, y0, sw, sh) = (r.x0, r.y0, r.width, r.height);
+        if x0 % 2 != 0 || sw % 2 != 0 || sw == 0 || sh == 0 {
+            return false;
+        }
+        // One range from the image itself (the scaled copy repeats pixels).
+        let map = DisplayMap::new(
+            display.colormap,
+            DisplayRange::Fixed {
+                max_abs_dn: display.max_abs_dn(img),
+            },
+        );
+        if self.scaled_dn.width != sw || self.scaled_dn.height != sh {
+            self.scaled_dn = Image::new(sw, sh);
+        }
+        let cols: Vec<usize> = (0..sw).map(|x| (x * w / sw).min(w - 1)).collect();
+        for (y, row) in self.scaled_dn.data.chunks_exact_mut(sw).enumerate() {
+            let src = &img.data[(y * h / sh).min(h - 1) * w..][..w];
+            for (d, &sx) in row.iter_mut().zip(&cols) {
+                *d = src[sx];
+            }
+        }
+        self.content.resize(sw * sh * 2, 0);
+        map.render_yuyv(&self.scaled_dn, &mut self.content);
+        self.frame.resize(dw * dh * 2, 0);
+        if (sw, sh) != (dw, dh) {
+            for px in self.frame.chunks_exact_mut(4) {
+                px.copy_from_slice(&BLACK_YUYV);
+            }
+        }
+        for (y, row) in self.content.chunks_exact(sw * 2).enumerate() {
+            self.frame[((y0 + y) * dw + x0) * 2..][..sw * 2].copy_from_slice(row);
+        }
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::display::Colormap;
+
+    /// The RGB path the direct YUYV view replaces: render, letterbox, pack.
+    fn via_rgb(out: &ModeOutput, map: &DisplayMap, dw: usize, dh: usize) -> Vec<u8> {
+        let img = &out.signed_dn;
+        let mut rgb = vec![0u8; img.width * img.height * 3];
+        map.render_output_rgb8(out, &mut rgb);
+        let mut scaled = vec![0u8; dw * dh * 3];
+        letterbox_rgb8(&rgb, img.width, img.height, &mut scaled, dw, dh);
+        let mut yuyv = vec![0u8; dw * dh * 2];
+        Packer::new(dw, dh, PixelFormat::Yuyv)
+            .rgb8(Src::packed(&scaled, dw, dh, 3), &mut yuyv)
+            .expect("pack");
+        yuyv
+    }
+
+    #[test]
+    fn direct_yuyv_view_matches_the_rgb_path() {
+        // Full-width 2x (the boards' 320x240), side bars, top and bottom
+        // bars, and the view size itself.
+        for (w, h) in [(320, 240), (240, 240), (320, 120), (64, 48), (640, 480)] {
+            let data = (0..w * h)
+                .map(|i| match i % 97 {
+                    0 => f32::NAN,
+                    1 => 1e6,
+                    k => (k as f32 - 48.0) * 7.5 + (i / w) as f32,
+                })
+                .collect();
+            let mut out = ModeOutput::new(w, h);
+            out.signed_dn = Image {
+                width: w,
+                height: h,
+                data,
+            };
+            for colormap in [Colormap::Diverging, Colormap::Grey] {
+                for range in [
+                    DisplayRange::SymmetricAuto,
+                    DisplayRange::Fixed { max_abs_dn: 100.0 },
+                ] {
+                    let map = DisplayMap::new(colormap, range);
+                    let mut view = ViewRenderer::new(640, 480, PixelFormat::Yuyv);
+                    assert!(view.direct_yuyv(&out, &map), "pairs aligned");
+                    assert!(
+                        view.frame == via_rgb(&out, &map, 640, 480),
+                        "{w}x{h} {colormap:?} {range:?}"
+                    );
+                    // And through `render`, RGB at the same size.
+                    let rendered = view.render(&out, &map).expect("render").to_vec();
+                    assert!(rendered == via_rgb(&out, &map, 640, 480));
+                    let mut rgb = ViewRenderer::new(w, h, PixelFormat::Rgb24);
+                    let mut want = vec![0u8; w * h * 3];
+                    map.render_output_rgb8(&out, &mut want);
+                    assert!(rgb.render(&out, &map).expect("render") == want.as_slice());
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn odd_geometry_takes_the_rgb_path() {
+        let (w, h) = (5, 3);
+        let mut out = ModeOutput::new(w, h);
+        out.signed_dn = Image {
+            width: w,
+            height: h,
+            data: (0..w * h).map(|i| i as f32 - 7.0).collect(),
+        };
+        let map = DisplayMap::default();
+        let mut view = ViewRenderer::new(16, 8, PixelFormat::Yuyv);
+        assert!(!view.direct_yuyv(&out, &map));
+        let got = view.render(&out, &map).expect("render").to_vec();
+        assert_eq!(got, via_rgb(&out, &map, 16, 8));
+    }
+}
