@@ -215,6 +215,7 @@ pub async fn serve(
     let info = CameraInfo {
         backend: backend.kind().into(),
         device: backend.device(),
+        scene: config.scene.and_then(|s| s.spec()),
         sink: sink_info,
         limits: backend.limits(),
         sensor: sensor.clone(),
