@@ -54,7 +54,7 @@ impl Member {
 }
 
 /// `set_exposure_us` -> `SetExposureUs`, as zbus derives member names.
-fn bus_name(rust_name: &str) -> String {
+pub(crate) fn bus_name(rust_name: &str) -> String {
     rust_name
         .split('_')
         .map(|word| {

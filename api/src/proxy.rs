@@ -8,11 +8,11 @@
 //! `tests/tests/dbus_contract.rs` compares with the served introspection).
 
 use zbus::proxy;
-use zbus::zvariant::{Fd, SerializeDict, Type};
+use zbus::zvariant::{Fd, OwnedValue, SerializeDict, Type, Value};
 
 use std::collections::HashMap;
 
-use crate::contract::Member;
+use crate::contract::{bus_name, Member};
 use crate::types::{CalibrationReply, DarkFrameReply, RecordingReply, Stats};
 use crate::SdiError;
 
@@ -61,6 +61,24 @@ macro_rules! camera1 {
             /// Reads every property.
             pub async fn read(camera: &Camera1Proxy<'_>) -> zbus::Result<Self> {
                 Ok(Self { $( $prop: camera.$prop().await?, )* })
+            }
+
+            /// Every property's name, as on the bus.
+            pub fn names() -> Vec<String> {
+                vec![$( bus_name(stringify!($prop)), )*]
+            }
+
+            /// Reads the property called `name` on the bus, as the D-Bus
+            /// value it is; None when there is no such property.
+            pub async fn read_one(
+                camera: &Camera1Proxy<'_>,
+                name: &str,
+            ) -> Option<zbus::Result<OwnedValue>> {
+                $( if name == bus_name(stringify!($prop)) {
+                    let value = camera.$prop().await;
+                    return Some(value.and_then(|v| Ok(OwnedValue::try_from(Value::new(v))?)));
+                } )*
+                None
             }
         }
 

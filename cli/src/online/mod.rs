@@ -46,8 +46,9 @@ pub enum OnlineCommand {
     SetMode { mode: String },
     /// Print one property (Mode, ExposureUs, FrameRate, Stats, ...).
     Get { property: String },
-    /// Change a setting: exposure-us, frame-rate, modulation-hz, colormap, range, mode.
+    /// Change a setting (takes effect on the next frame).
     Set {
+        #[arg(help = format!("One of: {}", sdi_api::Setting::names().join(", ")))]
         property: String,
         #[arg(allow_hyphen_values = true)]
         value: String,

@@ -39,15 +39,14 @@ pub async fn set_mode(camera: &Camera1Proxy<'_>, mode: &str, json: bool) -> Resu
 /// Prints one property, named as on the bus or in kebab or snake case.
 pub async fn get(camera: &Camera1Proxy<'_>, property: &str, json: bool) -> Result<(), CliError> {
     let name = property_name(property);
-    let mut all = wire_json::object(&Properties::read(camera).await?)?;
-    let Some(v) = all.remove(&name) else {
-        let names: Vec<_> = all.keys().cloned().collect();
+    let Some(value) = Properties::read_one(camera, &name).await else {
         return Err(CliError::Usage(format!(
             "unknown property '{property}'; properties: {}",
-            names.join(", ")
+            Properties::names().join(", ")
         )));
     };
-    match (json, v) {
+    let value = value?;
+    match (json, wire_json::value(&value)) {
         (true, v) => outln!("{}", json!({ name: v }))?,
         (false, Json::String(s)) => outln!("{s}")?,
         (false, other) => outln!("{other}")?,
