@@ -2,18 +2,23 @@
 //! `/org/sdi/Camera0` of `org.sdi.Daemon`: the daemon serves it, `sdictl`
 //! and the tests call it through [`Camera1Proxy`]. Every reply that is a
 //! dictionary on the wire (`a{sv}`) is a typed struct here ([`types`]);
-//! every error is a variant of [`SdiError`]. `daemon/dbus/org.sdi.Camera1.xml`
-//! is the served introspection, checked by `tests/tests/dbus_api.rs`.
+//! every error is a variant of [`SdiError`]; the settings a client changes
+//! are one table, [`Setting`]. `daemon/dbus/org.sdi.Camera1.xml` is the
+//! served introspection, checked by `tests/tests/dbus_api.rs`;
+//! `tests/tests/dbus_contract.rs` checks the proxy against it both ways.
 #![forbid(unsafe_code)]
 
 pub mod board_ids;
 pub mod bus;
+pub mod contract;
 pub mod error;
 pub mod proxy;
+pub mod setting;
 pub mod types;
 
 pub use error::SdiError;
-pub use proxy::Camera1Proxy;
+pub use proxy::{Camera1Proxy, Properties};
+pub use setting::{Change, Setting, SettingError};
 pub use types::{CalibrationReply, DarkFrameReply, RecordingReply, Stats};
 
 /// Well-known bus name of sdid.

@@ -80,5 +80,6 @@ pub fn run(cli: Cli) -> ExitCode {
                 .and_then(|()| stdout::write_all(&text).map_err(exit::CliError::from))
         }
     };
-    exit::report(result)
+    // Offline commands report errors on stderr only, also under --json.
+    exit::report(result, false)
 }

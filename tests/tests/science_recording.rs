@@ -350,7 +350,7 @@ fn status_warns_of_light_travel_where_it_matters() {
     let bus = Bus::start();
     let d = Daemon::start(&bus, &["--mode", "depth-edge", "--modulation-hz", "12e6"]);
     let status = ok(&d.ctl(&["status"]));
-    assert!(status.contains("Warning: light travel"), "{status}");
+    assert!(status.contains("warning: light travel"), "{status}");
     assert!(status.contains("24% of the charge"), "{status}");
     ok(&d.ctl(&["set", "modulation-hz", "1000000"]));
     let status = ok(&d.ctl(&["status"]));

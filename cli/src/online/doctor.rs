@@ -484,7 +484,7 @@ fn groups_verdict(g: &Groups) -> Vec<Check> {
 }
 
 /// Which bus the daemon answered on (first that does), and its properties.
-async fn daemon(bus: &BusArgs) -> (Check, Option<serde_json::Map<String, Json>>) {
+async fn daemon(bus: &BusArgs) -> (Check, Option<sdi_api::Properties>) {
     let mut tries: Vec<(String, BusArgs)> = Vec::new();
     if let Some(a) = &bus.bus_address {
         tries.push((format!("the bus at {a}"), bus.clone()));
@@ -510,12 +510,11 @@ async fn daemon(bus: &BusArgs) -> (Check, Option<serde_json::Map<String, Json>>)
     for (name, args) in tries {
         let props = async {
             let cam = super::connect(&args).await?;
-            super::all_properties(&cam).await
+            Ok::<_, crate::exit::CliError>(sdi_api::Properties::read(&cam).await?)
         };
         match tokio::time::timeout(Duration::from_secs(10), props).await {
             Ok(Ok(p)) => {
-                let device = p.get("Device").and_then(Json::as_str).unwrap_or("?");
-                let backend = p.get("Backend").and_then(Json::as_str).unwrap_or("?");
+                let (device, backend) = (&p.device, &p.backend);
                 return (
                     Check::new(
                         "daemon",

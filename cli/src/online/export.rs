@@ -8,16 +8,16 @@ use std::path::Path;
 
 use sdi_recording::{Record, RecordingReader};
 
-use super::errors::OnlineError;
+use crate::exit::CliError;
 use crate::offline::frames::NpyOut;
 use crate::stdout::outln;
 
-pub fn run(recording: &Path, out: &Path, json: bool) -> Result<(), OnlineError> {
+pub fn run(recording: &Path, out: &Path, json: bool) -> Result<(), CliError> {
     let mut reader = RecordingReader::open(recording)
-        .map_err(|e| OnlineError::Invalid(format!("{}: {e}", recording.display())))?;
+        .map_err(|e| CliError::Usage(format!("{}: {e}", recording.display())))?;
     let header = reader.header().clone();
     let (w, h) = (header.sensor.width, header.sensor.height);
-    let failed = |e: std::io::Error| OnlineError::Failed(format!("{}: {e}", out.display()));
+    let failed = |e: std::io::Error| CliError::Runtime(format!("{}: {e}", out.display()));
     let file = OpenOptions::new()
         .write(true)
         .create_new(true)

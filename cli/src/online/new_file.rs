@@ -9,35 +9,35 @@ use std::fs::File;
 use std::io::ErrorKind;
 use std::path::Path;
 
-use super::errors::OnlineError;
 use crate::atomic_file::AtomicFile;
+use crate::exit::CliError;
 
 pub struct NewFile {
     file: AtomicFile,
     dest: std::path::PathBuf,
 }
 
-fn io_error(what: &str, path: &Path, e: std::io::Error) -> OnlineError {
+fn io_error(what: &str, path: &Path, e: std::io::Error) -> CliError {
     let msg = format!("{what} {}: {e}", path.display());
     match e.kind() {
         ErrorKind::NotFound | ErrorKind::PermissionDenied | ErrorKind::AlreadyExists => {
-            OnlineError::Invalid(msg)
+            CliError::Usage(msg)
         }
-        _ => OnlineError::Failed(msg),
+        _ => CliError::Runtime(msg),
     }
 }
 
 impl NewFile {
     /// Creates the empty temporary file next to `dest`, which must not exist.
-    pub fn create(dest: &Path) -> Result<Self, OnlineError> {
+    pub fn create(dest: &Path) -> Result<Self, CliError> {
         if dest.file_name().is_none() {
-            return Err(OnlineError::Invalid(format!(
+            return Err(CliError::Usage(format!(
                 "'{}' names no file",
                 dest.display()
             )));
         }
         if dest.symlink_metadata().is_ok() {
-            return Err(OnlineError::Invalid(format!(
+            return Err(CliError::Usage(format!(
                 "{} exists (sdictl never overwrites)",
                 dest.display()
             )));
@@ -56,7 +56,7 @@ impl NewFile {
 
     /// Gives the finished file its name; fails (removing the temporary file)
     /// if something appeared at the destination meanwhile.
-    pub fn commit(self) -> Result<(), OnlineError> {
+    pub fn commit(self) -> Result<(), CliError> {
         self.file
             .commit_new()
             .map_err(|e| io_error("cannot create", &self.dest, e))
@@ -81,10 +81,7 @@ mod tests {
         assert_eq!(std::fs::read(&dest).unwrap(), b"abc");
         assert_eq!(entries(&dir), ["a.npy"]);
         // Existing destination: refused before anything is created.
-        assert!(matches!(
-            NewFile::create(&dest),
-            Err(OnlineError::Invalid(_))
-        ));
+        assert!(matches!(NewFile::create(&dest), Err(CliError::Usage(_))));
         // Dropped uncommitted: nothing left.
         let f = NewFile::create(&dir.join("b.png")).unwrap();
         f.file().write_all(b"half").unwrap();
@@ -99,7 +96,7 @@ mod tests {
         // A directory that does not exist: a usage error.
         assert!(matches!(
             NewFile::create(&dir.join("missing/x.npy")),
-            Err(OnlineError::Invalid(_))
+            Err(CliError::Usage(_))
         ));
         std::fs::remove_dir_all(&dir).unwrap();
     }

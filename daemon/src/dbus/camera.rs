@@ -43,6 +43,8 @@ pub use sdi_core::display::MAX_RANGE_DN;
 pub struct CameraInfo {
     pub backend: crate::backend::BackendName,
     pub device: String,
+    /// The simulator's scene fixed by `[sim] scene`; None: each mode's own.
+    pub scene: Option<sdi_core::scene::SceneSpec>,
     pub sink: SinkInfo,
     pub limits: Limits,
     pub sensor: sdi_core::sensor::SensorParams,
@@ -752,6 +754,20 @@ impl Camera {
         match &self.info.status {
             Some(h) => h.get().backend,
             None => self.info.backend.to_string(),
+        }
+    }
+
+    /// The simulator's scene (the one `[sim] scene` fixes, else the mode's
+    /// own); "" when the frames come from a sensor or a recording. Follows
+    /// Backend, so no change signal.
+    #[zbus(property(emits_changed_signal = "false"))]
+    async fn scene(&self) -> String {
+        if self.backend().await != "sim" {
+            return String::new();
+        }
+        match &self.info.scene {
+            Some(scene) => scene.name().into(),
+            None => self.state().mode.default_scene().name().into(),
         }
     }
 

@@ -1,0 +1,199 @@
+//! `sdictl status`: the daemon's properties as a few lines a person reads,
+//! in the manner of `systemctl status`; `--json` prints them raw.
+
+use sdi_api::{Camera1Proxy, Properties, Stats};
+use sdi_core::number::Number;
+use serde_json::Value as Json;
+
+use super::units::{duration_us, hz};
+use super::wire_json;
+use crate::exit::CliError;
+use crate::stdout::outln;
+
+pub async fn run(camera: &Camera1Proxy<'_>, json: bool) -> Result<(), CliError> {
+    let p = Properties::read(camera).await?;
+    if json {
+        outln!("{}", Json::Object(wire_json::object(&p)?))?;
+    } else {
+        for line in lines(&p) {
+            outln!("{line}")?;
+        }
+    }
+    Ok(())
+}
+
+/// The status as lines: a headline, then one labelled line per aspect.
+pub fn lines(p: &Properties) -> Vec<String> {
+    let (sensor, output) = p.device.split_once(" -> ").unwrap_or((&p.device, ""));
+    let mut lines = vec![format!(
+        "sdid: {}, mode {} ({})",
+        state(&p.stats),
+        p.mode,
+        source(p)
+    )];
+    let mut line = |label: &str, text: String| lines.push(format!("{label:>11}: {text}"));
+    line("sensor", sensor.to_owned());
+    line("setup", setup(p));
+    line(
+        "capture",
+        format!(
+            "exposure {} us, {:.1} fps, modulation {}",
+            Number(p.exposure_us),
+            p.frame_rate,
+            hz(p.modulation_hz)
+        ),
+    );
+    line(
+        "view",
+        format!("colormap {}, range {}", p.colormap, range(p.range)),
+    );
+    line(
+        "output",
+        format!("{output}, {} {}x{}", p.format, p.width, p.height),
+    );
+    if !p.recording.is_empty() {
+        line("recording", p.recording.clone());
+    }
+    line("stats", stats(&p.stats));
+    if !p.stats.device_state.is_empty() {
+        line("source", p.stats.device_state.clone());
+    }
+    if !p.stats.recording_stopped.is_empty() {
+        line(
+            "stopped",
+            format!("recording stopped: {}", p.stats.recording_stopped),
+        );
+    }
+    if let Some(w) = light_travel_warning(p) {
+        line("warning", w);
+    }
+    lines
+}
+
+/// Streaming, or why not.
+fn state(s: &Stats) -> &'static str {
+    if !s.device_available {
+        "no frames"
+    } else if s.frames == 0 {
+        "waiting for the first frame"
+    } else if s.fps == 0.0 {
+        "stalled"
+    } else {
+        "streaming"
+    }
+}
+
+/// Where frames come from: the backend in words, and the simulator's scene.
+fn source(p: &Properties) -> String {
+    let backend = match p.backend.as_str() {
+        "sim" => "simulator",
+        "replay" => "replay of a recording",
+        "opt8241" => "OPT8241 board",
+        other => other,
+    };
+    match p.scene.is_empty() {
+        true => backend.to_owned(),
+        false => format!("{backend}, scene {}", p.scene),
+    }
+}
+
+fn setup(p: &Properties) -> String {
+    let part = |key: &str| p.setup.get(key).map(String::as_str).unwrap_or("?");
+    format!(
+        "LS1 {}; LS2 {}; optics {}",
+        part("ls1"),
+        part("ls2"),
+        part("optics")
+    )
+}
+
+/// The display range: 0 is the symmetric automatic one.
+fn range(max_abs_dn: f64) -> String {
+    match max_abs_dn == 0.0 {
+        true => "auto".into(),
+        false => format!("{} DN", Number(max_abs_dn)),
+    }
+}
+
+fn stats(s: &Stats) -> String {
+    let dropped = s.dropped_view + s.dropped_recording;
+    format!(
+        "{:.1} fps, latency {} (max {}), {dropped} dropped, {} frames",
+        s.fps,
+        duration_us(s.latency_us),
+        duration_us(s.latency_max_us),
+        s.frames
+    )
+}
+
+/// The simulator's light-travel warning for the scene it shows at the
+/// current modulation frequency; none for other sources (sdid does not know
+/// a real scene's depth).
+fn light_travel_warning(p: &Properties) -> Option<String> {
+    let scene = sdi_core::scene::SceneSpec::from_name(&p.scene)?;
+    sdi_core::simulator::light_travel::light_travel_warning(&scene, p.modulation_hz)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashMap;
+
+    fn raw_on_the_simulator() -> Properties {
+        Properties {
+            mode: "raw".into(),
+            modes: vec!["raw".into()],
+            setup: HashMap::from([
+                ("ls1".into(), "any source, in phase".into()),
+                ("ls2".into(), "any source, out of phase".into()),
+                ("optics".into(), "none".into()),
+            ]),
+            backend: "sim".into(),
+            scene: "flat-field".into(),
+            device: "simulator (sdi-sim) -> /dev/video10".into(),
+            format: "YUYV".into(),
+            width: 640,
+            height: 480,
+            frame_rate: 60.0,
+            exposure_us: 1000.0,
+            modulation_hz: 12e6,
+            colormap: "diverging".into(),
+            range: 0.0,
+            recording: String::new(),
+            stats: Stats {
+                frames: 123,
+                fps: 60.001376238018075,
+                latency_us: 76.2,
+                latency_max_us: 1250.0,
+                device_available: true,
+                ..Stats::default()
+            },
+        }
+    }
+
+    #[test]
+    fn reads_in_words_and_units() {
+        let text = lines(&raw_on_the_simulator()).join("\n");
+        assert_eq!(
+            text,
+            "sdid: streaming, mode raw (simulator, scene flat-field)\n\
+             \x20    sensor: simulator (sdi-sim)\n\
+             \x20     setup: LS1 any source, in phase; LS2 any source, out of phase; optics none\n\
+             \x20   capture: exposure 1000 us, 60.0 fps, modulation 12 MHz\n\
+             \x20      view: colormap diverging, range auto\n\
+             \x20    output: /dev/video10, YUYV 640x480\n\
+             \x20     stats: 60.0 fps, latency 76 us (max 1.2 ms), 0 dropped, 123 frames"
+        );
+    }
+
+    #[test]
+    fn warns_of_light_travel_only_where_the_scene_has_depth() {
+        let mut p = raw_on_the_simulator();
+        assert!(!lines(&p).join("\n").contains("light travel"));
+        p.scene = "depth-edge".into();
+        let text = lines(&p).join("\n");
+        assert!(text.contains("warning: light travel"), "{text}");
+        p.scene = String::new();
+        assert!(!lines(&p).join("\n").contains("light travel"));
+    }
+}
