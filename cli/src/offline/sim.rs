@@ -8,14 +8,13 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use clap::builder::PossibleValuesParser;
 use clap::Args;
 use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
 use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
 use sdi_core::modulation::Illumination;
 use sdi_core::npy::NpyF32Writer;
-use sdi_core::scene::SceneSpec;
+use sdi_core::scene::SceneId;
 use sdi_core::sensor::{mixing_with_adc, SensorDescription};
 use sdi_core::separation::LiveMethod;
 use sdi_core::separation::{LiveSeparatorConfig, DEFAULT_BILATERAL};
@@ -38,9 +37,9 @@ pub const MAX_AMBIENT_ELECTRONS_PER_US: f64 = 1e6;
 
 #[derive(Debug, Args)]
 pub struct SimArgs {
-    /// Scene to simulate [default: the mode's own scene, flat-field if it is not built in].
-    #[arg(long, value_parser = PossibleValuesParser::new(available_scenes()))]
-    pub scene: Option<String>,
+    /// Scene to simulate [default: the mode's own scene].
+    #[arg(long, value_parser = sdi_config::cli::choice::<SceneId>())]
+    pub scene: Option<SceneId>,
     /// A scene parameter, KEY=VALUE (repeatable): e.g. source_spacing_mm,
     /// displacement_px, fan_rpm, pellets, the sources' electrons_per_us;
     /// an unknown key lists the scene's keys and defaults.
@@ -90,15 +89,6 @@ pub struct SimArgs {
     /// Display range of the PNG: 'auto' (robust symmetric) or max |DN| (> 0).
     #[arg(long, default_value = "auto", value_parser = |s: &str| s.parse::<DisplayRange>(), allow_negative_numbers = true)]
     pub range: DisplayRange,
-}
-
-/// Scene names this build can simulate.
-fn available_scenes() -> Vec<&'static str> {
-    SceneSpec::NAMES
-        .iter()
-        .copied()
-        .filter(|n| SceneSpec::from_name(n).is_some())
-        .collect()
 }
 
 fn parse_frames(s: &str) -> Result<usize, String> {
@@ -163,16 +153,9 @@ fn check_outputs(args: &SimArgs) -> Result<(), CliError> {
 /// Runs `sdictl sim`.
 /// With `json`, the summary on stdout is one JSON object.
 pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
-    let scene = match &args.scene {
-        Some(name) => SceneSpec::from_name(name).ok_or_else(|| {
-            CliError::Usage(format!(
-                "scene '{name}' is not available; valid scenes: {}",
-                available_scenes().join(", ")
-            ))
-        })?,
-        None => args.mode.default_scene(),
-    };
-    let scene = scene
+    let scene = args
+        .scene
+        .map_or_else(|| args.mode.default_scene(), SceneId::spec)
         .with_params(&args.scene_params)
         .map_err(|e| CliError::Usage(e.to_string()))?;
     let mut sensor = args.sensor.params();

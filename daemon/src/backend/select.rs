@@ -101,7 +101,7 @@ fn build(c: &Config, mode: ModeId) -> Result<(Box<dyn Backend>, BoardExtras), St
             p.modulation_hz = c.modulation_hz.unwrap_or(p.modulation_hz);
             Ok((
                 Box::new(
-                    SimBackend::new(p, mode, c.seed, c.scene.and_then(|s| s.spec()))
+                    SimBackend::new(p, mode, c.seed, c.scene.map(|s| s.spec()))
                         .map_err(|e| e.to_string())?,
                 ),
                 BoardExtras::default(),
