@@ -249,8 +249,7 @@ impl FanPellets {
         }
         for k in 0..self.pellets.len() {
             let (px, py, _) = self.pellet_state(k, t_us);
-            let d = ((xc - px).powi(2) + (yc - py).powi(2)).sqrt();
-            coverage = coverage.max((self.pellet_radius_px - d + 0.5).clamp(0.0, 1.0));
+            coverage = coverage.max(disc_coverage(x, y, px, py, self.pellet_radius_px));
         }
         self.mix(self.base[i], coverage)
     }
@@ -274,16 +273,11 @@ impl FanPellets {
             let first_box = self.pellet_boxes.len();
             for k in 0..self.pellets.len() {
                 let (px, py, _) = self.pellet_state(k, t_us);
-                let x0 = (px - r - 1.0).floor().max(0.0) as usize;
-                let y0 = (py - r - 1.0).floor().max(0.0) as usize;
-                let x1 = ((px + r + 1.0).ceil() as usize).min(w);
-                let y1 = ((py + r + 1.0).ceil() as usize).min(h);
+                let [x0, x1, y0, y1] = pellet_box(px, py, r, w, h);
                 for y in y0..y1 {
                     for x in x0..x1 {
-                        let (xc, yc) = (x as f32 + 0.5, y as f32 + 0.5);
-                        let d = ((xc - px).powi(2) + (yc - py).powi(2)).sqrt();
                         let c = &mut self.pellet_now[y * w + x];
-                        *c = c.max((r - d + 0.5).clamp(0.0, 1.0));
+                        *c = c.max(disc_coverage(x, y, px, py, r));
                     }
                 }
                 self.pellet_boxes.push([x0, x1, y0, y1]);
@@ -318,6 +312,25 @@ impl FanPellets {
 /// [`Scene::render_mean`] for FanPellets): blade coverage from the
 /// antiderivative of the trapezoid, times the rim, at least the hub.
 #[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+/// Pixels [x0, x1) x [y0, y1) a pellet at (px, py) of radius `r` can
+/// touch, clipped to the `w` x `h` image.
+fn pellet_box(px: f32, py: f32, r: f32, w: usize, h: usize) -> [usize; 4] {
+    let x0 = (px - r - 1.0).floor().max(0.0) as usize;
+    let y0 = (py - r - 1.0).floor().max(0.0) as usize;
+    let x1 = ((px + r + 1.0).ceil() as usize).min(w);
+    let y1 = ((py + r + 1.0).ceil() as usize).min(h);
+    [x0, x1, y0, y1]
+}
+
+/// Fraction of pixel (x, y) a disc at (px, py) of radius `r` covers,
+/// anti-aliased over one pixel from its edge.
+#[inline]
+fn disc_coverage(x: usize, y: usize, px: f32, py: f32, r: f32) -> f32 {
+    let (xc, yc) = (x as f32 + 0.5, y as f32 + 0.5);
+    let d = ((xc - px).powi(2) + (yc - py).powi(2)).sqrt();
+    (r - d + 0.5).clamp(0.0, 1.0)
+}
+
 fn blade_row(
     out: &mut [f32],
     base: &[f32],
@@ -459,15 +472,10 @@ impl Scene for FanPellets {
         let r = self.pellet_radius_px;
         for k in 0..self.pellets.len() {
             let (px, py, _) = self.pellet_state(k, t_us);
-            let x0 = (px - r - 1.0).floor().max(0.0) as usize;
-            let y0 = (py - r - 1.0).floor().max(0.0) as usize;
-            let x1 = ((px + r + 1.0).ceil() as usize).min(w);
-            let y1 = ((py + r + 1.0).ceil() as usize).min(h);
+            let [x0, x1, y0, y1] = pellet_box(px, py, r, w, h);
             for y in y0..y1 {
                 for x in x0..x1 {
-                    let (xc, yc) = (x as f32 + 0.5, y as f32 + 0.5);
-                    let d = ((xc - px).powi(2) + (yc - py).powi(2)).sqrt();
-                    let c = (r - d + 0.5).clamp(0.0, 1.0);
+                    let c = disc_coverage(x, y, px, py, r);
                     let i = y * w + x;
                     let current = buf.data[i];
                     buf.data[i] = current.max(self.mix(self.base[i], c));

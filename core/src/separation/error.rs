@@ -1,17 +1,14 @@
 //! Typed errors of the separation estimators.
 
+use crate::image::SizeMismatch;
+
 /// Why an estimator refused its input.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SeparationError {
     #[error("need at least {needed} frames for a variance, got {got}")]
     TooFewFrames { needed: usize, got: usize },
-    #[error("frame is {got_w}x{got_h}, expected {want_w}x{want_h}")]
-    SizeMismatch {
-        want_w: usize,
-        want_h: usize,
-        got_w: usize,
-        got_h: usize,
-    },
+    #[error(transparent)]
+    SizeMismatch(#[from] SizeMismatch),
     #[error("empty image")]
     Empty,
     #[error("{name} = {} is out of range: expected {allowed}", crate::number::Number(*.value))]

@@ -3,7 +3,7 @@
 
 use super::{input_flags, usable, Moments, SeparationError};
 use crate::frame::Frame;
-use crate::image::Image;
+use crate::image::{Image, SizeMismatch};
 
 /// Label of pixels that belong to no segment (output flagged insufficient).
 pub const IGNORE_LABEL: u32 = u32::MAX;
@@ -28,24 +28,13 @@ pub fn segment_moments(
     interior: Option<&Image<u8>>,
 ) -> Result<Moments, SeparationError> {
     if let Some(m) = interior {
-        if !m.same_size(labels) {
-            return Err(SeparationError::SizeMismatch {
-                want_w: labels.width,
-                want_h: labels.height,
-                got_w: m.width,
-                got_h: m.height,
-            });
-        }
+        SizeMismatch::check((labels.width, labels.height), (m.width, m.height))?;
     }
     let counts = |i: usize| usable(frame, i) && interior.is_none_or(|m| m.data[i] != 0);
-    if !frame.dn.same_size(labels) {
-        return Err(SeparationError::SizeMismatch {
-            want_w: frame.width(),
-            want_h: frame.height(),
-            got_w: labels.width,
-            got_h: labels.height,
-        });
-    }
+    SizeMismatch::check(
+        (frame.width(), frame.height()),
+        (labels.width, labels.height),
+    )?;
     if frame.dn.is_empty() {
         return Err(SeparationError::Empty);
     }

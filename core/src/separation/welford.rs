@@ -8,7 +8,7 @@ use std::collections::VecDeque;
 
 use super::{input_flags, usable, Moments, SeparationError};
 use crate::frame::Frame;
-use crate::image::Image;
+use crate::image::{Image, SizeMismatch};
 use crate::PixelFlags;
 
 /// Streaming accumulator for M1.
@@ -159,14 +159,7 @@ impl Welford {
 }
 
 fn check_size(width: usize, height: usize, frame: &Frame) -> Result<(), SeparationError> {
-    if frame.width() != width || frame.height() != height {
-        return Err(SeparationError::SizeMismatch {
-            want_w: width,
-            want_h: height,
-            got_w: frame.width(),
-            got_h: frame.height(),
-        });
-    }
+    SizeMismatch::check((width, height), (frame.width(), frame.height()))?;
     if width * height == 0 {
         return Err(SeparationError::Empty);
     }
