@@ -254,6 +254,17 @@ impl FanPellets {
         self.mix(self.base[i], coverage)
     }
 
+    /// `out` as ambient light only, holding the still background; the
+    /// ambient image is reused when it has the size.
+    fn background_into<'a>(&self, out: &'a mut Radiance) -> &'a mut Image<f32> {
+        out.ls1 = None;
+        out.ls2 = None;
+        let img = super::reuse(out.ambient.take(), self.width, self.height);
+        let buf = out.ambient.insert(img);
+        buf.data.copy_from_slice(&self.base);
+        buf
+    }
+
     #[inline]
     fn mix(&self, base: f32, coverage: f32) -> f32 {
         base + coverage * (self.params.object_electrons_per_us - base)
@@ -416,14 +427,7 @@ impl Scene for FanPellets {
     /// its antiderivative gives the exact mean) plus the mean of `samples`
     /// point renders for the pellets (ballistic, with bounces) and the hub edge.
     fn render_mean(&mut self, t0_us: f64, t1_us: f64, samples: usize, out: &mut Radiance) -> bool {
-        out.ls1 = None;
-        out.ls2 = None;
-        let (w, h) = (self.width, self.height);
-        let buf = match &mut out.ambient {
-            Some(img) if img.width == w && img.height == h => img,
-            slot => slot.insert(Image::new(w, h)),
-        };
-        buf.data.copy_from_slice(&self.base);
+        let buf = self.background_into(out);
         let samples = samples.max(1);
         let sample_t = |j: usize| t0_us + (j as f64 + 0.5) / samples as f64 * (t1_us - t0_us);
         // Blade phase phi = turns - rotation(t) falls by `span` turns.
@@ -457,14 +461,8 @@ impl Scene for FanPellets {
     }
 
     fn render(&self, t_us: f64, out: &mut Radiance) {
-        out.ls1 = None;
-        out.ls2 = None;
         let (w, h) = (self.width, self.height);
-        let buf = match &mut out.ambient {
-            Some(img) if img.width == w && img.height == h => img,
-            slot => slot.insert(Image::new(w, h)),
-        };
-        buf.data.copy_from_slice(&self.base);
+        let buf = self.background_into(out);
         for f in &self.fan_pixels {
             let c = self.fan_coverage(f.radius_px, f.turns, t_us);
             buf.data[f.index] = self.mix(self.base[f.index], c);

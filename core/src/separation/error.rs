@@ -1,6 +1,7 @@
 //! Typed errors of the separation estimators.
 
 use crate::image::SizeMismatch;
+use crate::sensor::{check, ParamError};
 
 /// Why an estimator refused its input.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -11,12 +12,8 @@ pub enum SeparationError {
     SizeMismatch(#[from] SizeMismatch),
     #[error("empty image")]
     Empty,
-    #[error("{name} = {} is out of range: expected {allowed}", crate::number::Number(*.value))]
-    Parameter {
-        name: &'static str,
-        value: f64,
-        allowed: &'static str,
-    },
+    #[error(transparent)]
+    Parameter(#[from] ParamError),
 }
 
 impl SeparationError {
@@ -26,14 +23,6 @@ impl SeparationError {
         ok: bool,
         allowed: &'static str,
     ) -> Result<(), Self> {
-        if ok && value.is_finite() {
-            Ok(())
-        } else {
-            Err(Self::Parameter {
-                name,
-                value,
-                allowed,
-            })
-        }
+        Ok(check(name, value, ok, allowed)?)
     }
 }
