@@ -15,7 +15,7 @@ pub struct Moments {
     pub mean_variance_cov_dn3: Image<f64>,
     /// Number (or effective number) of samples behind each pixel.
     pub samples: Image<f64>,
-    /// [`super::flags`] bits.
+    /// [`PixelFlags`](crate::PixelFlags) bits.
     pub flags: Image<u8>,
 }
 

@@ -133,7 +133,7 @@ impl Welford {
 
     /// Mean and unbiased variance (1/(N-1), section 6 M1) per pixel.
     /// Fewer than 2 frames is an error; pixels with fewer than 2 usable
-    /// samples are flagged [`PixelFlags::INSUFFICIENT.bits()`].
+    /// samples are flagged [`PixelFlags::INSUFFICIENT`].
     pub fn moments(&self) -> Result<Moments, SeparationError> {
         if self.frames < 2 {
             return Err(SeparationError::TooFewFrames {
