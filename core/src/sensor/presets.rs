@@ -88,6 +88,7 @@ mod tests {
         for p in <SensorPreset as strum::IntoEnumIterator>::iter() {
             p.params().validate().unwrap();
         }
+        assert_eq!(SensorPreset::NAMES, ["ti", "pmd"]);
         let ti = SensorPreset::TiOpt8241.params();
         assert!((ti.read_variance_dn2() - 15.05).abs() < 1e-9);
         let pmd = SensorPreset::PmdCamBoardNano.params();
