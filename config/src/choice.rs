@@ -1,8 +1,7 @@
 //! Every choice among known names in `sdid.toml` and on `sdid`'s command line,
 //! as an enum with one name table (strum's, kebab-case); serde reads and
-//! writes the same names ([`sdi_core::serde_by_name!`]).
-
-use strum::VariantNames;
+//! writes the same names ([`sdi_core::named_enum!`]). Choices that are
+//! science (`mode`, `scene`, `colormap`) are sdi-core's own enums.
 
 /// A name that is none of a setting's choices.
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -14,43 +13,22 @@ pub struct UnknownName {
     pub allowed: &'static [&'static str],
 }
 
-/// Declares a choice enum: strum's derives (kebab-case names), serde through
-/// them, and an [`UnknownName`] error naming `$setting`.
+/// Declares a choice enum ([`sdi_core::named_enum!`], kebab-case names, a
+/// default) with an [`UnknownName`] error naming `$setting`.
 macro_rules! choice {
     (
         $(#[$meta:meta])*
         $setting:literal,
         pub enum $name:ident { $($(#[$vmeta:meta])* $variant:ident),+ $(,)? }
     ) => {
-        $(#[$meta])*
-        #[derive(
-            Debug,
-            Clone,
-            Copy,
-            PartialEq,
-            Eq,
-            Hash,
-            Default,
-            strum::EnumString,
-            strum::Display,
-            strum::IntoStaticStr,
-            strum::VariantNames,
-            strum::EnumIter,
-            strum::EnumMessage,
-        )]
-        #[strum(serialize_all = "kebab-case", parse_err_ty = UnknownName, parse_err_fn = $name::unknown)]
-        pub enum $name { $($(#[$vmeta])* $variant),+ }
-
-        sdi_core::serde_by_name!($name);
+        sdi_core::named_enum! {
+            $(#[$meta])*
+            #[derive(Default)]
+            #[strum(serialize_all = "kebab-case", parse_err_ty = UnknownName, parse_err_fn = $name::unknown)]
+            pub enum $name { $($(#[$vmeta])* $variant),+ }
+        }
 
         impl $name {
-            /// The names this setting accepts.
-            pub const NAMES: &'static [&'static str] = <Self as VariantNames>::VARIANTS;
-
-            pub fn name(self) -> &'static str {
-                self.into()
-            }
-
             fn unknown(given: &str) -> UnknownName {
                 UnknownName {
                     setting: $setting,
@@ -135,29 +113,6 @@ choice! {
     }
 }
 
-choice! {
-    /// `scene`: the simulator's scene for every mode (default: each mode's own,
-    /// `sdictl modes`); one of `sdi_core::scene::SceneSpec::NAMES`.
-    "scene",
-    pub enum SimScene {
-        #[default]
-        FlatField,
-        ColourChart,
-        Polarization,
-        DepthEdge,
-        DepthEdgeVertical,
-        Birefringent,
-        FanPellets,
-    }
-}
-
-impl SimScene {
-    /// The scene with its default parameters.
-    pub fn spec(self) -> Option<sdi_core::scene::SceneSpec> {
-        sdi_core::scene::SceneSpec::from_name(self.name())
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -186,9 +141,6 @@ mod tests {
         round_trip::<OnUnplug>(&["no-signal", "simulator", "exit"]);
         round_trip::<LightDriver>(&["none", "board", "scpi-tcp", "usbtmc", "gpio"]);
         round_trip::<SeparationMethod>(&["m3", "window"]);
-        // One name table with the simulator's.
-        round_trip::<SimScene>(sdi_core::scene::SceneSpec::NAMES);
-        assert!(SimScene::iter().all(|s| s.spec().is_some()));
         // Case as before: names are lower case, nothing else matches.
         assert!("Sim".parse::<BackendKind>().is_err());
         assert!("scpi_tcp".parse::<LightDriver>().is_err());

@@ -7,9 +7,10 @@ use std::path::PathBuf;
 
 use sdi_core::display::Colormap;
 use sdi_core::mode::ModeId;
+use sdi_core::scene::SceneId;
 use serde::{Deserialize, Serialize};
 
-use crate::choice::{BackendKind, LightDriver, OnUnplug, SeparationMethod, SimScene, SinkKind};
+use crate::choice::{BackendKind, LightDriver, OnUnplug, SeparationMethod, SinkKind};
 use crate::sensor_spec::SensorSpec;
 
 /// Everything `sdid` can be configured with.
@@ -30,7 +31,7 @@ pub struct Config {
     /// Simulator seed.
     pub seed: u64,
     /// The simulator's scene for every mode (`None`: each mode's own).
-    pub scene: Option<SimScene>,
+    pub scene: Option<SceneId>,
     pub display: DisplaySection,
     pub output: OutputSection,
     pub replay: ReplaySection,

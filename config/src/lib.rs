@@ -14,9 +14,7 @@ mod validate;
 
 use std::path::{Path, PathBuf};
 
-pub use choice::{
-    BackendKind, LightDriver, OnUnplug, SeparationMethod, SimScene, SinkKind, UnknownName,
-};
+pub use choice::{BackendKind, LightDriver, OnUnplug, SeparationMethod, SinkKind, UnknownName};
 pub use file::{
     BoardSection, Config, DisplaySection, LightsSection, OutputSection, RecordingSection,
     ReplaySection, SeparationSection,

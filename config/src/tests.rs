@@ -34,6 +34,8 @@ fn parses_and_rejects_unknown_keys() {
     assert_eq!(c.lights.driver, LightDriver::None);
     assert_eq!(c.sensor, SensorSpec::Preset(SensorPreset::TiOpt8241));
     assert_eq!(parse(""), Config::default());
+    let c = parse("scene = \"fan-pellets\"");
+    assert_eq!(c.scene, Some(sdi_core::scene::SceneId::FanPellets));
     assert!(toml::from_str::<Config>("nope = 1").is_err());
 }
 
@@ -47,6 +49,10 @@ fn unknown_names_are_refused_when_parsed_naming_the_choices() {
         ("[board]\non_unplug = \"restart\"", "no-signal"),
         ("[lights]\ndriver = \"laser\"", "scpi-tcp"),
         ("[separation]\nmethod = \"m1\"", "window"),
+        (
+            "scene = \"lab\"",
+            "unknown scene 'lab': use flat-field, colour-chart",
+        ),
         ("sensor = \"\"", "preset"),
     ] {
         let e = toml::from_str::<Config>(text).unwrap_err().to_string();

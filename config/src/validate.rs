@@ -7,6 +7,7 @@ use std::fmt;
 use sdi_core::display::MAX_RANGE_DN;
 use sdi_core::number::Number;
 use sdi_core::sensor::capture_range::{self, CaptureRange};
+use sdi_core::sensor::ParamError;
 use sdi_core::separation::{BilateralParams, LiveMethod, SeparationError};
 
 use crate::choice::{BackendKind, LightDriver, SeparationMethod};
@@ -131,14 +132,14 @@ impl Config {
 
         self.separation.live_method().validate().map_err(|e| {
             let key = match &e {
-                SeparationError::Parameter {
+                SeparationError::Parameter(ParamError {
                     name: "sigma_domain_px",
                     ..
-                } => "separation.sigma_domain_px",
-                SeparationError::Parameter {
+                }) => "separation.sigma_domain_px",
+                SeparationError::Parameter(ParamError {
                     name: "sigma_range_dn",
                     ..
-                } => "separation.sigma_range_dn",
+                }) => "separation.sigma_range_dn",
                 _ => "separation.window_frames",
             };
             invalid(key, e.to_string())

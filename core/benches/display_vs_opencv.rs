@@ -11,16 +11,17 @@
 //! core does not count, though a busy neighbour still slows caches and
 //! memory (hence the median of alternating rounds for the goal's ratio).
 
-use std::process::Command;
-use std::time::{Duration, Instant};
+mod support;
 
-use nix::time::{clock_gettime, ClockId};
+use std::time::Duration;
+
 use rand::rngs::SmallRng;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
 use sdi_core::display::{reference, robust_max_abs, Colormap, DisplayMap, DisplayRange};
 use sdi_core::image::Image;
 use sdi_core::view::{Packer, PixelFormat, Src};
+use support::{python, thread_cpu, time_ms};
 
 const W: usize = 640;
 const H: usize = 480;
@@ -28,29 +29,6 @@ const H: usize = 480;
 const REPS: usize = 400;
 /// Runs of the (slow) previous path and the Python reference.
 const SLOW_REPS: usize = 25;
-
-/// CPU time consumed by this thread so far.
-fn thread_cpu() -> Duration {
-    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
-        .map(Duration::from)
-        .unwrap_or_default()
-}
-
-/// (median wall ms, mean CPU ms) per call over `reps` calls.
-fn time_ms(reps: usize, mut run: impl FnMut()) -> (f64, f64) {
-    run(); // warm caches and tables
-    let c0 = thread_cpu();
-    let mut t: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t0 = Instant::now();
-            run();
-            t0.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    let cpu = (thread_cpu() - c0).as_secs_f64() * 1e3 / reps as f64;
-    t.sort_by(f64::total_cmp);
-    (t[reps / 2], cpu)
-}
 
 /// `a` against `b` in alternating rounds of `reps / ROUNDS` calls each, so
 /// both see the same machine (the ratio the goal sets is taken from these,
@@ -104,25 +82,18 @@ fn test_image() -> Image<f32> {
 
 /// OpenCV's (wall, CPU) ms per frame for each colormap from the Python reference.
 fn opencv(frame: &std::path::Path) -> [(f64, f64); 2] {
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/opencv_display.py");
     let nan = (f64::NAN, f64::NAN);
     let mut out = [nan; 2];
-    let run = Command::new("/usr/bin/python3")
-        .arg(script)
-        .arg(frame)
-        .args([W.to_string(), H.to_string(), SLOW_REPS.to_string()])
-        .output();
-    let Ok(o) = run else {
-        eprintln!("no /usr/bin/python3: OpenCV column left empty");
+    let args = [
+        frame.display().to_string(),
+        W.to_string(),
+        H.to_string(),
+        SLOW_REPS.to_string(),
+    ];
+    let Some(stdout) = python("opencv_display.py", &args, "OpenCV") else {
         return out;
     };
-    if !o.status.success() {
-        eprintln!(
-            "opencv script failed: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-    }
-    for line in String::from_utf8_lossy(&o.stdout).lines() {
+    for line in stdout.lines() {
         let mut it = line.split_whitespace();
         let slot = match it.next() {
             Some("opencv_diverging") => 0,

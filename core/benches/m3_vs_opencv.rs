@@ -6,10 +6,9 @@
 //! `cargo bench -p sdi-core --bench m3_vs_opencv` (needs /usr/bin/python3 with
 //! python3-opencv; without it only our timings are printed).
 
-use std::process::Command;
-use std::time::{Duration, Instant};
+mod support;
 
-use nix::time::{clock_gettime, ClockId};
+use std::time::Instant;
 
 use rand::rngs::SmallRng;
 use rand::SeedableRng;
@@ -20,6 +19,7 @@ use sdi_core::separation::{
     SeparableBilateral, UnmixOptions,
 };
 use sdi_core::Frame;
+use support::{python, time_ms};
 
 const W: usize = 640;
 const H: usize = 480;
@@ -41,14 +41,6 @@ fn chart_frame(h: &SkellamMixing) -> Frame {
         }
     }
     f
-}
-
-/// CPU time of this thread, ms (CLOCK_THREAD_CPUTIME_ID): robust against
-/// other processes sharing the core, unlike wall time.
-fn thread_cpu_ms() -> f64 {
-    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
-        .map(|t| Duration::from(t).as_secs_f64() * 1e3)
-        .unwrap_or(f64::NAN)
 }
 
 /// Error of a fast M3 against the exact M3 on a 160x120 crop of the frame's
@@ -86,24 +78,8 @@ fn error_vs_exact(frame: &Frame, fast: &LocalMoments, p: BilateralParams) -> (f6
     ((em / n as f64).sqrt(), (ev / n as f64).sqrt())
 }
 
-/// (median wall ms, mean CPU ms) over REPS runs.
-fn median_ms(mut run: impl FnMut()) -> (f64, f64) {
-    let c0 = thread_cpu_ms();
-    let mut t: Vec<f64> = (0..REPS)
-        .map(|_| {
-            let t0 = Instant::now();
-            run();
-            t0.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    let cpu = (thread_cpu_ms() - c0) / REPS as f64;
-    t.sort_by(f64::total_cmp);
-    (t[REPS / 2], cpu)
-}
-
 /// OpenCV's (joint, mean-only) timings from the Python reference.
 fn opencv(
-    script: &str,
     frame: &std::path::Path,
     sd: f64,
     sr: f64,
@@ -112,22 +88,19 @@ fn opencv(
 ) -> ((f64, f64), (f64, f64)) {
     let nan = (f64::NAN, f64::NAN);
     let (mut joint, mut mean) = (nan, nan);
-    let out = Command::new("/usr/bin/python3")
-        .arg(script)
-        .arg(frame)
-        .args([W.to_string(), H.to_string()])
-        .args([
-            sd.to_string(),
-            sr.to_string(),
-            radius.to_string(),
-            reps.to_string(),
-        ])
-        .output();
-    let Ok(o) = out else {
-        eprintln!("no /usr/bin/python3: OpenCV column left empty");
+    let args = [
+        frame.display().to_string(),
+        W.to_string(),
+        H.to_string(),
+        sd.to_string(),
+        sr.to_string(),
+        radius.to_string(),
+        reps.to_string(),
+    ];
+    let Some(stdout) = python("opencv_bilateral.py", &args, "OpenCV") else {
         return (joint, mean);
     };
-    for line in String::from_utf8_lossy(&o.stdout).lines() {
+    for line in stdout.lines() {
         let mut it = line.split_whitespace();
         let name = it.next();
         let v: Vec<f64> = it.filter_map(|v| v.parse().ok()).collect();
@@ -141,12 +114,6 @@ fn opencv(
             _ => {}
         }
     }
-    if !o.status.success() {
-        eprintln!(
-            "opencv script failed: {}",
-            String::from_utf8_lossy(&o.stderr)
-        );
-    }
     (joint, mean)
 }
 
@@ -156,7 +123,6 @@ fn main() {
     let path = std::env::temp_dir().join(format!("sdi_m3_bench_{}.f32", std::process::id()));
     let bytes: Vec<u8> = frame.dn.data.iter().flat_map(|v| v.to_le_bytes()).collect();
     std::fs::write(&path, bytes).expect("write temp frame");
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/opencv_bilateral.py");
     println!("M3 at {W}x{H}, one core, median of {REPS} runs, measured side by side");
     println!(
         "each cell: median wall ms / mean CPU ms per frame (CPU time is immune to other load)"
@@ -191,21 +157,21 @@ fn main() {
         let p = BilateralParams::new(sd, sr);
         // A live pipeline keeps its buffers across frames, as these do.
         let mut separable = SeparableBilateral::new();
-        let sep = median_ms(|| {
+        let sep = time_ms(REPS, || {
             std::hint::black_box(separable.compute(&frame, p).unwrap());
         });
         let mut grid = BilateralGrid::new();
-        let grd = median_ms(|| {
+        let grd = time_ms(REPS, || {
             std::hint::black_box(grid.compute(&frame, p).unwrap());
         });
         // What the daemon runs per frame: the faster M3 for these sigmas, then H^-1.
         let mut live = LiveSeparator::new(LiveMethod::Bilateral(p), h, UnmixOptions::default());
-        let full = median_ms(|| {
+        let full = time_ms(REPS, || {
             std::hint::black_box(live.process(&frame).unwrap());
         });
         // OpenCV's cost grows with radius^2: fewer runs for the wide kernels.
         let reps = if sd > 3.0 { 3 } else { REPS };
-        let (joint, mean) = opencv(script, &path, sd, sr, p.radius(), reps);
+        let (joint, mean) = opencv(&path, sd, sr, p.radius(), reps);
         // M3 alone against OpenCV's M3 alone: the faster of our two variants.
         let ours = if sep.0 <= grd.0 { sep } else { grd };
         let sep_err = error_vs_exact(&frame, separable.moments(), p);

@@ -10,26 +10,15 @@ usage: numpy_fan_pellets.py WIDTH HEIGHT REPS
 Prints "numpy_fan_pellets wall_ms cpu_ms" (median wall, mean thread CPU).
 """
 import sys
-import time
 
 import numpy as np
+
+from bench_timing import median_ms
 
 BLADES, BLADE_FRACTION = 5, 0.4
 BACKGROUND, OBJECT, RPM = 1.0, 12.0, 1500.0
 EXPOSURE_US, SUBSTEPS, PELLETS = 2000.0, 16, 12
 GAIN, CONTRAST, READ_DN = 0.08, 0.65, 15.05 ** 0.5
-
-
-def median_ms(fn, reps):
-    times = []
-    c0 = time.thread_time()
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    cpu = (time.thread_time() - c0) * 1e3 / reps
-    times.sort()
-    return times[len(times) // 2], cpu
 
 
 def main():

@@ -7,23 +7,11 @@ usage: opencv_bilateral.py FRAME.f32 WIDTH HEIGHT SIGMA_DOMAIN SIGMA_RANGE RADIU
 Prints "name wall_ms cpu_ms" lines (median wall, mean thread CPU time of REPS runs).
 """
 import sys
-import time
 
 import cv2
 import numpy as np
 
-
-def median_ms(fn, reps):
-    """(median wall ms, mean CPU ms) per call."""
-    times = []
-    c0 = time.thread_time()
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    cpu = (time.thread_time() - c0) * 1e3 / reps
-    times.sort()
-    return times[len(times) // 2], cpu
+from bench_timing import median_ms
 
 
 def main():

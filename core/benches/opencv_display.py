@@ -9,10 +9,11 @@ usage: opencv_display.py FRAME.f32 WIDTH HEIGHT REPS
 Prints "name wall_ms cpu_ms" lines (median wall, mean thread CPU time of REPS runs).
 """
 import sys
-import time
 
 import cv2
 import numpy as np
+
+from bench_timing import median_ms
 
 # The anchors of sdi_core::display's diverging colormap, t = -1 .. 1.
 ANCHORS = np.array(
@@ -30,19 +31,6 @@ def colormap_lut(name):
         x = (t + 1.0) * 2.0
         rgb = np.stack([np.interp(x, np.arange(5), ANCHORS[:, c]) for c in range(3)], 1)
     return np.ascontiguousarray(np.round(rgb)[:, ::-1].astype(np.uint8).reshape(256, 1, 3))
-
-
-def median_ms(fn, reps):
-    """(median wall ms, mean CPU ms) per call."""
-    times = []
-    c0 = time.thread_time()
-    for _ in range(reps):
-        t0 = time.perf_counter()
-        fn()
-        times.append((time.perf_counter() - t0) * 1e3)
-    cpu = (time.thread_time() - c0) * 1e3 / reps
-    times.sort()
-    return times[len(times) // 2], cpu
 
 
 def main():

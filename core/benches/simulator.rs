@@ -9,9 +9,9 @@
 //! prints them as time per frame and as throughput in elements/s (one element
 //! = one frame, so elem/s = frames/s).
 
-use std::time::Duration;
+mod support;
 
-use nix::time::{clock_gettime, ClockId};
+use std::time::Duration;
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use sdi_core::modulation::{Illumination, ModulationPattern, SourceDrive};
@@ -19,13 +19,7 @@ use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::Frame;
-
-/// CPU time consumed by this thread so far.
-fn thread_cpu() -> Duration {
-    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
-        .map(Duration::from)
-        .expect("thread CPU clock")
-}
+use support::thread_cpu;
 
 /// Runs `f` `iters` times and returns the CPU time it took.
 fn cpu_time(iters: u64, mut f: impl FnMut()) -> Duration {

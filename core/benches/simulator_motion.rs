@@ -9,39 +9,16 @@
 //! needs /usr/bin/python3 with numpy). Times are the thread's CPU time
 //! (CLOCK_THREAD_CPUTIME_ID).
 
-use std::process::Command;
-use std::time::{Duration, Instant};
+mod support;
 
-use nix::time::{clock_gettime, ClockId};
 use sdi_core::modulation::{Illumination, ModulationPattern, SourceDrive};
 use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::Frame;
+use support::{python, time_ms};
 
 const REPS: usize = 60;
-
-fn thread_cpu() -> Duration {
-    clock_gettime(ClockId::CLOCK_THREAD_CPUTIME_ID)
-        .map(Duration::from)
-        .unwrap_or_default()
-}
-
-/// (median wall ms, mean CPU ms) per call over `reps` calls.
-fn time_ms(reps: usize, mut run: impl FnMut()) -> (f64, f64) {
-    run();
-    let c0 = thread_cpu();
-    let mut t: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t0 = Instant::now();
-            run();
-            t0.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    let cpu = (thread_cpu() - c0).as_secs_f64() * 1e3 / reps as f64;
-    t.sort_by(f64::total_cmp);
-    (t[reps / 2], cpu)
-}
 
 fn simulator(scene: &str, width: usize, height: usize) -> Option<Simulator> {
     let mut sensor = SensorPreset::TiOpt8241.params();
@@ -51,17 +28,11 @@ fn simulator(scene: &str, width: usize, height: usize) -> Option<Simulator> {
 }
 
 fn numpy(width: usize, height: usize) -> (f64, f64) {
-    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/benches/numpy_fan_pellets.py");
     let nan = (f64::NAN, f64::NAN);
-    let Ok(o) = Command::new("/usr/bin/python3")
-        .arg(script)
-        .args([width.to_string(), height.to_string(), "7".into()])
-        .output()
-    else {
-        eprintln!("no /usr/bin/python3: numpy column left empty");
+    let args = [width.to_string(), height.to_string(), "7".into()];
+    let Some(text) = python("numpy_fan_pellets.py", &args, "numpy") else {
         return nan;
     };
-    let text = String::from_utf8_lossy(&o.stdout);
     let v: Vec<f64> = text
         .split_whitespace()
         .skip(1)
@@ -69,13 +40,7 @@ fn numpy(width: usize, height: usize) -> (f64, f64) {
         .collect();
     match v[..] {
         [wall, cpu] => (wall, cpu),
-        _ => {
-            eprintln!(
-                "numpy script failed: {}",
-                String::from_utf8_lossy(&o.stderr)
-            );
-            nan
-        }
+        _ => nan,
     }
 }
 

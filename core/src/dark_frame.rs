@@ -2,18 +2,8 @@
 //! frame to remove the fixed-pattern offset (section 4, measurement procedure).
 
 use crate::frame::Frame;
-use crate::image::Image;
+use crate::image::{Image, SizeMismatch};
 use crate::separation::Welford;
-
-/// A frame whose size differs from the accumulator's.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
-#[error("dark frame is {got_w}x{got_h}, expected {want_w}x{want_h}")]
-pub struct SizeMismatch {
-    pub want_w: usize,
-    pub want_h: usize,
-    pub got_w: usize,
-    pub got_h: usize,
-}
 
 /// Summary of a dark-frame capture.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -52,23 +42,14 @@ impl DarkAccumulator {
 
     /// Adds one dark frame; a frame of another size is refused.
     pub fn push(&mut self, frame: &Frame) -> Result<(), SizeMismatch> {
-        let (want_w, want_h) = self.acc.size();
-        if frame.width() != want_w || frame.height() != want_h {
-            return Err(SizeMismatch {
-                want_w,
-                want_h,
-                got_w: frame.width(),
-                got_h: frame.height(),
-            });
-        }
+        let want = self.acc.size();
+        let got = (frame.width(), frame.height());
+        SizeMismatch::check(want, got)?;
         // Only an empty (0-pixel) frame is refused by M1: nothing to add then.
-        if want_w * want_h > 0 {
-            self.acc.push(frame).map_err(|_| SizeMismatch {
-                want_w,
-                want_h,
-                got_w: frame.width(),
-                got_h: frame.height(),
-            })?;
+        if want.0 * want.1 > 0 {
+            self.acc
+                .push(frame)
+                .map_err(|_| SizeMismatch::new(want, got))?;
         }
         self.frames = self.frames.saturating_add(1);
         Ok(())

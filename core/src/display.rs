@@ -50,43 +50,21 @@ pub const MAX_RANGE_DN: f64 = 1e6;
 /// Fraction of finite pixels whose |x| lies inside the auto range.
 pub const AUTO_PERCENTILE: f64 = 0.995;
 
-/// Colour scale, named "diverging" or "grey" ("gray" is accepted too).
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    PartialEq,
-    Eq,
-    Default,
-    strum::EnumString,
-    strum::Display,
-    strum::IntoStaticStr,
-    strum::VariantNames,
-    strum::EnumIter,
-    strum::EnumMessage,
-)]
-#[strum(
-    serialize_all = "lowercase",
-    parse_err_ty = DisplayParseError,
-    parse_err_fn = unknown_colormap
-)]
-pub enum Colormap {
-    /// Negative blue, zero near-white, positive red.
-    #[default]
-    Diverging,
-    /// Black (most negative) to white (most positive), zero mid-grey.
-    #[strum(to_string = "grey", serialize = "gray")]
-    Grey,
-}
-
-crate::serde_by_name!(Colormap);
-
-impl Colormap {
-    /// The canonical names, as shown and as [`Colormap::name`] gives them.
-    pub const NAMES: &'static [&'static str] = <Self as strum::VariantNames>::VARIANTS;
-
-    pub fn name(self) -> &'static str {
-        self.into()
+crate::named_enum! {
+    /// Colour scale, named "diverging" or "grey" ("gray" is accepted too).
+    #[derive(Default)]
+    #[strum(
+        serialize_all = "lowercase",
+        parse_err_ty = DisplayParseError,
+        parse_err_fn = unknown_colormap
+    )]
+    pub enum Colormap {
+        /// Negative blue, zero near-white, positive red.
+        #[default]
+        Diverging,
+        /// Black (most negative) to white (most positive), zero mid-grey.
+        #[strum(to_string = "grey", serialize = "gray")]
+        Grey,
     }
 }
 

@@ -64,3 +64,34 @@ impl<T> Image<T> {
         self.width == other.width && self.height == other.height
     }
 }
+
+/// An image whose size is not the one expected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[error("frame is {got_w}x{got_h}, expected {want_w}x{want_h}")]
+pub struct SizeMismatch {
+    pub want_w: usize,
+    pub want_h: usize,
+    pub got_w: usize,
+    pub got_h: usize,
+}
+
+impl SizeMismatch {
+    /// `got` (width, height) where `want` was expected.
+    pub fn new(want: (usize, usize), got: (usize, usize)) -> Self {
+        Self {
+            want_w: want.0,
+            want_h: want.1,
+            got_w: got.0,
+            got_h: got.1,
+        }
+    }
+
+    /// Ok when `got` (width, height) is `want`.
+    pub fn check(want: (usize, usize), got: (usize, usize)) -> Result<(), Self> {
+        if want == got {
+            Ok(())
+        } else {
+            Err(Self::new(want, got))
+        }
+    }
+}

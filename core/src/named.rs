@@ -29,3 +29,47 @@ macro_rules! serde_by_name {
 
 #[doc(hidden)]
 pub use serde;
+
+/// Declares an enum named by strings: the common derives (comparison, hash,
+/// strum's name table with `FromStr`, `Display`, `&'static str`, the list of
+/// names, iteration and doc messages), serde through that table, `NAMES`
+/// and `name()`. The
+/// caller's `#[strum(...)]` sets the spelling and the parse error; the
+/// caller's crate depends on `strum`, which the derives name.
+#[macro_export]
+macro_rules! named_enum {
+    (
+        $(#[$meta:meta])*
+        $vis:vis enum $name:ident { $($(#[$vmeta:meta])* $variant:ident),+ $(,)? }
+    ) => {
+        #[derive(
+            Debug,
+            Clone,
+            Copy,
+            PartialEq,
+            Eq,
+            Hash,
+            strum::EnumString,
+            strum::Display,
+            strum::IntoStaticStr,
+            strum::VariantNames,
+            strum::EnumIter,
+            strum::EnumMessage,
+        )]
+        $(#[$meta])*
+        $vis enum $name { $($(#[$vmeta])* $variant),+ }
+
+        $crate::serde_by_name!($name);
+
+        impl $name {
+            /// Every name, in declaration order.
+            pub const NAMES: &'static [&'static str] =
+                <Self as strum::VariantNames>::VARIANTS;
+
+            /// The name, as parsed and shown.
+            pub fn name(self) -> &'static str {
+                self.into()
+            }
+        }
+    };
+}

@@ -5,8 +5,10 @@
 use sdi_core::image::Image;
 use sdi_core::mode::{build_pipeline, ModeId, PipelineConfig};
 use sdi_core::modulation::SourceDrive;
+use sdi_core::scene::SceneId;
 use sdi_core::Frame;
 use sdi_core::PixelFlags;
+use strum::IntoEnumIterator;
 
 fn frame(w: usize, h: usize, seq: u64, values: &[f32]) -> Frame {
     let mut f = Frame::new(w, h);
@@ -18,7 +20,7 @@ fn frame(w: usize, h: usize, seq: u64, values: &[f32]) -> Frame {
 
 #[test]
 fn every_mode_builds_and_reports_itself() {
-    for m in ModeId::ALL {
+    for m in ModeId::iter() {
         let p = build_pipeline(m, PipelineConfig::default());
         assert_eq!(p.mode(), m);
     }
@@ -26,7 +28,7 @@ fn every_mode_builds_and_reports_itself() {
 
 #[test]
 fn snapshot_modes_use_snapshot_illumination_except_temporal() {
-    for m in ModeId::ALL {
+    for m in ModeId::iter() {
         let i = m.illumination(0, 1e6);
         match m {
             ModeId::TemporalGradient => {
@@ -130,12 +132,12 @@ fn timestamps_and_sequences_pass_through() {
 
 #[test]
 fn default_scenes_are_named_after_the_paper() {
-    assert_eq!(ModeId::BipolarColour.default_scene_name(), "colour-chart");
-    assert_eq!(ModeId::TemporalGradient.default_scene_name(), "fan-pellets");
-    assert_eq!(ModeId::DirectOnly.default_scene_name(), "polarization");
-    assert_eq!(ModeId::SpatialGradient.default_scene_name(), "birefringent");
-    for m in ModeId::ALL {
-        let s = m.default_scene();
-        assert!(s.name() == m.default_scene_name() || s.name() == "flat-field");
+    let scene = |m: ModeId| m.spec().default_scene;
+    assert_eq!(scene(ModeId::BipolarColour), SceneId::ColourChart);
+    assert_eq!(scene(ModeId::TemporalGradient), SceneId::FanPellets);
+    assert_eq!(scene(ModeId::DirectOnly), SceneId::Polarization);
+    assert_eq!(scene(ModeId::SpatialGradient), SceneId::Birefringent);
+    for m in ModeId::iter() {
+        assert_eq!(m.default_scene().id(), scene(m));
     }
 }

@@ -9,6 +9,7 @@ use sdi_core::sensor::SensorPreset;
 use sdi_core::separation::LiveMethod;
 use sdi_core::separation::LiveSeparatorConfig;
 use separation_support::{chart, rel_rmse_bias, Sampler};
+use strum::IntoEnumIterator;
 
 const OFFSET_DN: f32 = 120.0;
 
@@ -69,7 +70,7 @@ fn bilateral_separates_every_frame_and_other_modes_do_not() {
         .iter()
         .chain(&ch.i_minus_electrons.data)
         .all(|v| v.is_finite()));
-    for m in ModeId::ALL.into_iter().filter(|&m| m != ModeId::Separation) {
+    for m in ModeId::iter().filter(|&m| m != ModeId::Separation) {
         let mut p = build_pipeline(m, cfg.clone());
         for _ in 0..2 {
             if let Some(out) = p.process(&frame) {

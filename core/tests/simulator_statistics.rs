@@ -161,7 +161,7 @@ fn flat_field_mean_and_variance_follow_skellam_model() {
 /// 1.99 +- 0.37 TI).
 #[test]
 fn two_shot_variance_is_twice_snapshot_at_low_light() {
-    for preset in SensorPreset::ALL {
+    for preset in <SensorPreset as strum::IntoEnumIterator>::iter() {
         let mut sensor = preset.params();
         sensor.width = 48;
         sensor.height = 32;

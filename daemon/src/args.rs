@@ -5,11 +5,12 @@ use std::path::PathBuf;
 
 use clap::Parser;
 use sdi_core::mode::ModeId;
+use sdi_core::scene::SceneId;
 use sdi_core::sensor::capture_range;
 
 use crate::bus::BusChoice;
 use crate::startup::{StartError, StartOptions};
-use sdi_config::{cli, BackendKind, Config, SensorSpec, SimScene, SinkKind};
+use sdi_config::{cli, BackendKind, Config, SensorSpec, SinkKind};
 
 /// The SDI difference-camera daemon.
 #[derive(Debug, Parser)]
@@ -40,8 +41,8 @@ pub struct Args {
     #[arg(long)]
     sensor: Option<SensorSpec>,
     /// Simulator scene for every mode [default: each mode's own].
-    #[arg(long, value_parser = cli::choice::<SimScene>())]
-    scene: Option<SimScene>,
+    #[arg(long, value_parser = cli::choice::<SceneId>())]
+    scene: Option<SceneId>,
     /// Frame rate, Hz [0.1, 240].
     #[arg(long, value_parser = cli::in_range(capture_range::FRAME_RATE_HZ))]
     frame_rate_hz: Option<f64>,

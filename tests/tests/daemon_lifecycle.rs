@@ -12,6 +12,7 @@ use sdi_recording::{Record, RecordingReader};
 use sdi_tests::dbus::{bin, Bus, Daemon};
 use sdi_tests::process::Reaped;
 use sdi_tests::require_dbus;
+use strum::IntoEnumIterator;
 
 /// Frames and whether the end record is there.
 fn frames_and_end(path: &Path) -> (usize, bool) {
@@ -415,7 +416,7 @@ fn the_defaults_give_a_clean_first_screen_in_every_mode() {
         address: bus.address.clone(),
     };
     wait_answering(&d);
-    for mode in sdi_core::mode::ModeId::ALL {
+    for mode in sdi_core::mode::ModeId::iter() {
         let out = d.ctl(&["set-mode", mode.name()]);
         assert!(out.status.success(), "{mode:?}: {out:?}");
         // A few frames in the mode (the warnings come with the first).

@@ -24,7 +24,7 @@ use sdi_core::calibration::DarkCalibration;
 use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::modulation::Illumination;
 use sdi_core::scene::ColourChart;
-use sdi_core::scene::SceneSpec;
+use sdi_core::scene::{SceneId, SceneSpec};
 use sdi_core::sensor::{mixing_with_adc, SkellamMixing};
 use sdi_core::separation::{
     auto_segment, bilateral_exact, noise_sigma, pool_moments, segment_moments, unmix,
@@ -45,9 +45,10 @@ pub const MAX_REPORT_FRAMES: usize = 100_000;
 /// Arguments of `sdictl report separation`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct SeparationReportArgs {
-    /// Simulator scene (default: colour-chart when available, else flat-field).
-    #[arg(long)]
-    pub scene: Option<String>,
+    /// Simulator scene.
+    #[arg(long, default_value = "colour-chart",
+        value_parser = sdi_config::cli::choice::<SceneId>())]
+    pub scene: SceneId,
     /// A scene parameter, KEY=VALUE (repeatable; as `sdictl sim --scene-param`).
     #[arg(
         long = "scene-param",
@@ -136,8 +137,6 @@ fn parse_exposure_us(s: &str) -> Result<f64, String> {
 /// What can go wrong while reporting.
 #[derive(Debug, thiserror::Error)]
 pub enum ReportError {
-    #[error("unknown scene {0:?}; available: {1}")]
-    UnknownScene(String, String),
     #[error("simulator: {0}")]
     Simulator(#[from] sdi_core::sensor::ParamError),
     #[error("separation: {0}")]
@@ -235,7 +234,7 @@ impl TruthSums {
 
 /// The subcommand: checks the arguments and creates the output files,
 /// computes, writes the files, then prints (the table, or with `json` the
-/// JSON document). Unknown scenes are usage errors, the rest runtime errors.
+/// JSON document). Bad scene parameters are usage errors, the rest runtime errors.
 pub fn run_cli(args: &SeparationReportArgs, json: bool) -> Result<(), CliError> {
     let scene = match args.input {
         Some(_) => None,
@@ -259,22 +258,14 @@ pub fn run_cli(args: &SeparationReportArgs, json: bool) -> Result<(), CliError> 
     publish(report, files, json)
 }
 
-/// The scene `--scene` names (default: colour-chart when built in, else flat-field).
+/// The scene `--scene` names, with its `--scene-param`s.
 fn scene_of(args: &SeparationReportArgs) -> Result<(String, SceneSpec), CliError> {
-    let name = match &args.scene {
-        Some(s) => s.clone(),
-        None if SceneSpec::NAMES.contains(&"colour-chart") => "colour-chart".into(),
-        None => "flat-field".into(),
-    };
-    let scene = SceneSpec::from_name(&name).ok_or_else(|| {
-        CliError::Usage(
-            ReportError::UnknownScene(name.clone(), SceneSpec::NAMES.join(", ")).to_string(),
-        )
-    })?;
-    let scene = scene
+    let scene = args
+        .scene
+        .spec()
         .with_params(&args.scene_params)
         .map_err(|e| CliError::Usage(e.to_string()))?;
-    Ok((name, scene))
+    Ok((args.scene.name().to_owned(), scene))
 }
 
 /// Writes the files, then prints.

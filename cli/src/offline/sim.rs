@@ -9,14 +9,13 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use clap::builder::PossibleValuesParser;
 use clap::Args;
 use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
 use sdi_core::mode::{build_pipeline, ModeId, ModeOutput, PipelineConfig};
 use sdi_core::modulation::Illumination;
 use sdi_core::npy::NpyF32Writer;
-use sdi_core::scene::SceneSpec;
+use sdi_core::scene::SceneId;
 use sdi_core::sensor::{mixing_with_adc, SensorDescription};
 use sdi_core::separation::LiveMethod;
 use sdi_core::separation::{LiveSeparatorConfig, DEFAULT_BILATERAL};
@@ -39,9 +38,9 @@ pub const MAX_AMBIENT_ELECTRONS_PER_US: f64 = 1e6;
 
 #[derive(Debug, Args)]
 pub struct SimArgs {
-    /// Scene to simulate [default: the mode's own scene, flat-field if it is not built in].
-    #[arg(long, value_parser = PossibleValuesParser::new(available_scenes()))]
-    pub scene: Option<String>,
+    /// Scene to simulate [default: the mode's own scene].
+    #[arg(long, value_parser = sdi_config::cli::choice::<SceneId>())]
+    pub scene: Option<SceneId>,
     /// A scene parameter, KEY=VALUE (repeatable): e.g. source_spacing_mm,
     /// displacement_px, fan_rpm, pellets, the sources' electrons_per_us;
     /// an unknown key lists the scene's keys and defaults.
@@ -91,15 +90,6 @@ pub struct SimArgs {
     /// Display range of the PNG: 'auto' (robust symmetric) or max |DN| (> 0).
     #[arg(long, default_value = "auto", value_parser = |s: &str| s.parse::<DisplayRange>(), allow_negative_numbers = true)]
     pub range: DisplayRange,
-}
-
-/// Scene names this build can simulate.
-fn available_scenes() -> Vec<&'static str> {
-    SceneSpec::NAMES
-        .iter()
-        .copied()
-        .filter(|n| SceneSpec::from_name(n).is_some())
-        .collect()
 }
 
 fn parse_frames(s: &str) -> Result<usize, String> {
@@ -190,16 +180,9 @@ pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
 
 /// The simulator of `args`' scene, sensor, exposure, ambient light and seed.
 fn simulator(args: &SimArgs) -> Result<Simulator, CliError> {
-    let scene = match &args.scene {
-        Some(name) => SceneSpec::from_name(name).ok_or_else(|| {
-            CliError::Usage(format!(
-                "scene '{name}' is not available; valid scenes: {}",
-                available_scenes().join(", ")
-            ))
-        })?,
-        None => args.mode.default_scene(),
-    };
-    let scene = scene
+    let scene = args
+        .scene
+        .map_or_else(|| args.mode.default_scene(), SceneId::spec)
         .with_params(&args.scene_params)
         .map_err(|e| CliError::Usage(e.to_string()))?;
     let mut sensor = args.sensor.params();

@@ -3,7 +3,7 @@
 use super::CalibrationError;
 use crate::dark_frame::DarkAccumulator;
 use crate::frame::Frame;
-use crate::image::Image;
+use crate::image::{Image, SizeMismatch};
 
 /// Per-pixel dark level and its temporal noise.
 #[derive(Debug, Clone, PartialEq)]
@@ -29,12 +29,7 @@ impl DarkCalibration {
         let mut acc: Option<DarkAccumulator> = None;
         for f in frames {
             let a = acc.get_or_insert_with(|| DarkAccumulator::new(f.width(), f.height()));
-            a.push(f).map_err(|e| CalibrationError::SizeMismatch {
-                want_w: e.want_w,
-                want_h: e.want_h,
-                got_w: e.got_w,
-                got_h: e.got_h,
-            })?;
+            a.push(f)?;
         }
         match acc {
             Some(acc) => Self::from_accumulator(&acc),
@@ -112,14 +107,10 @@ impl DarkCalibration {
     /// Subtracts the dark frame in place (the paper subtracts the average of
     /// 100 dark frames before separating).
     pub fn subtract(&self, frame: &mut Frame) -> Result<(), CalibrationError> {
-        if !frame.dn.same_size(&self.dark_dn) {
-            return Err(CalibrationError::SizeMismatch {
-                want_w: self.dark_dn.width,
-                want_h: self.dark_dn.height,
-                got_w: frame.width(),
-                got_h: frame.height(),
-            });
-        }
+        SizeMismatch::check(
+            (self.dark_dn.width, self.dark_dn.height),
+            (frame.width(), frame.height()),
+        )?;
         for (v, d) in frame.dn.data.iter_mut().zip(&self.dark_dn.data) {
             *v -= d;
         }

@@ -1,5 +1,7 @@
 //! Typed calibration errors.
 
+use crate::image::SizeMismatch;
+
 /// Why a calibration step refused its input.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CalibrationError {
@@ -9,13 +11,8 @@ pub enum CalibrationError {
         needed: usize,
         got: usize,
     },
-    #[error("frame is {got_w}x{got_h}, expected {want_w}x{want_h}")]
-    SizeMismatch {
-        want_w: usize,
-        want_h: usize,
-        got_w: usize,
-        got_h: usize,
-    },
+    #[error(transparent)]
+    SizeMismatch(#[from] SizeMismatch),
     #[error("photon-transfer points are degenerate: all means equal")]
     Degenerate,
     #[error("non-finite value in {0}")]

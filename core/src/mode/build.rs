@@ -3,20 +3,15 @@
 use super::pipeline::{Pipeline, PipelineConfig};
 use super::separation::SeparationPipeline;
 use super::snapshot::SnapshotPipeline;
+use super::spec::PipelineKind;
 use super::two_shot::TwoShotPipeline;
 use super::ModeId;
 
-/// The pipeline of `mode`.
+/// The pipeline of `mode` ([`super::ModeSpec::pipeline`]).
 pub fn build_pipeline(mode: ModeId, config: PipelineConfig) -> Box<dyn Pipeline> {
-    match mode {
-        ModeId::TwoShot => Box::new(TwoShotPipeline::new(config)),
-        ModeId::Separation => Box::new(SeparationPipeline::new(config)),
-        ModeId::Raw
-        | ModeId::DirectOnly
-        | ModeId::BipolarColour
-        | ModeId::DepthEdge
-        | ModeId::DepthEdgeVertical
-        | ModeId::SpatialGradient
-        | ModeId::TemporalGradient => Box::new(SnapshotPipeline::new(mode, config)),
+    match mode.spec().pipeline {
+        PipelineKind::Snapshot => Box::new(SnapshotPipeline::new(mode, config)),
+        PipelineKind::TwoShot => Box::new(TwoShotPipeline::new(config)),
+        PipelineKind::Separation => Box::new(SeparationPipeline::new(config)),
     }
 }

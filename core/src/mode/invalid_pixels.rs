@@ -4,7 +4,7 @@
 use crate::PixelFlags;
 
 /// Combines the sensor's saturation flags into `out_flags` and replaces
-/// non-finite values by 0 (flagged [`PixelFlags::NONFINITE.bits()`]); with `zero_saturated`,
+/// non-finite values by 0 (flagged [`PixelFlags::NONFINITE`]); with `zero_saturated`,
 /// saturated values become 0 too. All slices have the same length.
 #[inline]
 pub fn handle_invalid(

@@ -1,12 +1,13 @@
 //! The mode pipeline: sensor frames in, signed float DN out.
 //!
-//! Each mode is a short chain of small stages and runs only those it needs:
+//! Each mode runs one of three short chains of small stages, named by its
+//! [`super::ModeSpec::pipeline`]:
 //!
-//! | mode | stages |
+//! | pipeline | stages |
 //! | --- | --- |
-//! | raw, direct-only, bipolar-colour, depth-edge(-vertical), spatial-gradient, temporal-gradient | copy -> dark subtraction (only when a dark frame is set) -> invalid-pixel handling |
+//! | snapshot | copy -> dark subtraction (only when a dark frame is set) -> invalid-pixel handling |
 //! | two-shot | pairing (A = LS1 frame, B = LS2 frame) -> digital subtraction A - B -> invalid-pixel handling |
-//! | separation | as the snapshot modes, plus dark-subtracted frame -> [`crate::separation::LiveSeparator`] (M3, or M1 over a window) -> I+, I- in electrons |
+//! | separation | as snapshot, plus dark-subtracted frame -> [`crate::separation::LiveSeparator`] (M3, or M1 over a window) -> I+, I- in electrons |
 //!
 //! In the snapshot modes the difference is formed in the pixel, before the
 //! ADC (eq. pixeleff); what differs between them is the optics and the

@@ -249,10 +249,20 @@ impl FanPellets {
         }
         for k in 0..self.pellets.len() {
             let (px, py, _) = self.pellet_state(k, t_us);
-            let d = ((xc - px).powi(2) + (yc - py).powi(2)).sqrt();
-            coverage = coverage.max((self.pellet_radius_px - d + 0.5).clamp(0.0, 1.0));
+            coverage = coverage.max(disc_coverage(x, y, px, py, self.pellet_radius_px));
         }
         self.mix(self.base[i], coverage)
+    }
+
+    /// `out` as ambient light only, holding the still background; the
+    /// ambient image is reused when it has the size.
+    fn background_into<'a>(&self, out: &'a mut Radiance) -> &'a mut Image<f32> {
+        out.ls1 = None;
+        out.ls2 = None;
+        let img = super::reuse(out.ambient.take(), self.width, self.height);
+        let buf = out.ambient.insert(img);
+        buf.data.copy_from_slice(&self.base);
+        buf
     }
 
     #[inline]
@@ -274,16 +284,11 @@ impl FanPellets {
             let first_box = self.pellet_boxes.len();
             for k in 0..self.pellets.len() {
                 let (px, py, _) = self.pellet_state(k, t_us);
-                let x0 = (px - r - 1.0).floor().max(0.0) as usize;
-                let y0 = (py - r - 1.0).floor().max(0.0) as usize;
-                let x1 = ((px + r + 1.0).ceil() as usize).min(w);
-                let y1 = ((py + r + 1.0).ceil() as usize).min(h);
+                let [x0, x1, y0, y1] = pellet_box(px, py, r, w, h);
                 for y in y0..y1 {
                     for x in x0..x1 {
-                        let (xc, yc) = (x as f32 + 0.5, y as f32 + 0.5);
-                        let d = ((xc - px).powi(2) + (yc - py).powi(2)).sqrt();
                         let c = &mut self.pellet_now[y * w + x];
-                        *c = c.max((r - d + 0.5).clamp(0.0, 1.0));
+                        *c = c.max(disc_coverage(x, y, px, py, r));
                     }
                 }
                 self.pellet_boxes.push([x0, x1, y0, y1]);
@@ -318,6 +323,25 @@ impl FanPellets {
 /// [`Scene::render_mean`] for FanPellets): blade coverage from the
 /// antiderivative of the trapezoid, times the rim, at least the hub.
 #[multiversion(targets("x86_64+avx2+fma", "x86_64+sse4.1"))]
+/// Pixels [x0, x1) x [y0, y1) a pellet at (px, py) of radius `r` can
+/// touch, clipped to the `w` x `h` image.
+fn pellet_box(px: f32, py: f32, r: f32, w: usize, h: usize) -> [usize; 4] {
+    let x0 = (px - r - 1.0).floor().max(0.0) as usize;
+    let y0 = (py - r - 1.0).floor().max(0.0) as usize;
+    let x1 = ((px + r + 1.0).ceil() as usize).min(w);
+    let y1 = ((py + r + 1.0).ceil() as usize).min(h);
+    [x0, x1, y0, y1]
+}
+
+/// Fraction of pixel (x, y) a disc at (px, py) of radius `r` covers,
+/// anti-aliased over one pixel from its edge.
+#[inline]
+fn disc_coverage(x: usize, y: usize, px: f32, py: f32, r: f32) -> f32 {
+    let (xc, yc) = (x as f32 + 0.5, y as f32 + 0.5);
+    let d = ((xc - px).powi(2) + (yc - py).powi(2)).sqrt();
+    (r - d + 0.5).clamp(0.0, 1.0)
+}
+
 fn blade_row(
     out: &mut [f32],
     base: &[f32],
@@ -403,14 +427,7 @@ impl Scene for FanPellets {
     /// its antiderivative gives the exact mean) plus the mean of `samples`
     /// point renders for the pellets (ballistic, with bounces) and the hub edge.
     fn render_mean(&mut self, t0_us: f64, t1_us: f64, samples: usize, out: &mut Radiance) -> bool {
-        out.ls1 = None;
-        out.ls2 = None;
-        let (w, h) = (self.width, self.height);
-        let buf = match &mut out.ambient {
-            Some(img) if img.width == w && img.height == h => img,
-            slot => slot.insert(Image::new(w, h)),
-        };
-        buf.data.copy_from_slice(&self.base);
+        let buf = self.background_into(out);
         let samples = samples.max(1);
         let sample_t = |j: usize| t0_us + (j as f64 + 0.5) / samples as f64 * (t1_us - t0_us);
         // Blade phase phi = turns - rotation(t) falls by `span` turns.
@@ -444,14 +461,8 @@ impl Scene for FanPellets {
     }
 
     fn render(&self, t_us: f64, out: &mut Radiance) {
-        out.ls1 = None;
-        out.ls2 = None;
         let (w, h) = (self.width, self.height);
-        let buf = match &mut out.ambient {
-            Some(img) if img.width == w && img.height == h => img,
-            slot => slot.insert(Image::new(w, h)),
-        };
-        buf.data.copy_from_slice(&self.base);
+        let buf = self.background_into(out);
         for f in &self.fan_pixels {
             let c = self.fan_coverage(f.radius_px, f.turns, t_us);
             buf.data[f.index] = self.mix(self.base[f.index], c);
@@ -459,15 +470,10 @@ impl Scene for FanPellets {
         let r = self.pellet_radius_px;
         for k in 0..self.pellets.len() {
             let (px, py, _) = self.pellet_state(k, t_us);
-            let x0 = (px - r - 1.0).floor().max(0.0) as usize;
-            let y0 = (py - r - 1.0).floor().max(0.0) as usize;
-            let x1 = ((px + r + 1.0).ceil() as usize).min(w);
-            let y1 = ((py + r + 1.0).ceil() as usize).min(h);
+            let [x0, x1, y0, y1] = pellet_box(px, py, r, w, h);
             for y in y0..y1 {
                 for x in x0..x1 {
-                    let (xc, yc) = (x as f32 + 0.5, y as f32 + 0.5);
-                    let d = ((xc - px).powi(2) + (yc - py).powi(2)).sqrt();
-                    let c = (r - d + 0.5).clamp(0.0, 1.0);
+                    let c = disc_coverage(x, y, px, py, r);
                     let i = y * w + x;
                     let current = buf.data[i];
                     buf.data[i] = current.max(self.mix(self.base[i], c));

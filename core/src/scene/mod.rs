@@ -6,6 +6,7 @@ mod colour_chart;
 mod depth_edge;
 mod fan_pellets;
 mod flat_field;
+mod id;
 mod params;
 mod polarization;
 
@@ -14,6 +15,7 @@ pub use colour_chart::ColourChart;
 pub use depth_edge::{DepthEdgeScene, SourcePlacement};
 pub use fan_pellets::{FanPellets, FanPelletsParams};
 pub use flat_field::FlatField;
+pub use id::{SceneId, UnknownScene};
 pub use params::SceneParamError;
 pub use polarization::{Components, PolarizationScene, Region};
 
@@ -177,64 +179,28 @@ fn check_rate(name: &'static str, value: f64) -> Result<(), ParamError> {
 }
 
 impl SceneSpec {
-    /// Names accepted on command lines.
-    pub const NAMES: &'static [&'static str] = &[
-        "flat-field",
-        "colour-chart",
-        "polarization",
-        "depth-edge",
-        "depth-edge-vertical",
-        "birefringent",
-        "fan-pellets",
-    ];
+    /// Which scene this is.
+    pub fn id(&self) -> SceneId {
+        match self {
+            SceneSpec::FlatField { .. } => SceneId::FlatField,
+            SceneSpec::ColourChart { .. } => SceneId::ColourChart,
+            SceneSpec::Polarization { .. } => SceneId::Polarization,
+            SceneSpec::DepthEdge { placement, .. } => match placement {
+                SourcePlacement::Horizontal => SceneId::DepthEdge,
+                SourcePlacement::Vertical => SceneId::DepthEdgeVertical,
+            },
+            SceneSpec::Birefringent { .. } => SceneId::Birefringent,
+            SceneSpec::FanPellets { .. } => SceneId::FanPellets,
+        }
+    }
 
     pub fn name(&self) -> &'static str {
-        match self {
-            SceneSpec::FlatField { .. } => "flat-field",
-            SceneSpec::ColourChart { .. } => "colour-chart",
-            SceneSpec::Polarization { .. } => "polarization",
-            SceneSpec::DepthEdge { placement, .. } => match placement {
-                SourcePlacement::Horizontal => "depth-edge",
-                SourcePlacement::Vertical => "depth-edge-vertical",
-            },
-            SceneSpec::Birefringent { .. } => "birefringent",
-            SceneSpec::FanPellets { .. } => "fan-pellets",
-        }
+        self.id().name()
     }
 
     /// The scene of that name with its default parameters.
     pub fn from_name(name: &str) -> Option<Self> {
-        let depth_edge = |placement| SceneSpec::DepthEdge {
-            source_spacing_mm: 100.0,
-            placement,
-            source_electrons_per_us: 12.0,
-        };
-        match name {
-            "flat-field" => Some(SceneSpec::FlatField {
-                ls1_electrons_per_us: 4.0,
-                ls2_electrons_per_us: 2.0,
-            }),
-            "colour-chart" => Some(SceneSpec::ColourChart {
-                red_led_electrons_per_us: 12.0,
-                blue_led_electrons_per_us: 12.0,
-            }),
-            "polarization" => Some(SceneSpec::Polarization {
-                source_electrons_per_us: 12.0,
-            }),
-            "depth-edge" => Some(depth_edge(SourcePlacement::Horizontal)),
-            "depth-edge-vertical" => Some(depth_edge(SourcePlacement::Vertical)),
-            "birefringent" => Some(SceneSpec::Birefringent {
-                source_electrons_per_us: 12.0,
-                displacement_px: 1.0,
-            }),
-            "fan-pellets" => Some(SceneSpec::FanPellets {
-                background_electrons_per_us: 1.0,
-                object_electrons_per_us: 12.0,
-                fan_rpm: 1500.0,
-                pellets: 12,
-            }),
-            _ => None,
-        }
+        name.parse().ok().map(SceneId::spec)
     }
 
     /// Rejects NaN, negative rates and out-of-range geometry.
@@ -375,12 +341,14 @@ impl SceneSpec {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use strum::IntoEnumIterator;
 
     #[test]
     fn every_name_round_trips_and_builds() {
-        for &name in SceneSpec::NAMES {
-            let spec = SceneSpec::from_name(name).unwrap();
-            assert_eq!(spec.name(), name);
+        for id in SceneId::iter() {
+            let spec = id.spec();
+            assert_eq!(spec.id(), id);
+            assert_eq!(SceneSpec::from_name(id.name()), Some(spec.clone()));
             spec.validate().unwrap();
             let toml = toml::to_string(&spec).unwrap();
             let back: SceneSpec = toml::from_str(&toml).unwrap();

@@ -100,6 +100,7 @@ impl SceneSpec {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::SceneId;
 
     #[test]
     fn defaults_stay_and_named_parameters_change() {
@@ -134,7 +135,7 @@ mod tests {
 
     #[test]
     fn every_scene_lists_its_parameters_and_refuses_bad_ones() {
-        for name in SceneSpec::NAMES {
+        for name in SceneId::NAMES {
             let s = SceneSpec::from_name(name).unwrap();
             assert!(!s.params().is_empty(), "{name}");
             let e = s.with_params(&["no_such=1"]).unwrap_err();

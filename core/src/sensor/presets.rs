@@ -9,36 +9,19 @@
 
 use super::SensorParams;
 
-/// Named presets: "ti" and "pmd" on command lines and in config files.
-#[derive(
-    Debug,
-    Clone,
-    Copy,
-    PartialEq,
-    Eq,
-    strum::EnumString,
-    strum::Display,
-    strum::IntoStaticStr,
-    strum::VariantNames,
-    strum::EnumIter,
-)]
-pub enum SensorPreset {
-    /// TI OPT8241 (320x240, 12-bit signed A-B output).
-    #[strum(serialize = "ti")]
-    TiOpt8241,
-    /// PMD CamBoard nano (165x120).
-    #[strum(serialize = "pmd")]
-    PmdCamBoardNano,
+crate::named_enum! {
+    /// Named presets: "ti" and "pmd" on command lines and in config files.
+    pub enum SensorPreset {
+        /// TI OPT8241 (320x240, 12-bit signed A-B output).
+        #[strum(serialize = "ti")]
+        TiOpt8241,
+        /// PMD CamBoard nano (165x120).
+        #[strum(serialize = "pmd")]
+        PmdCamBoardNano,
+    }
 }
 
 impl SensorPreset {
-    pub const ALL: [SensorPreset; 2] = [SensorPreset::TiOpt8241, SensorPreset::PmdCamBoardNano];
-
-    /// Short name used on command lines and in config files.
-    pub fn name(self) -> &'static str {
-        self.into()
-    }
-
     pub fn from_name(name: &str) -> Option<Self> {
         name.parse().ok()
     }
@@ -102,9 +85,10 @@ mod tests {
 
     #[test]
     fn presets_are_valid_and_match_paper_read_noise() {
-        for p in SensorPreset::ALL {
+        for p in <SensorPreset as strum::IntoEnumIterator>::iter() {
             p.params().validate().unwrap();
         }
+        assert_eq!(SensorPreset::NAMES, ["ti", "pmd"]);
         let ti = SensorPreset::TiOpt8241.params();
         assert!((ti.read_variance_dn2() - 15.05).abs() < 1e-9);
         let pmd = SensorPreset::PmdCamBoardNano.params();

@@ -9,6 +9,7 @@
 
 use super::{input_flags, usable, Moments, SeparationError};
 use crate::frame::Frame;
+use crate::sensor::ParamError;
 
 /// Parameters of M3.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -46,11 +47,11 @@ impl BilateralParams {
         let r = self.sigma_range_dn;
         // Infinity is a valid limit (no range weighting); NaN and <= 0 are not.
         if r.is_nan() || r <= 0.0 {
-            return Err(SeparationError::Parameter {
+            return Err(SeparationError::Parameter(ParamError {
                 name: "sigma_range_dn",
                 value: r,
                 allowed: "> 0",
-            });
+            }));
         }
         Ok(())
     }

@@ -1,25 +1,19 @@
 //! Typed errors of the separation estimators.
 
+use crate::image::SizeMismatch;
+use crate::sensor::{check, ParamError};
+
 /// Why an estimator refused its input.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SeparationError {
     #[error("need at least {needed} frames for a variance, got {got}")]
     TooFewFrames { needed: usize, got: usize },
-    #[error("frame is {got_w}x{got_h}, expected {want_w}x{want_h}")]
-    SizeMismatch {
-        want_w: usize,
-        want_h: usize,
-        got_w: usize,
-        got_h: usize,
-    },
+    #[error(transparent)]
+    SizeMismatch(#[from] SizeMismatch),
     #[error("empty image")]
     Empty,
-    #[error("{name} = {} is out of range: expected {allowed}", crate::number::Number(*.value))]
-    Parameter {
-        name: &'static str,
-        value: f64,
-        allowed: &'static str,
-    },
+    #[error(transparent)]
+    Parameter(#[from] ParamError),
 }
 
 impl SeparationError {
@@ -29,14 +23,6 @@ impl SeparationError {
         ok: bool,
         allowed: &'static str,
     ) -> Result<(), Self> {
-        if ok && value.is_finite() {
-            Ok(())
-        } else {
-            Err(Self::Parameter {
-                name,
-                value,
-                allowed,
-            })
-        }
+        Ok(check(name, value, ok, allowed)?)
     }
 }

@@ -77,10 +77,6 @@ impl LocalMoments {
 }
 
 impl MomentSource for LocalMoments {
-    fn size(&self) -> (usize, usize) {
-        (self.width(), self.height())
-    }
-
     fn flags(&self) -> &Image<u8> {
         &self.flags
     }

@@ -15,7 +15,7 @@ pub struct Moments {
     pub mean_variance_cov_dn3: Image<f64>,
     /// Number (or effective number) of samples behind each pixel.
     pub samples: Image<f64>,
-    /// [`super::flags`] bits.
+    /// [`PixelFlags`](crate::PixelFlags) bits.
     pub flags: Image<u8>,
 }
 
@@ -95,18 +95,17 @@ pub struct PixelStats {
 
 /// Per-pixel statistics from any estimator ([`Moments`], [`super::LocalMoments`]).
 pub trait MomentSource {
-    /// (width, height).
-    fn size(&self) -> (usize, usize);
+    /// Per-pixel [`crate::PixelFlags`] bits, at the estimator's size.
     fn flags(&self) -> &Image<u8>;
+    /// (width, height).
+    fn size(&self) -> (usize, usize) {
+        (self.flags().width, self.flags().height)
+    }
     /// Pixel `i`'s statistics; meaningful where INSUFFICIENT is not flagged.
     fn pixel(&self, i: usize) -> PixelStats;
 }
 
 impl MomentSource for Moments {
-    fn size(&self) -> (usize, usize) {
-        (self.width(), self.height())
-    }
-
     fn flags(&self) -> &Image<u8> {
         &self.flags
     }

@@ -35,7 +35,7 @@ impl Default for PoolParams {
 }
 
 /// Edge-aware pooling of per-pixel moments (see module docs). Pixels flagged
-/// [`PixelFlags::INSUFFICIENT.bits()`] are neither pooled nor used.
+/// [`PixelFlags::INSUFFICIENT`] are neither pooled nor used.
 pub fn pool_moments(m: &Moments, params: PoolParams) -> Result<Moments, SeparationError> {
     let t = params.tolerance_sigmas;
     SeparationError::check("tolerance_sigmas", t, t > 0.0, "> 0")?;

@@ -3,7 +3,7 @@
 
 use super::{input_flags, usable, Moments, SeparationError};
 use crate::frame::Frame;
-use crate::image::Image;
+use crate::image::{Image, SizeMismatch};
 
 /// Label of pixels that belong to no segment (output flagged insufficient).
 pub const IGNORE_LABEL: u32 = u32::MAX;
@@ -28,24 +28,13 @@ pub fn segment_moments(
     interior: Option<&Image<u8>>,
 ) -> Result<Moments, SeparationError> {
     if let Some(m) = interior {
-        if !m.same_size(labels) {
-            return Err(SeparationError::SizeMismatch {
-                want_w: labels.width,
-                want_h: labels.height,
-                got_w: m.width,
-                got_h: m.height,
-            });
-        }
+        SizeMismatch::check((labels.width, labels.height), (m.width, m.height))?;
     }
     let counts = |i: usize| usable(frame, i) && interior.is_none_or(|m| m.data[i] != 0);
-    if !frame.dn.same_size(labels) {
-        return Err(SeparationError::SizeMismatch {
-            want_w: frame.width(),
-            want_h: frame.height(),
-            got_w: labels.width,
-            got_h: labels.height,
-        });
-    }
+    SizeMismatch::check(
+        (frame.width(), frame.height()),
+        (labels.width, labels.height),
+    )?;
     if frame.dn.is_empty() {
         return Err(SeparationError::Empty);
     }
@@ -202,8 +191,7 @@ pub fn auto_segment(frame: &Frame, params: SegmentParams) -> Result<Segmentation
             // Against the region's running mean, so a gentle ramp (a blurred
             // step spread over the box) cannot carry a region across an edge.
             let here = s / n as f64;
-            let (x, y) = (p % w, p / w);
-            let mut visit = |q: usize| {
+            let visit = |q: usize| {
                 if labels.data[q] == IGNORE_LABEL
                     && usable(frame, q)
                     && (smooth[q] - here).abs() <= tol
@@ -213,18 +201,7 @@ pub fn auto_segment(frame: &Frame, params: SegmentParams) -> Result<Segmentation
                     stack.push(q);
                 }
             };
-            if x > 0 {
-                visit(p - 1);
-            }
-            if x + 1 < w {
-                visit(p + 1);
-            }
-            if y > 0 {
-                visit(p - w);
-            }
-            if y + 1 < h {
-                visit(p + w);
-            }
+            for_each_neighbour(p, w, h, visit);
         }
         sizes.push(n);
         means.push(s / n as f64);
@@ -248,6 +225,25 @@ pub fn auto_segment(frame: &Frame, params: SegmentParams) -> Result<Segmentation
 
 /// Pixels whose whole (2 r + 1)^2 neighbourhood carries their own label;
 /// with `fill_thin`, segments with fewer than two such pixels use all their pixels.
+/// Calls `f` with each of pixel `p`'s 4-neighbours inside the `w` x `h`
+/// image: left, right, up, down.
+#[inline]
+fn for_each_neighbour(p: usize, w: usize, h: usize, mut f: impl FnMut(usize)) {
+    let (x, y) = (p % w, p / w);
+    if x > 0 {
+        f(p - 1);
+    }
+    if x + 1 < w {
+        f(p + 1);
+    }
+    if y > 0 {
+        f(p - w);
+    }
+    if y + 1 < h {
+        f(p + w);
+    }
+}
+
 fn interior_mask(labels: &Image<u32>, r: usize, fill_thin: bool) -> Image<u8> {
     let (w, h) = (labels.width, labels.height);
     let mut mask = Image::filled(w, h, 0u8);
@@ -307,7 +303,6 @@ fn merge_small(
             if l == IGNORE_LABEL || kept(l) {
                 continue;
             }
-            let (x, y) = (p % w, p / w);
             let mut best: Option<(f64, u32)> = None;
             let mut consider = |q: usize| {
                 let lq = labels.data[q];
@@ -323,18 +318,7 @@ fn merge_small(
                     }
                 }
             };
-            if x > 0 {
-                consider(p - 1);
-            }
-            if x + 1 < w {
-                consider(p + 1);
-            }
-            if y > 0 {
-                consider(p - w);
-            }
-            if y + 1 < h {
-                consider(p + w);
-            }
+            for_each_neighbour(p, w, h, &mut consider);
             if let Some((_, lq)) = best {
                 labels.data[p] = lq;
                 changed = true;

@@ -19,7 +19,7 @@
 //!   projection of the moment estimate ([`super::unmix`] with `nonnegative`).
 
 use super::{unmix, Moments, SeparationError, UnmixOptions};
-use crate::sensor::SkellamMixing;
+use crate::sensor::{ParamError, SkellamMixing};
 
 /// Which estimator produced a [`SkellamFit`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -71,11 +71,11 @@ pub fn skellam_ml_pixel(
             // `as i64` would saturate silently: a count beyond i64 (a sample
             // over a tiny gain) is refused instead of being clipped.
             if c.abs() >= i64::MAX as f64 {
-                return Err(SeparationError::Parameter {
+                return Err(SeparationError::Parameter(ParamError {
                     name: "sample_dn / gain_dn_per_electron",
                     value: c,
                     allowed: "an electron count within i64",
-                });
+                }));
             }
             k.push(c as i64);
         }

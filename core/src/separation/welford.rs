@@ -8,7 +8,7 @@ use std::collections::VecDeque;
 
 use super::{input_flags, usable, Moments, SeparationError};
 use crate::frame::Frame;
-use crate::image::Image;
+use crate::image::{Image, SizeMismatch};
 use crate::PixelFlags;
 
 /// Streaming accumulator for M1.
@@ -133,7 +133,7 @@ impl Welford {
 
     /// Mean and unbiased variance (1/(N-1), section 6 M1) per pixel.
     /// Fewer than 2 frames is an error; pixels with fewer than 2 usable
-    /// samples are flagged [`PixelFlags::INSUFFICIENT.bits()`].
+    /// samples are flagged [`PixelFlags::INSUFFICIENT`].
     pub fn moments(&self) -> Result<Moments, SeparationError> {
         if self.frames < 2 {
             return Err(SeparationError::TooFewFrames {
@@ -159,14 +159,7 @@ impl Welford {
 }
 
 fn check_size(width: usize, height: usize, frame: &Frame) -> Result<(), SeparationError> {
-    if frame.width() != width || frame.height() != height {
-        return Err(SeparationError::SizeMismatch {
-            want_w: width,
-            want_h: height,
-            got_w: frame.width(),
-            got_h: frame.height(),
-        });
-    }
+    SizeMismatch::check((width, height), (frame.width(), frame.height()))?;
     if width * height == 0 {
         return Err(SeparationError::Empty);
     }

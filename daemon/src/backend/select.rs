@@ -133,7 +133,7 @@ fn open_sim(c: &Config, mode: ModeId) -> Result<Opened, OpenError> {
     p.exposure_us = c.exposure_us.unwrap_or(p.exposure_us);
     p.frame_rate_hz = c.frame_rate_hz.unwrap_or(p.frame_rate_hz);
     p.modulation_hz = c.modulation_hz.unwrap_or(p.modulation_hz);
-    let sim = SimBackend::new(p, mode, c.seed, c.scene.and_then(|s| s.spec()))
+    let sim = SimBackend::new(p, mode, c.seed, c.scene.map(|s| s.spec()))
         .map_err(OpenError::Simulator)?;
     Ok((Box::new(sim), BoardExtras::default()))
 }
