@@ -8,6 +8,9 @@
 //! slot per stream, and wake the loop; the loop copies the slot into a
 //! PipeWire buffer (dropping the frame when the reader holds every buffer).
 //! Frames therefore never wait on PipeWire or its readers.
+// The PipeWire edge: buffers dequeued raw (to write the header meta) and
+// one stream call the crate does not wrap.
+#![allow(unsafe_code)]
 
 use std::cell::RefCell;
 use std::rc::Rc;
