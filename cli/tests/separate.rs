@@ -8,13 +8,14 @@ use common::m1_reference::{numpy_m1_max_rel_diff, numpy_python, recording_to_npy
 use common::{load, ok, s, scratch, sdictl, separate, sim, write_stack};
 
 use std::path::Path;
+use std::process::Output;
 
 use sdi_core::modulation::Illumination;
 use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::{mixing_with_adc, SensorPreset};
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
-use sdi_recording::{Calibration, Header, RecordingFile};
+use sdi_recording::{Header, RecordingFile};
 
 #[test]
 fn m1_round_trip_from_data_alone_matches_truth_and_numpy() {
@@ -84,17 +85,7 @@ fn make_recording(path: &Path, n: usize) {
         SceneSpec::from_name("colour-chart").unwrap(),
     ))
     .unwrap();
-    let header = Header {
-        format_version: 1,
-        mode: "raw".into(),
-        backend: "sim".into(),
-        sensor: sensor.clone(),
-        exposure_us: sensor.exposure_us,
-        frame_rate_hz: sensor.frame_rate_hz,
-        modulation_hz: sensor.modulation_hz,
-        started_unix_s: 0.0,
-        calibration: Calibration::default(),
-    };
+    let header = Header::for_sensor("raw", "sim", sensor.clone());
     let mut w = RecordingFile::create(path, &header).unwrap();
     let mut frame = Frame::new(sensor.width, sensor.height);
     let mut dark = Image::<f32>::new(sensor.width, sensor.height);
@@ -275,31 +266,12 @@ fn extremes_give_finite_flagged_results_or_clear_errors() {
         t.insert(field.into(), toml::Value::Float(value));
         let file = dir.join("bad.toml");
         std::fs::write(&file, toml::to_string(&t).unwrap()).unwrap();
-        for cmd in [
-            vec![
-                "separate",
-                "--method",
-                "m1",
-                "--in",
-                s(&input),
-                "--out",
-                s(&gone),
-                "--sensor",
-                s(&file),
-            ],
-            vec![
-                "sim",
-                "--mode",
-                "raw",
-                "--frames",
-                "1",
-                "--out",
-                s(&gone),
-                "--sensor",
-                s(&file),
-            ],
-        ] {
-            let o = sdictl(&cmd);
+        let sensor = ["--sensor", s(&file)];
+        let runs: [&dyn Fn() -> Output; 2] = [&|| separate("m1", &input, &gone, &sensor), &|| {
+            sim("raw", 1, &gone, &sensor)
+        }];
+        for run in runs {
+            let o = run();
             assert_eq!(o.status.code(), Some(2), "{field}={value}");
             assert!(
                 String::from_utf8_lossy(&o.stderr).contains(field),

@@ -170,17 +170,12 @@ fn same_file_through_dot_dot_or_symlink_is_refused() {
         left.sort();
         assert_eq!(left, ["link", "sub"], "{flag}");
     }
-    let o = sdictl(&[
-        "sim",
-        "--mode",
+    let o = sim(
         "raw",
-        "--frames",
-        "1",
-        "--out",
-        &s(dir.join("sub/f.npy")),
-        "--png",
-        &s(dir.join("link/f.npy")),
-    ]);
+        1,
+        &dir.join("sub/f.npy"),
+        &["--png", &s(dir.join("link/f.npy"))],
+    );
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(names(&dir.join("sub")).is_empty());
 }
