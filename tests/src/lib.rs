@@ -1,4 +1,5 @@
 //! Shared helpers for SDI's integration tests.
+#![forbid(unsafe_code)]
 
 pub mod bench;
 pub mod board_emulator;
