@@ -46,7 +46,6 @@ pub fn is_root() -> bool {
     nix::unistd::geteuid().is_root()
 }
 
-
 /// Runs `cmd`, echoing the command, its status and output to stderr.
 pub fn run(cmd: &mut Command) -> Output {
     let out = cmd
