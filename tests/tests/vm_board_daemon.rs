@@ -7,13 +7,13 @@
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use sdi_tests::board_emulator::BoardEmulator;
-use sdi_tests::dbus::{bin, export_bins, sdictl, Bus};
+use sdi_tests::dbus::{export_bins, sdictl, Bus, Daemon};
 use sdi_tests::process::Reaped;
 use sdi_tests::vm;
 use sdi_tests::wait::{wait_for, wait_until};
@@ -48,12 +48,10 @@ struct Sdid {
 
 impl Sdid {
     fn start(bus: &Bus, config: &Path) -> Self {
-        let mut child = Command::new(bin("sdid"))
-            .args(["--bus-address", &bus.address, "--sink", "y4m"])
-            .args(["--y4m-path", "-", "--config"])
+        let mut child = Daemon::bare_command(bus, &[])
+            .args(["--sink", "y4m", "--y4m-path", "-", "--config"])
             .arg(config)
             .env("RUST_LOG", "info")
-            .env_remove("INVOCATION_ID")
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
