@@ -4,19 +4,9 @@
 //! naming the problem) or a finite result; never a panic or NaN.
 
 mod common;
-use common::{scratch, sdictl, stderr, stdout};
+use common::{load, s, scratch, sdictl, sim, stderr, stdout, write_stack as stack};
 
 use std::path::Path;
-
-use sdi_core::npy::write_f32;
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn stack(path: &Path, shape: &[usize], data: &[f32]) {
-    write_f32(std::fs::File::create(path).unwrap(), shape, data).unwrap();
-}
 
 /// Noise-like frames: a level per pixel plus a deterministic wobble.
 fn frames(n: usize, h: usize, w: usize, level: impl Fn(usize) -> f32) -> Vec<f32> {
@@ -207,42 +197,33 @@ fn scene_params_reach_the_simulator() {
     let dir = scratch("science", "scene-param");
     let (a, b) = (dir.join("a.npy"), dir.join("b.npy"));
     for (path, rate) in [(&a, "4"), (&b, "8")] {
-        let o = sdictl(&[
-            "sim",
-            "--scene",
-            "flat-field",
-            "--mode",
+        let o = sim(
             "raw",
-            "--frames",
-            "1",
-            "--scene-param",
-            &format!("ls1_electrons_per_us={rate}"),
-            "--scene-param",
-            "ls2_electrons_per_us=0",
-            "--out",
-            s(path),
-        ]);
+            1,
+            path,
+            &[
+                "--scene",
+                "flat-field",
+                "--scene-param",
+                &format!("ls1_electrons_per_us={rate}"),
+                "--scene-param",
+                "ls2_electrons_per_us=0",
+            ],
+        );
         assert!(o.status.success(), "{}", stderr(&o));
     }
     let mean = |p: &Path| {
-        let (_, v) = sdi_core::npy::read_f32(std::fs::File::open(p).unwrap()).unwrap();
+        let (_, v) = load(p);
         v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64
     };
     let ratio = mean(&b) / mean(&a);
     assert!((ratio - 2.0).abs() < 0.05, "{ratio}");
-    let o = sdictl(&[
-        "sim",
-        "--scene",
-        "depth-edge",
-        "--mode",
+    let o = sim(
         "raw",
-        "--frames",
-        "1",
-        "--scene-param",
-        "fan_rpm=3",
-        "--out",
-        s(&a),
-    ]);
+        1,
+        &a,
+        &["--scene", "depth-edge", "--scene-param", "fan_rpm=3"],
+    );
     assert_eq!(o.status.code(), Some(2));
     assert!(
         stderr(&o).contains("source_spacing_mm (default 100.0)"),

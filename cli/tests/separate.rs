@@ -4,69 +4,18 @@
 //! NaN/inf, zero light, saturation, a truncated recording, bad sensor files).
 
 mod common;
-use common::{scratch, sdictl};
+use common::m1_reference::{numpy_m1_max_rel_diff, numpy_python, recording_to_npy};
+use common::{load, ok, s, scratch, sdictl, separate, sim, write_stack};
 
-use std::io::Write;
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
 use sdi_core::modulation::Illumination;
-use sdi_core::npy::{read_f32, write_f32};
 use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::{mixing_with_adc, SensorPreset};
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_core::{Frame, Image};
-use sdi_recording::{Calibration, Header, RecordingFile};
-
-fn ok(o: &Output) {
-    assert!(
-        o.status.success(),
-        "status {:?}\nstdout: {}\nstderr: {}",
-        o.status,
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
-
-fn load(p: &Path) -> (Vec<usize>, Vec<f32>) {
-    read_f32(std::fs::File::open(p).unwrap()).unwrap()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// A python3 with numpy, if this machine has one.
-fn numpy_python() -> Option<String> {
-    ["python3", "/usr/bin/python3"].into_iter().find_map(|py| {
-        Command::new(py)
-            .args(["-c", "import numpy"])
-            .output()
-            .ok()
-            .filter(|o| o.status.success())
-            .map(|_| py.to_string())
-    })
-}
-
-/// Independent M1 in numpy: mean and unbiased variance over axis 0, then
-/// (I+, I-) = ((max(v - r, 0) / g^2 +- m / g) / 2; prints the largest
-/// difference from `sep` relative to max(|numpy|, 1).
-fn numpy_m1_max_rel_diff(py: &str, frames: &Path, sep: &Path, g: f64, r: f64) -> f64 {
-    let code = format!(
-        "import numpy as np\n\
-         x = np.load('{}').astype(np.float64)\n\
-         s = np.load('{}').astype(np.float64)\n\
-         m = x.mean(0); v = x.var(0, ddof=1)\n\
-         S = np.maximum(v - {r:.17e}, 0) / {g:.17e}**2; D = m / {g:.17e}\n\
-         ref = np.stack([0.5 * (S + D), 0.5 * (S - D)])\n\
-         print((np.abs(ref - s) / np.maximum(np.abs(ref), 1.0)).max())\n",
-        s(frames),
-        s(sep)
-    );
-    let o = Command::new(py).args(["-c", &code]).output().unwrap();
-    ok(&o);
-    String::from_utf8_lossy(&o.stdout).trim().parse().unwrap()
-}
+use sdi_recording::{Header, RecordingFile};
 
 #[test]
 fn m1_round_trip_from_data_alone_matches_truth_and_numpy() {
@@ -77,30 +26,13 @@ fn m1_round_trip_from_data_alone_matches_truth_and_numpy() {
         dir.join("s.npy"),
         dir.join("sigma.npy"),
     );
-    ok(&sdictl(&[
-        "sim",
-        "--scene",
-        "colour-chart",
-        "--mode",
+    ok(&sim(
         "raw",
-        "--frames",
-        "300",
-        "--out",
-        s(&f),
-        "--truth",
-        s(&t),
-    ]));
-    ok(&sdictl(&[
-        "separate",
-        "--method",
-        "m1",
-        "--in",
-        s(&f),
-        "--out",
-        s(&out),
-        "--sigma",
-        s(&sig),
-    ]));
+        300,
+        &f,
+        &["--scene", "colour-chart", "--truth", s(&t)],
+    ));
+    ok(&separate("m1", &f, &out, &["--sigma", s(&sig)]));
     let (ts, tv) = load(&t);
     let (ss, sv) = load(&out);
     let (gs, gv) = load(&sig);
@@ -129,10 +61,6 @@ fn m1_round_trip_from_data_alone_matches_truth_and_numpy() {
         "{rms_err} vs {rms_se}"
     );
     let Some(py) = numpy_python() else {
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED numpy comparison: no python3 with numpy (apt-get install python3-numpy)"
-        );
         return;
     };
     let h = mixing_with_adc(&SensorPreset::TiOpt8241.params());
@@ -157,17 +85,7 @@ fn make_recording(path: &Path, n: usize) {
         SceneSpec::from_name("colour-chart").unwrap(),
     ))
     .unwrap();
-    let header = Header {
-        format_version: 1,
-        mode: "raw".into(),
-        backend: "sim".into(),
-        sensor: sensor.clone(),
-        exposure_us: sensor.exposure_us,
-        frame_rate_hz: sensor.frame_rate_hz,
-        modulation_hz: sensor.modulation_hz,
-        started_unix_s: 0.0,
-        calibration: Calibration::default(),
-    };
+    let header = Header::for_sensor("raw", "sim", sensor.clone());
     let mut w = RecordingFile::create(path, &header).unwrap();
     let mut frame = Frame::new(sensor.width, sensor.height);
     let mut dark = Image::<f32>::new(sensor.width, sensor.height);
@@ -188,43 +106,13 @@ fn make_recording(path: &Path, n: usize) {
     w.finish(n as u64, 0).unwrap();
 }
 
-/// Frames of a recording, dark-subtracted, as an .npy (N, H, W).
-fn recording_to_npy(rec: &Path, npy: &Path) -> usize {
-    let reader = sdi_recording::RecordingReader::open(rec).unwrap();
-    let mut dark: Option<Image<f32>> = None;
-    let mut data = Vec::new();
-    let (mut n, mut w, mut h) = (0, 0, 0);
-    for r in reader {
-        match r {
-            sdi_recording::Record::Dark { dn, .. } => dark = Some(dn),
-            sdi_recording::Record::Frame { frame, .. } => {
-                let d = dark.as_ref().unwrap();
-                data.extend(frame.dn.data.iter().zip(&d.data).map(|(a, b)| a - b));
-                (w, h) = (frame.width(), frame.height());
-                n += 1;
-            }
-            _ => {}
-        }
-    }
-    write_f32(std::fs::File::create(npy).unwrap(), &[n, h, w], &data).unwrap();
-    n
-}
-
 #[test]
 fn m1_on_a_recording_equals_numpy_and_survives_truncation() {
     let dir = scratch("separate", "recording");
     let rec = dir.join("r.sdirec");
     make_recording(&rec, 120);
     let out = dir.join("s.npy");
-    let o = sdictl(&[
-        "separate",
-        "--method",
-        "m1",
-        "--in",
-        s(&rec),
-        "--out",
-        s(&out),
-    ]);
+    let o = separate("m1", &rec, &out, &[]);
     ok(&o);
     assert!(String::from_utf8_lossy(&o.stderr).contains("recording's sensor"));
     let (shape, v) = load(&out);
@@ -242,11 +130,6 @@ fn m1_on_a_recording_equals_numpy_and_survives_truncation() {
             h.read_variance_dn2,
         );
         assert!(d < 1e-5, "numpy and sdictl differ by {d} (relative)");
-    } else {
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED numpy comparison: no python3 with numpy (apt-get install python3-numpy)"
-        );
     }
     // The same frames as .npy give the same result with the same sensor.
     let out2 = dir.join("s2.npy");
@@ -255,17 +138,12 @@ fn m1_on_a_recording_equals_numpy_and_survives_truncation() {
     d.width = 48;
     d.height = 36;
     std::fs::write(&sensor_file, d.to_toml()).unwrap();
-    ok(&sdictl(&[
-        "separate",
-        "--method",
+    ok(&separate(
         "m1",
-        "--in",
-        s(&frames),
-        "--out",
-        s(&out2),
-        "--sensor",
-        s(&sensor_file),
-    ]));
+        &frames,
+        &out2,
+        &["--sensor", s(&sensor_file)],
+    ));
     let (_, v2) = load(&out2);
     let max = v
         .iter()
@@ -277,15 +155,7 @@ fn m1_on_a_recording_equals_numpy_and_survives_truncation() {
     let bytes = std::fs::read(&rec).unwrap();
     let cut = dir.join("cut.sdirec");
     std::fs::write(&cut, &bytes[..bytes.len() * 2 / 3]).unwrap();
-    let o = sdictl(&[
-        "separate",
-        "--method",
-        "m3",
-        "--in",
-        s(&cut),
-        "--out",
-        s(&out),
-    ]);
+    let o = separate("m3", &cut, &out, &[]);
     ok(&o);
     assert!(String::from_utf8_lossy(&o.stderr).contains("damaged record"));
     let (shape, v) = load(&out);
@@ -293,25 +163,13 @@ fn m1_on_a_recording_equals_numpy_and_survives_truncation() {
     assert!(v.iter().all(|x| x.is_finite()));
     // Cut inside the header: a clear error.
     std::fs::write(&cut, &bytes[..20]).unwrap();
-    let o = sdictl(&[
-        "separate",
-        "--method",
-        "m1",
-        "--in",
-        s(&cut),
-        "--out",
-        s(&out),
-    ]);
+    let o = separate("m1", &cut, &out, &[]);
     assert_eq!(
         o.status.code(),
         Some(2),
         "{}",
         String::from_utf8_lossy(&o.stderr)
     );
-}
-
-fn write_stack(path: &Path, shape: &[usize], data: &[f32]) {
-    write_f32(std::fs::File::create(path).unwrap(), shape, data).unwrap();
 }
 
 #[test]
@@ -355,19 +213,7 @@ fn extremes_give_finite_flagged_results_or_clear_errors() {
         let input = dir.join("in.npy");
         write_stack(&input, shape, data);
         for m in methods {
-            let o = sdictl(&[
-                "separate",
-                "--method",
-                m,
-                "--in",
-                s(&input),
-                "--out",
-                s(&out),
-                "--sigma",
-                s(&sig),
-                "--flags",
-                s(&fl),
-            ]);
+            let o = separate(m, &input, &out, &["--sigma", s(&sig), "--flags", s(&fl)]);
             ok(&o);
             let (os, ov) = load(&out);
             let (_, sv) = load(&sig);
@@ -386,28 +232,12 @@ fn extremes_give_finite_flagged_results_or_clear_errors() {
     // One frame: M1 refuses clearly; per-frame methods give a flagged result.
     let one = dir.join("one.npy");
     write_stack(&one, &[1, 2, 2], &[1.0, 2.0, 3.0, 4.0]);
-    let o = sdictl(&[
-        "separate",
-        "--method",
-        "m1",
-        "--in",
-        s(&one),
-        "--out",
-        s(&out),
-    ]);
+    let o = separate("m1", &one, &out, &[]);
     assert_eq!(o.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&o.stderr).contains("at least 2 frames"));
     assert!(!out.exists() || load(&out).0 != vec![2, 2, 2]);
     for m in ["m2", "m3", "ml"] {
-        ok(&sdictl(&[
-            "separate",
-            "--method",
-            m,
-            "--in",
-            s(&one),
-            "--out",
-            s(&out),
-        ]));
+        ok(&separate(m, &one, &out, &[]));
         let (os, ov) = load(&out);
         assert_eq!(os, vec![1, 2, 2, 2]);
         assert!(ov.iter().all(|v| v.is_finite()));
@@ -418,15 +248,7 @@ fn extremes_give_finite_flagged_results_or_clear_errors() {
     std::fs::write(&cut, &bytes[..bytes.len() - 3]).unwrap();
     let gone = dir.join("never.npy");
     for bad in [&cut, &dir.join("missing.npy")] {
-        let o = sdictl(&[
-            "separate",
-            "--method",
-            "m3",
-            "--in",
-            s(bad),
-            "--out",
-            s(&gone),
-        ]);
+        let o = separate("m3", bad, &gone, &[]);
         assert!(!o.status.success());
         assert!(!gone.exists());
     }
@@ -444,31 +266,12 @@ fn extremes_give_finite_flagged_results_or_clear_errors() {
         t.insert(field.into(), toml::Value::Float(value));
         let file = dir.join("bad.toml");
         std::fs::write(&file, toml::to_string(&t).unwrap()).unwrap();
-        for cmd in [
-            vec![
-                "separate",
-                "--method",
-                "m1",
-                "--in",
-                s(&input),
-                "--out",
-                s(&gone),
-                "--sensor",
-                s(&file),
-            ],
-            vec![
-                "sim",
-                "--mode",
-                "raw",
-                "--frames",
-                "1",
-                "--out",
-                s(&gone),
-                "--sensor",
-                s(&file),
-            ],
-        ] {
-            let o = sdictl(&cmd);
+        let sensor = ["--sensor", s(&file)];
+        let runs: [&dyn Fn() -> Output; 2] = [&|| separate("m1", &input, &gone, &sensor), &|| {
+            sim("raw", 1, &gone, &sensor)
+        }];
+        for run in runs {
+            let o = run();
             assert_eq!(o.status.code(), Some(2), "{field}={value}");
             assert!(
                 String::from_utf8_lossy(&o.stderr).contains(field),
@@ -483,21 +286,19 @@ fn extremes_give_finite_flagged_results_or_clear_errors() {
 fn sim_truth_and_two_shot_frames_have_the_documented_shapes() {
     let dir = scratch("separate", "sim-truth");
     let (f, t, ab) = (dir.join("f.npy"), dir.join("t.npy"), dir.join("ab.npy"));
-    ok(&sdictl(&[
-        "sim",
-        "--mode",
+    ok(&sim(
         "two-shot",
-        "--frames",
-        "3",
-        "--out",
-        s(&f),
-        "--truth",
-        s(&t),
-        "--two-shot-frames",
-        s(&ab),
-        "--sensor",
-        "pmd",
-    ]));
+        3,
+        &f,
+        &[
+            "--truth",
+            s(&t),
+            "--two-shot-frames",
+            s(&ab),
+            "--sensor",
+            "pmd",
+        ],
+    ));
     assert_eq!(load(&t).0, vec![2, 120, 165]);
     let (abs, abv) = load(&ab);
     assert_eq!(abs, vec![3, 2, 120, 165]);
@@ -511,32 +312,15 @@ fn sim_truth_and_two_shot_frames_have_the_documented_shapes() {
         }
     }
     // Separation mode writes the separated channels, not the difference.
-    ok(&sdictl(&[
-        "sim",
-        "--mode",
-        "separation",
-        "--frames",
-        "2",
-        "--out",
-        s(&f),
-        "--sensor",
-        "pmd",
-    ]));
+    ok(&sim("separation", 2, &f, &["--sensor", "pmd"]));
     assert_eq!(load(&f).0, vec![2, 2, 120, 165]);
     // A moving scene has one truth per frame.
-    ok(&sdictl(&[
-        "sim",
-        "--mode",
+    ok(&sim(
         "temporal-gradient",
-        "--frames",
-        "2",
-        "--out",
-        s(&f),
-        "--truth",
-        s(&t),
-        "--sensor",
-        "pmd",
-    ]));
+        2,
+        &f,
+        &["--truth", s(&t), "--sensor", "pmd"],
+    ));
     assert_eq!(load(&t).0, vec![2, 2, 120, 165]);
 }
 
@@ -544,36 +328,27 @@ fn sim_truth_and_two_shot_frames_have_the_documented_shapes() {
 fn report_separation_on_measured_frames_uses_ls_only_frames_as_truth() {
     let dir = scratch("separate", "measured");
     let (f, ts, ab) = (dir.join("f.npy"), dir.join("ts.npy"), dir.join("ab.npy"));
-    ok(&sdictl(&[
-        "sim",
-        "--scene",
-        "colour-chart",
-        "--mode",
+    ok(&sim(
         "raw",
-        "--frames",
-        "100",
-        "--out",
-        s(&f),
-        "--sensor",
-        "pmd",
-    ]));
-    ok(&sdictl(&[
-        "sim",
-        "--scene",
-        "colour-chart",
-        "--mode",
+        100,
+        &f,
+        &["--scene", "colour-chart", "--sensor", "pmd"],
+    ));
+    ok(&sim(
         "two-shot",
-        "--frames",
-        "100",
-        "--out",
-        s(&ts),
-        "--two-shot-frames",
-        s(&ab),
-        "--sensor",
-        "pmd",
-        "--seed",
-        "3",
-    ]));
+        100,
+        &ts,
+        &[
+            "--scene",
+            "colour-chart",
+            "--two-shot-frames",
+            s(&ab),
+            "--sensor",
+            "pmd",
+            "--seed",
+            "3",
+        ],
+    ));
     let (shape, v) = load(&ab);
     let plane = shape[2] * shape[3];
     let (mut a, mut b) = (Vec::new(), Vec::new());
@@ -620,17 +395,7 @@ fn report_separation_on_measured_frames_uses_ls_only_frames_as_truth() {
 fn same_file_is_refused_and_json_summary() {
     let dir = scratch("separate", "same-file");
     let input = dir.join("in.npy");
-    ok(&sdictl(&[
-        "sim",
-        "--mode",
-        "raw",
-        "--frames",
-        "3",
-        "--sensor",
-        "pmd",
-        "--out",
-        s(&input),
-    ]));
+    ok(&sim("raw", 3, &input, &["--sensor", "pmd"]));
     std::fs::create_dir(dir.join("sub")).unwrap();
     std::os::unix::fs::symlink(&dir, dir.join("link")).unwrap();
     let out = dir.join("s.npy");
@@ -638,43 +403,16 @@ fn same_file_is_refused_and_json_summary() {
         ("--sigma", dir.join("sub/../s.npy")),
         ("--flags", dir.join("link/s.npy")),
     ] {
-        let o = sdictl(&[
-            "separate",
-            "--method",
-            "m1",
-            "--in",
-            s(&input),
-            "--out",
-            s(&out),
-            flag,
-            s(&other),
-        ]);
+        let o = separate("m1", &input, &out, &[flag, s(&other)]);
         assert_eq!(o.status.code(), Some(2), "{flag}");
         assert!(String::from_utf8_lossy(&o.stderr).contains("same file"));
         assert!(!out.exists(), "{flag}");
     }
-    let o = sdictl(&[
-        "separate",
-        "--method",
-        "m1",
-        "--in",
-        s(&input),
-        "--out",
-        s(&dir.join("link/in.npy")),
-    ]);
+    let o = separate("m1", &input, &dir.join("link/in.npy"), &[]);
     assert_eq!(o.status.code(), Some(2));
     assert_eq!(load(&input).0, [3, 120, 165], "the input is untouched");
 
-    let o = sdictl(&[
-        "separate",
-        "--method",
-        "m1",
-        "--in",
-        s(&input),
-        "--out",
-        s(&out),
-        "--json",
-    ]);
+    let o = separate("m1", &input, &out, &["--json"]);
     ok(&o);
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["frames_in"], 3);

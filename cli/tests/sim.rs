@@ -2,43 +2,30 @@
 //! PNG, and that nothing is left behind on error.
 
 mod common;
-use common::{scratch, sdictl, stderr};
-
-use std::path::Path;
-
-use sdi_core::npy::read_f32;
-
-fn entries(dir: &Path) -> Vec<String> {
-    std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect()
-}
+use common::{load, names, scratch, sdictl, sim, stderr};
 
 #[test]
 fn writes_npy_of_n_frames_and_png_of_sensor_size() {
     let dir = scratch("sim", "ok");
     let out = dir.join("f.npy");
     let png = dir.join("sub/f.png");
-    let o = sdictl(&[
-        "sim",
-        "--scene",
-        "flat-field",
-        "--mode",
+    let o = sim(
         "raw",
-        "--frames",
-        "3",
-        "--sensor",
-        "pmd",
-        "--seed",
-        "7",
-        "--out",
-        out.to_str().unwrap(),
-        "--png",
-        png.to_str().unwrap(),
-    ]);
+        3,
+        &out,
+        &[
+            "--scene",
+            "flat-field",
+            "--sensor",
+            "pmd",
+            "--seed",
+            "7",
+            "--png",
+            png.to_str().unwrap(),
+        ],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
-    let (shape, data) = read_f32(std::fs::File::open(&out).unwrap()).unwrap();
+    let (shape, data) = load(&out);
     assert_eq!(shape, vec![3, 120, 165]);
     // Flat field 4 vs 2 electrons/us, 2000 us, 50/50: I+ - I- = 2000 electrons;
     // PMD g = 0.5 * 0.4 DN/electron -> 400 DN.
@@ -51,7 +38,7 @@ fn writes_npy_of_n_frames_and_png_of_sensor_size() {
     let p = img.get_pixel(80, 60);
     assert!(p[0] > p[2], "{p:?}");
     // No temporary files left.
-    assert_eq!(entries(&dir).len(), 2, "{:?}", entries(&dir));
+    assert_eq!(names(&dir).len(), 2, "{:?}", names(&dir));
 }
 
 #[test]
@@ -59,17 +46,7 @@ fn same_seed_same_frames() {
     let dir = scratch("sim", "seed");
     let run = |name: &str| {
         let out = dir.join(name);
-        let o = sdictl(&[
-            "sim",
-            "--mode",
-            "bipolar-colour",
-            "--frames",
-            "2",
-            "--seed",
-            "3",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let o = sim("bipolar-colour", 2, &out, &["--seed", "3"]);
         assert!(o.status.success(), "{}", stderr(&o));
         std::fs::read(out).unwrap()
     };
@@ -81,23 +58,14 @@ fn two_shot_and_temporal_gradient_run() {
     let dir = scratch("sim", "modes");
     for mode in ["two-shot", "temporal-gradient", "depth-edge-vertical"] {
         let out = dir.join(format!("{mode}.npy"));
-        let o = sdictl(&[
-            "sim",
-            "--mode",
+        let o = sim(
             mode,
-            "--frames",
-            "2",
-            "--dark-frames",
-            "0",
-            "--colormap",
-            "grey",
-            "--range",
-            "50",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+            2,
+            &out,
+            &["--dark-frames", "0", "--colormap", "grey", "--range", "50"],
+        );
         assert!(o.status.success(), "{mode}: {}", stderr(&o));
-        let (shape, _) = read_f32(std::fs::File::open(&out).unwrap()).unwrap();
+        let (shape, _) = load(&out);
         assert_eq!(shape, vec![2, 240, 320]);
     }
 }
@@ -107,69 +75,50 @@ fn bad_input_exits_2_with_choices_and_writes_nothing() {
     let dir = scratch("sim", "bad");
     let out = dir.join("x.npy");
     let out = out.to_str().unwrap();
-    let cases: &[(&[&str], &str)] = &[
-        (&["--mode", "nope", "--frames", "1"], "two-shot"),
-        (
-            &["--mode", "raw", "--scene", "moon", "--frames", "1"],
-            "flat-field",
-        ),
-        (&["--mode", "raw", "--frames", "0"], "1 to 10000"),
-        (&["--mode", "raw", "--frames", "-3"], "1 to 10000"),
-        (&["--mode", "raw", "--frames", "99999999999"], "1 to 10000"),
-        (
-            &["--mode", "raw", "--frames", "1", "--sensor", "sony"],
-            "pmd",
-        ),
-        (
-            &["--mode", "raw", "--frames", "1", "--exposure-us", "NaN"],
-            "exposure",
-        ),
-        (
-            &["--mode", "raw", "--frames", "1", "--exposure-us", "0"],
-            "exposure",
-        ),
-        (
-            &["--mode", "raw", "--frames", "1", "--exposure-us", "1e300"],
-            "exposure",
-        ),
-        (
-            &["--mode", "raw", "--frames", "1", "--ambient", "-1"],
-            "ambient",
-        ),
-        (
-            &["--mode", "raw", "--frames", "1", "--ambient", "inf"],
-            "ambient",
-        ),
-        (
-            &["--mode", "raw", "--frames", "1", "--colormap", "jet"],
-            "diverging",
-        ),
-        (&["--mode", "raw", "--frames", "1", "--range", "0"], "auto"),
-        (
-            &["--mode", "raw", "--frames", "1", "--range", "NaN"],
-            "auto",
-        ),
-        (&["--mode", "raw", "--frames", "1", "--seed", "-1"], "seed"),
+    // Each bad option after `--mode raw --frames 1`.
+    let bad_options: [(&[&str], &str); 11] = [
+        (&["--sensor", "sony"], "pmd"),
+        (&["--exposure-us", "NaN"], "exposure"),
+        (&["--exposure-us", "0"], "exposure"),
+        (&["--exposure-us", "1e300"], "exposure"),
+        (&["--ambient", "-1"], "ambient"),
+        (&["--ambient", "inf"], "ambient"),
+        (&["--colormap", "jet"], "diverging"),
+        (&["--range", "0"], "auto"),
+        (&["--range", "NaN"], "auto"),
+        (&["--seed", "-1"], "seed"),
+        (&["--scene", "moon"], "flat-field"),
     ];
-    for (args, hint) in cases {
+    let mut cases: Vec<(Vec<&str>, &str)> = vec![
+        (vec!["--mode", "nope", "--frames", "1"], "two-shot"),
+        (vec!["--mode", "raw", "--frames", "0"], "1 to 10000"),
+        (vec!["--mode", "raw", "--frames", "-3"], "1 to 10000"),
+        (
+            vec!["--mode", "raw", "--frames", "99999999999"],
+            "1 to 10000",
+        ),
+    ];
+    cases.extend(bad_options.iter().map(|(option, hint)| {
+        (
+            [&["--mode", "raw", "--frames", "1"], *option].concat(),
+            *hint,
+        )
+    }));
+    for (args, hint) in &cases {
         let mut all = vec!["sim"];
         all.extend_from_slice(args);
         all.extend_from_slice(&["--out", out, "--png", "p.png"]);
         let o = sdictl(&all);
         assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
         assert!(stderr(&o).contains(hint), "{args:?}: {}", stderr(&o));
-        assert!(
-            entries(&dir).is_empty(),
-            "{args:?} left {:?}",
-            entries(&dir)
-        );
+        assert!(names(&dir).is_empty(), "{args:?} left {:?}", names(&dir));
     }
     // Same file for both outputs.
     let o = sdictl(&[
         "sim", "--mode", "raw", "--frames", "1", "--out", out, "--png", out,
     ]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(entries(&dir).is_empty());
+    assert!(names(&dir).is_empty());
 }
 
 #[test]
@@ -179,37 +128,22 @@ fn unwritable_output_fails_without_leftovers() {
     std::fs::write(dir.join("blocker"), b"").unwrap();
     let out = dir.join("f.npy");
     let png = dir.join("blocker/f.png");
-    let o = sdictl(&[
-        "sim",
-        "--mode",
-        "raw",
-        "--frames",
-        "1",
-        "--out",
-        out.to_str().unwrap(),
-        "--png",
-        png.to_str().unwrap(),
-    ]);
+    let o = sim("raw", 1, &out, &["--png", png.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("blocker"), "{}", stderr(&o));
-    assert_eq!(entries(&dir), vec!["blocker".to_string()]);
+    assert_eq!(names(&dir), vec!["blocker".to_string()]);
     std::fs::create_dir(dir.join("png-dir")).unwrap();
-    let o = sdictl(&[
-        "sim",
-        "--mode",
+    let o = sim(
         "raw",
-        "--frames",
-        "1",
-        "--out",
-        out.to_str().unwrap(),
-        "--png",
-        dir.join("png-dir").to_str().unwrap(),
-    ]);
+        1,
+        &out,
+        &["--png", dir.join("png-dir").to_str().unwrap()],
+    );
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
-    let mut left = entries(&dir);
+    let mut left = names(&dir);
     left.sort();
     assert_eq!(left, vec!["blocker".to_string(), "png-dir".to_string()]);
-    assert!(entries(&dir.join("png-dir")).is_empty());
+    assert!(names(&dir.join("png-dir")).is_empty());
 }
 
 /// Two outputs that are one file however spelled (`..`, a symlinked
@@ -232,23 +166,18 @@ fn same_file_through_dot_dot_or_symlink_is_refused() {
         ]);
         assert_eq!(o.status.code(), Some(2), "{flag}: {}", stderr(&o));
         assert!(stderr(&o).contains("same file"), "{flag}: {}", stderr(&o));
-        let mut left = entries(&dir);
+        let mut left = names(&dir);
         left.sort();
         assert_eq!(left, ["link", "sub"], "{flag}");
     }
-    let o = sdictl(&[
-        "sim",
-        "--mode",
+    let o = sim(
         "raw",
-        "--frames",
-        "1",
-        "--out",
-        &s(dir.join("sub/f.npy")),
-        "--png",
-        &s(dir.join("link/f.npy")),
-    ]);
+        1,
+        &dir.join("sub/f.npy"),
+        &["--png", &s(dir.join("link/f.npy"))],
+    );
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(entries(&dir.join("sub")).is_empty());
+    assert!(names(&dir.join("sub")).is_empty());
 }
 
 /// `--json`: the summary is one JSON object on stdout.

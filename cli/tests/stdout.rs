@@ -4,13 +4,9 @@
 //! neither panics (println! did: "failed printing to stdout", status 101).
 
 mod common;
-use common::{closed_stdout, full_stdout, names, scratch, sdictl_to, stderr};
+use common::{closed_stdout, full_stdout, names, s, scratch, sdictl_to, stderr};
 
 use std::path::Path;
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 /// Runs `args` against a closed and a full stdout; `check` sees the closed run's directory.
 fn closed_then_full(dir: &Path, args: &dyn Fn(&Path) -> Vec<String>, check: &dyn Fn(&Path)) {

@@ -301,7 +301,7 @@ fn run(
 mod tests {
     use super::*;
     use sdi_core::sensor::SensorPreset;
-    use sdi_recording::{Calibration, Record, RecordingReader};
+    use sdi_recording::{Record, RecordingReader};
     use std::io::Read;
 
     fn header(w: usize, h: usize) -> Header {
@@ -310,14 +310,7 @@ mod tests {
         sensor.height = h;
         Header {
             format_version: 2,
-            mode: "raw".into(),
-            backend: "sim".into(),
-            exposure_us: sensor.exposure_us,
-            frame_rate_hz: sensor.frame_rate_hz,
-            modulation_hz: sensor.modulation_hz,
-            sensor,
-            started_unix_s: 0.0,
-            calibration: Calibration::default(),
+            ..Header::for_sensor("raw", "sim", sensor)
         }
     }
 

@@ -108,6 +108,23 @@ fn finite_in(field: &'static str, v: f64, lo: f64, hi: f64) -> Result<(), Header
 }
 
 impl Header {
+    /// A header of the current version for `sensor` as it is set up: the
+    /// capture timing is the sensor's own, no calibration, started at the
+    /// epoch (set `started_unix_s` for a real recording).
+    pub fn for_sensor(mode: &str, backend: &str, sensor: SensorParams) -> Self {
+        Self {
+            format_version: FORMAT_VERSION,
+            mode: mode.into(),
+            backend: backend.into(),
+            exposure_us: sensor.exposure_us,
+            frame_rate_hz: sensor.frame_rate_hz,
+            modulation_hz: sensor.modulation_hz,
+            sensor,
+            started_unix_s: 0.0,
+            calibration: Calibration::default(),
+        }
+    }
+
     /// Rejects every field a player or converter could not use safely:
     /// sizes beyond [`MAX_SIDE_PX`]/[`MAX_PIXELS`], a frame rate outside
     /// [`sdi_core::sensor::capture_range::FRAME_RATE_HZ`], non-finite numbers, and

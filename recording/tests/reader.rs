@@ -10,22 +10,15 @@ use proptest::prelude::*;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::{Frame, Image};
 use sdi_recording::format::{self, Header};
-use sdi_recording::{Calibration, ReadError, Record, RecordingFile, RecordingReader};
+use sdi_recording::{ReadError, Record, RecordingFile, RecordingReader};
 
 fn header(w: usize, h: usize) -> Header {
     let mut sensor = SensorPreset::TiOpt8241.params();
     sensor.width = w;
     sensor.height = h;
     Header {
-        format_version: format::FORMAT_VERSION,
-        mode: "raw".into(),
-        backend: "sim".into(),
-        exposure_us: sensor.exposure_us,
-        frame_rate_hz: sensor.frame_rate_hz,
-        modulation_hz: sensor.modulation_hz,
-        sensor,
         started_unix_s: 1.7e9,
-        calibration: Calibration::default(),
+        ..Header::for_sensor("raw", "sim", sensor)
     }
 }
 

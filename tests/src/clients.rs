@@ -3,12 +3,13 @@
 //! and the Y16 data node, a private bus, `sdictl` on it.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Child, Output, Stdio};
+use std::time::Duration;
 
-use crate::dbus::Bus;
+use crate::dbus::{sdictl, Bus, Daemon};
 use crate::loopback::{self, ModuleBuild, ModuleParams};
 use crate::process::stdout_of;
+use crate::wait::wait_until;
 
 /// Card labels of the two nodes.
 pub const VIEW_LABEL: &str = "SDI camera";
@@ -35,17 +36,6 @@ pub const TI: Sensor = Sensor {
     height: 240,
 };
 
-/// Path of a binary the host test put in the environment (`SDID`, `SDICTL`).
-pub fn exe(var: &str) -> PathBuf {
-    PathBuf::from(std::env::var_os(var).unwrap_or_else(|| panic!("{var} from the host")))
-}
-
-/// Host side of a client VM test: the binaries the guest runs.
-pub fn export_binaries() {
-    std::env::set_var("SDID", crate::dbus::bin("sdid"));
-    std::env::set_var("SDICTL", crate::dbus::bin("sdictl"));
-}
-
 /// Loads Debian's v4l2loopback with the view and data nodes as udev/modprobe.d
 /// does (exclusive_caps=1, max_buffers=10).
 pub fn load_module(view_nr: u32, data_nr: u32) {
@@ -59,16 +49,6 @@ pub fn load_module_build(build: ModuleBuild, view_nr: u32, data_nr: u32) {
     if let Err(e) = loopback::load_module(build, &p) {
         panic!("loading {build} failed: {e}");
     }
-}
-
-/// Polls `ready` every 100 ms until it holds; panics with `what` after `limit`.
-pub fn wait_until(what: &str, limit: Duration, mut ready: impl FnMut() -> bool) -> Duration {
-    let t0 = Instant::now();
-    while !ready() {
-        assert!(t0.elapsed() < limit, "{what}: not after {limit:?}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    t0.elapsed()
 }
 
 /// `sdid` publishing on the view and data nodes, killed on drop.
@@ -143,14 +123,12 @@ impl Sdid {
     }
 
     fn spawn(&mut self) {
-        let child = Command::new(exe("SDID"))
-            .args(["--bus-address", &self.bus.address, "--config"])
+        let child = Daemon::bare_command(&self.bus, &[])
+            .arg("--config")
             .arg(&self.config)
             .args(&self.backend)
             .args(["--sink", "loopback"])
             .args(["--frame-rate-hz", &self.fps, "--exposure-us", "2000"])
-            .env("RUST_LOG", "warn")
-            .env_remove("INVOCATION_ID")
             .stdout(Stdio::null())
             .spawn()
             .expect("spawn sdid");
@@ -183,11 +161,7 @@ impl Sdid {
 
     /// Runs `sdictl` on sdid's bus.
     pub fn ctl(&self, args: &[&str]) -> Output {
-        Command::new(exe("SDICTL"))
-            .args(["--bus-address", &self.bus.address])
-            .args(args)
-            .output()
-            .expect("run sdictl")
+        sdictl(&self.bus.address, args)
     }
 
     /// `sdictl set-mode`, asserting success.
@@ -217,17 +191,9 @@ impl Sdid {
         let npy = Path::new("/tmp/sdi-clients/snap.npy");
         let _ = std::fs::remove_file(npy);
         stdout_of(&self.ctl(&["snapshot", &npy.display().to_string()]));
-        let bytes = std::fs::read(npy).expect("read snapshot npy");
-        // header: magic(6) version(2) len(2, v1) header; data little-endian f32
-        let hlen = usize::from(u16::from_le_bytes([bytes[8], bytes[9]]));
-        let header = String::from_utf8_lossy(&bytes[10..10 + hlen]);
-        assert!(header.contains("<f4"), "npy not f32: {header}");
-        let data = &bytes[10 + hlen..];
-        let n = data.len() / 4;
-        data.chunks_exact(4)
-            .map(|c| f64::from(f32::from_le_bytes([c[0], c[1], c[2], c[3]])))
-            .sum::<f64>()
-            / n.max(1) as f64
+        let file = std::fs::File::open(npy).expect("open snapshot npy");
+        let (_, data) = sdi_core::npy::read_f32(file).expect("snapshot npy of f32");
+        data.iter().map(|&v| f64::from(v)).sum::<f64>() / data.len().max(1) as f64
     }
 }
 

@@ -5,7 +5,12 @@ use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::sync::OnceLock;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+
+use nix::sys::signal::Signal;
+
+use crate::process::Reaped;
+use crate::wait::{wait_for, wait_until};
 
 /// `target/<profile>` of the running test binary.
 pub(crate) fn target_dir() -> PathBuf {
@@ -31,8 +36,14 @@ pub(crate) fn target_dir() -> PathBuf {
 /// name the program `sdid`, so each test gets a hard link (or a copy) with
 /// the real name in `target/<profile>/sdi-tests-bin/`. The library entry
 /// itself runs in the test process in `tests/tests/daemon_in_process.rs`.
+///
+/// Inside a VM guest (read-only root, no cargo) the programs are the ones
+/// the host built and named in `SDID` and `SDICTL` ([`export_bins`]).
 pub fn bin(name: &str) -> PathBuf {
     assert!(PROGRAMS.contains(&name), "no test program {name}");
+    if let Some(path) = std::env::var_os(name.to_uppercase()) {
+        return path.into();
+    }
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     // Both at once: `make install` in a test takes the directory of one and
     // installs both.
@@ -52,6 +63,14 @@ pub fn bin(name: &str) -> PathBuf {
         dir
     })
     .join(name)
+}
+
+/// Host side of a test that runs in a VM guest or as another user: names
+/// the programs in `SDID` and `SDICTL` for [`bin`] there.
+pub fn export_bins() {
+    for program in PROGRAMS {
+        std::env::set_var(program.to_uppercase(), bin(program));
+    }
 }
 
 /// The programs [`bin`] provides.
@@ -98,7 +117,7 @@ pub fn have_dbus() -> bool {
 
 /// A private session bus, killed on drop.
 pub struct Bus {
-    child: Child,
+    _child: Reaped,
     pub address: String,
 }
 
@@ -147,6 +166,11 @@ impl Bus {
         Self::start_config(&config)
     }
 
+    /// A client connection to this bus.
+    pub async fn connect(&self) -> zbus::Connection {
+        connect(&self.address).await
+    }
+
     fn spawn(kind: &[&str], extra: &[&str]) -> Self {
         let mut child = Command::new("dbus-daemon")
             .args(kind)
@@ -161,26 +185,27 @@ impl Bus {
             .expect("read bus address");
         let address = line.trim().to_owned();
         assert!(!address.is_empty(), "dbus-daemon printed no address");
-        Self { child, address }
+        Self {
+            _child: Reaped(child),
+            address,
+        }
     }
 }
 
-impl Drop for Bus {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// A client connection to the bus at `address`.
+pub async fn connect(address: &str) -> zbus::Connection {
+    zbus::connection::Builder::address(address)
+        .expect("bus address")
+        .build()
+        .await
+        .expect("connect to the bus")
 }
 
 /// A connection to `address` and an untyped proxy of sdid's camera object,
 /// for calls the typed `sdi_api` proxy cannot make (wrong arguments, raw
 /// error names).
 pub async fn raw_camera_proxy(address: &str) -> (zbus::Connection, zbus::Proxy<'static>) {
-    let conn = zbus::connection::Builder::address(address)
-        .expect("bus address")
-        .build()
-        .await
-        .expect("connect to the bus");
+    let conn = connect(address).await;
     let proxy = zbus::Proxy::new(
         &conn,
         "org.sdi.Daemon",
@@ -208,22 +233,38 @@ impl Daemon {
     /// Like [`Daemon::start`], with sdid run by `wrapper` (a program and its
     /// arguments, which must exec sdid in the same process, e.g. `unshare`).
     pub fn start_wrapped(bus: &Bus, wrapper: &[&str], extra: &[&str]) -> Self {
-        let child = Self::command(bus, wrapper, extra)
-            .stdout(Stdio::null())
-            .stderr(Stdio::inherit())
-            .spawn()
-            .expect("start sdid");
-        let d = Self {
-            child,
-            address: bus.address.clone(),
-        };
+        let d = Self::spawn(
+            bus,
+            Self::command(bus, wrapper, extra)
+                .stdout(Stdio::null())
+                .stderr(Stdio::inherit()),
+        );
         d.wait_ready();
         d
+    }
+
+    /// Spawns `cmd` (an sdid for `bus`, e.g. from [`Daemon::command`]) and
+    /// returns at once; [`Daemon::wait_ready`] waits until it answers.
+    pub fn spawn(bus: &Bus, cmd: &mut Command) -> Self {
+        Self {
+            child: cmd.spawn().expect("start sdid"),
+            address: bus.address.clone(),
+        }
     }
 
     /// The command [`Daemon::start_wrapped`] runs, for a test that needs to
     /// spawn it itself (e.g. with stderr piped).
     pub fn command(bus: &Bus, wrapper: &[&str], extra: &[&str]) -> Command {
+        let mut cmd = Self::bare_command(bus, wrapper);
+        cmd.args(["--sink", "y4m", "--y4m-path", "-"])
+            .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
+            .args(extra);
+        cmd
+    }
+
+    /// sdid for `bus` (run by `wrapper`, if any) with only the bus address
+    /// and the environment of a test: no sink, rate or exposure.
+    pub fn bare_command(bus: &Bus, wrapper: &[&str]) -> Command {
         let mut cmd = match wrapper.split_first() {
             Some((program, args)) => {
                 let mut c = Command::new(program);
@@ -232,31 +273,25 @@ impl Daemon {
             }
             None => Command::new(bin("sdid")),
         };
-        cmd.args([
-            "--bus-address",
-            &bus.address,
-            "--sink",
-            "y4m",
-            "--y4m-path",
-            "-",
-        ])
-        .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
-        .args(extra)
-        .env("RUST_LOG", "warn")
-        // Not a systemd service, even when the tests run inside one.
-        .env_remove("INVOCATION_ID");
+        cmd.args(["--bus-address", &bus.address])
+            .env("RUST_LOG", "warn")
+            // Not a systemd service, even when the tests run inside one.
+            .env_remove("INVOCATION_ID");
         cmd
     }
 
-    fn wait_ready(&self) {
-        let start = Instant::now();
-        while start.elapsed() < Duration::from_secs(30) {
-            if self.ctl(&["get", "mode"]).status.success() {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        panic!("sdid did not come up on {}", self.address);
+    /// Waits until sdid answers on its bus.
+    pub fn wait_ready(&self) {
+        wait_until(
+            &format!("sdid on {}", self.address),
+            Duration::from_secs(30),
+            || self.ctl(&["get", "mode"]).status.success(),
+        );
+    }
+
+    /// The process id.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
     }
 
     /// Runs `sdictl --bus-address ADDR args...`.
@@ -265,22 +300,11 @@ impl Daemon {
     }
 
     /// Sends a signal and waits for the exit status.
-    pub fn signal(&mut self, sig: i32) -> std::process::ExitStatus {
-        // SAFETY: plain kill(2) on our own child's pid.
-        unsafe {
-            libc::kill(self.child.id() as i32, sig);
-        }
-        let start = Instant::now();
-        loop {
-            if let Some(s) = self.child.try_wait().expect("wait sdid") {
-                return s;
-            }
-            assert!(
-                start.elapsed() < Duration::from_secs(20),
-                "sdid did not exit"
-            );
-            std::thread::sleep(Duration::from_millis(50));
-        }
+    pub fn signal(&mut self, sig: Signal) -> std::process::ExitStatus {
+        crate::process::signal(self.child.id(), sig);
+        wait_for("sdid to exit", Duration::from_secs(20), || {
+            self.child.try_wait().expect("wait sdid")
+        })
     }
 }
 

@@ -1,4 +1,5 @@
 //! Shared helpers for SDI's integration tests.
+#![forbid(unsafe_code)]
 
 pub mod bench;
 pub mod board_emulator;
@@ -6,6 +7,8 @@ pub mod browser;
 pub mod clients;
 pub mod dbus;
 pub mod loopback;
+pub mod m1_reference;
+pub mod npy_file;
 pub mod package;
 pub mod pipewire;
 pub mod process;
@@ -13,3 +16,4 @@ pub mod sim_frames;
 pub mod skip;
 pub mod udev;
 pub mod vm;
+pub mod wait;

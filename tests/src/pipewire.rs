@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use crate::dbus::Bus;
 use crate::process::Reaped;
+use crate::wait::wait_for;
 
 /// Programs the PipeWire tests need, with the Debian package of each.
 const TOOLS: [(&str, &[&str], &str); 6] = [
@@ -69,21 +70,6 @@ macro_rules! require_pipewire {
             return;
         }
     };
-}
-
-/// Polls `f` every 50 ms until it returns `Some`, panicking after `timeout`.
-pub fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
-    let t0 = Instant::now();
-    loop {
-        if let Some(v) = f() {
-            return v;
-        }
-        assert!(
-            t0.elapsed() < timeout,
-            "timed out after {timeout:?} waiting for {what}"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    }
 }
 
 /// `pipewire` + `wireplumber` on a private bus in a temporary runtime

@@ -3,6 +3,9 @@
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output};
 
+use nix::sys::signal::Signal;
+use nix::unistd::Pid;
+
 /// The workspace root.
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -11,7 +14,8 @@ pub fn repo_root() -> PathBuf {
         .to_path_buf()
 }
 
-/// Kills and reaps a child process when dropped.
+/// Kills and reaps a child process when dropped: the tests' one guard
+/// against a failing test leaving processes behind.
 pub struct Reaped(pub Child);
 
 impl Drop for Reaped {
@@ -19,6 +23,27 @@ impl Drop for Reaped {
         let _ = self.0.kill();
         let _ = self.0.wait();
     }
+}
+
+/// Sends `sig` to the process `pid` (a child of the test, or one it
+/// started); a process that is already gone is no error.
+pub fn signal(pid: u32, sig: Signal) {
+    let _ = nix::sys::signal::kill(nix_pid(pid), sig);
+}
+
+/// Whether the process `pid` exists (signal 0 checks without sending).
+pub fn exists(pid: u32) -> bool {
+    nix::sys::signal::kill(nix_pid(pid), None).is_ok()
+}
+
+/// `std::process::Child::id`'s pid as nix takes it.
+fn nix_pid(pid: u32) -> Pid {
+    Pid::from_raw(i32::try_from(pid).expect("a pid fits in pid_t"))
+}
+
+/// Whether the test runs as root.
+pub fn is_root() -> bool {
+    nix::unistd::geteuid().is_root()
 }
 
 /// Runs `cmd`, echoing the command, its status and output to stderr.

@@ -8,9 +8,10 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use nix::sys::signal::Signal;
 use sdi_recording::{Record, RecordingReader};
 use sdi_tests::dbus::{bin, Bus, Daemon};
-use sdi_tests::process::Reaped;
+use sdi_tests::process::{signal, Reaped};
 use sdi_tests::require_dbus;
 use strum::IntoEnumIterator;
 
@@ -28,48 +29,27 @@ fn frames_and_end(path: &Path) -> (usize, bool) {
     (frames, ended)
 }
 
+/// `cmd` with stderr to `log` (RUST_LOG=info) and stdout to /dev/null.
+fn logged<'a>(cmd: &'a mut Command, log: &Path) -> &'a mut Command {
+    let log = std::fs::File::create(log).unwrap();
+    cmd.env("RUST_LOG", "info")
+        .stdout(Stdio::null())
+        .stderr(log)
+}
+
 /// Starts sdid on `bus` with stderr to `log` (RUST_LOG=info).
 fn spawn_logged(bus: &Bus, extra: &[&str], log: &Path) -> Daemon {
-    let child = Daemon::command(bus, &[], extra)
-        .env("RUST_LOG", "info")
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(log).unwrap())
-        .spawn()
-        .expect("start sdid");
-    Daemon {
-        child,
-        address: bus.address.clone(),
-    }
+    Daemon::spawn(bus, logged(&mut Daemon::command(bus, &[], extra), log))
 }
 
 /// Starts sdid on `bus` streaming y4m into the default FIFO of
 /// `runtime_dir`, with stderr to `log` (RUST_LOG=info).
 fn spawn_on_fifo(bus: &Bus, runtime_dir: &Path, log: &Path) -> Daemon {
-    let child = Command::new(bin("sdid"))
-        .args(["--bus-address", &bus.address, "--sink", "y4m"])
+    let mut cmd = Daemon::bare_command(bus, &[]);
+    cmd.args(["--sink", "y4m"])
         .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
-        .env("RUST_LOG", "info")
-        .env("XDG_RUNTIME_DIR", runtime_dir)
-        .env_remove("INVOCATION_ID")
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(log).unwrap())
-        .spawn()
-        .expect("start sdid");
-    Daemon {
-        child,
-        address: bus.address.clone(),
-    }
-}
-
-fn wait_answering(d: &Daemon) {
-    let t0 = Instant::now();
-    while !d.ctl(&["get", "mode"]).status.success() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(30),
-            "sdid did not come up"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+        .env("XDG_RUNTIME_DIR", runtime_dir);
+    Daemon::spawn(bus, logged(&mut cmd, log))
 }
 
 #[test]
@@ -79,7 +59,7 @@ fn sighup_finishes_the_recording_and_says_so() {
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("sdid.log");
     let mut d = spawn_logged(&bus, &[], &log);
-    wait_answering(&d);
+    d.wait_ready();
     let rec = dir.path().join("h.sdirec");
     let out = d.ctl(&["record", rec.to_str().unwrap()]);
     assert!(
@@ -88,7 +68,7 @@ fn sighup_finishes_the_recording_and_says_so() {
         String::from_utf8_lossy(&out.stderr)
     );
     std::thread::sleep(Duration::from_millis(700));
-    let status = d.signal(libc::SIGHUP);
+    let status = d.signal(Signal::SIGHUP);
     assert!(status.success(), "sdid exit {status:?}");
     let (frames, ended) = frames_and_end(&rec);
     assert!(ended, "no end record after SIGHUP");
@@ -192,10 +172,7 @@ fn the_private_bus_announcement_stays_whole() {
     let runtime = tempfile::tempdir().unwrap();
     let (mut child, mut err, address, mut lines) = start_with_private_bus(runtime.path());
     assert!(address.starts_with("unix:"), "address {address:?}");
-    // SAFETY: plain kill(2) on our own child's pid.
-    unsafe {
-        libc::kill(child.0.id() as i32, libc::SIGTERM);
-    }
+    signal(child.0.id(), Signal::SIGTERM);
     let mut rest = String::new();
     let _ = err.read_to_string(&mut rest);
     let _ = child.0.wait();
@@ -217,19 +194,14 @@ fn kill_9_takes_the_private_session_bus_along() {
     let (mut child, _err, address, _) = start_with_private_bus(runtime.path());
     let bus_pids = children(child.0.id());
     assert!(!bus_pids.is_empty(), "no dbus-daemon child");
-    // SAFETY: plain kill(2) on our own child's pid.
-    unsafe {
-        libc::kill(child.0.id() as i32, libc::SIGKILL);
-    }
+    signal(child.0.id(), Signal::SIGKILL);
     let _ = child.0.wait();
     let t0 = Instant::now();
     while bus_pids.iter().any(|&p| running(p)) {
         if t0.elapsed() > Duration::from_secs(5) {
             for &p in &bus_pids {
-                // SAFETY: cleaning up the leaked bus this test started.
-                unsafe {
-                    libc::kill(p as i32, libc::SIGKILL);
-                }
+                // Cleaning up the leaked bus this test started.
+                signal(p, Signal::SIGKILL);
             }
             panic!("the private dbus-daemon {bus_pids:?} outlived sdid by 5 s");
         }
@@ -273,11 +245,11 @@ fn sigterm_is_bounded_when_the_source_hangs() {
         &["--replay", fifo.to_str().unwrap(), "--mode", "raw"],
         &log,
     );
-    wait_answering(&d);
+    d.wait_ready();
     // Let it play what there is and hang in the read that follows.
     std::thread::sleep(Duration::from_secs(2));
     let t0 = Instant::now();
-    let status = d.signal(libc::SIGTERM);
+    let status = d.signal(Signal::SIGTERM);
     let took = t0.elapsed();
     let _ = done_tx.send(());
     let _ = feeder.join();
@@ -299,7 +271,7 @@ fn a_second_instance_leaves_the_first_ones_fifo_alone() {
     let dir = tempfile::tempdir().unwrap();
     let fifo = dir.path().join("sdid-view.y4m");
     let first = spawn_on_fifo(&bus, dir.path(), &dir.path().join("first.log"));
-    wait_answering(&first);
+    first.wait_ready();
     let reader = std::fs::File::open(&fifo).unwrap();
     let (w, h) = (320usize, 240usize);
     // Reads 2 s of stream in the background.
@@ -367,7 +339,7 @@ fn an_unchanged_light_travel_warning_is_logged_once() {
         &["--mode", "depth-edge", "--modulation-hz", "12e6"],
         &log,
     );
-    wait_answering(&d);
+    d.wait_ready();
     for us in ["1000", "1500", "2000"] {
         let out = d.ctl(&["set", "exposure-us", us]);
         assert!(
@@ -400,22 +372,14 @@ fn the_defaults_give_a_clean_first_screen_in_every_mode() {
     let bus = Bus::start();
     let dir = tempfile::tempdir().unwrap();
     let log = dir.path().join("sdid.log");
-    let child = Command::new(bin("sdid"))
-        .args(["--bus-address", &bus.address, "--backend", "sim"])
-        .env("RUST_LOG", "info")
+    let mut cmd = Daemon::bare_command(&bus, &[]);
+    cmd.args(["--backend", "sim"])
         .env("XDG_RUNTIME_DIR", dir.path())
         .env_remove("PIPEWIRE_REMOTE")
         .env_remove("INVOCATION_ID")
-        .env_remove("JOURNAL_STREAM")
-        .stdout(Stdio::null())
-        .stderr(std::fs::File::create(&log).unwrap())
-        .spawn()
-        .expect("start sdid");
-    let d = Daemon {
-        child,
-        address: bus.address.clone(),
-    };
-    wait_answering(&d);
+        .env_remove("JOURNAL_STREAM");
+    let d = Daemon::spawn(&bus, logged(&mut cmd, &log));
+    d.wait_ready();
     for mode in sdi_core::mode::ModeId::iter() {
         let out = d.ctl(&["set-mode", mode.name()]);
         assert!(out.status.success(), "{mode:?}: {out:?}");

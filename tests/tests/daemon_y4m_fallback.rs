@@ -4,45 +4,25 @@
 
 use std::io::Read;
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::time::{Duration, Instant};
+use std::process::{Command, Stdio};
+use std::time::Duration;
 
-use sdi_tests::dbus::{bin, sdictl, Bus};
+use sdi_tests::dbus::{sdictl, Bus, Daemon};
 use sdi_tests::require_dbus;
 
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-fn spawn_sdid(bus: &Bus, runtime_dir: &Path, stdout: Stdio) -> Killed {
+fn spawn_sdid(bus: &Bus, runtime_dir: &Path, stdout: Stdio) -> Daemon {
     spawn_sdid_at(bus, runtime_dir, stdout, "30")
 }
 
-fn spawn_sdid_at(bus: &Bus, runtime_dir: &Path, stdout: Stdio, frame_rate_hz: &str) -> Killed {
-    let child = Command::new(bin("sdid"))
-        .args(["--bus-address", &bus.address, "--sink", "y4m"])
+fn spawn_sdid_at(bus: &Bus, runtime_dir: &Path, stdout: Stdio, frame_rate_hz: &str) -> Daemon {
+    let mut cmd = Daemon::bare_command(bus, &[]);
+    cmd.args(["--sink", "y4m"])
         .args(["--frame-rate-hz", frame_rate_hz, "--exposure-us", "2000"])
-        .env("RUST_LOG", "warn")
         .env("XDG_RUNTIME_DIR", runtime_dir)
-        .env_remove("INVOCATION_ID")
         .stdout(stdout)
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("spawn sdid");
-    let d = Killed(child);
-    let t0 = Instant::now();
-    while !sdictl(&bus.address, &["get", "mode"]).status.success() {
-        assert!(
-            t0.elapsed() < Duration::from_secs(30),
-            "sdid did not come up"
-        );
-        std::thread::sleep(Duration::from_millis(100));
-    }
+        .stderr(Stdio::null());
+    let d = Daemon::spawn(bus, &mut cmd);
+    d.wait_ready();
     d
 }
 
@@ -89,7 +69,12 @@ fn stdout_pipe_gets_the_stream() {
     let device = String::from_utf8_lossy(&device.stdout).into_owned();
     assert!(device.trim().ends_with("-> stdout"), "{device}");
     let mut head = [0u8; 9];
-    d.0.stdout.as_mut().unwrap().read_exact(&mut head).unwrap();
+    d.child
+        .stdout
+        .as_mut()
+        .unwrap()
+        .read_exact(&mut head)
+        .unwrap();
     assert_eq!(&head, b"YUV4MPEG2");
     assert!(!dir.path().join("sdid-view.y4m").exists());
 }

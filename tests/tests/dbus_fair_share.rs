@@ -18,15 +18,8 @@ async fn another_clients_calls_are_answered_under_a_flood() {
     require_dbus!();
     let bus = Bus::start();
     let d = Daemon::start(&bus, &[]);
-    let connect = || async {
-        zbus::connection::Builder::address(bus.address.as_str())
-            .unwrap()
-            .build()
-            .await
-            .unwrap()
-    };
-    let flooder = connect().await;
-    let other = connect().await;
+    let flooder = bus.connect().await;
+    let other = bus.connect().await;
     let cam = sdi_api::Camera1Proxy::new(&other).await.unwrap();
     // Baseline, before the flood.
     let t = Instant::now();

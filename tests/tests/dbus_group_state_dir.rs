@@ -10,8 +10,8 @@ use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use sdi_tests::dbus::{bin, Bus};
-use sdi_tests::process::{runnable_copy, Reaped};
+use sdi_tests::dbus::{bin, Bus, Daemon};
+use sdi_tests::process::runnable_copy;
 use sdi_tests::require_dbus;
 
 const CALLER_UID: u32 = 65534;
@@ -38,16 +38,13 @@ fn group_members_write_by_path_into_a_root_group_state_dir() {
         std::os::unix::fs::chown(&state, Some(0), Some(GROUP_GID)).unwrap();
         fs::set_permissions(&state, fs::Permissions::from_mode(mode)).unwrap();
         let bus = Bus::start_open(root);
-        let _sdid = Reaped(
-            Command::new(bin("sdid"))
-                .args(["--bus-address", &bus.address, "--backend", "sim"])
+        let _sdid = Daemon::spawn(
+            &bus,
+            Daemon::bare_command(&bus, &[])
+                .args(["--backend", "sim"])
                 .args(["--sink", "y4m", "--y4m-path", "-", "--frame-rate-hz", "30"])
                 .args(["--state-dir", state.to_str().unwrap()])
-                .env("RUST_LOG", "warn")
-                .env_remove("INVOCATION_ID")
-                .stdout(Stdio::null())
-                .spawn()
-                .expect("start sdid"),
+                .stdout(Stdio::null()),
         );
         let sdictl = runnable_copy(&bin("sdictl"), &root.join("bin"));
         let as_member = |args: &[&str]| {

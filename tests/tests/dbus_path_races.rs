@@ -23,7 +23,7 @@ use std::time::{Duration, Instant};
 
 use sdi_tests::dbus::{bin, Bus};
 use sdi_tests::process::{runnable_copy, Reaped};
-use sdi_tests::{clients, require_dbus, vm};
+use sdi_tests::{require_dbus, vm};
 
 const CALLER_UID: u32 = 65534;
 
@@ -43,16 +43,9 @@ struct Binaries {
 
 impl Binaries {
     fn here() -> Self {
-        if vm::in_vm() {
-            Self {
-                sdid: clients::exe("SDID"),
-                sdictl: clients::exe("SDICTL"),
-            }
-        } else {
-            Self {
-                sdid: bin("sdid"),
-                sdictl: bin("sdictl"),
-            }
+        Self {
+            sdid: bin("sdid"),
+            sdictl: bin("sdictl"),
         }
     }
 }
@@ -252,7 +245,7 @@ fn swapping_the_parent_never_creates_a_file_in_a_root_only_directory() {
 fn vm_races_against_a_root_sdid_without_systemd() {
     if !vm::in_vm() {
         // Built on the host: the VM's root is read-only.
-        clients::export_binaries();
+        sdi_tests::dbus::export_bins();
         let t = Instant::now();
         if vm::run_test_in_vm("vm_races_against_a_root_sdid_without_systemd", 900) {
             eprintln!(

@@ -6,29 +6,15 @@ use std::io::{BufRead, BufReader};
 use std::process::Stdio;
 use std::time::Duration;
 
+use nix::sys::signal::Signal;
 use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
 use sdi_tests::dbus::{stats, Bus, Daemon};
+use sdi_tests::npy_file::read_npy;
 use sdi_tests::process::stdout_of;
 use sdi_tests::require_dbus;
-
-/// Shape and float32 data of an .npy file.
-fn read_npy(path: &std::path::Path) -> (String, Vec<f32>) {
-    let bytes = std::fs::read(path).unwrap();
-    assert_eq!(&bytes[..6], b"\x93NUMPY");
-    let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
-    let header = std::str::from_utf8(&bytes[10..10 + hlen])
-        .unwrap()
-        .to_owned();
-    assert!(header.contains("'<f4'"), "{header}");
-    let data = bytes[10 + hlen..]
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
-    (header, data)
-}
 
 /// Relative RMSE and relative bias of `est` against `truth` (both per pixel).
 fn rel_rmse_bias(est: &[f32], truth: &[f32]) -> (f64, f64) {
@@ -81,8 +67,8 @@ fn separation_mode_recovers_both_channels_live() {
     let png = dir.path().join("sep.png");
     stdout_of(&d.ctl(&["snapshot", npy.to_str().unwrap()]));
     stdout_of(&d.ctl(&["snapshot", png.to_str().unwrap()]));
-    let (header, data) = read_npy(&npy);
-    assert!(header.contains("'shape': (2, 240, 320)"), "{header}");
+    let (shape, data) = read_npy(&npy);
+    assert_eq!(shape, [2, 240, 320]);
     let (i_plus, i_minus) = data.split_at(240 * 320);
 
     // Ground truth: the daemon's simulator (ti preset, 2000 us, colour chart).
@@ -154,7 +140,7 @@ fn calibrate_fits_the_sensor_gain() {
         text.contains("gain_dn_per_electron") && text.contains("model"),
         "{text}"
     );
-    assert!(d.signal(libc::SIGTERM).success());
+    assert!(d.signal(Signal::SIGTERM).success());
     let mut again = Daemon::command(&bus, &[], &["--state-dir", state_dir])
         .env("RUST_LOG", "info")
         .stdout(Stdio::null())

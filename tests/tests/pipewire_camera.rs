@@ -12,9 +12,10 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use sdi_tests::dbus::{bin, sdictl};
-use sdi_tests::pipewire::{frame_crcs, wait_for, FrameLog, Session};
+use sdi_tests::pipewire::{frame_crcs, FrameLog, Session};
 use sdi_tests::process::Reaped;
 use sdi_tests::require_pipewire;
+use sdi_tests::wait::wait_for;
 
 const VIEW: &str = "sdi-camera";
 const DATA: &str = "sdi-camera-data";

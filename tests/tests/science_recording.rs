@@ -8,9 +8,9 @@
 use std::path::Path;
 use std::process::{Command, Output};
 
-use sdi_core::npy::{read_f32, write_f32};
-use sdi_core::Image;
+use sdi_core::npy::read_f32;
 use sdi_tests::dbus::{bin, Bus, Daemon};
+use sdi_tests::m1_reference::{numpy_m1_max_rel_diff, numpy_python, recording_to_npy};
 use sdi_tests::require_dbus;
 
 fn ok(o: &Output) -> String {
@@ -31,46 +31,6 @@ fn s(p: &Path) -> &str {
 /// Offline `sdictl` (no bus).
 fn sdictl(args: &[&str]) -> Output {
     Command::new(bin("sdictl")).args(args).output().unwrap()
-}
-
-/// Frames of a recording, the latest dark frame subtracted, as an .npy
-/// (N, H, W), read with the format's own reader; the frame count.
-fn recording_to_npy(rec: &Path, npy: &Path) -> usize {
-    let reader = sdi_recording::RecordingReader::open(rec).unwrap();
-    let mut dark: Option<Image<f32>> = None;
-    let mut data = Vec::new();
-    let (mut n, mut w, mut h) = (0, 0, 0);
-    for r in reader {
-        match r {
-            sdi_recording::Record::Dark { dn, .. } => dark = Some(dn),
-            sdi_recording::Record::Frame { frame, .. } => {
-                let d = dark.as_ref().expect("a dark frame before the frames");
-                data.extend(frame.dn.data.iter().zip(&d.data).map(|(a, b)| a - b));
-                (w, h) = (frame.width(), frame.height());
-                n += 1;
-            }
-            _ => {}
-        }
-    }
-    write_f32(std::fs::File::create(npy).unwrap(), &[n, h, w], &data).unwrap();
-    n
-}
-
-/// Python with numpy, or None (skip; a failure with `SDI_REQUIRE_VM` set).
-fn numpy_python() -> Option<&'static str> {
-    let py = "/usr/bin/python3";
-    let have = Command::new(py)
-        .args(["-c", "import numpy"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !have {
-        assert!(
-            std::env::var_os("SDI_REQUIRE_VM").is_none(),
-            "numpy is needed and SDI_REQUIRE_VM is set"
-        );
-        return None;
-    }
-    Some(py)
 }
 
 /// Records `seconds` of the running daemon into `rec`.
@@ -170,23 +130,9 @@ fn separation_on_sdid_recordings_matches_numpy_truth_and_the_simulation() {
     let frames = p("frames.npy");
     assert_eq!(recording_to_npy(&both, &frames), n);
     if let Some(py) = numpy_python() {
-        let code = format!(
-            "import numpy as np\n\
-             x = np.load('{}').astype(np.float64)\n\
-             s = np.load('{}').astype(np.float64)\n\
-             m = x.mean(0); v = x.var(0, ddof=1)\n\
-             S = np.maximum(v - {r:.17e}, 0) / {g:.17e}**2; D = m / {g:.17e}\n\
-             ref = np.stack([0.5 * (S + D), 0.5 * (S - D)])\n\
-             print((np.abs(ref - s) / np.maximum(np.abs(ref), 1.0)).max())\n",
-            s(&frames),
-            s(&sep)
-        );
-        let o = Command::new(py).args(["-c", &code]).output().unwrap();
-        let diff: f64 = ok(&o).trim().parse().unwrap();
+        let diff = numpy_m1_max_rel_diff(&py, &frames, &sep, g, r);
         eprintln!("numpy M1 against sdictl separate: max relative difference {diff:.2e}");
         assert!(diff < 1e-5, "numpy and sdictl differ by {diff} (relative)");
-    } else {
-        sdi_tests::skipped!("SKIPPED numpy comparison: no numpy (apt-get install python3-numpy)");
     }
 
     // 2. report separation on the recordings against the in-memory simulation.

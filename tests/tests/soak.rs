@@ -29,14 +29,14 @@ use std::io::{ErrorKind, Read};
 use std::os::fd::AsFd;
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::Path;
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Output, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use futures_util::StreamExt;
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
-use sdi_tests::dbus::{bin, Bus};
+use sdi_tests::dbus::{Bus, Daemon};
 use sdi_tests::require_dbus;
 use zbus::proxy::CacheProperties;
 
@@ -84,63 +84,23 @@ fn soak_secs() -> u64 {
         .max(60)
 }
 
-/// sdid, killed on drop.
-struct Sdid {
-    child: Child,
-    address: String,
-}
-
-impl Sdid {
-    fn start(bus: &Bus, dir: &Path) -> Self {
-        let state = dir.join("state");
-        fs::create_dir_all(&state).unwrap();
-        let log = fs::File::create(dir.join("sdid.log")).unwrap();
-        let child = Command::new(bin("sdid"))
-            .args(["--bus-address", &bus.address, "--backend", "sim"])
-            .args(["--sink", "y4m", "--y4m-path"])
-            .arg(dir.join("view.y4m"))
-            .args(["--frame-rate-hz", &FPS.to_string(), "--exposure-us", "2000"])
-            .arg("--state-dir")
-            .arg(&state)
-            .env("RUST_LOG", "warn")
-            .env_remove("INVOCATION_ID")
-            .stdout(Stdio::null())
-            .stderr(log)
-            .spawn()
-            .expect("start sdid");
-        let d = Self {
-            child,
-            address: bus.address.clone(),
-        };
-        let t0 = Instant::now();
-        while !d.ctl(&["get", "mode"]).status.success() {
-            assert!(
-                t0.elapsed() < Duration::from_secs(30),
-                "sdid did not come up"
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
-        d
-    }
-
-    fn ctl(&self, args: &[&str]) -> Output {
-        Command::new(bin("sdictl"))
-            .args(["--bus-address", &self.address])
-            .args(args)
-            .output()
-            .expect("run sdictl")
-    }
-
-    fn pid(&self) -> u32 {
-        self.child.id()
-    }
-}
-
-impl Drop for Sdid {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
-    }
+/// Starts sdid (simulator, y4m into `dir/view.y4m`, state in `dir/state`,
+/// stderr to `dir/sdid.log`) and waits until it answers.
+fn start_sdid(bus: &Bus, dir: &Path) -> Daemon {
+    let state = dir.join("state");
+    fs::create_dir_all(&state).unwrap();
+    let log = fs::File::create(dir.join("sdid.log")).unwrap();
+    let mut cmd = Daemon::bare_command(bus, &[]);
+    cmd.args(["--backend", "sim", "--sink", "y4m", "--y4m-path"])
+        .arg(dir.join("view.y4m"))
+        .args(["--frame-rate-hz", &FPS.to_string(), "--exposure-us", "2000"])
+        .arg("--state-dir")
+        .arg(&state)
+        .stdout(Stdio::null())
+        .stderr(log);
+    let d = Daemon::spawn(bus, &mut cmd);
+    d.wait_ready();
+    d
 }
 
 /// What the workload did, and what went wrong.
@@ -377,7 +337,7 @@ async fn soak_clients_come_and_go_memory_and_descriptors_stay_flat() {
     let total = Duration::from_secs(secs);
     let dir = tempfile::tempdir().unwrap();
     let bus = Bus::start();
-    let sdid = Arc::new(Sdid::start(&bus, dir.path()));
+    let sdid = Arc::new(start_sdid(&bus, dir.path()));
     let pid = sdid.pid();
     let t0 = Instant::now();
     let stop = Arc::new(AtomicBool::new(false));
@@ -438,15 +398,8 @@ async fn soak_clients_come_and_go_memory_and_descriptors_stay_flat() {
     // The sampler.
     let samples: Arc<Mutex<Vec<Sample>>> = Arc::default();
     let flooding = Arc::new(AtomicBool::new(false));
-    let connect = || async {
-        zbus::connection::Builder::address(bus.address.as_str())
-            .unwrap()
-            .build()
-            .await
-            .unwrap()
-    };
     let sampler = {
-        let conn = connect().await;
+        let conn = bus.connect().await;
         let (stop, samples, flooding) = (stop.clone(), samples.clone(), flooding.clone());
         tokio::spawn(async move {
             let cam = sdi_api::Camera1Proxy::builder(&conn)
@@ -471,8 +424,8 @@ async fn soak_clients_come_and_go_memory_and_descriptors_stay_flat() {
     };
 
     // Floods, from one connection, while another client probes.
-    let flooder = connect().await;
-    let probe_conn = connect().await;
+    let flooder = bus.connect().await;
+    let probe_conn = bus.connect().await;
     let probe = sdi_api::Camera1Proxy::builder(&probe_conn)
         .cache_properties(CacheProperties::No)
         .build()

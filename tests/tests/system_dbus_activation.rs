@@ -18,7 +18,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use sdi_tests::process::{must, repo_root, run, Reaped};
+use nix::sys::signal::Signal;
+use sdi_tests::process::{exists, is_root, must, repo_root, run, signal, Reaped};
 use sdi_tests::vm;
 
 const BUS_NAME: &str = "org.sdi.Daemon";
@@ -32,24 +33,18 @@ fn scratch() -> PathBuf {
 
 /// Terminates a process we did not spawn ourselves (the activated sdid, a
 /// child of dbus-daemon) on drop.
-struct KillOnDrop(Option<i32>);
+struct KillOnDrop(Option<u32>);
 
 impl Drop for KillOnDrop {
     fn drop(&mut self) {
         if let Some(pid) = self.0 {
-            // SAFETY: plain kill(2) on the pid the bus reported for sdid.
-            unsafe {
-                libc::kill(pid, libc::SIGTERM);
-            }
+            signal(pid, Signal::SIGTERM);
             let deadline = Instant::now() + Duration::from_secs(15);
-            // SAFETY: signal 0 only checks that the process exists.
-            while unsafe { libc::kill(pid, 0) } == 0 && Instant::now() < deadline {
+            while exists(pid) && Instant::now() < deadline {
                 std::thread::sleep(Duration::from_millis(50));
             }
-            // SAFETY: as above; SIGKILL if it did not stop in time.
-            unsafe {
-                libc::kill(pid, libc::SIGKILL);
-            }
+            // SIGKILL if it did not stop in time.
+            signal(pid, Signal::SIGKILL);
         }
     }
 }
@@ -94,11 +89,9 @@ fn activation_file(dir: &Path, bindir: &Path) -> String {
 
 #[test]
 fn sdictl_status_starts_sdid_by_activation() {
-    // SAFETY: geteuid has no preconditions.
-    let root = unsafe { libc::geteuid() } == 0;
+    let root = is_root();
     if !root && !vm::in_vm() {
-        std::env::set_var("SDID", sdi_tests::dbus::bin("sdid"));
-        std::env::set_var("SDICTL", sdi_tests::dbus::bin("sdictl"));
+        sdi_tests::dbus::export_bins();
         vm::run_test_in_vm("sdictl_status_starts_sdid_by_activation", 240);
         return;
     }
@@ -110,13 +103,8 @@ fn sdictl_status_starts_sdid_by_activation() {
         sdi_tests::skipped!("SKIPPED: dbus-daemon is not installed (apt-get install dbus)");
         return;
     }
-    let bin = |name: &str, var: &str| -> PathBuf {
-        std::env::var_os(var)
-            .map(PathBuf::from)
-            .unwrap_or_else(|| sdi_tests::dbus::bin(name))
-    };
-    let sdid = bin("sdid", "SDID");
-    let sdictl = bin("sdictl", "SDICTL");
+    let sdid = sdi_tests::dbus::bin("sdid");
+    let sdictl = sdi_tests::dbus::bin("sdictl");
     let bindir = sdid.parent().unwrap().to_owned();
 
     let dir = scratch();
@@ -193,7 +181,7 @@ fn sdictl_status_starts_sdid_by_activation() {
         .env("DBUS_SYSTEM_BUS_ADDRESS", &address)
         .env_remove("DBUS_SESSION_BUS_ADDRESS"));
     let owner_pid = bus_call(&address, "GetConnectionUnixProcessID");
-    let pid: Option<i32> = owner_pid
+    let pid: Option<u32> = owner_pid
         .strip_prefix("u ")
         .and_then(|p| p.trim().parse().ok());
     let _sdid = KillOnDrop(pid);

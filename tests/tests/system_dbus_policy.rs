@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
-use sdi_tests::dbus::Bus;
+use sdi_tests::dbus::{bin, Bus};
 use sdi_tests::process::{must, repo_root, run, Reaped};
 use sdi_tests::vm;
 
@@ -104,7 +104,7 @@ fn denied(out: &Output) -> bool {
 /// The real sdid owning `org.sdi.Daemon` as root, on the simulator, connected
 /// the production way (system bus; here the address of the test bus).
 fn start_daemon(bus: &SystemLikeBus) -> Reaped {
-    let child = Command::new(std::env::var_os("SDID").expect("SDID path from the host"))
+    let child = Command::new(bin("sdid"))
         .args(["--backend", "sim", "--sink", "y4m"])
         .env("DBUS_SYSTEM_BUS_ADDRESS", &bus.address)
         .stdout(Stdio::null())
@@ -117,9 +117,8 @@ fn start_daemon(bus: &SystemLikeBus) -> Reaped {
 fn policy_controls_who_may_do_what() {
     if !vm::in_vm() {
         // Built on the host: the VM's root is read-only. The environment
-        // (SDID) is passed into the VM.
-        std::env::set_var("SDID", sdi_tests::dbus::bin("sdid"));
-        std::env::set_var("SDICTL", sdi_tests::dbus::bin("sdictl"));
+        // (SDID, SDICTL) is passed into the VM.
+        sdi_tests::dbus::export_bins();
         vm::run_test_in_vm("policy_controls_who_may_do_what", 240);
         return;
     }
@@ -209,10 +208,7 @@ fn policy_controls_who_may_do_what() {
 
     // Output files by descriptor: sdictl, run as the user, creates the file
     // in a directory only that user may write and passes it to the daemon.
-    let sdictl = sdi_tests::process::runnable_copy(
-        Path::new(&std::env::var_os("SDICTL").expect("SDICTL path from the host")),
-        &dir,
-    );
+    let sdictl = sdi_tests::process::runnable_copy(&bin("sdictl"), &dir);
     let snapshot_as = |user: &str, file: &Path| {
         run(Command::new("runuser")
             .args(["-u", user, "--", "env"])

@@ -15,21 +15,16 @@ use std::time::{Duration, Instant};
 use sdi_tests::process::{must as run, repo_root, Reaped};
 use sdi_tests::udev::{start_udevd, udevadm, usb_device, wait_initialized};
 use sdi_tests::vm;
+use sdi_tests::wait::wait_until;
 
 const GADGET: &str = "/sys/kernel/config/usb_gadget/sdi-board";
 const RULES: &str = "70-sdi-board.rules";
+/// How long the kernel and udevd may take to show a change.
+const WAIT: Duration = Duration::from_secs(30);
 
 fn write(path: impl AsRef<Path>, value: &str) {
     let path = path.as_ref();
     fs::write(path, value).unwrap_or_else(|e| panic!("write {value:?} to {}: {e}", path.display()));
-}
-
-fn wait_until(what: &str, mut ready: impl FnMut() -> bool) {
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while !ready() {
-        assert!(Instant::now() < deadline, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
 }
 
 /// Builds the gadget (unbound) with one ACM function.
@@ -52,7 +47,7 @@ fn plug(vendor: &str, product: &str) -> PathBuf {
     write(format!("{GADGET}/idProduct"), &format!("0x{product}"));
     write(format!("{GADGET}/UDC"), "dummy_udc.0");
     let mut dev = None;
-    wait_until("the gadget to enumerate", || {
+    wait_until("the gadget to enumerate", WAIT, || {
         dev = usb_device(vendor, product);
         dev.is_some()
     });
@@ -66,8 +61,8 @@ fn plug(vendor: &str, product: &str) -> PathBuf {
 fn unplug(dev: &Path) {
     let db = db_entry(&properties(dev));
     write(format!("{GADGET}/UDC"), "\n");
-    wait_until("the device to disappear", || !dev.exists());
-    wait_until("udevd to process the remove event", || !db.exists());
+    wait_until("the device to disappear", WAIT, || !dev.exists());
+    wait_until("udevd to process the remove event", WAIT, || !db.exists());
 }
 
 /// udevd's database file of a device, from its MAJOR and MINOR properties.
@@ -224,7 +219,7 @@ fn board_hotplug_tags_device_for_systemd_and_group() {
             .to_string_lossy()
             .into_owned();
         // udevd broadcasts the event right after updating its database.
-        wait_until("udevadm monitor to print the remove event", || {
+        wait_until("udevadm monitor to print the remove event", WAIT, || {
             monitor
                 .out
                 .lock()
@@ -279,7 +274,7 @@ impl Monitor {
             reader: Some(reader),
         };
         let mut last_trigger: Option<Instant> = None;
-        wait_until("udevadm monitor to subscribe", || {
+        wait_until("udevadm monitor to subscribe", WAIT, || {
             if last_trigger.is_none_or(|t| t.elapsed() > Duration::from_secs(1)) {
                 let _ = udevadm()
                     .args(["trigger", "--action=change", "/sys/bus/usb/devices/usb1"])

@@ -24,8 +24,7 @@ fn failed(out: &Output, needle: &str) {
 #[test]
 fn sdid_serves_inside_the_unit_sandbox() {
     require_dbus!();
-    // SAFETY: geteuid has no preconditions.
-    if unsafe { libc::geteuid() } != 0 {
+    if !sdi_tests::process::is_root() {
         sdi_tests::skipped!(
             "SKIPPED: needs root for the mount namespace of tests/system/sandbox.sh"
         );

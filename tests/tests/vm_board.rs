@@ -17,17 +17,7 @@ use sdi_daemon::backend::opt8241::{BoardConfig, BoardError, BoardSelector, Opt82
 use sdi_daemon::backend::{Backend, BackendError};
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::vm;
-
-fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> T {
-    let t0 = Instant::now();
-    loop {
-        if let Some(v) = f() {
-            return v;
-        }
-        assert!(t0.elapsed() < timeout, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(100));
-    }
-}
+use sdi_tests::wait::wait_for;
 
 fn matches_sent(emu: &BoardEmulator, frame: &Frame) -> bool {
     let s = emu.state.lock().unwrap();

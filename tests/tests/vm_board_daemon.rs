@@ -7,37 +7,20 @@
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::Stdio;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use sdi_tests::board_emulator::BoardEmulator;
-use sdi_tests::dbus::{bin, Bus};
+use sdi_tests::dbus::{export_bins, sdictl, Bus, Daemon};
+use sdi_tests::process::Reaped;
 use sdi_tests::vm;
-
-/// sdid or sdictl: built on the host (the VM's root is read-only) and
-/// named by the environment passed into the VM.
-fn exe(var: &str) -> std::path::PathBuf {
-    std::env::var_os(var)
-        .map(Into::into)
-        .unwrap_or_else(|| panic!("{var} not set (the host side sets it)"))
-}
+use sdi_tests::wait::{wait_for, wait_until};
 
 const SERIAL: &str = "EMU0002";
 const W: usize = 64;
 const H: usize = 48;
-
-fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<T>) -> Duration {
-    let t0 = Instant::now();
-    loop {
-        if f().is_some() {
-            return t0.elapsed();
-        }
-        assert!(t0.elapsed() < timeout, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(50));
-    }
-}
 
 /// What the y4m reader saw, in order: true = a "no signal" frame.
 #[derive(Default)]
@@ -57,7 +40,7 @@ fn is_no_signal(y: &[u8]) -> bool {
 }
 
 struct Sdid {
-    child: Child,
+    child: Reaped,
     address: String,
     seen: Arc<Mutex<Seen>>,
     frames: Arc<AtomicU64>,
@@ -65,12 +48,10 @@ struct Sdid {
 
 impl Sdid {
     fn start(bus: &Bus, config: &Path) -> Self {
-        let mut child = Command::new(exe("SDID"))
-            .args(["--bus-address", &bus.address, "--sink", "y4m"])
-            .args(["--y4m-path", "-", "--config"])
+        let mut child = Daemon::bare_command(bus, &[])
+            .args(["--sink", "y4m", "--y4m-path", "-", "--config"])
             .arg(config)
             .env("RUST_LOG", "info")
-            .env_remove("INVOCATION_ID")
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
@@ -81,23 +62,19 @@ impl Sdid {
         let (s, n) = (seen.clone(), frames.clone());
         std::thread::spawn(move || read_y4m(stdout, &s, &n));
         let d = Self {
-            child,
+            child: Reaped(child),
             address: bus.address.clone(),
             seen,
             frames,
         };
-        wait_for("sdid on the bus", Duration::from_secs(60), || {
-            d.ctl(&["get", "mode"]).status.success().then_some(())
+        wait_until("sdid on the bus", Duration::from_secs(60), || {
+            d.ctl(&["get", "mode"]).status.success()
         });
         d
     }
 
     fn ctl(&self, args: &[&str]) -> std::process::Output {
-        Command::new(exe("SDICTL"))
-            .args(["--bus-address", &self.address])
-            .args(args)
-            .output()
-            .expect("run sdictl")
+        sdictl(&self.address, args)
     }
 
     fn prop(&self, name: &str) -> serde_json::Value {
@@ -122,13 +99,6 @@ impl Sdid {
     fn snapshot(&self, path: &Path) -> std::process::Output {
         let _ = std::fs::remove_file(path);
         self.ctl(&["snapshot", path.to_str().unwrap()])
-    }
-}
-
-impl Drop for Sdid {
-    fn drop(&mut self) {
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 
@@ -204,8 +174,7 @@ fn rerun_in_vm(name: &str, timeout_s: u32) -> bool {
     if vm::in_vm() {
         return false;
     }
-    std::env::set_var("SDID", bin("sdid"));
-    std::env::set_var("SDICTL", bin("sdictl"));
+    export_bins();
     vm::run_test_in_vm(name, timeout_s);
     true
 }
@@ -220,10 +189,8 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     }
     let tmp = tempfile::tempdir().unwrap();
     let emu = BoardEmulator::start("sdi0", SERIAL).expect("gadget");
-    wait_for("enumeration", Duration::from_secs(20), || {
-        sdi_daemon::backend::board::board_attached()
-            .ok()
-            .filter(|&a| a)
+    wait_until("enumeration", Duration::from_secs(20), || {
+        sdi_daemon::backend::board::board_attached().is_ok_and(|a| a)
     });
     let bus = Bus::start();
 
@@ -232,8 +199,8 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     assert_eq!(d.prop("backend"), "opt8241");
     let device = d.prop("device");
     assert!(device.as_str().unwrap().contains(SERIAL), "{device}");
-    wait_for("frames on y4m", Duration::from_secs(30), || {
-        (d.frames.load(Ordering::SeqCst) >= 10).then_some(())
+    wait_until("frames on y4m", Duration::from_secs(30), || {
+        d.frames.load(Ordering::SeqCst) >= 10
     });
     // The emulator got the SDK's sequence; sdid never wrote a value the
     // firmware had to clamp: it clamped the duty cycle itself and says so.
@@ -283,19 +250,18 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     // unplug mid-stream
     let t_unplug = Instant::now();
     emu.unplug().unwrap();
-    let detect = wait_for("DeviceUnavailable", Duration::from_secs(20), || {
-        (!d.device_available()).then_some(())
+    let detect = wait_until("DeviceUnavailable", Duration::from_secs(20), || {
+        !d.device_available()
     });
     eprintln!("MEASURED: unplug detected after {detect:?}");
-    wait_for("no-signal frames", Duration::from_secs(20), || {
-        (d.seen
+    wait_until("no-signal frames", Duration::from_secs(20), || {
+        d.seen
             .lock()
             .unwrap()
             .since(t_unplug)
             .filter(|&ns| ns)
             .count()
-            >= 3)
-            .then_some(())
+            >= 3
     });
     let out = d.snapshot(&tmp.path().join("gone.npy"));
     assert!(!out.status.success());
@@ -311,27 +277,26 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     // plug back: frames resume
     let t_plug = Instant::now();
     emu.plug().unwrap();
-    let resume = wait_for("board back", Duration::from_secs(30), || {
-        d.device_available().then_some(())
+    let resume = wait_until("board back", Duration::from_secs(30), || {
+        d.device_available()
     });
-    wait_for("frames after replug", Duration::from_secs(30), || {
-        (d.seen
+    wait_until("frames after replug", Duration::from_secs(30), || {
+        d.seen
             .lock()
             .unwrap()
             .since(t_plug)
             .filter(|&ns| !ns)
             .count()
-            >= 5)
-            .then_some(())
+            >= 5
     });
     eprintln!(
         "MEASURED: resumed (device available) {resume:?} after replug, first frames within {:?}",
         t_plug.elapsed()
     );
     let snap = tmp.path().join("back.npy");
-    wait_for("snapshot after replug", Duration::from_secs(10), || {
+    wait_until("snapshot after replug", Duration::from_secs(10), || {
         let out = d.snapshot(&snap);
-        (out.status.success() && snapshot_matches(&emu, &snap)).then_some(())
+        out.status.success() && snapshot_matches(&emu, &snap)
     });
     drop(d);
 
@@ -340,25 +305,24 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     assert_eq!(d.prop("backend"), "opt8241");
     let t_unplug = Instant::now();
     emu.unplug().unwrap();
-    let took = wait_for("simulator standing in", Duration::from_secs(20), || {
-        (d.prop("backend") == "sim").then_some(())
+    let took = wait_until("simulator standing in", Duration::from_secs(20), || {
+        d.prop("backend") == "sim"
     });
     eprintln!("MEASURED: simulator stood in after {took:?}");
     // Available again with the stand-in's first frame (Stats say no frames
     // until one comes: the backend switch is not a frame).
-    wait_for("frames from the stand-in", Duration::from_secs(5), || {
-        d.device_available().then_some(())
+    wait_until("frames from the stand-in", Duration::from_secs(5), || {
+        d.device_available()
     });
     let t_sim = Instant::now();
-    wait_for("simulated frames", Duration::from_secs(20), || {
-        (d.seen
+    wait_until("simulated frames", Duration::from_secs(20), || {
+        d.seen
             .lock()
             .unwrap()
             .since(t_sim)
             .filter(|&ns| !ns)
             .count()
-            >= 5)
-            .then_some(())
+            >= 5
     });
     let n_ns = d.seen.lock().unwrap().since(t_sim).filter(|&ns| ns).count();
     assert_eq!(n_ns, 0, "no-signal frames while the simulator stands in");
@@ -366,16 +330,16 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     let out = d.snapshot(&tmp.path().join("sim.npy"));
     assert!(out.status.success(), "{out:?}");
     emu.plug().unwrap();
-    wait_for("board back", Duration::from_secs(30), || {
-        (d.prop("backend") == "opt8241").then_some(())
+    wait_until("board back", Duration::from_secs(30), || {
+        d.prop("backend") == "opt8241"
     });
     let snap = tmp.path().join("back2.npy");
-    wait_for(
+    wait_until(
         "board frames after the simulator",
         Duration::from_secs(10),
         || {
             let out = d.snapshot(&snap);
-            (out.status.success() && snapshot_matches(&emu, &snap)).then_some(())
+            out.status.success() && snapshot_matches(&emu, &snap)
         },
     );
     drop(d);
@@ -386,7 +350,7 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     emu.unplug().unwrap();
     let t0 = Instant::now();
     let status = loop {
-        if let Some(s) = d.child.try_wait().unwrap() {
+        if let Some(s) = d.child.0.try_wait().unwrap() {
             break s;
         }
         assert!(t0.elapsed() < Duration::from_secs(30), "sdid did not exit");
@@ -399,10 +363,8 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     assert!(status.success(), "{status}");
     // Leave the gadget plugged in, as the emulator's teardown expects.
     emu.plug().unwrap();
-    wait_for("re-enumeration", Duration::from_secs(20), || {
-        sdi_daemon::backend::board::board_attached()
-            .ok()
-            .filter(|&a| a)
+    wait_until("re-enumeration", Duration::from_secs(20), || {
+        sdi_daemon::backend::board::board_attached().is_ok_and(|a| a)
     });
 }
 
@@ -455,28 +417,27 @@ fn sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams() {
         );
         assert!(s.stalled.is_empty(), "{:?}", s.stalled);
     }
-    wait_for("frames on y4m", Duration::from_secs(30), || {
-        (d.seen
+    wait_until("frames on y4m", Duration::from_secs(30), || {
+        d.seen
             .lock()
             .unwrap()
             .frames
             .iter()
             .filter(|f| !f.1)
             .count()
-            >= 10)
-            .then_some(())
+            >= 10
     });
     eprintln!(
         "MEASURED: 10 board frames {:?} after sdid started on a UVC-mode board",
         t_start.elapsed()
     );
     let snap = tmp.path().join("uvc.npy");
-    wait_for(
+    wait_until(
         "a snapshot of a frame the emulator sent",
         Duration::from_secs(10),
         || {
             let out = d.snapshot(&snap);
-            (out.status.success() && snapshot_matches(&emu, &snap)).then_some(())
+            out.status.success() && snapshot_matches(&emu, &snap)
         },
     );
     assert!(d.device_available());

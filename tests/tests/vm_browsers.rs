@@ -202,7 +202,7 @@ fn view_report_between(server: &PageServer, from: Instant, to: Instant) -> Optio
 /// board's frames again, on the same track.
 fn board_unplug_checks() {
     let emu = BoardEmulator::start("sdi0", SERIAL).expect("board emulator gadget");
-    clients::wait_until(
+    sdi_tests::wait::wait_until(
         "the board emulator enumerated",
         Duration::from_secs(30),
         || sdi_daemon::backend::board::board_attached().unwrap_or(false),
@@ -318,7 +318,7 @@ fn board_unplug_checks() {
 #[test]
 fn vm_chromium_track_survives_board_unplug() {
     if !vm::in_vm() {
-        clients::export_binaries();
+        sdi_tests::dbus::export_bins();
         std::env::set_var("VMRUN_MEM", "2560");
         vm::run_test_in_vm("vm_chromium_track_survives_board_unplug", 900);
         return;
@@ -329,7 +329,7 @@ fn vm_chromium_track_survives_board_unplug() {
 #[test]
 fn vm_browsers_see_the_sdi_camera() {
     if !vm::in_vm() {
-        clients::export_binaries();
+        sdi_tests::dbus::export_bins();
         // Two browsers need more than the default 1 GiB.
         std::env::set_var("VMRUN_MEM", "2560");
         vm::run_test_in_vm("vm_browsers_see_the_sdi_camera", 1200);

@@ -11,13 +11,13 @@
 //! camera process sdid started keeps the node) and shows the new frames.
 
 use std::path::Path;
-use std::process::{Command, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
 use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
-use sdi_tests::clients::{self, letterbox_rows, mean_rgb, off_by, PMD};
+use sdi_tests::clients::{letterbox_rows, mean_rgb, off_by, PMD};
 use sdi_tests::pipewire::{self, CameraPortal, Session};
 use sdi_tests::process::Reaped;
 use sdi_tests::vm;
@@ -39,7 +39,7 @@ impl Sdid {
             .open(session.dir.path().join("sdid.log"))
             .expect("sdid log");
         let child = session
-            .command(clients::exe("SDID"))
+            .command(sdi_tests::dbus::bin("sdid"))
             .args(["--bus-address", &session.bus.address])
             .args([
                 "--backend",
@@ -60,21 +60,17 @@ impl Sdid {
             _child: Reaped(child),
             address: session.bus.address.clone(),
         };
-        pipewire::wait_for("sdid serving D-Bus", Duration::from_secs(60), || {
+        sdi_tests::wait::wait_for("sdid serving D-Bus", Duration::from_secs(60), || {
             d.ctl(&["get", "mode"]).status.success().then_some(())
         });
-        pipewire::wait_for("the sdi-camera node", Duration::from_secs(60), || {
+        sdi_tests::wait::wait_for("the sdi-camera node", Duration::from_secs(60), || {
             session.node("sdi-camera")
         });
         d
     }
 
     fn ctl(&self, args: &[&str]) -> std::process::Output {
-        Command::new(clients::exe("SDICTL"))
-            .args(["--bus-address", &self.address])
-            .args(args)
-            .output()
-            .expect("run sdictl")
+        sdi_tests::dbus::sdictl(&self.address, args)
     }
 
     /// `sdictl set-mode`, then the mean colour of the whole 640x480 view
@@ -203,7 +199,7 @@ fn in_vm_checks() {
 #[test]
 fn vm_chromium_reads_the_pipewire_camera_through_the_portal() {
     if !vm::in_vm() {
-        clients::export_binaries();
+        sdi_tests::dbus::export_bins();
         std::env::set_var("VMRUN_MEM", "2560");
         vm::run_test_in_vm(
             "vm_chromium_reads_the_pipewire_camera_through_the_portal",

@@ -15,14 +15,14 @@
 
 use std::io::{BufRead, Read, Write};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Output, Stdio};
+use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use sdi_tests::dbus::Bus;
+use sdi_tests::dbus::{sdictl, Bus, Daemon};
 use sdi_tests::loopback;
-use sdi_tests::process::stdout_of;
+use sdi_tests::process::{stdout_of, Reaped};
 use sdi_tests::vm;
 use v4l2loopback_glue::CaptureReader;
 
@@ -36,27 +36,6 @@ const THUMB_BYTES: usize = THUMB_W * THUMB_H * 3;
 const NEW_MODE_FRAMES: usize = 12;
 /// Sensor frame rate: low enough for QEMU TCG with the separation mode.
 const FPS: &str = "15";
-
-fn exe(var: &str) -> PathBuf {
-    PathBuf::from(std::env::var_os(var).unwrap_or_else(|| panic!("{var} from the host")))
-}
-
-fn ctl(address: &str, args: &[&str]) -> Output {
-    Command::new(exe("SDICTL"))
-        .args(["--bus-address", address])
-        .args(args)
-        .output()
-        .expect("run sdictl")
-}
-
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
 
 /// Thumbnails read so far, shared with the reader thread.
 type Thumbs = Arc<Mutex<Vec<Vec<u8>>>>;
@@ -260,23 +239,21 @@ fn in_vm_checks() {
     std::fs::write(&config, format!("[output]\nlabel = \"{LABEL}\"\n")).unwrap();
 
     let bus = Bus::start();
-    let sdid = Command::new(exe("SDID"))
-        .args(["--bus-address", &bus.address, "--config"])
+    let sdid = Daemon::bare_command(&bus, &[])
+        .arg("--config")
         .arg(&config)
         // The small sensor (165x120) keeps the simulator cheap under TCG.
         .args(["--backend", "sim", "--sensor", "pmd", "--sink", "loopback"])
         .args(["--frame-rate-hz", FPS, "--exposure-us", "2000"])
-        .env("RUST_LOG", "warn")
-        .env_remove("INVOCATION_ID")
         .stdout(Stdio::null())
         .spawn()
         .expect("spawn sdid");
-    let mut sdid = Killed(sdid);
+    let mut sdid = Reaped(sdid);
     let stop_stamps = Arc::new(AtomicBool::new(false));
     let stamp_reader = watch_stamps(dev.clone(), stop_stamps.clone());
     let t0 = Instant::now();
     let ready = loop {
-        if ctl(&bus.address, &["get", "mode"]).status.success()
+        if sdictl(&bus.address, &["get", "mode"]).status.success()
             && loopback::advertises_capture(&dev)
         {
             break true;
@@ -291,14 +268,15 @@ fn in_vm_checks() {
         "sdid never served D-Bus with {} capture-ready",
         dev.display()
     );
-    let device = stdout_of(&ctl(&bus.address, &["get", "device"]));
+    let device = stdout_of(&sdictl(&bus.address, &["get", "device"]));
     eprintln!(
         "ok: sdid up after {:.1} s, device {}",
         t0.elapsed().as_secs_f64(),
         device.trim()
     );
     let listed: serde_json::Value =
-        serde_json::from_str(&stdout_of(&ctl(&bus.address, &["--json", "modes"]))).expect("json");
+        serde_json::from_str(&stdout_of(&sdictl(&bus.address, &["--json", "modes"])))
+            .expect("json");
     let modes: Vec<String> = listed["modes"]
         .as_array()
         .expect("modes array")
@@ -324,7 +302,7 @@ fn in_vm_checks() {
     for mode in &modes {
         let before = count();
         let t_switch = Instant::now();
-        let answer: serde_json::Value = serde_json::from_str(&stdout_of(&ctl(
+        let answer: serde_json::Value = serde_json::from_str(&stdout_of(&sdictl(
             &bus.address,
             &["--json", "set-mode", mode],
         )))
@@ -447,24 +425,22 @@ fn in_vm_checks() {
 
     // Snapshots through sdictl, in the separation mode (two channels).
     // set-mode returns once the mode's first frame is out: no wait needed.
-    stdout_of(&ctl(&bus.address, &["set-mode", "separation"]));
+    stdout_of(&sdictl(&bus.address, &["set-mode", "separation"]));
     let png = tmp.join("snap.png");
     let npy = tmp.join("snap.npy");
     let _ = std::fs::remove_file(&png);
     let _ = std::fs::remove_file(&npy);
-    stdout_of(&ctl(&bus.address, &["snapshot", png.to_str().unwrap()]));
-    stdout_of(&ctl(&bus.address, &["snapshot", npy.to_str().unwrap()]));
+    stdout_of(&sdictl(&bus.address, &["snapshot", png.to_str().unwrap()]));
+    stdout_of(&sdictl(&bus.address, &["snapshot", npy.to_str().unwrap()]));
     let png_bytes = std::fs::read(&png).unwrap();
     assert_eq!(&png_bytes[1..4], b"PNG");
-    let npy_bytes = std::fs::read(&npy).unwrap();
-    let header = String::from_utf8_lossy(&npy_bytes[..128.min(npy_bytes.len())]).into_owned();
-    assert!(header.contains("(2, 120, 165)"), "{header}");
+    let (shape, _) = sdi_tests::npy_file::read_npy(&npy);
+    assert_eq!(shape, [2, 120, 165]);
     eprintln!(
-        "ok: snapshots {} ({} B) and {} ({})",
+        "ok: snapshots {} ({} B) and {} (shape {shape:?})",
         png.display(),
         png_bytes.len(),
         npy.display(),
-        header.trim()
     );
 
     // The reader quits cleanly on q and logged no error.
@@ -513,7 +489,7 @@ fn in_vm_checks() {
         backwards.is_empty(),
         "timestamps went backwards:\n{backwards:#?}"
     );
-    let stats = stdout_of(&ctl(&bus.address, &["--json", "get", "stats"]));
+    let stats = stdout_of(&sdictl(&bus.address, &["--json", "get", "stats"]));
     eprintln!("sdid stats: {}", stats.trim());
     assert!(sdid.0.try_wait().unwrap().is_none(), "sdid died");
 }
@@ -522,8 +498,7 @@ fn in_vm_checks() {
 fn vm_daemon_on_loopback_while_modes_switch() {
     if !vm::in_vm() {
         // Built on the host: the VM's root is read-only.
-        std::env::set_var("SDID", sdi_tests::dbus::bin("sdid"));
-        std::env::set_var("SDICTL", sdi_tests::dbus::bin("sdictl"));
+        sdi_tests::dbus::export_bins();
         vm::run_test_in_vm("vm_daemon_on_loopback_while_modes_switch", 600);
         return;
     }

@@ -93,6 +93,16 @@ fn fake_sysroot(root: &Path, caps: &str, buffers: &str) {
     write(root, &format!("{usb}/idVendor"), "0451\n");
     write(root, &format!("{usb}/idProduct"), "9106\n");
     write(root, &format!("{usb}/speed"), "12\n");
+    secure_boot_on(root);
+    write(
+        root,
+        "sys/kernel/security/lockdown",
+        "none [integrity] confidentiality\n",
+    );
+}
+
+/// A fake efivars tree below `root` that says Secure Boot is on.
+fn secure_boot_on(root: &Path) {
     let efi = root.join("sys/firmware/efi/efivars");
     std::fs::create_dir_all(&efi).expect("mkdir efivars");
     std::fs::write(
@@ -100,11 +110,6 @@ fn fake_sysroot(root: &Path, caps: &str, buffers: &str) {
         [6, 0, 0, 0, 1],
     )
     .expect("SecureBoot");
-    write(
-        root,
-        "sys/kernel/security/lockdown",
-        "none [integrity] confidentiality\n",
-    );
 }
 
 #[test]
@@ -166,7 +171,7 @@ fn doctor_on_the_host_without_the_module() {
 fn in_vm_checks() {
     // Run as other users too: a copy they can reach.
     let sdictl = sdi_tests::process::runnable_copy(
-        &clients::exe("SDICTL"),
+        &sdi_tests::dbus::bin("sdictl"),
         Path::new("/tmp/sdi-doctor-bin"),
     );
     // Module present, nodes as udev/modprobe.d sets them, sdid streaming.
@@ -222,13 +227,7 @@ fn in_vm_checks() {
     // Secure Boot on (a fake efivars tree), module installed, not loaded:
     // unsigned -> the "Key was rejected by service" case with MOK steps.
     let root = Path::new("/tmp/sdi-doctor-root");
-    let efi = root.join("sys/firmware/efi/efivars");
-    std::fs::create_dir_all(&efi).expect("mkdir efivars");
-    std::fs::write(
-        efi.join("SecureBoot-8be4df61-93ca-11d2-aa0d-e98c6b8a5a42"),
-        [6, 0, 0, 0, 1],
-    )
-    .expect("SecureBoot");
+    secure_boot_on(root);
     let (_, v) = doctor(
         &sdictl,
         &["--sysroot", "/tmp/sdi-doctor-root", gone[0], gone[1]],
@@ -275,7 +274,7 @@ fn in_vm_checks() {
 #[test]
 fn vm_doctor_with_the_module_and_faults() {
     if !vm::in_vm() {
-        clients::export_binaries();
+        sdi_tests::dbus::export_bins();
         vm::run_test_in_vm("vm_doctor_with_the_module_and_faults", 300);
         return;
     }

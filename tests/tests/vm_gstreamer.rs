@@ -183,7 +183,7 @@ fn check_data(sdid: &Sdid, mode: &str) {
 #[test]
 fn vm_gstreamer_reads_both_nodes() {
     if !vm::in_vm() {
-        clients::export_binaries();
+        sdi_tests::dbus::export_bins();
         vm::run_test_in_vm("vm_gstreamer_reads_both_nodes", 400);
         return;
     }

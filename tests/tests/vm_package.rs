@@ -30,13 +30,13 @@ use nix::unistd::Pid;
 use sdi_daemon::sink::pipewire::VIEW_NODE;
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::browser::{Browser, PageServer};
-use sdi_tests::clients::wait_until;
 use sdi_tests::loopback;
 use sdi_tests::package;
 use sdi_tests::pipewire;
 use sdi_tests::process::{must, run, Reaped};
 use sdi_tests::udev::{start_udevd, udevadm, usb_device, wait_initialized};
 use sdi_tests::vm;
+use sdi_tests::wait::wait_until;
 
 const NAME: &str = "vm_apt_installs_activates_and_purges_the_package";
 const SERIAL: &str = "EMU0005";
@@ -404,7 +404,7 @@ fn camera_package(deb: &Path) {
                 .spawn()
                 .expect("start the packaged sdid"),
         );
-        let node = pipewire::wait_for(
+        let node = sdi_tests::wait::wait_for(
             "the packaged camera's sdi-camera node",
             Duration::from_secs(120),
             || s.node(VIEW_NODE),

@@ -33,12 +33,13 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
-use sdi_tests::clients::{self, mean_rgb, off_by, wait_until, Sdid, PMD};
+use sdi_tests::clients::{self, mean_rgb, off_by, Sdid, PMD};
 use sdi_tests::dbus::Bus;
 use sdi_tests::loopback::{self, ModuleBuild};
 use sdi_tests::process::{repo_root, Reaped};
 use sdi_tests::udev::{self, udevadm};
 use sdi_tests::vm;
+use sdi_tests::wait::wait_until;
 
 /// Buffers pipewiresrc may ask for: PipeWire's v4l2 source requests as
 /// many buffers as the link negotiated and fails ("can't allocate enough
@@ -359,7 +360,7 @@ fn in_vm_checks() {
 #[test]
 fn vm_pipewire_lists_the_sdi_camera_in_both_orders() {
     if !vm::in_vm() {
-        clients::export_binaries();
+        sdi_tests::dbus::export_bins();
         vm::run_test_in_vm("vm_pipewire_lists_the_sdi_camera_in_both_orders", 1200);
         return;
     }

@@ -1,5 +1,12 @@
 //! Helpers shared by the CLI's end-to-end tests.
+//!
+//! sdi-tests depends on sdi-cli, so these tests cannot use its `tests/src`;
+//! this module is their one copy of the plumbing, and the M1 reference is
+//! the same source file as sdi-tests' own.
 #![allow(dead_code)] // each test file uses a subset
+
+#[path = "../../../tests/src/m1_reference.rs"]
+pub mod m1_reference;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -12,12 +19,61 @@ pub fn scratch(prefix: &str, name: &str) -> PathBuf {
     dir
 }
 
+/// A path as the `&str` an argument list takes.
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
 /// Runs the built sdictl.
 pub fn sdictl(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_sdictl"))
         .args(args)
         .output()
         .unwrap()
+}
+
+/// `sdictl sim --mode MODE --frames N --out OUT` and `extra`.
+pub fn sim(mode: &str, frames: usize, out: &Path, extra: &[&str]) -> Output {
+    let frames = frames.to_string();
+    let mut args = vec!["sim", "--mode", mode, "--frames", &frames, "--out", s(out)];
+    args.extend_from_slice(extra);
+    sdictl(&args)
+}
+
+/// `sdictl separate --method METHOD --in INPUT --out OUT` and `extra`.
+pub fn separate(method: &str, input: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "separate",
+        "--method",
+        method,
+        "--in",
+        s(input),
+        "--out",
+        s(out),
+    ];
+    args.extend_from_slice(extra);
+    sdictl(&args)
+}
+
+/// Asserts that sdictl succeeded, its stdout and stderr in the message.
+pub fn ok(o: &Output) {
+    assert!(
+        o.status.success(),
+        "status {:?}\nstdout: {}\nstderr: {}",
+        o.status,
+        stdout(o),
+        stderr(o)
+    );
+}
+
+/// Shape and data of an `.npy` stack.
+pub fn load(p: &Path) -> (Vec<usize>, Vec<f32>) {
+    sdi_core::npy::read_f32(std::fs::File::open(p).unwrap()).unwrap()
+}
+
+/// Writes an `.npy` stack of `shape`.
+pub fn write_stack(path: &Path, shape: &[usize], data: &[f32]) {
+    sdi_core::npy::write_f32(std::fs::File::create(path).unwrap(), shape, data).unwrap();
 }
 
 pub fn stderr(o: &Output) -> String {

@@ -80,13 +80,10 @@ fn poisson(rng: &mut SmallRng, mean: f64) -> f64 {
 pub fn rel_rmse_bias(est: &Image<f32>, truth: &[f64]) -> (f64, f64) {
     let n = truth.len() as f64;
     let mean_t = truth.iter().sum::<f64>() / n;
-    let (mut se, mut b) = (0.0, 0.0);
-    for (e, t) in est.data.iter().zip(truth) {
-        let d = *e as f64 - t;
-        se += d * d;
-        b += d;
-    }
-    ((se / n).sqrt() / mean_t, b / n / mean_t)
+    let errors = || est.data.iter().zip(truth).map(|(&e, t)| f64::from(e) - t);
+    let rmse = (errors().map(|d| d * d).sum::<f64>() / n).sqrt();
+    let bias = errors().sum::<f64>() / n;
+    (rmse / mean_t, bias / mean_t)
 }
 
 /// The TI-like H used by most tests: g = 0.08 * 0.65, sigma_read^2 = 15.05 DN^2.

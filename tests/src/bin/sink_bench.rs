@@ -26,8 +26,9 @@ use sdi_daemon::sink::loopback::LoopbackSink;
 use sdi_daemon::sink::pipewire::{PipewireSink, VIEW_NODE};
 use sdi_daemon::sink::y4m::Y4mSink;
 use sdi_daemon::sink::Sink;
-use sdi_tests::pipewire::{missing_tools, wait_for, Session};
+use sdi_tests::pipewire::{missing_tools, Session};
 use sdi_tests::process::Reaped;
+use sdi_tests::wait::wait_for;
 
 const WIDTH: usize = 640;
 const HEIGHT: usize = 480;

@@ -20,21 +20,25 @@ fn bulk_in(max_packet: u16) -> [u8; 7] {
     [7, 5, 0x82, 2, mp[0], mp[1], 0]
 }
 
-/// The blob written first to ep0.
-pub fn descriptors() -> Vec<u8> {
+/// A v2 descriptors blob of two full-speed and two high-speed descriptors.
+fn descriptors_blob(full_speed: [&[u8]; 2], high_speed: [&[u8]; 2]) -> Vec<u8> {
     let mut body = Vec::new();
     body.extend_from_slice(&2u32.to_le_bytes()); // fs_count
     body.extend_from_slice(&2u32.to_le_bytes()); // hs_count
-    body.extend_from_slice(&interface());
-    body.extend_from_slice(&bulk_in(64));
-    body.extend_from_slice(&interface());
-    body.extend_from_slice(&bulk_in(512));
+    for d in full_speed.iter().chain(&high_speed) {
+        body.extend_from_slice(d);
+    }
     let mut out = Vec::new();
     out.extend_from_slice(&DESCRIPTORS_MAGIC_V2.to_le_bytes());
     out.extend_from_slice(&((12 + body.len()) as u32).to_le_bytes());
     out.extend_from_slice(&(HAS_FS_DESC | HAS_HS_DESC | ALL_CTRL_RECIP).to_le_bytes());
     out.extend_from_slice(&body);
     out
+}
+
+/// The blob written first to ep0.
+pub fn descriptors() -> Vec<u8> {
+    descriptors_blob([&interface(), &bulk_in(64)], [&interface(), &bulk_in(512)])
 }
 
 /// The string blob written second to ep0.
@@ -61,17 +65,5 @@ pub fn uvc_descriptors() -> Vec<u8> {
     let vc = [9, 4, 0, 0, 1, 0x0E, 0x01, 0, 1];
     // ENDPOINT, IN, interrupt, 16 bytes, bInterval 8
     let status = |interval: u8| [7u8, 5, 0x81, 3, 16, 0, interval];
-    let mut body = Vec::new();
-    body.extend_from_slice(&2u32.to_le_bytes()); // fs_count
-    body.extend_from_slice(&2u32.to_le_bytes()); // hs_count
-    body.extend_from_slice(&vc);
-    body.extend_from_slice(&status(8));
-    body.extend_from_slice(&vc);
-    body.extend_from_slice(&status(4));
-    let mut out = Vec::new();
-    out.extend_from_slice(&DESCRIPTORS_MAGIC_V2.to_le_bytes());
-    out.extend_from_slice(&((12 + body.len()) as u32).to_le_bytes());
-    out.extend_from_slice(&(HAS_FS_DESC | HAS_HS_DESC | ALL_CTRL_RECIP).to_le_bytes());
-    out.extend_from_slice(&body);
-    out
+    descriptors_blob([&vc, &status(8)], [&vc, &status(4)])
 }

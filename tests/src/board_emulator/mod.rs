@@ -416,18 +416,8 @@ fn next_setups(ep0: &mut File) -> Vec<Setup> {
 
 fn control_loop(mut ep0: File, state: &Mutex<BoardState>, stop: &AtomicBool, serial: &str) {
     while !stop.load(Ordering::SeqCst) {
-        for Setup {
-            rt,
-            req,
-            value,
-            index,
-            length,
-        } in next_setups(&mut ep0)
-        {
-            let address = ((value & 0xFF) << 8) | (index & 0xFF);
-            let _ = handle_setup(
-                &mut ep0, state, serial, rt, req, address, length, value, index,
-            );
+        for setup in next_setups(&mut ep0) {
+            let _ = handle_setup(&mut ep0, state, serial, &setup);
         }
     }
 }
@@ -441,24 +431,17 @@ const UVC_SET_CUR: u8 = 0x01;
 /// control selector (wValue high byte) is.
 fn uvc_control_loop(mut ep0: File, inner: &Arc<Inner>) {
     while !inner.stop.load(Ordering::SeqCst) {
-        for Setup {
-            rt,
-            req,
-            value,
-            index,
-            length,
-        } in next_setups(&mut ep0)
-        {
-            if rt == 0x21 && req == UVC_SET_CUR {
-                let mut data = vec![0u8; length];
+        for s in next_setups(&mut ep0) {
+            if s.rt == 0x21 && s.req == UVC_SET_CUR {
+                let mut data = vec![0u8; s.length];
                 let _ = ep0.read(&mut data);
                 inner
                     .state
                     .lock()
                     .unwrap()
                     .uvc_requests
-                    .push((rt, req, value, index, data));
-                if value >> 8 == 6 && !inner.ignore_uvc_switch.load(Ordering::SeqCst) {
+                    .push((s.rt, s.req, s.value, s.index, data));
+                if s.value >> 8 == 6 && !inner.ignore_uvc_switch.load(Ordering::SeqCst) {
                     // The firmware re-enumerates right after the request.
                     std::thread::sleep(Duration::from_millis(50));
                     if let Err(e) = inner.switch_to_bulk() {
@@ -473,8 +456,8 @@ fn uvc_control_loop(mut ep0: File, inner: &Arc<Inner>) {
                     .lock()
                     .unwrap()
                     .stalled
-                    .push((rt, req, value, index));
-                if rt & 0x80 != 0 {
+                    .push((s.rt, s.req, s.value, s.index));
+                if s.rt & 0x80 != 0 {
                     let _ = ep0.read(&mut [0u8; 0]);
                 } else {
                     let _ = ep0.write(&[]);
@@ -484,18 +467,20 @@ fn uvc_control_loop(mut ep0: File, inner: &Arc<Inner>) {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
 fn handle_setup(
     ep0: &mut File,
     state: &Mutex<BoardState>,
     serial: &str,
-    rt: u8,
-    req: u8,
-    address: u16,
-    length: usize,
-    value: u16,
-    index: u16,
+    setup: &Setup,
 ) -> std::io::Result<()> {
+    let &Setup {
+        rt,
+        req,
+        value,
+        index,
+        length,
+    } = setup;
+    let address = ((value & 0xFF) << 8) | (index & 0xFF);
     let is_in = rt & 0x80 != 0;
     match (rt, req) {
         (0xC0, 0x08) => {
