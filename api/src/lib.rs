@@ -4,8 +4,8 @@
 //! dictionary on the wire (`a{sv}`) is a typed struct here ([`types`]);
 //! every error is a variant of [`SdiError`]; the settings a client changes
 //! are one table, [`Setting`]. `daemon/dbus/org.sdi.Camera1.xml` is the
-//! served introspection, checked by `tests/tests/dbus_api.rs`;
-//! `tests/tests/dbus_contract.rs` checks the proxy against it both ways.
+//! served introspection, checked by `tests/tests/integration/dbus_api.rs`;
+//! `tests/tests/integration/dbus_contract.rs` checks the proxy against it both ways.
 #![forbid(unsafe_code)]
 
 pub mod board_ids;

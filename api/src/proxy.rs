@@ -5,7 +5,7 @@
 //! that therefore cannot drift apart: the zbus proxy [`Camera1Proxy`],
 //! [`Properties`] (every property read at once, for `sdictl status` and
 //! `get`) and [`members`] (each member's D-Bus name and signature, which
-//! `tests/tests/dbus_contract.rs` compares with the served introspection).
+//! `tests/tests/integration/dbus_contract.rs` compares with the served introspection).
 
 use zbus::proxy;
 use zbus::zvariant::{Fd, OwnedValue, SerializeDict, Type, Value};

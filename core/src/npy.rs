@@ -6,7 +6,7 @@
 //!
 //! Hand-written because both crates that do this panic on hostile headers
 //! (npyz 0.8 on a shape whose product overflows, ndarray-npy 0.9 on
-//! `(0, 2^64-1)`; tests below); numpy checks it in `tests/tests/npy_numpy.rs`.
+//! `(0, 2^64-1)`; tests below); numpy checks it in `tests/tests/integration/npy_numpy.rs`.
 
 use std::io::{Read, Write};
 

@@ -35,7 +35,7 @@ pub(crate) fn target_dir() -> PathBuf {
 /// one workspace collide in target/). Activation files and unit sandboxes
 /// name the program `sdid`, so each test gets a hard link (or a copy) with
 /// the real name in `target/<profile>/sdi-tests-bin/`. The library entry
-/// itself runs in the test process in `tests/tests/daemon_in_process.rs`.
+/// itself runs in the test process in `tests/tests/integration/daemon_in_process.rs`.
 ///
 /// Inside a VM guest (read-only root, no cargo) the programs are the ones
 /// the host built and named in `SDID` and `SDICTL` ([`export_bins`]).

@@ -9,7 +9,7 @@
 //! is the proxy, not a second list of it. Every proxy member must be served
 //! with the same signature (a client call that would fail), and every
 //! served member must be in the proxy (a method sdictl and the tests cannot
-//! reach). `tests/tests/dbus_api.rs` compares the served introspection with
+//! reach). `tests/tests/integration/dbus_api.rs` compares the served introspection with
 //! `daemon/dbus/org.sdi.Camera1.xml`, the interface's description for
 //! other languages.
 

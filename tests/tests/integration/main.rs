@@ -1,0 +1,23 @@
+//! The host integration tests that need neither a VM, root, nor a quiet
+//! machine, as one test binary: linking one binary instead of one per file
+//! is most of what building the tests costs. Each file stays a module, so a
+//! test is found as `cargo test -p sdi-tests --test integration -- FILE::NAME`.
+//! Timing checks, races and VM tests (`dbus_fair_share`, `daemon_frame_clock`,
+//! `daemon_lights`, `dbus_path_races`, `pipewire_camera`, `soak`, `vm_*`,
+//! `system_*`, `package_*`) stay binaries of their own.
+
+mod daemon_in_process;
+mod daemon_lifecycle;
+mod daemon_recording;
+mod daemon_y4m_fallback;
+mod dbus_api;
+mod dbus_bad_input;
+mod dbus_contract;
+mod dbus_fd_passing;
+mod dbus_group_state_dir;
+mod dbus_path_methods;
+mod dbus_separation;
+mod dbus_setting_contract;
+mod dbus_wrong_input;
+mod npy_numpy;
+mod science_recording;
