@@ -139,6 +139,8 @@ camera1! {
         fn scene(&self) -> String;
         /// "sensor -> output".
         fn device(&self) -> String;
+        /// The sink publishing the output: "loopback", "pipewire" or "y4m".
+        fn sink(&self) -> String;
         /// Output pixel format.
         fn format(&self) -> String;
         fn width(&self) -> u32;

@@ -49,7 +49,13 @@ pub fn lines(p: &Properties) -> Vec<String> {
     );
     line(
         "output",
-        format!("{output}, {} {}x{}", p.format, p.width, p.height),
+        format!(
+            "{}, {} {}x{}",
+            sink(&p.sink, output),
+            p.format,
+            p.width,
+            p.height
+        ),
     );
     if !p.recording.is_empty() {
         line("recording", p.recording.clone());
@@ -80,6 +86,16 @@ fn state(s: &Stats) -> &'static str {
         "stalled"
     } else {
         "streaming"
+    }
+}
+
+/// The sink and where it publishes, in words.
+fn sink(kind: &str, output: &str) -> String {
+    match kind {
+        "loopback" => format!("v4l2loopback {output}"),
+        "pipewire" => format!("PipeWire camera, node {output}"),
+        "y4m" => format!("y4m stream {output}"),
+        _ => output.to_owned(),
     }
 }
 
@@ -151,6 +167,7 @@ mod tests {
             backend: "sim".into(),
             scene: "flat-field".into(),
             device: "simulator (sdi-sim) -> /dev/video10".into(),
+            sink: "loopback".into(),
             format: "YUYV".into(),
             width: 640,
             height: 480,
@@ -181,7 +198,7 @@ mod tests {
              \x20     setup: LS1 any source, in phase; LS2 any source, out of phase; optics none\n\
              \x20   capture: exposure 1000 us, 60.0 fps, modulation 12 MHz\n\
              \x20      view: colormap diverging, range auto\n\
-             \x20    output: /dev/video10, YUYV 640x480\n\
+             \x20    output: v4l2loopback /dev/video10, YUYV 640x480\n\
              \x20     stats: 60.0 fps, latency 76 us (max 1.2 ms), 0 dropped, 123 frames"
         );
     }

@@ -781,6 +781,12 @@ impl Camera {
         format!("{sensor} -> {}", self.info.sink.device)
     }
 
+    /// The sink publishing the output: "loopback", "pipewire" or "y4m".
+    #[zbus(property(emits_changed_signal = "const"))]
+    async fn sink(&self) -> String {
+        self.info.sink.kind.to_string()
+    }
+
     /// Output pixel format.
     #[zbus(property(emits_changed_signal = "const"))]
     async fn format(&self) -> String {
