@@ -141,7 +141,7 @@ mod tests {
         round_trip::<OnUnplug>(&["no-signal", "simulator", "exit"]);
         round_trip::<LightDriver>(&["none", "board", "scpi-tcp", "usbtmc", "gpio"]);
         round_trip::<SeparationMethod>(&["m3", "window"]);
-        // Case as before: names are lower case, nothing else matches.
+        // Case matters: names are lower case, nothing else matches.
         assert!("Sim".parse::<BackendKind>().is_err());
         assert!("scpi_tcp".parse::<LightDriver>().is_err());
         let e = "m1".parse::<SeparationMethod>().unwrap_err().to_string();

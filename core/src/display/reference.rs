@@ -1,10 +1,10 @@
-//! The previous scalar display path, kept verbatim as the reference the fast
-//! one in [`super`] is tested (byte for byte) and benchmarked against.
+//! The scalar display path: the plain reference the fast one in [`super`]
+//! is tested (byte for byte) and benchmarked against.
 
 use super::{Colormap, DisplayMap, AUTO_PERCENTILE, DIVERGING, LUT_HALF, LUT_SIZE};
 use crate::image::Image;
 
-/// The previous `DisplayMap::render_rgb8`: a LUT built per call, a float
+/// Scalar `DisplayMap::render_rgb8`: a LUT built per call, a float
 /// `round` per pixel.
 pub fn render_rgb8(map: &DisplayMap, img: &Image<f32>, out: &mut [u8]) {
     let mut lut = [[0u8; 3]; LUT_SIZE];
@@ -22,7 +22,7 @@ pub fn render_rgb8(map: &DisplayMap, img: &Image<f32>, out: &mut [u8]) {
     }
 }
 
-/// The previous `DisplayMap::render_grey8`.
+/// Scalar `DisplayMap::render_grey8`.
 pub fn render_grey8(map: &DisplayMap, img: &Image<f32>, out: &mut [u8]) {
     let scale = 1.0 / max_abs_dn(map, img);
     for (px, &v) in out.iter_mut().zip(&img.data) {
@@ -63,7 +63,7 @@ pub fn diverging(t: f32) -> [u8; 3] {
     std::array::from_fn(|c| (a[c] + (b[c] - a[c]) * f).round() as u8)
 }
 
-/// The previous `robust_max_abs`: two histogram passes with one histogram.
+/// Scalar `robust_max_abs`: two histogram passes with one histogram.
 pub fn robust_max_abs(data: &[f32]) -> f32 {
     const COARSE_SHIFT: u32 = 20;
     const FINE_SHIFT: u32 = 9;

@@ -111,7 +111,8 @@ pub use sdi_config::BackendKind;
 mod tests {
     use super::BackendName;
 
-    /// The D-Bus `Backend` property and the recordings' `backend`, as before.
+    /// The strings of the D-Bus `Backend` property and the recordings'
+    /// `backend` field: a contract, so pinned here.
     #[test]
     fn backend_names() {
         let names =
