@@ -725,23 +725,6 @@ mod tests {
         v
     }
 
-    /// The scalar RGB to YUYV row packing of `view::Packer`, copied
-    /// verbatim: an oracle independent of the code under test.
-    fn scalar_rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
-        for (o, p) in d.chunks_exact_mut(4).zip(s.chunks_exact(6)) {
-            let (r0, g0, b0) = (i32::from(p[0]), i32::from(p[1]), i32::from(p[2]));
-            let (r1, g1, b1) = (i32::from(p[3]), i32::from(p[4]), i32::from(p[5]));
-            let y = |r: i32, g: i32, b: i32| (((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) as u8;
-            let (r, g, b) = (r0 + r1, g0 + g1, b0 + b1);
-            let u = (((-38 * r - 74 * g + 112 * b + 256) >> 9) + 128).clamp(0, 255) as u8;
-            let v = (((112 * r - 94 * g - 18 * b + 256) >> 9) + 128).clamp(0, 255) as u8;
-            o[0] = y(r0, g0, b0);
-            o[1] = u;
-            o[2] = y(r1, g1, b1);
-            o[3] = v;
-        }
-    }
-
     #[test]
     fn fast_path_is_byte_identical_to_the_reference() {
         for img in test_images() {
@@ -765,7 +748,7 @@ mod tests {
                     .chunks(3 * img.width)
                     .zip(want.chunks_mut(2 * img.width))
                 {
-                    scalar_rgb_row_to_yuyv(s, d);
+                    crate::view::rgb_row_to_yuyv(s, d);
                 }
                 let (mut rgb, mut yuyv) = (vec![0u8; 3 * n], vec![7u8; 2 * n]);
                 map.render_rgb8_yuyv(&img, &mut rgb, &mut yuyv);

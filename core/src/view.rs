@@ -19,5 +19,7 @@ mod renderer;
 pub use card::{no_signal_card, no_signal_grey, no_signal_stripes_rgb8};
 pub use format::{PixelFormat, Y16_ZERO_DN};
 pub use letterbox::{letterbox_rgb8, LetterboxRect};
+#[cfg(test)]
+pub(crate) use pack::rgb_row_to_yuyv;
 pub use pack::{dn_to_y16, rgb8_to_yuv444_planes, PackError, Packer, Src};
 pub use renderer::ViewRenderer;

@@ -23,6 +23,12 @@ impl LetterboxRect {
     }
 }
 
+/// The source row or column that scaled index `i` of `scaled_n` shows, of
+/// `n` (nearest neighbour): one rule for every scaled view.
+pub(crate) fn source_index(i: usize, n: usize, scaled_n: usize) -> usize {
+    (i * n / scaled_n).min(n - 1)
+}
+
 /// Nearest-neighbour scale of `src` (w x h RGB8) into `dst` (dw x dh),
 /// preserving the aspect ratio with black bars.
 pub fn letterbox_rgb8(src: &[u8], w: usize, h: usize, dst: &mut [u8], dw: usize, dh: usize) {
@@ -32,11 +38,11 @@ pub fn letterbox_rgb8(src: &[u8], w: usize, h: usize, dst: &mut [u8], dw: usize,
     }
     let r = LetterboxRect::new(w, h, dw, dh);
     for y in 0..r.height {
-        let sy = (y * h / r.height).min(h - 1);
+        let sy = source_index(y, h, r.height);
         let start = ((r.y0 + y) * dw + r.x0) * 3;
         let row = &mut dst[start..start + r.width * 3];
         for (x, px) in row.chunks_exact_mut(3).enumerate() {
-            let sx = (x * w / r.width).min(w - 1);
+            let sx = source_index(x, w, r.width);
             let s = (sy * w + sx) * 3;
             px.copy_from_slice(&src[s..s + 3]);
         }

@@ -240,8 +240,9 @@ fn grey_row(format: PixelFormat, lut: &[u8; 256], s: &[u8], d: &mut [u8]) {
 
 /// One row of RGB8 to YUYV, BT.601 limited range, chroma from the mean of
 /// each horizontal pixel pair. [`crate::display`]'s tables give the same
-/// bytes for colormapped images without going through RGB.
-fn rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
+/// bytes for colormapped images without going through RGB (its tests hold
+/// them to this function).
+pub(crate) fn rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
     for (o, p) in d.chunks_exact_mut(4).zip(s.chunks_exact(6)) {
         let (r0, g0, b0) = (i32::from(p[0]), i32::from(p[1]), i32::from(p[2]));
         let (r1, g1, b1) = (i32::from(p[3]), i32::from(p[4]), i32::from(p[5]));

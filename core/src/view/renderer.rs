@@ -1,6 +1,6 @@
 //! [`ViewRenderer`]: a mode's output as the bytes of one published stream.
 
-use super::letterbox::{letterbox_rgb8, LetterboxRect};
+use super::letterbox::{letterbox_rgb8, source_index, LetterboxRect};
 use super::pack::{PackError, Packer, Src};
 use super::PixelFormat;
 use crate::display::{DisplayMap, DisplayRange};
@@ -21,6 +21,8 @@ pub struct ViewRenderer {
     scaled: Vec<u8>,
     /// The direct YUYV path's scaled signed image and its YUYV.
     scaled_dn: Image<f32>,
+    /// The source column of each scaled column.
+    cols: Vec<usize>,
     content: Vec<u8>,
     /// The packed frame handed to the sink.
     frame: Vec<u8>,
@@ -35,6 +37,7 @@ impl ViewRenderer {
             rgb: Vec::new(),
             scaled: Vec::new(),
             scaled_dn: Image::new(0, 0),
+            cols: Vec::new(),
             content: Vec::new(),
             frame: Vec::new(),
         }
@@ -117,10 +120,11 @@ impl ViewRenderer {
         if self.scaled_dn.width != sw || self.scaled_dn.height != sh {
             self.scaled_dn = Image::new(sw, sh);
         }
-        let cols: Vec<usize> = (0..sw).map(|x| (x * w / sw).min(w - 1)).collect();
+        self.cols.clear();
+        self.cols.extend((0..sw).map(|x| source_index(x, w, sw)));
         for (y, row) in self.scaled_dn.data.chunks_exact_mut(sw).enumerate() {
-            let src = &img.data[(y * h / sh).min(h - 1) * w..][..w];
-            for (d, &sx) in row.iter_mut().zip(&cols) {
+            let src = &img.data[source_index(y, h, sh) * w..][..w];
+            for (d, &sx) in row.iter_mut().zip(&self.cols) {
                 *d = src[sx];
             }
         }
