@@ -286,7 +286,7 @@ fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
     let info = CameraInfo {
         backend: backend.kind(),
         device: backend.device(),
-        scene: config.scene.map(|s| s.spec()),
+        scene: config.scene,
         sink: sink_info,
         limits: backend.limits(),
         sensor,

@@ -210,7 +210,7 @@ impl Setup {
 }
 
 fn skip() -> bool {
-    if !nix::unistd::geteuid().is_root() {
+    if !sdi_tests::process::is_root() {
         sdi_tests::skipped!("SKIPPED: the races need a root sdid (run as root)");
         return true;
     }

@@ -44,7 +44,7 @@ pub struct CameraInfo {
     pub backend: crate::backend::BackendName,
     pub device: String,
     /// The simulator's scene fixed by `[sim] scene`; None: each mode's own.
-    pub scene: Option<sdi_core::scene::SceneSpec>,
+    pub scene: Option<sdi_core::scene::SceneId>,
     pub sink: SinkInfo,
     pub limits: Limits,
     pub sensor: sdi_core::sensor::SensorParams,
@@ -765,10 +765,11 @@ impl Camera {
         if self.backend().await != "sim" {
             return String::new();
         }
-        match &self.info.scene {
-            Some(scene) => scene.name().into(),
-            None => self.state().mode.default_scene().name().into(),
-        }
+        let scene = self
+            .info
+            .scene
+            .unwrap_or_else(|| self.state().mode.spec().default_scene);
+        scene.name().into()
     }
 
     /// Sensor device and output device, "sensor -> output".

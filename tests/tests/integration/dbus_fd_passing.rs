@@ -128,7 +128,6 @@ fn snapshot_and_record_into_a_directory_the_daemon_cannot_see() {
     assert_eq!((img.width(), img.height()), (320, 240));
     // Created by the caller (this process), not handed over afterwards.
     let meta = fs::metadata(&npy).unwrap();
-    // SAFETY: getuid has no preconditions.
     assert_eq!(meta.uid(), nix::unistd::getuid().as_raw());
 
     // A relative path is resolved by sdictl in its own directory.

@@ -20,8 +20,7 @@ const GROUP_GID: u32 = 4242;
 #[test]
 fn group_members_write_by_path_into_a_root_group_state_dir() {
     require_dbus!();
-    if !nix::unistd::geteuid().is_root()
-        || Command::new("setpriv").arg("--version").output().is_err()
+    if !sdi_tests::process::is_root() || Command::new("setpriv").arg("--version").output().is_err()
     {
         sdi_tests::skipped!("SKIPPED: needs root and setpriv (util-linux)");
         return;
