@@ -31,7 +31,8 @@ pub enum CliError {
     #[error(transparent)]
     Setting(#[from] SettingError),
     /// One of sdid's own errors (`org.sdi.Error.*`).
-    #[error("{}: {}", zbus::DBusError::name(.0), daemon_message(.0))]
+    /// Shown as zbus's `DBusError` derive shows it: "NAME: message".
+    #[error(transparent)]
     Daemon(SdiError),
     /// A transport or standard D-Bus error.
     #[error("{}", bus_message(.0))]
@@ -138,22 +139,6 @@ fn daemon_outcome(e: &SdiError) -> Outcome {
         SdiError::DeviceUnavailable(_) => Outcome::DeviceUnavailable,
         SdiError::NotRecording(_) | SdiError::NoFrame(_) => Outcome::NothingToDo,
         SdiError::Failed(_) | SdiError::RecordingStopped(_) => Outcome::Failed,
-    }
-}
-
-fn daemon_message(e: &SdiError) -> String {
-    match e {
-        SdiError::ZBus(z) => bus_message(z),
-        SdiError::InvalidMode(m)
-        | SdiError::OutOfRange(m)
-        | SdiError::DeviceUnavailable(m)
-        | SdiError::Busy(m)
-        | SdiError::InvalidPath(m)
-        | SdiError::InvalidFd(m)
-        | SdiError::NotRecording(m)
-        | SdiError::NoFrame(m)
-        | SdiError::RecordingStopped(m)
-        | SdiError::Failed(m) => m.clone(),
     }
 }
 
