@@ -53,10 +53,11 @@ impl Member {
     }
 }
 
-/// `set_exposure_us` -> `SetExposureUs`, as zbus derives member names.
-pub(crate) fn bus_name(rust_name: &str) -> String {
+/// `set_exposure_us` -> `SetExposureUs`, as zbus derives member names; a
+/// person's `exposure-us` or `ExposureUs` names the same member.
+pub fn bus_name(rust_name: &str) -> String {
     rust_name
-        .split('_')
+        .split(['_', '-'])
         .map(|word| {
             let mut chars = word.chars();
             chars

@@ -38,7 +38,8 @@ pub async fn set_mode(camera: &Camera1Proxy<'_>, mode: &str, json: bool) -> Resu
 
 /// Prints one property, named as on the bus or in kebab or snake case.
 pub async fn get(camera: &Camera1Proxy<'_>, property: &str, json: bool) -> Result<(), CliError> {
-    let name = property_name(property);
+    // "exposure-us", "exposure_us" and "ExposureUs" all name `ExposureUs`.
+    let name = sdi_api::contract::bus_name(property);
     let Some(value) = Properties::read_one(camera, &name).await else {
         return Err(CliError::Usage(format!(
             "unknown property '{property}'; properties: {}",
@@ -72,17 +73,4 @@ pub async fn set(
         outln!("{name} = {value} from frame {sequence} (timestamp {timestamp_us} us)")?;
     }
     Ok(())
-}
-
-/// "exposure-us", "exposure_us" and "ExposureUs" all name `ExposureUs`.
-fn property_name(name: &str) -> String {
-    name.split(['-', '_'])
-        .map(|w| {
-            let mut c = w.chars();
-            match c.next() {
-                Some(f) => f.to_uppercase().chain(c).collect::<String>(),
-                None => String::new(),
-            }
-        })
-        .collect()
 }
