@@ -13,6 +13,7 @@ use sdi_recording::{Record, RecordingReader};
 use sdi_tests::dbus::{bin, Bus, Daemon};
 use sdi_tests::process::{signal, Reaped};
 use sdi_tests::require_dbus;
+use sdi_tests::wait::wait_for;
 use strum::IntoEnumIterator;
 
 /// Frames and whether the end record is there.
@@ -291,17 +292,9 @@ fn a_second_instance_leaves_the_first_ones_fifo_alone() {
     std::thread::sleep(Duration::from_millis(300));
     let log = dir.path().join("second.log");
     let mut second = spawn_on_fifo(&bus, dir.path(), &log);
-    let t0 = Instant::now();
-    let status = loop {
-        if let Some(s) = second.child.try_wait().unwrap() {
-            break s;
-        }
-        assert!(
-            t0.elapsed() < Duration::from_secs(20),
-            "the second sdid kept running"
-        );
-        std::thread::sleep(Duration::from_millis(50));
-    };
+    let status = wait_for("the second sdid to exit", Duration::from_secs(20), || {
+        second.child.try_wait().unwrap()
+    });
     assert!(!status.success());
     let text = std::fs::read_to_string(&log).unwrap();
     assert!(text.contains("already owned"), "{text}");

@@ -7,6 +7,7 @@ use nix::sys::signal::Signal;
 use sdi_recording::{Record, RecordingReader};
 use sdi_tests::dbus::{stats, Bus, Daemon};
 use sdi_tests::require_dbus;
+use sdi_tests::wait::wait_until;
 
 fn read_all(path: &std::path::Path) -> (usize, bool, Option<String>) {
     let mut r = RecordingReader::open(path).unwrap();
@@ -126,15 +127,10 @@ fn max_bytes_stops_the_recording_cleanly() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    let start = std::time::Instant::now();
-    loop {
+    wait_until("the recording to stop", Duration::from_secs(30), || {
         let r = d.ctl(&["get", "recording"]);
-        if String::from_utf8_lossy(&r.stdout).trim().is_empty() {
-            break;
-        }
-        assert!(start.elapsed() < Duration::from_secs(30), "still recording");
-        std::thread::sleep(Duration::from_millis(100));
-    }
+        String::from_utf8_lossy(&r.stdout).trim().is_empty()
+    });
     let s = stats(&d);
     let why = s["recording_stopped"]
         .as_str()

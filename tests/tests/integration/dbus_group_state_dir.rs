@@ -8,11 +8,12 @@
 use std::fs;
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::process::{Command, Stdio};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use sdi_tests::dbus::{bin, Bus, Daemon};
 use sdi_tests::process::runnable_copy;
 use sdi_tests::require_dbus;
+use sdi_tests::wait::wait_until;
 
 const CALLER_UID: u32 = 65534;
 const GROUP_GID: u32 = 4242;
@@ -57,14 +58,9 @@ fn group_members_write_by_path_into_a_root_group_state_dir() {
                 .output()
                 .expect("run setpriv sdictl")
         };
-        let t0 = Instant::now();
-        while !as_member(&["get", "mode"]).status.success() {
-            assert!(
-                t0.elapsed() < Duration::from_secs(30),
-                "sdid did not come up"
-            );
-            std::thread::sleep(Duration::from_millis(100));
-        }
+        wait_until("sdid to answer the member", Duration::from_secs(30), || {
+            as_member(&["get", "mode"]).status.success()
+        });
         let png = state.join("member.png");
         let out = as_member(&["snapshot", "--by-path", png.to_str().unwrap()]);
         assert!(

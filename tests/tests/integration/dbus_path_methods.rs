@@ -106,22 +106,12 @@ fn client_strings_do_not_split_log_lines() {
     let log = tempfile::NamedTempFile::new().unwrap();
     let bus = Bus::start();
     let mut cmd = Daemon::command(&bus, &[], &["--state-dir", state.path().to_str().unwrap()]);
-    let child = cmd
-        .env("RUST_LOG", "info")
+    cmd.env("RUST_LOG", "info")
         .env("NO_COLOR", "1")
         .stdout(Stdio::null())
-        .stderr(log.reopen().unwrap())
-        .spawn()
-        .unwrap();
-    let d = Daemon {
-        child,
-        address: bus.address.clone(),
-    };
-    let start = std::time::Instant::now();
-    while !d.ctl(&["get", "mode"]).status.success() {
-        assert!(start.elapsed().as_secs() < 30, "sdid did not come up");
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    }
+        .stderr(log.reopen().unwrap());
+    let d = Daemon::spawn(&bus, &mut cmd);
+    d.wait_ready();
     let injected = "INJECTED sdid: recording stopped";
     for dir in [state.path(), Path::new("/tmp")] {
         let path = format!("{}/a\n{injected}\r.sdirec", dir.display());
