@@ -12,6 +12,7 @@ pub mod board_ids;
 pub mod bus;
 pub mod contract;
 pub mod error;
+pub mod frame_stream;
 pub mod proxy;
 pub mod setting;
 pub mod types;

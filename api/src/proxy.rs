@@ -125,6 +125,10 @@ camera1! {
         fn snapshot(&self, path: &str) -> ();
         /// Writes the latest frame into the caller's empty file, `png` or `npy`.
         fn snapshot_to_fd(&self, fd: Fd<'_>, format: &str) -> ();
+        /// Writes every mode output into the caller's pipe or socket
+        /// (`frame_stream`'s format) until the caller closes it; a slow
+        /// reader loses frames, never delays sdid.
+        fn stream_frames(&self, fd: Fd<'_>) -> ();
     }
     properties {
         /// Current mode name.

@@ -11,6 +11,7 @@ mod offline;
 mod online;
 mod output_name;
 mod stdout;
+mod view;
 
 use std::process::ExitCode;
 

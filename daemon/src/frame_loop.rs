@@ -16,6 +16,7 @@ use tokio::sync::{oneshot, watch};
 use crate::backend::pacer::Pacer;
 use crate::backend::{Backend, BackendError, CaptureSettings};
 use crate::dark_capture::{DarkCapture, DarkJob, NoUsablePixels};
+use crate::frame_stream::{FrameStreams, StreamError};
 use crate::job::{Running, Settling};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
 use crate::photon_transfer::{PtcError, PtcJob};
@@ -107,6 +108,8 @@ pub enum Command {
     StartRecording(Box<RecordingWriter>, Reply<()>),
     /// Hands the recorder back; the caller finishes it (off this thread).
     StopRecording(Reply<Option<RecordingWriter>>),
+    /// Writes every output from now on into this pipe or socket.
+    StreamFrames(std::fs::File, Reply<Result<(), StreamError>>),
     Shutdown,
 }
 
@@ -145,6 +148,8 @@ pub struct FrameLoop {
     mode: ModeId,
     display: DisplayMap,
     output: Output,
+    /// Clients' frame streams (`StreamFrames`).
+    streams: FrameStreams,
     recorder: Option<RecordingWriter>,
     dark: Option<(u32, Image<f32>)>,
     calibration: Calibration,
@@ -206,6 +211,7 @@ impl FrameLoop {
             mode,
             display,
             output,
+            streams: FrameStreams::default(),
             recorder: None,
             dark: None,
             calibration: Calibration::default(),
@@ -297,7 +303,9 @@ impl FrameLoop {
     fn lights_wanted(&mut self) -> bool {
         self.job.is_none()
             && lights_needed(
-                self.output.watchers(),
+                self.output
+                    .watchers()
+                    .map(|n| n.saturating_add(self.streams.len() as u32)),
                 self.recorder.is_some(),
                 !self.pending_snapshots.is_empty(),
             )
@@ -372,6 +380,7 @@ impl FrameLoop {
         } else if let Some(out) = self.pipeline.process(frame) {
             let out = Arc::new(out.clone());
             self.output.send(out.clone(), self.display);
+            self.streams.send(&out, self.display, self.mode);
             let published = out.sequence;
             self.last = Some(out);
             self.answer_marks(published);
@@ -572,6 +581,9 @@ impl FrameLoop {
             }
             Command::StopRecording(reply) => {
                 let _ = reply.send(self.recorder.take());
+            }
+            Command::StreamFrames(file, reply) => {
+                let _ = reply.send(self.streams.open(file));
             }
             Command::Shutdown => {}
         }

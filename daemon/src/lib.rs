@@ -12,6 +12,7 @@ pub mod calibration_store;
 pub mod dark_capture;
 pub mod dbus;
 pub mod frame_loop;
+pub mod frame_stream;
 pub mod job;
 pub mod light;
 pub mod logging;

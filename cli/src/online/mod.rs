@@ -6,11 +6,11 @@ mod export;
 mod files;
 mod long_call;
 mod monitor;
-mod new_file;
+pub(crate) mod new_file;
 mod settings;
 mod status;
 mod units;
-mod wire_json;
+pub(crate) mod wire_json;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -91,6 +91,9 @@ pub enum OnlineCommand {
         #[arg(long)]
         by_path: bool,
     },
+    /// Live viewer and control panel in the browser (127.0.0.1, a random
+    /// port and token; Ctrl-C to stop).
+    View(crate::view::ViewArgs),
     /// Live frame rate and latency (Ctrl-C to stop).
     Monitor {
         /// Stop after this many updates.
@@ -150,6 +153,7 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), CliError> {
             files::snapshot(&cam, &path, by_path, json).await
         }
         OnlineCommand::Monitor { count } => monitor::run(&cam, count, json).await,
+        OnlineCommand::View(args) => crate::view::run(cam, args).await,
         // Handled by `run` before a bus is needed.
         OnlineCommand::Export { .. } | OnlineCommand::Doctor { .. } => Ok(()),
     }

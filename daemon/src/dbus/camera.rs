@@ -724,6 +724,25 @@ impl Camera {
             .map_err(|e| SdiError::Failed(format!("writing the snapshot: {e}")))
     }
 
+    /// Writes every mode output into `fd`, the writing end of a pipe or
+    /// socket the caller holds the other end of (`sdi_api::frame_stream`'s
+    /// format), until the caller closes it. Frames a slow reader cannot
+    /// take are dropped and counted in the headers.
+    async fn stream_frames(
+        &self,
+        fd: zbus::zvariant::OwnedFd,
+        #[zbus(header)] hdr: Header<'_>,
+    ) -> Result<(), SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
+        let file = client_fd::stream_pipe(fd.into())?;
+        self.ask(|reply| Command::StreamFrames(file, reply))
+            .await?
+            .map_err(|e| match e {
+                crate::frame_stream::StreamError::TooMany => SdiError::Busy(e.to_string()),
+                crate::frame_stream::StreamError::Thread(_) => SdiError::Failed(e.to_string()),
+            })
+    }
+
     /// Current mode name.
     #[zbus(property)]
     async fn mode(&self) -> String {

@@ -51,6 +51,41 @@ pub fn output_file(fd: OwnedFd) -> Result<File, SdiError> {
     Ok(file)
 }
 
+/// Accepts `fd` if it is a pipe or socket open for writing, the reading
+/// end held by the client (`StreamFrames`), and makes its writes blocking:
+/// the daemon writes from a thread of its own, so a stalled reader only
+/// stalls that thread.
+pub fn stream_pipe(fd: OwnedFd) -> Result<File, SdiError> {
+    use std::os::unix::fs::FileTypeExt;
+    let bad = |why: String| SdiError::InvalidFd(why);
+    let file = File::from(fd);
+    let meta = file
+        .metadata()
+        .map_err(|e| bad(format!("fstat on the descriptor failed: {e}")))?;
+    let t = meta.file_type();
+    if !t.is_fifo() && !t.is_socket() {
+        let what = kind_name(&meta);
+        return Err(bad(format!(
+            "the descriptor is {what}: pass the writing end of a pipe or a socket"
+        )));
+    }
+    let flags = fcntl(file.as_raw_fd(), FcntlArg::F_GETFL)
+        .map_err(|e| bad(format!("fcntl(F_GETFL) on the descriptor failed: {e}")))?;
+    let flags = OFlag::from_bits_truncate(flags);
+    let access = flags & OFlag::O_ACCMODE;
+    if access != OFlag::O_WRONLY && access != OFlag::O_RDWR {
+        return Err(bad(
+            "the descriptor is the reading end: pass the writing end".into(),
+        ));
+    }
+    fcntl(
+        file.as_raw_fd(),
+        FcntlArg::F_SETFL(flags - OFlag::O_NONBLOCK),
+    )
+    .map_err(|e| bad(format!("fcntl(F_SETFL) on the descriptor failed: {e}")))?;
+    Ok(file)
+}
+
 /// Kernel interface file systems whose "files" act when written (and may
 /// check the writer's privileges at write time): never write there on a
 /// client's behalf.
@@ -169,6 +204,18 @@ mod tests {
             .open("/proc/self/comm")
             .unwrap();
         assert!(rejected(comm.into()));
+    }
+
+    #[test]
+    fn streams_take_only_writable_pipes_and_sockets() {
+        let (a, _b) = UnixStream::pair().unwrap();
+        assert!(stream_pipe(a.into()).is_ok());
+        let (r, w) = nix::unistd::pipe().unwrap();
+        assert!(stream_pipe(w).is_ok());
+        assert!(matches!(stream_pipe(r), Err(SdiError::InvalidFd(_))));
+        let dir = tempfile::tempdir().unwrap();
+        let f = File::create(dir.path().join("f")).unwrap();
+        assert!(matches!(stream_pipe(f.into()), Err(SdiError::InvalidFd(_))));
     }
 
     #[test]
