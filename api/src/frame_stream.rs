@@ -4,7 +4,8 @@
 //!
 //! A frame is a fixed [`HEADER_BYTES`]-byte header, then the body: the
 //! signed DN (`f32`, row-major), the per-pixel flags (`u8`, `PixelFlags`
-//! bits), and in the separation mode I+ then I- (`f32`, electrons). All
+//! bits), and in the separation mode I+, I- and their standard errors
+//! (`f32`, electrons, in that order). All
 //! numbers are little-endian. The header carries the display map sdid
 //! renders the frame with, so a client renders it exactly as sdid does.
 
@@ -39,7 +40,7 @@ pub struct FrameHeader {
     pub mode: String,
     /// The colormap's name (`Colormap`'s).
     pub colormap: String,
-    /// Whether I+ and I- follow the flags (separation mode).
+    /// Whether I+, I- and their standard errors follow the flags (separation mode).
     pub has_channels: bool,
 }
 
@@ -63,7 +64,7 @@ impl FrameHeader {
 
     /// Bytes of the body following this header.
     pub fn body_bytes(&self) -> usize {
-        let planes_f32 = if self.has_channels { 3 } else { 1 };
+        let planes_f32 = if self.has_channels { 5 } else { 1 };
         self.pixels() * (4 * planes_f32 + 1)
     }
 
@@ -174,7 +175,7 @@ mod tests {
         let h = header();
         let back = FrameHeader::decode(&h.encode().unwrap()).unwrap();
         assert_eq!(back, h);
-        assert_eq!(back.body_bytes(), 320 * 240 * 13);
+        assert_eq!(back.body_bytes(), 320 * 240 * 21);
     }
 
     #[test]

@@ -1021,6 +1021,8 @@ mod tests {
         let ch = SeparatedChannels {
             i_plus_electrons: img(&[1000.0, 0.0, -5.0, f32::NAN]),
             i_minus_electrons: img(&[0.0, 500.0, 0.0, 0.0]),
+            i_plus_se_electrons: img(&[0.0; 4]),
+            i_minus_se_electrons: img(&[0.0; 4]),
         };
         let mut rgb = [9u8; 12];
         render_channels_rgb8(&ch, &mut rgb);

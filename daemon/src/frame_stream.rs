@@ -132,6 +132,8 @@ fn write_frames(
         if let Some(ch) = &out.channels {
             put_f32s(&mut body, &ch.i_plus_electrons.data);
             put_f32s(&mut body, &ch.i_minus_electrons.data);
+            put_f32s(&mut body, &ch.i_plus_se_electrons.data);
+            put_f32s(&mut body, &ch.i_minus_se_electrons.data);
         }
         file.write_all(&body)?;
     }

@@ -30,6 +30,8 @@ pub struct LiveFrame {
     pub view_rgba: Vec<u8>,
     /// Separation mode: I+ and I- on one grey scale (the view's red and blue), RGBA.
     pub channels_rgba: Option<(Vec<u8>, Vec<u8>)>,
+    /// Separation mode: the median standard error of I+ and of I-, electrons.
+    pub channels_se_electrons: Option<(f64, f64)>,
 }
 
 /// Why the stream of frames ended.
@@ -89,13 +91,17 @@ pub fn decode(header: FrameHeader, body: &[u8]) -> Result<LiveFrame, FramesError
     get_f32s(&body[..4 * n], &mut dn);
     let flags = body[4 * n..5 * n].to_vec();
     let channels = header.has_channels.then(|| {
-        let mut plus = Image::new(w, h);
-        let mut minus = Image::new(w, h);
-        get_f32s(&body[5 * n..9 * n], &mut plus.data);
-        get_f32s(&body[9 * n..13 * n], &mut minus.data);
+        let plane = |k: usize| {
+            let mut img = Image::new(w, h);
+            let start = 5 * n + 4 * k * n;
+            get_f32s(&body[start..start + 4 * n], &mut img.data);
+            img
+        };
         SeparatedChannels {
-            i_plus_electrons: plus,
-            i_minus_electrons: minus,
+            i_plus_electrons: plane(0),
+            i_minus_electrons: plane(1),
+            i_plus_se_electrons: plane(2),
+            i_minus_se_electrons: plane(3),
         }
     });
     let colormap: Colormap = header
@@ -122,13 +128,31 @@ pub fn decode(header: FrameHeader, body: &[u8]) -> Result<LiveFrame, FramesError
         render_channels_rgb8(ch, &mut both);
         (grey_rgba(&both, 0), grey_rgba(&both, 2))
     });
+    let channels_se_electrons = output.channels.as_ref().map(|ch| {
+        (
+            median(&ch.i_plus_se_electrons.data),
+            median(&ch.i_minus_se_electrons.data),
+        )
+    });
     Ok(LiveFrame {
         header,
         dn: output.signed_dn.data,
         flags,
         view_rgba: rgba(&rgb),
         channels_rgba,
+        channels_se_electrons,
     })
+}
+
+/// The median of the finite values; NaN when there are none.
+fn median(values: &[f32]) -> f64 {
+    let mut finite: Vec<f32> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    if finite.is_empty() {
+        return f64::NAN;
+    }
+    let mid = finite.len() / 2;
+    let (_, m, _) = finite.select_nth_unstable_by(mid, f32::total_cmp);
+    f64::from(*m)
 }
 
 fn rgba(rgb: &[u8]) -> Vec<u8> {

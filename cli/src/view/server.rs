@@ -130,6 +130,7 @@ fn encode(frame: &LiveFrame, probe: &mut Option<Probe>, region: &mut Option<Regi
         "max_abs_dn": h.max_abs_dn,
         "dropped": h.dropped,
         "saturated": saturated,
+        "channels_se_electrons": frame.channels_se_electrons,
         "histogram": Histogram::of(&frame.dn, HISTOGRAM_BINS),
         "probe": probe,
         "region": region.as_ref().map(|r| json!({

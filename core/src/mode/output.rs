@@ -25,6 +25,10 @@ pub struct SeparatedChannels {
     pub i_plus_electrons: Image<f32>,
     /// I- (LS2), electrons per exposure.
     pub i_minus_electrons: Image<f32>,
+    /// One-sigma standard errors of I+ and I- from the moments' sampling
+    /// (co)variances (`separation::unmix`), electrons.
+    pub i_plus_se_electrons: Image<f32>,
+    pub i_minus_se_electrons: Image<f32>,
 }
 
 impl ModeOutput {

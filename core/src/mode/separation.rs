@@ -72,6 +72,8 @@ impl Pipeline for SeparationPipeline {
             Ok(Some(s)) => Some(SeparatedChannels {
                 i_plus_electrons: s.i_plus_electrons.clone(),
                 i_minus_electrons: s.i_minus_electrons.clone(),
+                i_plus_se_electrons: s.i_plus_se_electrons.clone(),
+                i_minus_se_electrons: s.i_minus_se_electrons.clone(),
             }),
             // A sliding window still filling up: the signed image alone.
             Ok(None) => None,

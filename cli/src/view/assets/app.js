@@ -44,6 +44,11 @@ function drawFrame(buf) {
     off += n;
   }
   $("channels").style.display = meta.images.length > 1 ? "flex" : "none";
+  if (meta.channels_se_electrons) {
+    const se = (v) => `± ${v == null ? "?" : v.toFixed(1)} e- (median standard error)`;
+    $("i_plus_err").textContent = se(meta.channels_se_electrons[0]);
+    $("i_minus_err").textContent = se(meta.channels_se_electrons[1]);
+  }
   state.meta = meta;
   state.shown += 1;
   const now = performance.now();
