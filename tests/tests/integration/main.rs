@@ -21,3 +21,4 @@ mod dbus_setting_contract;
 mod dbus_wrong_input;
 mod npy_numpy;
 mod science_recording;
+mod view_page;
