@@ -121,10 +121,12 @@ impl Probe {
 
     /// Adds the probed pixel of a `width`-wide frame; a pixel outside it is skipped.
     pub fn push(&mut self, dn: &[f32], width: usize) {
-        if self.x >= width {
-            return;
-        }
-        let Some(&v) = dn.get(self.y * width + self.x) else {
+        // The coordinates come from the page: no arithmetic may overflow.
+        let index = self
+            .y
+            .checked_mul(width)
+            .and_then(|i| i.checked_add(self.x));
+        let Some(&v) = index.filter(|_| self.x < width).and_then(|i| dn.get(i)) else {
             return;
         };
         if self.values.len() == WINDOW_FRAMES {
@@ -172,7 +174,9 @@ impl Region {
 
     /// Adds the region's pixels of a frame; a frame it does not fit in is skipped.
     pub fn push(&mut self, dn: &[f32], frame_width: usize, frame_height: usize) {
-        if self.x0 + self.width > frame_width || self.y0 + self.height > frame_height {
+        if self.x0.saturating_add(self.width) > frame_width
+            || self.y0.saturating_add(self.height) > frame_height
+        {
             return;
         }
         if self.frames.len() == WINDOW_FRAMES {
@@ -253,6 +257,12 @@ mod tests {
         let mut outside = Probe::new(9, 0);
         outside.push(&[1.0], 1);
         assert!(outside.values.is_empty());
+        let mut huge = Probe::new(usize::MAX, usize::MAX);
+        huge.push(&[1.0], 1);
+        assert!(huge.values.is_empty());
+        let mut huge = Region::new(usize::MAX, usize::MAX, 4, 4);
+        huge.push(&[1.0; 4], 2, 2);
+        assert_eq!(huge.report().frames, 0);
         let big = Region::new(0, 0, 1000, 1000);
         assert!(big.width * big.height <= MAX_REGION_PIXELS);
     }
