@@ -21,7 +21,6 @@ use sdi_core::Frame;
 
 use super::opt8241::hotplug::HotplugWatch;
 use super::opt8241::init::{PllSettings, Roi};
-use super::opt8241::registers::{safety, SYSTEM_CLOCK_HZ};
 use super::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
 use super::sim::SimBackend;
 use super::status::{DeviceStatus, StatusHandle};
@@ -59,21 +58,16 @@ pub fn integration_percent_for(exposure_us: f64, c: &BoardConfig) -> f64 {
     exposure_us / quad_us * 100.0
 }
 
-/// The board's ranges: modulation from its PLL (about 9.4 MHz and up with 4
-/// quads), frame rate up to where pix_cnt_max reaches its laser-safety
-/// minimum, exposure up to the firmware's duty-cycle cap at 1 Hz.
+/// The board's ranges for its quads, sub frames, ROI and output clock
+/// (`sdi_opt8241::limits`): frame rate from the 22-bit pix_cnt_max up to
+/// the output port or the laser-safety minimum pix_cnt_max, modulation
+/// from its PLL, exposure up to the firmware's duty-cycle cap.
 pub fn board_limits(c: &BoardConfig) -> Limits {
-    let q = f64::from(c.quads);
-    let max_fps =
-        SYSTEM_CLOCK_HZ / (f64::from(safety::PIX_CNT_MAX_MIN) * q * f64::from(c.sub_frames));
-    let lowest_mod =
-        super::opt8241::init::VCO_MIN_HZ / (q * f64::from(super::opt8241::init::MOD_PS_MAX + 1));
-    let highest_mod = super::opt8241::init::VCO_MAX_HZ / q;
-    let cap = f64::from(safety::INTG_DUTY_CYCLE_MAX) / 64.0;
+    let l = c.limits();
     Limits {
-        exposure_us: (1.0, cap * 1e6 / (q * f64::from(c.sub_frames))),
-        frame_rate_hz: (1.0, max_fps.floor()),
-        modulation_hz: (lowest_mod, highest_mod),
+        exposure_us: l.exposure_us.bounds(),
+        frame_rate_hz: l.frame_rate_hz.bounds(),
+        modulation_hz: l.modulation_hz.bounds(),
     }
 }
 
@@ -501,13 +495,14 @@ mod tests {
     #[test]
     fn limits_follow_the_safety_minimum_and_the_pll() {
         let l = board_limits(&BoardConfig::default());
-        // 48 MHz / (60000 * 4) = 200 Hz
-        assert_eq!(l.frame_rate_hz, (1.0, 200.0));
+        // 48 MHz / ((2^22 - 1) * 4) = 2.861 Hz; 0.8 * 24 MHz / 614400 bytes = 31.25 Hz
+        assert!((l.frame_rate_hz.0 - 2.861).abs() < 1e-3, "{l:?}");
+        assert!((l.frame_rate_hz.1 - 31.25).abs() < 1e-9, "{l:?}");
         // 300 MHz / (4 * 8) = 9.375 MHz: the board cannot go lower with 4 quads
         assert!((l.modulation_hz.0 - 9.375e6).abs() < 1.0);
         assert!(l.modulation_hz.0 > 9.3e6 && l.modulation_hz.0 < 9.5e6);
-        // 20/64 of a quad at 1 Hz
-        assert!((l.exposure_us.1 - 78_125.0).abs() < 1e-6);
+        // 20/64 of a quad at the lowest frame rate
+        assert!((l.exposure_us.1 - 20.0 / 64.0 * 1e6 / (4.0 * l.frame_rate_hz.0)).abs() < 1e-6);
     }
 
     #[test]
