@@ -91,6 +91,31 @@ impl BoardConfig {
             * limits::quad_us(self.frame_rate_hz, self.quads, self.sub_frames)
     }
 
+    /// The defaults with the capture settings a user gives (sdid's
+    /// `sdid.toml` and flags, `sdictl board plan`); the exposure is set
+    /// last, since it is a share of the quad time at the frame rate.
+    pub fn with_capture(
+        roi: Option<Roi>,
+        frame_rate_hz: Option<f64>,
+        exposure_us: Option<f64>,
+        modulation_hz: Option<f64>,
+    ) -> Self {
+        let mut c = Self::default();
+        if let Some(r) = roi {
+            c.roi = r;
+        }
+        if let Some(f) = frame_rate_hz {
+            c.frame_rate_hz = f;
+        }
+        if let Some(m) = modulation_hz {
+            c.modulation_hz = m;
+        }
+        if let Some(e) = exposure_us {
+            c.integration_percent = c.integration_percent_for(e);
+        }
+        c
+    }
+
     /// Inverse of [`BoardConfig::exposure_us`].
     pub fn integration_percent_for(&self, exposure_us: f64) -> f64 {
         exposure_us / limits::quad_us(self.frame_rate_hz, self.quads, self.sub_frames) * 100.0

@@ -456,20 +456,7 @@ pub fn board_config(
     exposure_us: Option<f64>,
     modulation_hz: Option<f64>,
 ) -> BoardConfig {
-    let mut c = BoardConfig::default();
-    if let Some(r) = roi {
-        c.roi = r;
-    }
-    if let Some(f) = frame_rate_hz {
-        c.frame_rate_hz = f;
-    }
-    if let Some(m) = modulation_hz {
-        c.modulation_hz = m;
-    }
-    if let Some(e) = exposure_us {
-        c.integration_percent = integration_percent_for(e, &c);
-    }
-    c
+    BoardConfig::with_capture(roi, frame_rate_hz, exposure_us, modulation_hz)
 }
 
 /// Is a board attached (any ID of `udev/board-ids`)? `Err` says why libusb
