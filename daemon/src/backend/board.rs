@@ -19,6 +19,7 @@ use sdi_core::modulation::Illumination;
 use sdi_core::sensor::{SensorParams, SensorPreset};
 use sdi_core::Frame;
 
+use super::opt8241::health;
 use super::opt8241::hotplug::HotplugWatch;
 use super::opt8241::init::{PllSettings, Roi};
 use super::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
@@ -129,6 +130,8 @@ pub struct BoardBackend {
     /// A hotplug arrival not yet acted on.
     arrival_pending: bool,
     reconnects: ReconnectCounts,
+    /// When temperatures and op_overflow were last read.
+    last_health_poll: Instant,
 }
 
 fn clamp_text(board: &Opt8241) -> String {
@@ -160,6 +163,10 @@ impl BoardBackend {
             tracing::warn!("the board clamped settings (laser safety): {clamps}");
         }
         tracing::info!(%device, "OPT8241-CDK configured and streaming");
+        tracing::warn!(
+            "no phase calibration: the difference is quad 0 alone, which assumes no delay \
+             between the modulation and the LED light (docs/hardware.md, \"Phase\")"
+        );
         let hotplug = match HotplugWatch::start() {
             Ok(Some(h)) => {
                 tracing::info!(
@@ -201,7 +208,12 @@ impl BoardBackend {
                 } else {
                     format!("clamped: {clamps}")
                 },
+                health: None,
             }),
+            // the first frame polls at once
+            last_health_poll: Instant::now()
+                .checked_sub(health::POLL_INTERVAL)
+                .unwrap_or_else(Instant::now),
             exit: None,
             next_attempt: Instant::now(),
             unplugged_at: None,
@@ -229,6 +241,32 @@ impl BoardBackend {
             Some(n) if n > 0 => HOTPLUG_FALLBACK_INTERVAL,
             _ => RECONNECT_INTERVAL,
         }
+    }
+
+    fn health_due(&self) -> bool {
+        self.last_health_poll.elapsed() >= health::POLL_INTERVAL
+    }
+
+    /// Reads temperatures and op_overflow into the status, logs changes;
+    /// true when the board overflowed since the last poll.
+    fn poll_health(&mut self) -> bool {
+        self.last_health_poll = Instant::now();
+        let Some(bus) = self.board.registers() else {
+            return false;
+        };
+        let status = match health::poll(bus) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::debug!("board status not read: {e}");
+                return false;
+            }
+        };
+        let (now, lines) = health::update(self.status.get().health, &status);
+        for line in &lines {
+            tracing::warn!("{line}");
+        }
+        self.status.update(|s| s.health = Some(now));
+        status.output_overflow
     }
 
     /// Live state for D-Bus (Backend, Device, Stats).
@@ -429,6 +467,12 @@ impl Backend for BoardBackend {
             ));
         }
         match self.board.next_frame(illumination, frame) {
+            Ok(()) if self.health_due() && self.poll_health() => {
+                // The frame the overflow was seen with is not trusted.
+                self.board
+                    .next_frame(illumination, frame)
+                    .map_err(board_err)
+            }
             Ok(()) => Ok(()),
             Err(BoardError::DeviceUnavailable) => {
                 // Events from before the loss (e.g. the re-enumeration of a

@@ -11,6 +11,7 @@
 
 pub mod board;
 pub mod frame;
+pub mod health;
 pub mod hotplug;
 pub mod ids;
 pub mod init;
