@@ -144,7 +144,7 @@ pub fn open_plan(config: &BoardConfig) -> Result<Plan, OutOfRange> {
     let mut w = |field: Field, value: u32, why: &'static str| {
         steps.push(Step::Write { field, value, why });
     };
-    const KNOWN: &str = "known state: TI's profiles set it";
+    const KNOWN: &str = "known state: undo what an earlier profile left";
     w(
         field::TG_DIS,
         1,
