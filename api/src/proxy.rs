@@ -159,6 +159,10 @@ camera1! {
         /// Path or label being recorded to, "" when not recording.
         fn recording(&self) -> String;
         fn stats(&self) -> Stats;
+        /// The ranges the setters accept, by property name: "ExposureUs",
+        /// "FrameRate", "ModulationHz" -> (min, max); the board's own while
+        /// it is the source.
+        fn limits(&self) -> HashMap<String, (f64, f64)>;
     }
     signals {
         /// The daemon stopped a recording by itself (size limit, free-space

@@ -5,9 +5,7 @@
 use zbus::zvariant::{DeserializeDict, OwnedValue, SerializeDict, Type, Value};
 
 /// The `Stats` property, emitted about once a second.
-#[derive(
-    Debug, Clone, Default, PartialEq, SerializeDict, DeserializeDict, Type, Value, OwnedValue,
-)]
+#[derive(Debug, Clone, PartialEq, SerializeDict, DeserializeDict, Type, Value, OwnedValue)]
 #[zvariant(signature = "a{sv}")]
 pub struct Stats {
     /// Frames captured since start.
@@ -33,6 +31,36 @@ pub struct Stats {
     /// Why the daemon last stopped a recording by itself (size limit, free
     /// space, disk full); "" when it has not.
     pub recording_stopped: String,
+    /// The board's sensor temperature (tsensor), degrees Celsius, polled
+    /// every 5 s while streaming; NaN without a board.
+    pub board_temperature_c: f64,
+    /// The illumination driver's temperature (tillum), degrees Celsius;
+    /// NaN without a board.
+    pub illumination_temperature_c: f64,
+    /// Times the board reported an output overflow (op_overflow); each
+    /// dropped the frame it was seen with.
+    pub output_overflows: u64,
+}
+
+impl Default for Stats {
+    /// Nothing counted yet; no board temperatures.
+    fn default() -> Self {
+        Self {
+            frames: 0,
+            fps: 0.0,
+            last_frame_age_s: 0.0,
+            latency_us: 0.0,
+            latency_max_us: 0.0,
+            dropped_view: 0,
+            dropped_recording: 0,
+            device_available: false,
+            device_state: String::new(),
+            recording_stopped: String::new(),
+            board_temperature_c: f64::NAN,
+            illumination_temperature_c: f64::NAN,
+            output_overflows: 0,
+        }
+    }
 }
 
 /// `CaptureDarkFrame`'s reply: statistics of the averaged dark frames.

@@ -39,6 +39,9 @@ enum Command {
     /// Offline reports on simulator data.
     #[command(subcommand)]
     Report(Report),
+    /// The OPT8241-CDK board, offline.
+    #[command(subcommand)]
+    Board(Board),
     #[command(flatten)]
     Online(online::OnlineCommand),
     /// Print shell completions (bash, zsh, fish, elvish, powershell).
@@ -55,6 +58,12 @@ enum Report {
     Noise(offline::noise_report::NoiseReportArgs),
 }
 
+#[derive(Debug, Subcommand)]
+enum Board {
+    /// Print the exact register sequence sdid performs to open and configure the board (or why the board cannot do it).
+    Plan(offline::board_plan::BoardPlanArgs),
+}
+
 /// Runs one parsed command line; the exit code follows `exit`'s table.
 pub fn run(cli: Cli) -> ExitCode {
     let json = cli.bus.json;
@@ -65,6 +74,7 @@ pub fn run(cli: Cli) -> ExitCode {
         Command::Report(Report::Separation(args)) => {
             offline::separation_report::run_cli(&args, json)
         }
+        Command::Board(Board::Plan(args)) => offline::board_plan::run(&args, json),
         Command::Online(cmd) => return online::run(cmd, cli.bus),
         // Both generators write to memory first: clap_complete panics on a
         // failed write, and stdout.rs says what a failed stdout means.

@@ -17,6 +17,7 @@ pub mod named;
 pub mod npy;
 pub mod number;
 pub mod pixel_flags;
+pub mod quad_phase;
 pub mod scene;
 pub mod sensor;
 pub mod separation;

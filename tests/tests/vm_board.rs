@@ -89,10 +89,16 @@ fn opt8241_backend_against_usb_emulator() {
             after_setup.first().map(|w| (w.address, w.written & 1)),
             Some((0x5880, 1))
         );
-        assert_eq!(
-            after_setup.last().map(|w| (w.address, w.written & 1)),
-            Some((0x5880, 0))
-        );
+        // the timing generator restarts, then the trailing PLL update pulse
+        let n = after_setup.len();
+        let tail: Vec<_> = after_setup[n - 3..]
+            .iter()
+            .map(|w| (w.address, w.written))
+            .collect();
+        assert_eq!(tail[0].0, 0x5880);
+        assert_eq!(tail[0].1 & 1, 0);
+        assert_eq!((tail[1].0, (tail[1].1 >> 2) & 1), (0x5802, 1));
+        assert_eq!((tail[2].0, (tail[2].1 >> 2) & 1), (0x5802, 0));
         for w in after_setup {
             assert_eq!(
                 w.written, w.kept,
@@ -102,6 +108,27 @@ fn opt8241_backend_against_usb_emulator() {
         assert_eq!(s.reg_value(0x5C4C) & 0x3F, 20);
         assert_eq!((s.reg_value(0x5C25) >> 8) & 0xF, 15);
         assert!(s.stalled.is_empty(), "{:?}", s.stalled);
+        // nothing of the leftover 6-quad dealiasing profile survives the open
+        assert_eq!(s.reg_value(0x5883) & 0xFF, 0x14, "4 quads, 1 sub frame");
+        assert_eq!((s.reg_value(0x5C02) >> 23) & 1, 0, "dealias_en");
+        assert_eq!((s.reg_value(0x5812) >> 7) & 1, 0, "quad_hop_en");
+        assert_eq!((s.reg_value(0x5C4D) >> 6) & 7, 0, "normal_frm_intg_scale");
+        assert_eq!((s.reg_value(0x5C31) >> 4) & 0x1F, 0, "amplitude_scale");
+        assert_eq!((s.reg_value(0x5C39) >> 1) & 3, 0, "op_clk_freq");
+        assert_eq!((s.reg_value(0x580E) >> 3) & 1, 0, "sscg_en");
+        assert_eq!(s.reg_value(0x5C2E) & 0x7F, 0x72, "tillum_slv_addr");
+        assert_eq!((s.reg_value(0x5C2F) >> 12) & 1, 1, "binning_en");
+        assert_eq!(s.reg_value(0x5C2F) & 0x3FF, 1, "rows_to_merge");
+        // the second PLL follows the first
+        assert_eq!(s.reg_value(0x580D), s.reg_value(0x580C), "PLL 2 = PLL 1");
+        // the PLL took the 12 MHz setting: an update edge after the settle time
+        let pll = sdi_tests::board_emulator::chip::pll_in_effect(&s.writes);
+        assert_eq!(
+            pll,
+            Some([s.reg_value(0x580C), s.reg_value(0x580F)]),
+            "PLL never took effect"
+        );
+        assert_eq!((s.reg_value(0x580C) >> 16) & 0x3F, 14, "mod_m1 for 12 MHz");
     }
 
     // 4. stream N frames and compare with what the emulator sent

@@ -233,6 +233,53 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     assert!((exposure - 1302.08).abs() < 0.1, "{exposure}");
     let out = d.ctl(&["set", "frame-rate", "30"]);
     assert!(out.status.success(), "{out:?}");
+
+    // The setters' ranges are the chip's: 2 Hz needs a pix_cnt_max beyond
+    // its 22 bits and is refused before any register is written, naming
+    // the range; the board keeps streaming with the last good settings.
+    let limits = d.prop("limits");
+    eprintln!("Limits: {limits}");
+    let fr = &limits["FrameRate"];
+    assert!((fr[0].as_f64().unwrap() - 2.861).abs() < 1e-3, "{limits}");
+    let writes_before = emu.state.lock().unwrap().writes.len();
+    let out = d.ctl(&["set", "frame-rate", "2"]);
+    assert!(!out.status.success(), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("2.86"), "{err}");
+    assert_eq!(emu.state.lock().unwrap().writes.len(), writes_before);
+    assert_eq!(emu.state.lock().unwrap().reg_value(0x5880) & 1, 0, "tg_dis");
+    let n = d.frames.load(Ordering::SeqCst);
+    wait_until(
+        "frames after a refused change",
+        Duration::from_secs(10),
+        || d.frames.load(Ordering::SeqCst) >= n + 5,
+    );
+    assert_eq!(d.prop("frame-rate").as_f64(), Some(30.0));
+
+    // Temperatures are polled while streaming: tsensor, and tillum from
+    // the CDK's sensor at 0x72 (the chip's default address reads nothing).
+    wait_until("temperatures in Stats", Duration::from_secs(15), || {
+        let s = d.prop("stats");
+        s["board_temperature_c"].as_f64() == Some(35.0)
+            && s["illumination_temperature_c"].as_f64() == Some(31.0)
+    });
+    let status = d.ctl(&["status"]);
+    let text = String::from_utf8_lossy(&status.stdout);
+    assert!(text.contains("sensor 35 C, illumination 31 C"), "{text}");
+    assert!(text.contains("frame rate 2.86"), "{text}");
+
+    // An output overflow is seen at the next poll, counted in Stats, and
+    // the frame it came with is dropped; frames go on.
+    emu.state.lock().unwrap().force_overflow = true;
+    wait_until("an overflow in Stats", Duration::from_secs(15), || {
+        d.prop("stats")["output_overflows"].as_u64() >= Some(1)
+    });
+    emu.state.lock().unwrap().force_overflow = false;
+    let n = d.frames.load(Ordering::SeqCst);
+    wait_until("frames after an overflow", Duration::from_secs(10), || {
+        d.frames.load(Ordering::SeqCst) >= n + 5
+    });
+
     let mut compared = 0;
     for i in 0..5 {
         let snap = tmp.path().join(format!("s{i}.npy"));

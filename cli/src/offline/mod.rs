@@ -1,5 +1,6 @@
 //! Offline tools: run the imaging core without the daemon.
 
+pub mod board_plan;
 pub mod frames;
 pub mod noise_report;
 pub mod report_files;

@@ -61,6 +61,12 @@ pub fn lines(p: &Properties) -> Vec<String> {
         line("recording", p.recording.clone());
     }
     line("stats", stats(&p.stats));
+    if p.backend == "opt8241" {
+        line("limits", limits(p));
+    }
+    if p.stats.board_temperature_c.is_finite() || p.stats.output_overflows > 0 {
+        line("board", board(&p.stats));
+    }
     if !p.stats.device_state.is_empty() {
         line("source", p.stats.device_state.clone());
     }
@@ -74,6 +80,30 @@ pub fn lines(p: &Properties) -> Vec<String> {
         line("warning", w);
     }
     lines
+}
+
+/// The setters' ranges, as the board allows them.
+fn limits(p: &Properties) -> String {
+    let r = |key: &str, unit: &str| match p.limits.get(key) {
+        Some((lo, hi)) => format!("{} to {} {unit}", Number(*lo), Number(*hi)),
+        None => "?".into(),
+    };
+    format!(
+        "frame rate {}, exposure {}, modulation {}",
+        r("FrameRate", "Hz"),
+        r("ExposureUs", "us"),
+        r("ModulationHz", "Hz")
+    )
+}
+
+/// Temperatures and output overflows of the board.
+fn board(s: &Stats) -> String {
+    format!(
+        "sensor {} C, illumination {} C, {} output overflow(s)",
+        Number(s.board_temperature_c),
+        Number(s.illumination_temperature_c),
+        s.output_overflows
+    )
 }
 
 /// Streaming, or why not.
@@ -177,6 +207,7 @@ mod tests {
             colormap: "diverging".into(),
             range: 0.0,
             recording: String::new(),
+            limits: HashMap::new(),
             stats: Stats {
                 frames: 123,
                 fps: 60.001376238018075,

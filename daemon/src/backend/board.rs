@@ -19,9 +19,9 @@ use sdi_core::modulation::Illumination;
 use sdi_core::sensor::{SensorParams, SensorPreset};
 use sdi_core::Frame;
 
+use super::opt8241::health;
 use super::opt8241::hotplug::HotplugWatch;
 use super::opt8241::init::{PllSettings, Roi};
-use super::opt8241::registers::{safety, SYSTEM_CLOCK_HZ};
 use super::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
 use super::sim::SimBackend;
 use super::status::{DeviceStatus, StatusHandle};
@@ -59,21 +59,16 @@ pub fn integration_percent_for(exposure_us: f64, c: &BoardConfig) -> f64 {
     exposure_us / quad_us * 100.0
 }
 
-/// The board's ranges: modulation from its PLL (about 9.4 MHz and up with 4
-/// quads), frame rate up to where pix_cnt_max reaches its laser-safety
-/// minimum, exposure up to the firmware's duty-cycle cap at 1 Hz.
+/// The board's ranges for its quads, sub frames, ROI and output clock
+/// (`sdi_opt8241::limits`): frame rate from the 22-bit pix_cnt_max up to
+/// the output port or the laser-safety minimum pix_cnt_max, modulation
+/// from its PLL, exposure up to the firmware's duty-cycle cap.
 pub fn board_limits(c: &BoardConfig) -> Limits {
-    let q = f64::from(c.quads);
-    let max_fps =
-        SYSTEM_CLOCK_HZ / (f64::from(safety::PIX_CNT_MAX_MIN) * q * f64::from(c.sub_frames));
-    let lowest_mod =
-        super::opt8241::init::VCO_MIN_HZ / (q * f64::from(super::opt8241::init::MOD_PS_MAX + 1));
-    let highest_mod = super::opt8241::init::VCO_MAX_HZ / q;
-    let cap = f64::from(safety::INTG_DUTY_CYCLE_MAX) / 64.0;
+    let l = c.limits();
     Limits {
-        exposure_us: (1.0, cap * 1e6 / (q * f64::from(c.sub_frames))),
-        frame_rate_hz: (1.0, max_fps.floor()),
-        modulation_hz: (lowest_mod, highest_mod),
+        exposure_us: l.exposure_us.bounds(),
+        frame_rate_hz: l.frame_rate_hz.bounds(),
+        modulation_hz: l.modulation_hz.bounds(),
     }
 }
 
@@ -135,6 +130,8 @@ pub struct BoardBackend {
     /// A hotplug arrival not yet acted on.
     arrival_pending: bool,
     reconnects: ReconnectCounts,
+    /// When temperatures and op_overflow were last read.
+    last_health_poll: Instant,
 }
 
 fn clamp_text(board: &Opt8241) -> String {
@@ -166,6 +163,10 @@ impl BoardBackend {
             tracing::warn!("the board clamped settings (laser safety): {clamps}");
         }
         tracing::info!(%device, "OPT8241-CDK configured and streaming");
+        tracing::warn!(
+            "no phase calibration: the difference is quad 0 alone, which assumes no delay \
+             between the modulation and the LED light (docs/hardware.md, \"Phase\")"
+        );
         let hotplug = match HotplugWatch::start() {
             Ok(Some(h)) => {
                 tracing::info!(
@@ -207,7 +208,12 @@ impl BoardBackend {
                 } else {
                     format!("clamped: {clamps}")
                 },
+                health: None,
             }),
+            // the first frame polls at once
+            last_health_poll: Instant::now()
+                .checked_sub(health::POLL_INTERVAL)
+                .unwrap_or_else(Instant::now),
             exit: None,
             next_attempt: Instant::now(),
             unplugged_at: None,
@@ -235,6 +241,32 @@ impl BoardBackend {
             Some(n) if n > 0 => HOTPLUG_FALLBACK_INTERVAL,
             _ => RECONNECT_INTERVAL,
         }
+    }
+
+    fn health_due(&self) -> bool {
+        self.last_health_poll.elapsed() >= health::POLL_INTERVAL
+    }
+
+    /// Reads temperatures and op_overflow into the status, logs changes;
+    /// true when the board overflowed since the last poll.
+    fn poll_health(&mut self) -> bool {
+        self.last_health_poll = Instant::now();
+        let Some(bus) = self.board.registers() else {
+            return false;
+        };
+        let status = match health::poll(bus) {
+            Ok(s) => s,
+            Err(e) => {
+                tracing::debug!("board status not read: {e}");
+                return false;
+            }
+        };
+        let (now, lines) = health::update(self.status.get().health, &status);
+        for line in &lines {
+            tracing::warn!("{line}");
+        }
+        self.status.update(|s| s.health = Some(now));
+        status.output_overflow
     }
 
     /// Live state for D-Bus (Backend, Device, Stats).
@@ -435,6 +467,12 @@ impl Backend for BoardBackend {
             ));
         }
         match self.board.next_frame(illumination, frame) {
+            Ok(()) if self.health_due() && self.poll_health() => {
+                // The frame the overflow was seen with is not trusted.
+                self.board
+                    .next_frame(illumination, frame)
+                    .map_err(board_err)
+            }
             Ok(()) => Ok(()),
             Err(BoardError::DeviceUnavailable) => {
                 // Events from before the loss (e.g. the re-enumeration of a
@@ -462,20 +500,7 @@ pub fn board_config(
     exposure_us: Option<f64>,
     modulation_hz: Option<f64>,
 ) -> BoardConfig {
-    let mut c = BoardConfig::default();
-    if let Some(r) = roi {
-        c.roi = r;
-    }
-    if let Some(f) = frame_rate_hz {
-        c.frame_rate_hz = f;
-    }
-    if let Some(m) = modulation_hz {
-        c.modulation_hz = m;
-    }
-    if let Some(e) = exposure_us {
-        c.integration_percent = integration_percent_for(e, &c);
-    }
-    c
+    BoardConfig::with_capture(roi, frame_rate_hz, exposure_us, modulation_hz)
 }
 
 /// Is a board attached (any ID of `udev/board-ids`)? `Err` says why libusb
@@ -501,13 +526,14 @@ mod tests {
     #[test]
     fn limits_follow_the_safety_minimum_and_the_pll() {
         let l = board_limits(&BoardConfig::default());
-        // 48 MHz / (60000 * 4) = 200 Hz
-        assert_eq!(l.frame_rate_hz, (1.0, 200.0));
+        // 48 MHz / ((2^22 - 1) * 4) = 2.861 Hz; 0.8 * 24 MHz / 614400 bytes = 31.25 Hz
+        assert!((l.frame_rate_hz.0 - 2.861).abs() < 1e-3, "{l:?}");
+        assert!((l.frame_rate_hz.1 - 31.25).abs() < 1e-9, "{l:?}");
         // 300 MHz / (4 * 8) = 9.375 MHz: the board cannot go lower with 4 quads
         assert!((l.modulation_hz.0 - 9.375e6).abs() < 1.0);
         assert!(l.modulation_hz.0 > 9.3e6 && l.modulation_hz.0 < 9.5e6);
-        // 20/64 of a quad at 1 Hz
-        assert!((l.exposure_us.1 - 78_125.0).abs() < 1e-6);
+        // 20/64 of a quad at the lowest frame rate
+        assert!((l.exposure_us.1 - 20.0 / 64.0 * 1e6 / (4.0 * l.frame_rate_hz.0)).abs() < 1e-6);
     }
 
     #[test]

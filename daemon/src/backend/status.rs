@@ -4,6 +4,14 @@
 
 use std::sync::{Arc, Mutex};
 
+/// The board's temperatures and output overflows, polled while streaming.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BoardHealth {
+    pub sensor_c: i8,
+    pub illumination_c: i8,
+    pub output_overflows: u64,
+}
+
 /// A snapshot of the source's state.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct DeviceStatus {
@@ -15,6 +23,9 @@ pub struct DeviceStatus {
     pub available: bool,
     /// Why, when something is off (unplug, clamps, USB errors).
     pub detail: String,
+    /// Temperatures and overflows; None before the first poll and for
+    /// sources without them.
+    pub health: Option<BoardHealth>,
 }
 
 /// Cheap to clone; readers never block the frame loop for long.

@@ -252,10 +252,10 @@ impl Camera {
     pub fn current_stats(&self) -> sdi_api::Stats {
         let s = self.stats.borrow().clone();
         let now = std::time::Instant::now();
-        let (mut device_available, mut device_state) =
+        let (mut device_available, mut device_state, health) =
             match self.info.status.as_ref().map(|h| h.get()) {
-                Some(st) => (st.available, st.detail),
-                None => (true, String::new()),
+                Some(st) => (st.available, st.detail, st.health),
+                None => (true, String::new(), None),
             };
         if let Some(why) = s.stalled {
             device_available = false;
@@ -270,6 +270,9 @@ impl Camera {
             device_available,
             device_state,
             recording_stopped: st.recording_stopped.unwrap_or_default(),
+            board_temperature_c: health.map_or(f64::NAN, |h| f64::from(h.sensor_c)),
+            illumination_temperature_c: health.map_or(f64::NAN, |h| f64::from(h.illumination_c)),
+            output_overflows: health.map_or(0, |h| h.output_overflows),
             ..s.counters
         }
     }
@@ -755,6 +758,19 @@ impl Camera {
         ModeId::names().into_iter().map(String::from).collect()
     }
 
+    /// The ranges the setters accept, by property name: "ExposureUs",
+    /// "FrameRate", "ModulationHz" -> (min, max); the board's own while it
+    /// is the source.
+    #[zbus(property(emits_changed_signal = "const"))]
+    async fn limits(&self) -> HashMap<String, (f64, f64)> {
+        let l = self.info.limits;
+        HashMap::from([
+            ("ExposureUs".to_owned(), l.exposure_us),
+            ("FrameRate".to_owned(), l.frame_rate_hz),
+            ("ModulationHz".to_owned(), l.modulation_hz),
+        ])
+    }
+
     /// Physical setup the current mode expects: {ls1, ls2, optics}.
     #[zbus(property)]
     async fn setup(&self) -> HashMap<String, String> {
@@ -863,7 +879,8 @@ impl Camera {
     }
 
     /// {frames, fps, last_frame_age_s, latency_us, latency_max_us, dropped_view,
-    /// dropped_recording, device_available, device_state, recording_stopped};
+    /// dropped_recording, device_available, device_state, recording_stopped,
+    /// board_temperature_c, illumination_temperature_c, output_overflows};
     /// emitted about once a second while it changes.
     #[zbus(property)]
     async fn stats(&self) -> sdi_api::Stats {

@@ -15,6 +15,7 @@
 //! public descriptions, independently of the backend's code.
 //! Runs only as root inside the VM (modules dummy_hcd, libcomposite, usb_f_fs).
 
+pub mod chip;
 mod descriptors;
 
 use std::collections::HashMap;
@@ -41,6 +42,8 @@ pub struct RegisterWrite {
     pub address: u16,
     pub written: u32,
     pub kept: u32,
+    /// When the write arrived (the PLL settle time, `chip.rs`).
+    pub at: std::time::Instant,
 }
 
 /// State shared by the emulator threads and the test.
@@ -57,6 +60,8 @@ pub struct BoardState {
     pub uvc_requests: Vec<(u8, u8, u16, u16, Vec<u8>)>,
     /// When the gadget came back as 0451:9105 after the switch.
     pub switched_to_bulk: Option<Instant>,
+    /// op_overflow reads set whatever the configuration (`chip.rs`).
+    pub force_overflow: bool,
 }
 
 fn field(reg: u32, msb: u32, lsb: u32) -> u32 {
@@ -322,6 +327,7 @@ impl BoardEmulator {
             s.registers.insert(0x5883, 0x44);
             s.registers.insert(0x581F, 239 << 16);
             s.registers.insert(0x5821, 19 << 3);
+            s.registers.extend(chip::LEFTOVER_PROFILE.iter().copied());
         }
         if uvc {
             inner.add_uvc_function()?;
@@ -484,7 +490,7 @@ fn handle_setup(
     let is_in = rt & 0x80 != 0;
     match (rt, req) {
         (0xC0, 0x08) => {
-            let v = state.lock().unwrap().reg(address);
+            let v = chip::read(&state.lock().unwrap(), address);
             let b = v.to_le_bytes();
             ep0.write_all(&b[..3.min(length)])
         }
@@ -500,6 +506,7 @@ fn handle_setup(
                     address,
                     written,
                     kept,
+                    at: std::time::Instant::now(),
                 });
             }
             Ok(())

@@ -12,7 +12,7 @@ use sdi_core::modulation::Illumination;
 use sdi_core::Frame;
 
 use super::frame::{Assembled, AssemblerStats, DecodeError, FrameAssembler, QuadDecoder};
-use super::init::{configure, BoardConfig, ConfigError, InitReport};
+use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
 use super::protocol::{ProtocolError, RegisterBus};
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
 
@@ -92,12 +92,12 @@ fn new_context() -> Result<Context, BoardError> {
 impl Opt8241 {
     /// Finds, opens and configures the board, and starts streaming.
     pub fn open(selector: BoardSelector, config: BoardConfig) -> Result<Self, BoardError> {
-        config.validate()?;
+        config.validate().map_err(ConfigError::from)?;
         let context = new_context()?;
         let mut board = Self {
             context,
             selector,
-            decoder: QuadDecoder::new(config.layout()),
+            decoder: QuadDecoder::new(layout_of(&config)),
             config,
             session: None,
             report: InitReport::default(),
@@ -123,7 +123,7 @@ impl Opt8241 {
             ConfigError::Protocol(p) => BoardError::from_protocol(p),
             other => BoardError::Config(other),
         })?;
-        let layout = self.config.layout();
+        let layout = layout_of(&self.config);
         self.decoder.layout = layout;
         self.decoder.frame_number_in_first_byte = self.config.frame_numbers;
         let stream = BulkStream::start(
@@ -148,12 +148,25 @@ impl Opt8241 {
     }
 
     /// Stops streaming, configures the board anew (read-back and clamps in
-    /// [`Opt8241::init_report`]) and streams again. On an invalid `config`
-    /// nothing changes; on a USB failure the board counts as unplugged.
+    /// [`Opt8241::init_report`]) and streams again. A `config` the chip
+    /// cannot hold changes nothing; one the board refuses during
+    /// configuration (a status flag) puts the last good one back, so the
+    /// board is never left unconfigured nor retried with it; on a USB
+    /// failure the board counts as unplugged and `config` is used on
+    /// reconnection.
     pub fn reconfigure(&mut self, config: BoardConfig) -> Result<(), BoardError> {
-        config.validate()?;
-        self.config = config;
-        self.connect()
+        config.validate().map_err(ConfigError::from)?;
+        let previous = std::mem::replace(&mut self.config, config);
+        match self.connect() {
+            Err(refused @ BoardError::Config(_)) => {
+                self.config = previous;
+                if let Err(e) = self.connect() {
+                    tracing::warn!("the last good board configuration failed too: {e}");
+                }
+                Err(refused)
+            }
+            other => other,
+        }
     }
 
     /// Tries to open the board again after an unplug.

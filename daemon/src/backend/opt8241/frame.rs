@@ -5,8 +5,10 @@
 //! bits 11:0 (SDK `TI3DToF/ToFFrameGenerator.cpp`, `_generateToFRawIQFrame`,
 //! "Sign extension"; frame size `width * height * quads * 2`,
 //! `TintinCDKCamera.cpp` `_setStreamerFrameSize`). With LS1 driven by f and
-//! LS2 by not-f, quad 0 is LS1 - LS2 (I+ - I-, eq. pixeleff) and quad 2 its
-//! negative.
+//! LS2 by not-f and no delay between the modulation and the light, quad 0
+//! is LS1 - LS2 (I+ - I-, eq. pixeleff) and the antiphase quad its
+//! negative; with a delay, the difference is the projection of all quads
+//! onto a calibrated axis (`sdi_core::quad_phase`).
 //!
 //! Frame boundaries: the SDK reads `frame_bytes + 255` per bulk transfer and
 //! keeps only transfers of exactly `frame_bytes` (`Voxel/USBBulkStreamer.cpp`).
@@ -16,6 +18,7 @@
 //! frames that are out of sequence and locks on again after two consecutive
 //! numbers.
 
+use sdi_core::quad_phase::{PhaseAxis, QuadBasis};
 use sdi_core::Frame;
 
 /// Geometry of one raw-quad frame.
@@ -51,13 +54,16 @@ pub fn sign_extend_12(word: u16) -> i16 {
 }
 
 /// Which quads make the difference image.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub enum QuadCombine {
     /// Quad 0 alone: one readout, the paper's noise model (eq. skellamvar).
     #[default]
     Quad0,
     /// (quad 0 - quad 2) / 2: two readouts averaged, same DN scale.
     Quad0MinusQuad2,
+    /// Every quad's first harmonic projected onto the calibrated axis of
+    /// LS1 - LS2: right under any delay on the LED path, and with 6 quads.
+    Projected(PhaseAxis),
 }
 
 #[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
@@ -66,6 +72,8 @@ pub enum DecodeError {
     Length { expected: usize, got: usize },
     #[error("dark frame is {got} pixels, expected {expected}")]
     DarkSize { expected: usize, got: usize },
+    #[error("{quads} quads per pixel: the phase projection needs 4 or 6")]
+    Quads { quads: usize },
 }
 
 /// Decodes raw-quad buffers into [`Frame`]s, subtracting a dark frame.
@@ -118,6 +126,13 @@ impl QuadDecoder {
             *out = Frame::new(l.width, l.height);
         }
         let stride = l.quads * 2;
+        let basis = match self.combine {
+            QuadCombine::Projected(_) => {
+                Some(QuadBasis::new(l.quads).map_err(|_| DecodeError::Quads { quads: l.quads })?)
+            }
+            _ => None,
+        };
+        let mut quads = [0.0f32; 6];
         for (i, px) in raw.chunks_exact(stride).enumerate() {
             let quad = |k: usize| sign_extend_12(u16::from_le_bytes([px[2 * k], px[2 * k + 1]]));
             let q0 = quad(0);
@@ -129,6 +144,18 @@ impl QuadDecoder {
                         .iter()
                         .any(|&q| q <= CODE_MIN_DN || q >= CODE_MAX_DN);
                     ((q0 as f32 - q2 as f32) * 0.5, sat)
+                }
+                QuadCombine::Projected(axis) => {
+                    let mut sat = false;
+                    for (k, q) in quads.iter_mut().enumerate().take(l.quads) {
+                        let v = quad(k);
+                        sat |= v <= CODE_MIN_DN || v >= CODE_MAX_DN;
+                        *q = f32::from(v);
+                    }
+                    let value = basis
+                        .as_ref()
+                        .map_or(0.0, |b| b.project(&quads[..l.quads], &axis));
+                    (value, sat)
                 }
             };
             let dark = self.dark_dn.as_ref().map_or(0.0, |d| d[i]);
@@ -398,6 +425,53 @@ mod tests {
         // pixel 0 carried the frame number: replaced by its neighbour
         assert_eq!(f.dn.data[0], f.dn.data[1]);
         assert!(dec.set_dark_dn(Some(vec![0.0; 3])).is_err());
+    }
+
+    #[test]
+    fn a_delay_on_the_led_path_needs_the_calibrated_axis() {
+        // 4 quads, the difference d delayed by a quarter period: all of it
+        // in quad 1 (and -d in quad 3); quad 0 reads nothing.
+        let layout = QuadLayout {
+            width: 2,
+            height: 1,
+            quads: 4,
+        };
+        let raw: Vec<u8> = [0i16, 300, 0, -300, 0, -120, 0, 120]
+            .iter()
+            .flat_map(|v| (*v as u16 & 0xFFF).to_le_bytes())
+            .collect();
+        let mut dec = QuadDecoder::new(layout);
+        dec.frame_number_in_first_byte = false;
+        let mut f = Frame::new(2, 1);
+        dec.decode(&raw, &mut f).unwrap();
+        assert_eq!(f.dn.data, [0.0, 0.0], "quad 0 alone loses it");
+        dec.combine = QuadCombine::Projected(PhaseAxis {
+            angle_rad: std::f64::consts::FRAC_PI_2,
+        });
+        dec.decode(&raw, &mut f).unwrap();
+        assert!((f.dn.data[0] - 300.0).abs() < 1e-3, "{:?}", f.dn.data);
+        assert!((f.dn.data[1] + 120.0).abs() < 1e-3, "{:?}", f.dn.data);
+    }
+
+    #[test]
+    fn six_quads_project_against_quad_three() {
+        let layout = QuadLayout {
+            width: 1,
+            height: 1,
+            quads: 6,
+        };
+        // zero delay, first harmonic: q_k = d cos(60 k degrees), d = 200
+        let q: [i16; 6] = [200, 100, -100, -200, -100, 100];
+        let raw: Vec<u8> = q
+            .iter()
+            .flat_map(|v| (*v as u16 & 0xFFF).to_le_bytes())
+            .collect();
+        let mut dec = QuadDecoder::new(layout);
+        dec.frame_number_in_first_byte = false;
+        dec.combine = QuadCombine::Projected(PhaseAxis { angle_rad: 0.0 });
+        let mut f = Frame::new(1, 1);
+        dec.decode(&raw, &mut f).unwrap();
+        assert!((f.dn.data[0] - 200.0).abs() < 1e-3, "{:?}", f.dn.data);
     }
 
     #[test]

@@ -1,8 +1,9 @@
 //! TI OPT8241-CDK over USB (vendor bulk mode, USB 0451:9105).
 //!
-//! Layers, each usable alone: [`registers`] (OPT9221 field map) ->
+//! Layers, each usable alone: [`registers`] (OPT9221 field map, with the
+//! limits and the open plan in `sdi_opt8241`, shared with sdictl) ->
 //! [`protocol`] (vendor control requests over a [`protocol::Transport`]) ->
-//! [`init`] (the SDK's configuration order and safety limits); [`frame`]
+//! [`init`] (executes the open plan); [`frame`]
 //! (raw quads -> difference frame, alignment); [`usb`] (libusb transport,
 //! discovery, UVC -> bulk switch, bulk stream); [`hotplug`] (libusb hotplug
 //! events); [`board`] ties them into the backend.
@@ -10,11 +11,12 @@
 
 pub mod board;
 pub mod frame;
+pub mod health;
 pub mod hotplug;
 pub mod ids;
 pub mod init;
 pub mod protocol;
-pub mod registers;
+pub use sdi_opt8241::registers;
 pub mod usb;
 
 pub use board::{BoardError, Opt8241};

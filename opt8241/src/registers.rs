@@ -158,6 +158,30 @@ pub mod field {
     pub const DEBUG_FRAME_NUMBER_EN: Field = Field::rw("debug_frame_number_en", 0x5C39, 12, 12);
     pub const BLK_HEADER_EN: Field = Field::rw("blk_header_en", 0x5C3C, 2, 2);
     pub const BLK_SIZE: Field = Field::rw("blk_size", 0x5C3C, 23, 4);
+    /// Second modulation PLL (dealiasing's other frequency; SDK `VCO_FREQ2`).
+    pub const MOD_M2: Field = Field::rw("mod_m2", 0x580D, 21, 16);
+    pub const MOD_M_FRAC2: Field = Field::rw("mod_m_frac2", 0x580D, 15, 0);
+    pub const MOD_N2: Field = Field::rw("mod_n2", 0x580F, 3, 2);
+    pub const MOD_PS2: Field = Field::rw("mod_ps2", 0x580F, 9, 7);
+    /// A different quad order on odd and even frames.
+    pub const QUAD_HOP_EN: Field = Field::rw("quad_hop_en", 0x5812, 7, 7);
+    /// Resets every register to its default, the TFC and the sensor.
+    pub const SOFTWARE_RESET: Field = Field::rw("software_reset", 0x5C00, 0, 0);
+    /// Dealiasing across the two PLLs (TI's default profile turns it on).
+    pub const DEALIAS_EN: Field = Field::rw("dealias_en", 0x5C02, 23, 23);
+    /// Slave address of the illumination temperature sensor.
+    pub const TILLUM_SLV_ADDR: Field = Field::rw("tillum_slv_addr", 0x5C2E, 6, 0);
+    /// Binning merge factors (1: none), beside `bin_row_count`/`bin_col_count`.
+    pub const ROWS_TO_MERGE: Field = Field::rw("rows_to_merge", 0x5C2F, 9, 0);
+    pub const COLS_TO_MERGE: Field = Field::rw("cols_to_merge", 0x5C30, 9, 0);
+    /// (A - B) scaled down by 2^amplitude_scale in depth output.
+    pub const AMPLITUDE_SCALE: Field = Field::rw("amplitude_scale", 0x5C31, 8, 4);
+    /// Depth output's saturation flag is set when a well's voltage falls below this.
+    pub const SATURATION_THRESHOLD: Field = Field::rw("saturation_threshold", 0x5C36, 23, 12);
+    /// Integration shortened by 2^hdr_scale on alternate frames (0: off).
+    pub const HDR_SCALE: Field = Field::rw("hdr_scale", 0x5C4C, 8, 6);
+    /// Integration shortened by 2^normal_frm_intg_scale (0: off).
+    pub const NORMAL_FRM_INTG_SCALE: Field = Field::rw("normal_frm_intg_scale", 0x5C4D, 8, 6);
     pub const FB_READY_EN: Field = Field::rw("fb_ready_en", 0x5C3F, 0, 0);
     pub const OP_CS_POL: Field = Field::rw("op_cs_pol", 0x5C40, 14, 14);
     /// Integration time = intg_duty_cycle / 64 of the quad (easy config).
@@ -188,6 +212,10 @@ pub mod safety {
     /// lower limit, 50000, is weaker; the firmware's wins).
     pub const PIX_CNT_MAX_MIN: u32 = 60_000;
 }
+
+/// Where the OPT8241-CDK's illumination temperature sensor answers (SDK
+/// `TintinCDKCamera::_init`, `TILLUM_SLAVE_ADDR`); the chip's default is 0x71.
+pub const CDK_TILLUM_SLAVE_ADDRESS: u32 = 0x72;
 
 /// OPT8241 system clock (SDK `ToFTintinCamera::_getSystemClockFrequency`).
 pub const SYSTEM_CLOCK_HZ: f64 = 48e6;
@@ -283,6 +311,20 @@ mod tests {
             OP_OVERFLOW,
             PIX_CNT_MAX_SET_FAILED,
             INTG_DUTY_CYCLE_SET_FAILED,
+            MOD_M2,
+            MOD_M_FRAC2,
+            MOD_N2,
+            MOD_PS2,
+            QUAD_HOP_EN,
+            SOFTWARE_RESET,
+            DEALIAS_EN,
+            TILLUM_SLV_ADDR,
+            ROWS_TO_MERGE,
+            COLS_TO_MERGE,
+            AMPLITUDE_SCALE,
+            SATURATION_THRESHOLD,
+            HDR_SCALE,
+            NORMAL_FRM_INTG_SCALE,
         ];
         for (i, a) in all.iter().enumerate() {
             assert!(a.msb < 24 && a.lsb <= a.msb, "{}", a.name);

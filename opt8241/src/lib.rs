@@ -1,0 +1,19 @@
+//! The OPT8241-CDK's chip as data, shared by sdid (which executes it over
+//! USB) and sdictl (which prints it offline): the OPT9221 register map
+//! ([`registers`]), what the chip can do for a configuration ([`limits`],
+//! [`pll`]), what sdid asks of it ([`config`]) and the exact register
+//! sequence that opens and configures it ([`plan`]).
+//!
+//! No I/O and no libusb here, so `sdictl board plan` needs neither.
+#![forbid(unsafe_code)]
+
+pub mod config;
+pub mod limits;
+pub mod plan;
+pub mod pll;
+pub mod registers;
+
+pub use config::{BoardConfig, Roi};
+pub use limits::{BoardLimits, OutOfRange, Range};
+pub use plan::{open_plan, Plan, Step};
+pub use pll::PllSettings;
