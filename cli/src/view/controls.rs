@@ -3,6 +3,7 @@
 //! rights; sdid's typed errors come back as JSON for the page to show in
 //! place (`{"error": kind, "message": ...}`).
 
+use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::Arc;
 
@@ -13,9 +14,8 @@ use axum::Json;
 use sdi_api::{Camera1Proxy, Properties, Setting};
 use sdi_core::display::MAX_RANGE_DN;
 use sdi_core::mode::ModeId;
-use sdi_core::sensor::capture_range::{EXPOSURE_US, FRAME_RATE_HZ, MODULATION_HZ};
 use serde::Deserialize;
-use serde_json::{json, Value as Json_};
+use serde_json::{json, Map, Value as Json_};
 use tokio::sync::Mutex;
 use zbus::zvariant::Fd;
 
@@ -58,7 +58,7 @@ type Reply = Result<Json<Json_>, PageError>;
 
 /// Every property (Stats with every key it has), each mode's physical setup
 /// (`ModeId::spec`, the table `sdictl status` reads through sdid), the
-/// valid ranges of the controls, and the recording's size.
+/// valid ranges of the controls (`ranges`), and the recording's size.
 pub async fn status(State(c): State<Arc<Controls>>) -> Reply {
     let props = Properties::read(&c.camera).await?;
     let modes: Vec<Json_> = ModeId::NAMES
@@ -69,7 +69,6 @@ pub async fn status(State(c): State<Arc<Controls>>) -> Reply {
             json!({"name": m.name(), "ls1": s.ls1, "ls2": s.ls2, "optics": s.optics})
         })
         .collect();
-    let range = |r: &sdi_core::sensor::capture_range::CaptureRange| json!([r.min, r.max]);
     let recording = c.recording.lock().await.clone();
     let recording_bytes = match &recording {
         Some(p) => tokio::fs::metadata(p).await.map(|m| m.len()).ok(),
@@ -78,15 +77,33 @@ pub async fn status(State(c): State<Arc<Controls>>) -> Reply {
     Ok(Json(json!({
         "properties": wire_json::object(&props)?,
         "modes": modes,
-        "ranges": {
-            "exposure-us": range(&EXPOSURE_US),
-            "frame-rate": range(&FRAME_RATE_HZ),
-            "modulation-hz": range(&MODULATION_HZ),
-            "range": [0.0, MAX_RANGE_DN],
-        },
+        "ranges": ranges(&props.limits),
         "recording_path": recording,
         "recording_bytes": recording_bytes,
     })))
+}
+
+/// The numeric controls' valid ranges, `[min, max]` by setting name (the
+/// page's input ids): the capture settings' from sdid's `Limits`, the
+/// backend's own (a board's narrower than the simulator's), null for one
+/// sdid does not name; the display range's from `sdi_core`, as sdid
+/// reports no limit for it.
+fn ranges(limits: &HashMap<String, (f64, f64)>) -> Map<String, Json_> {
+    let mut out: Map<String, Json_> = [
+        Setting::ExposureUs,
+        Setting::FrameRate,
+        Setting::ModulationHz,
+    ]
+    .into_iter()
+    .map(|s| {
+        let range = limits
+            .get(s.property_name())
+            .map_or(Json_::Null, |(min, max)| json!([min, max]));
+        (s.to_string(), range)
+    })
+    .collect();
+    out.insert(Setting::Range.to_string(), json!([0.0, MAX_RANGE_DN]));
+    out
 }
 
 #[derive(Deserialize)]
@@ -174,4 +191,22 @@ fn free_name(dir: &std::path::Path, stem: &str, ext: &str) -> PathBuf {
         .map(|n| dir.join(format!("{stem}-{n}.{ext}")))
         .find(|p| p.symlink_metadata().is_err())
         .unwrap_or_else(|| dir.join(format!("{stem}.{ext}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ranges_are_sdids_limits_by_the_pages_input_ids() {
+        let limits = HashMap::from([
+            ("ExposureUs".to_owned(), (1.0, 5461.0)),
+            ("FrameRate".to_owned(), (2.861, 31.25)),
+        ]);
+        let r = ranges(&limits);
+        assert_eq!(r["exposure-us"], json!([1.0, 5461.0]));
+        assert_eq!(r["frame-rate"], json!([2.861, 31.25]));
+        assert_eq!(r["modulation-hz"], Json_::Null);
+        assert_eq!(r["range"], json!([0.0, MAX_RANGE_DN]));
+    }
 }

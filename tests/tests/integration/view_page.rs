@@ -1,9 +1,10 @@
 //! `sdictl view` against `sdid --backend sim` on a private bus: the guard
 //! (no token, a wrong token, a foreign Origin or Host get 403 and change
 //! nothing, over HTTP and WebSocket), and the page in headless Chromium
-//! (frames as `sdictl snapshot` renders them, the mode picker, a control and
-//! its typed error, histogram and probe against numpy, separation's two
-//! images). `SDI_VIEW_SCREENSHOT=PATH` also saves a screenshot of the page.
+//! (frames as `sdictl snapshot` renders them, the mode picker, the controls
+//! bounded by sdid's `Limits`, a control and its typed error, histogram and
+//! probe against numpy, separation's two images). `SDI_VIEW_SCREENSHOT=PATH`
+//! also saves a screenshot of the page.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::TcpStream;
@@ -99,6 +100,18 @@ fn exposure_us(d: &Daemon) -> f64 {
     let out = d.ctl(&["get", "exposure-us"]);
     let text = String::from_utf8_lossy(&out.stdout);
     text.trim().parse().expect(&text)
+}
+
+/// sdid's `Limits` property: setter name on the bus -> [min, max].
+fn limits(d: &Daemon) -> Value {
+    let out = d.ctl(&["--json", "get", "limits"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    v["Limits"].clone()
 }
 
 #[test]
@@ -306,7 +319,30 @@ fn the_page_shows_controls_and_measures_what_sdid_publishes() {
     });
     page.wait_for("sdiView.meta.mode === 'depth-edge'", long);
 
-    // A control sets the property; an out-of-range value shows sdid's typed error.
+    // The numeric inputs carry sdid's Limits as min and max, shown under
+    // each; a control sets the property; a value outside still goes to sdid
+    // and shows its typed error in place.
+    let limits = limits(&d);
+    for (input, key) in [
+        ("exposure-us", "ExposureUs"),
+        ("frame-rate", "FrameRate"),
+        ("modulation-hz", "ModulationHz"),
+    ] {
+        let bounds = page.eval(&format!(
+            "(() => {{ const e = document.getElementById('{input}'); \
+             return [Number(e.min), Number(e.max), e.min !== '' && e.max !== '', \
+             document.getElementById('{input}_valid').textContent]; }})()"
+        ));
+        assert_eq!(bounds[2], true, "{input} has no min/max: {bounds}");
+        let (min, max) = (limits[key][0].as_f64(), limits[key][1].as_f64());
+        assert!(min.is_some() && max.is_some(), "{key} in {limits}");
+        assert_eq!(bounds[0].as_f64(), min, "{input} min vs Limits {limits}");
+        assert_eq!(bounds[1].as_f64(), max, "{input} max vs Limits {limits}");
+        assert!(
+            bounds[3].as_str().unwrap().starts_with("valid "),
+            "{input}: {bounds}"
+        );
+    }
     page.eval(
         "(() => { const e = document.getElementById('exposure-us'); e.value = '2500'; \
          e.dispatchEvent(new Event('change')); return true; })()",

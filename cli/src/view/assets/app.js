@@ -147,6 +147,18 @@ function buildModes(modes) {
   }
 }
 
+// The valid range of each numeric control, as sdid reports it (its Limits,
+// constant while sdid runs): bounds on the input and shown under it. A value
+// outside still goes to sdid, whose typed error shows in place.
+function showRanges(ranges) {
+  const num = (v) => String(Number(v.toPrecision(6)));
+  for (const id of numeric) {
+    const r = ranges[id];
+    if (r) { $(id).min = r[0]; $(id).max = r[1]; } else { $(id).removeAttribute("min"); $(id).removeAttribute("max"); }
+    $(id + "_valid").textContent = r ? `valid ${num(r[0])} to ${num(r[1])}` : "";
+  }
+}
+
 let built = false;
 async function refresh() {
   let s;
@@ -155,14 +167,11 @@ async function refresh() {
   const p = s.properties;
   if (!built) {
     buildModes(s.modes);
-    for (const id of numeric) {
-      const r = s.ranges[id];
-      $(id).min = r[0]; $(id).max = r[1];
-      $(id).onchange = () => setSetting(id, $(id).value, id + "_error");
-    }
+    for (const id of numeric) $(id).onchange = () => setSetting(id, $(id).value, id + "_error");
     $("colormap").onchange = () => setSetting("colormap", $("colormap").value, "colormap_error");
     built = true;
   }
+  showRanges(s.ranges);
   for (const b of document.querySelectorAll(".modes button")) b.classList.toggle("current", b.id === "mode-" + p.Mode);
   for (const id of Object.keys(property)) if (document.activeElement !== $(id)) $(id).value = p[property[id]];
   // Stats: every key sdid sends, so fields added to Stats show up here.
