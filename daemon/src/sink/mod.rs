@@ -1,8 +1,8 @@
 //! Where processed frames go: a v4l2loopback device, PipeWire nodes, or the
 //! y4m fallback. Each sink renders through [`sdi_core::view::ViewRenderer`]
 //! and only publishes the bytes.
-//! Sinks run on their own thread ([`output`]) so a slow reader never stalls
-//! the frame loop.
+//! Each sink runs on its own thread ([`output`]) so a slow reader never
+//! stalls the frame loop or another sink.
 
 pub mod loopback;
 pub mod output;
@@ -52,6 +52,14 @@ pub enum SinkError {
     Y4m(#[source] std::io::Error),
     #[error("output I/O error: {0}")]
     Io(#[from] std::io::Error),
+}
+
+/// The sinks sdid feeds: the primary one (the D-Bus sink properties) and
+/// those fed beside it from the same frames (the PipeWire camera beside the
+/// loopback nodes, docs/pipewire.md).
+pub struct SinkSet {
+    pub primary: Box<dyn Sink>,
+    pub also: Vec<Box<dyn Sink>>,
 }
 
 /// A consumer of processed frames.

@@ -1,5 +1,6 @@
-//! The output sink the validated configuration asks for (`auto`:
-//! v4l2loopback, else PipeWire, else the y4m stream), and for `auto` why.
+//! The output sinks the validated configuration asks for (`auto`:
+//! v4l2loopback, and beside it the PipeWire camera where this user's
+//! PipeWire runs; else PipeWire; else the y4m stream), and for `auto` why.
 
 use std::path::PathBuf;
 
@@ -9,15 +10,15 @@ use super::loopback::LoopbackSink;
 use super::pipewire::{PipewireSink, VIEW_NODE};
 use super::pipewire_launch;
 use super::y4m::Y4mSink;
-use super::{Sink, SinkError, SinkKindName};
+use super::{Sink, SinkError, SinkKindName, SinkSet};
 use sdi_config::{Config, SinkKind};
 use sdi_core::mode::ModeId;
 
-/// The chosen sink and, for `auto`, why: each sink passed over in a phrase
+/// The chosen sinks and, for `auto`, why: each sink passed over in a phrase
 /// that names what to install (the full errors are at debug level), and
-/// what made the chosen one fit.
+/// what made the chosen ones fit.
 pub struct Chosen {
-    pub sink: Box<dyn Sink>,
+    pub sinks: SinkSet,
     pub reasons: Option<Vec<String>>,
 }
 
@@ -92,8 +93,15 @@ pub fn open(
                     "v4l2loopback device labelled \"{}\" found",
                     c.output.label
                 ));
+                let also = match auto {
+                    true => beside_loopback(width, height, fps, mode, &mut passed),
+                    false => Vec::new(),
+                };
                 return Ok(Chosen {
-                    sink: Box::new(s),
+                    sinks: SinkSet {
+                        primary: Box::new(s),
+                        also,
+                    },
                     reasons: auto.then_some(passed),
                 });
             }
@@ -111,7 +119,10 @@ pub fn open(
             Ok(sink) => {
                 passed.push("PipeWire reachable".into());
                 return Ok(Chosen {
-                    sink,
+                    sinks: SinkSet {
+                        primary: sink,
+                        also: Vec::new(),
+                    },
                     reasons: auto.then_some(passed),
                 });
             }
@@ -125,9 +136,41 @@ pub fn open(
     let path = (!c.output.y4m_path.is_empty()).then(|| PathBuf::from(&c.output.y4m_path));
     let sink = Y4mSink::new(path.as_deref(), width, height, fps).map_err(SinkError::Y4m)?;
     Ok(Chosen {
-        sink: Box::new(sink),
+        sinks: SinkSet {
+            primary: Box::new(sink),
+            also: Vec::new(),
+        },
         reasons: auto.then_some(passed),
     })
+}
+
+/// The PipeWire camera fed beside the loopback nodes, where this user's
+/// PipeWire runs: PipeWire before 1.1.81 cannot read a v4l2loopback node
+/// (no VIDIOC_EXPBUF, docs/loopback.md), so its portal clients get the
+/// camera process's node instead (the loopback node is kept out of
+/// PipeWire by SDI's WirePlumber rule, docs/pipewire.md).
+fn beside_loopback(
+    width: usize,
+    height: usize,
+    fps: f64,
+    mode: ModeId,
+    passed: &mut Vec<String>,
+) -> Vec<Box<dyn Sink>> {
+    if pipewire_socket().is_none() {
+        passed.push("no PipeWire running for this user, so no PipeWire camera beside it".into());
+        return Vec::new();
+    }
+    match open_pipewire(width, height, fps, mode) {
+        Ok(sink) => {
+            passed.push("PipeWire reachable: the PipeWire camera beside it".into());
+            vec![sink]
+        }
+        Err(e) => {
+            tracing::debug!("auto: PipeWire camera beside v4l2loopback passed over: {e}");
+            passed.push(pipewire_phrase(&e));
+            Vec::new()
+        }
+    }
 }
 
 /// What a person opens to watch the sink, and how: the lines of sdid's
