@@ -69,6 +69,9 @@ $(GENDIR)/sdid.service: udev/systemd/sdid.service.in FORCE
 $(GENDIR)/sdid-user.service: udev/systemd/sdid-user.service.in FORCE
 	@mkdir -p $(GENDIR)
 	sed 's|@bindir@|$(BINDIR)|g' $< > $@
+$(GENDIR)/sdi-pipewire-camera.service: udev/systemd/sdi-pipewire-camera.service.in FORCE
+	@mkdir -p $(GENDIR)
+	sed 's|@cameradir@|$(CAMERADIR)|g' $< > $@
 $(GENDIR)/org.sdi.Daemon.service: udev/dbus/org.sdi.Daemon.service.in FORCE
 	@mkdir -p $(GENDIR)
 	sed 's|@bindir@|$(BINDIR)|g' $< > $@
@@ -106,9 +109,14 @@ endif
 
 # What comes with the PipeWire camera: WirePlumber's rule keeping the
 # loopback nodes out of PipeWire (0.4 Lua, 0.5 SPA-JSON; docs/pipewire.md),
-# which only helps where the camera process publishes instead.
+# which only helps where the camera process publishes instead, and the user
+# unit that starts it with each user's PipeWire for the system service
+# (enabled for every user by the .wants link).
 .PHONY: install-camera-files
-install-camera-files:
+install-camera-files: $(GENDIR)/sdi-pipewire-camera.service
+	$(INSTALL) -D -m 0644 $(GENDIR)/sdi-pipewire-camera.service $(DESTDIR)$(USERUNITDIR)/sdi-pipewire-camera.service
+	$(INSTALL) -d $(DESTDIR)$(USERUNITDIR)/pipewire.service.wants
+	ln -sf ../sdi-pipewire-camera.service $(DESTDIR)$(USERUNITDIR)/pipewire.service.wants/sdi-pipewire-camera.service
 	$(INSTALL) -D -m 0644 udev/wireplumber/51-sdi-v4l2.lua $(DESTDIR)$(WIREPLUMBERDIR)/main.lua.d/51-sdi-v4l2.lua
 	$(INSTALL) -D -m 0644 udev/wireplumber/51-sdi-v4l2.conf $(DESTDIR)$(WIREPLUMBERDIR)/wireplumber.conf.d/51-sdi-v4l2.conf
 
@@ -136,6 +144,8 @@ uninstall:
 	rm -f $(DESTDIR)$(CAMERADIR)/sdi-pipewire-camera
 	-rmdir $(DESTDIR)$(CAMERADIR) 2>/dev/null
 	rm -f $(DESTDIR)$(WIREPLUMBERDIR)/main.lua.d/51-sdi-v4l2.lua $(DESTDIR)$(WIREPLUMBERDIR)/wireplumber.conf.d/51-sdi-v4l2.conf
+	rm -f $(DESTDIR)$(USERUNITDIR)/pipewire.service.wants/sdi-pipewire-camera.service $(DESTDIR)$(USERUNITDIR)/sdi-pipewire-camera.service
+	-rmdir $(DESTDIR)$(USERUNITDIR)/pipewire.service.wants 2>/dev/null
 	rm -f $(DESTDIR)$(UNITDIR)/sdid.service $(DESTDIR)$(USERUNITDIR)/sdid.service
 	rm -f $(DESTDIR)$(UDEVRULESDIR)/70-sdi-board.rules
 	rm -f $(DESTDIR)$(DBUSPOLICYDIR)/org.sdi.Daemon.conf

@@ -33,6 +33,8 @@ pub const CAMERA_INSTALL_FILES: &[&str] = &[
     "usr/libexec/sdi/sdi-pipewire-camera",
     "usr/share/wireplumber/main.lua.d/51-sdi-v4l2.lua",
     "usr/share/wireplumber/wireplumber.conf.d/51-sdi-v4l2.conf",
+    "usr/lib/systemd/user/sdi-pipewire-camera.service",
+    "usr/lib/systemd/user/pipewire.service.wants/sdi-pipewire-camera.service",
 ];
 
 /// The packages' version: the workspace's plus the Debian revision.

@@ -157,11 +157,13 @@ fn check_camera_package(deb: &Path) {
     assert_eq!(
         files,
         [
+            "-rw-r--r-- root/root usr/lib/systemd/user/sdi-pipewire-camera.service",
             "-rw-r--r-- root/root usr/share/doc/sdi-pipewire-camera/changelog.Debian.gz",
             "-rw-r--r-- root/root usr/share/doc/sdi-pipewire-camera/copyright",
             "-rw-r--r-- root/root usr/share/wireplumber/main.lua.d/51-sdi-v4l2.lua",
             "-rw-r--r-- root/root usr/share/wireplumber/wireplumber.conf.d/51-sdi-v4l2.conf",
             "-rwxr-xr-x root/root usr/libexec/sdi/sdi-pipewire-camera",
+            "lrwxrwxrwx root/root usr/lib/systemd/user/pipewire.service.wants/sdi-pipewire-camera.service",
         ]
     );
     let depends = field(deb, "Depends");

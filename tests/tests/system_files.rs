@@ -579,7 +579,7 @@ fn wireplumber_rules_match_the_loopback_labels() {
 }
 
 /// The files that come with the PipeWire camera install where WirePlumber
-/// 0.4 and 0.5 read them, and go again.
+/// 0.4 and 0.5 and the systemd user manager read them, and go again.
 #[test]
 fn make_install_camera_files_with_destdir() {
     let dir = scratch("camera-files");
@@ -599,6 +599,12 @@ fn make_install_camera_files_with_destdir() {
     for f in installed {
         assert!(destdir.join(f).is_file(), "{f} not installed");
     }
+    let unit = fs::read_to_string(destdir.join("usr/lib/systemd/user/sdi-pipewire-camera.service"))
+        .unwrap();
+    assert!(
+        unit.contains("ExecStart=/usr/libexec/sdi/sdi-pipewire-camera --system-feed\n"),
+        "{unit}"
+    );
     run_make("uninstall");
     for f in installed {
         assert!(!destdir.join(f).exists(), "{f} left by uninstall");

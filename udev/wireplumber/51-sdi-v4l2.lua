@@ -1,7 +1,7 @@
 -- SDI: keep sdid's v4l2loopback nodes out of PipeWire (WirePlumber 0.4;
 -- 0.5 reads wireplumber.conf.d/51-sdi-v4l2.conf instead).
 --
--- PipeWire before 1.1.81 lists a v4l2loopback node as a camera but cannot
+-- PipeWire before 1.3.81 lists a v4l2loopback node as a camera but cannot
 -- read it (v4l2loopback has no VIDIOC_EXPBUF, docs/loopback.md), so portal
 -- clients (browsers, Flatpak apps, OBS, pipewiresrc) would pick "SDI camera"
 -- and get no frame. sdid feeds the PipeWire camera process beside the

@@ -9,6 +9,7 @@ pub mod output;
 pub mod pipewire;
 pub mod pipewire_launch;
 pub mod select;
+pub mod system_feed;
 pub mod y4m;
 
 use sdi_core::display::DisplayMap;
@@ -43,6 +44,9 @@ pub enum SinkError {
     CameraNotInstalled(#[from] pipewire_launch::NotInstalled),
     #[error("output device unavailable: {0}")]
     Camera(#[from] pipewire_launch::ConnectError),
+    /// The PipeWire camera waits for this user's PipeWire to come up.
+    #[error("output device unavailable: no PipeWire running for this user yet")]
+    NoPipewire,
     /// Between attempts to start the camera process again.
     #[error("output device unavailable: the PipeWire camera process is gone")]
     CameraGone,

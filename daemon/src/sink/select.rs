@@ -9,6 +9,7 @@ use v4l2loopback_glue::GlueError;
 use super::loopback::LoopbackSink;
 use super::pipewire::{PipewireSink, VIEW_NODE};
 use super::pipewire_launch;
+use super::system_feed::{self, SystemFeed};
 use super::y4m::Y4mSink;
 use super::{Sink, SinkError, SinkKindName, SinkSet};
 use sdi_config::{Config, SinkKind};
@@ -50,18 +51,6 @@ fn pipewire_phrase(e: &SinkError) -> String {
         }
         e => format!("PipeWire unusable: {e}"),
     }
-}
-
-/// The PipeWire daemon's socket for this user, if one is there: `auto`
-/// does not start the camera process where no PipeWire runs.
-fn pipewire_socket() -> Option<PathBuf> {
-    let remote = std::env::var_os("PIPEWIRE_REMOTE").unwrap_or_else(|| "pipewire-0".into());
-    let path = PathBuf::from(remote);
-    let path = match path.is_absolute() {
-        true => path,
-        false => PathBuf::from(std::env::var_os("XDG_RUNTIME_DIR")?).join(path),
-    };
-    path.exists().then_some(path)
 }
 
 fn open_pipewire(
@@ -112,7 +101,7 @@ pub fn open(
             }
         }
     }
-    if auto && pipewire_socket().is_none() {
+    if auto && pipewire_launch::pipewire_socket().is_none() {
         passed.push("no PipeWire running for this user".into());
     } else if auto || kind == SinkKind::Pipewire {
         match open_pipewire(width, height, fps, mode) {
@@ -144,8 +133,10 @@ pub fn open(
     })
 }
 
-/// The PipeWire camera fed beside the loopback nodes, where this user's
-/// PipeWire runs: PipeWire before 1.1.81 cannot read a v4l2loopback node
+/// The PipeWire camera fed beside the loopback nodes, where it is installed;
+/// started once this user's PipeWire runs (a session's PipeWire may come up
+/// after sdid). As the system service, the users' cameras connect to sdid
+/// instead (`system_feed.rs`). PipeWire before 1.3.81 cannot read a v4l2loopback node
 /// (no VIDIOC_EXPBUF, docs/loopback.md), so its portal clients get the
 /// camera process's node instead (the loopback node is kept out of
 /// PipeWire by SDI's WirePlumber rule, docs/pipewire.md).
@@ -156,13 +147,34 @@ fn beside_loopback(
     mode: ModeId,
     passed: &mut Vec<String>,
 ) -> Vec<Box<dyn Sink>> {
-    if pipewire_socket().is_none() {
-        passed.push("no PipeWire running for this user, so no PipeWire camera beside it".into());
-        return Vec::new();
+    if let Some(dir) = system_feed::runtime_directory() {
+        return match SystemFeed::listen(&dir, width, height, fps, mode) {
+            Ok(feed) => {
+                passed.push(
+                    "system service: the PipeWire cameras of users' sessions are fed beside it"
+                        .into(),
+                );
+                vec![Box::new(feed)]
+            }
+            Err(e) => {
+                passed.push(format!("no PipeWire camera feed: {e}"));
+                Vec::new()
+            }
+        };
     }
-    match open_pipewire(width, height, fps, mode) {
-        Ok(sink) => {
-            passed.push("PipeWire reachable: the PipeWire camera beside it".into());
+    let opened = match pipewire_launch::pipewire_socket() {
+        Some(_) => open_pipewire(width, height, fps, mode).map(|s| (s, "PipeWire reachable")),
+        None => pipewire_launch::find_program()
+            .map_err(SinkError::from)
+            .map(|program| {
+                let s = PipewireSink::when_reachable(&program, width, height, fps, mode);
+                let s: Box<dyn Sink> = Box::new(s);
+                (s, "no PipeWire running for this user yet")
+            }),
+    };
+    match opened {
+        Ok((sink, why)) => {
+            passed.push(format!("{why}: the PipeWire camera beside it"));
             vec![sink]
         }
         Err(e) => {
