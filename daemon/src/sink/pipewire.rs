@@ -20,7 +20,8 @@ use super::pipewire_launch as launch;
 use super::{Sink, SinkError, SinkInfo, SinkKindName};
 use sdi_camera_link::{self as link, Message, Port, Spec, State, Wire};
 pub use sdi_camera_link::{
-    view_description, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, VIEW_NODE,
+    view_description, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, SYSTEM_FEED_FLAG,
+    SYSTEM_FEED_NAME, VIEW_NODE,
 };
 use sdi_core::display::DisplayMap;
 use sdi_core::mode::ModeOutput;

@@ -124,10 +124,14 @@ pub fn open(
     }
     let path = (!c.output.y4m_path.is_empty()).then(|| PathBuf::from(&c.output.y4m_path));
     let sink = Y4mSink::new(path.as_deref(), width, height, fps).map_err(SinkError::Y4m)?;
+    let also = match (auto, system_feed::runtime_directory()) {
+        (true, Some(dir)) => feed_users(&dir, width, height, fps, mode, &mut passed),
+        _ => Vec::new(),
+    };
     Ok(Chosen {
         sinks: SinkSet {
             primary: Box::new(sink),
-            also: Vec::new(),
+            also,
         },
         reasons: auto.then_some(passed),
     })
@@ -148,19 +152,7 @@ fn beside_loopback(
     passed: &mut Vec<String>,
 ) -> Vec<Box<dyn Sink>> {
     if let Some(dir) = system_feed::runtime_directory() {
-        return match SystemFeed::listen(&dir, width, height, fps, mode) {
-            Ok(feed) => {
-                passed.push(
-                    "system service: the PipeWire cameras of users' sessions are fed beside it"
-                        .into(),
-                );
-                vec![Box::new(feed)]
-            }
-            Err(e) => {
-                passed.push(format!("no PipeWire camera feed: {e}"));
-                Vec::new()
-            }
-        };
+        return feed_users(&dir, width, height, fps, mode, passed);
     }
     let opened = match pipewire_launch::pipewire_socket() {
         Some(_) => open_pipewire(width, height, fps, mode).map(|s| (s, "PipeWire reachable")),
@@ -180,6 +172,30 @@ fn beside_loopback(
         Err(e) => {
             tracing::debug!("auto: PipeWire camera beside v4l2loopback passed over: {e}");
             passed.push(pipewire_phrase(&e));
+            Vec::new()
+        }
+    }
+}
+
+/// As the system service: the PipeWire cameras of users' sessions, which
+/// connect to sdid's feed socket in `dir` (`system_feed.rs`).
+fn feed_users(
+    dir: &std::path::Path,
+    width: usize,
+    height: usize,
+    fps: f64,
+    mode: ModeId,
+    passed: &mut Vec<String>,
+) -> Vec<Box<dyn Sink>> {
+    match SystemFeed::listen(dir, width, height, fps, mode) {
+        Ok(feed) => {
+            passed.push(
+                "system service: the PipeWire cameras of users' sessions are fed beside it".into(),
+            );
+            vec![Box::new(feed)]
+        }
+        Err(e) => {
+            passed.push(format!("no PipeWire camera feed: {e}"));
             Vec::new()
         }
     }
