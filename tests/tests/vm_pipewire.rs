@@ -270,6 +270,17 @@ fn check(pw: &PipeWire, sdid: &Sdid, order: &str, read: bool) {
         "{order}: PipeWire node {id} (serial {serial}): {} ({})",
         props["node.description"], props["media.class"]
     );
+    // Without SDI's WirePlumber rule: doctor says this node cannot be read
+    // (PipeWire 0.3.65) and names the rule.
+    let doctor = doctor_pipewire(pw, sdid);
+    assert!(
+        doctor.iter().any(|(id, st, sum, fix)| id == "pw-node"
+            && st == "warn"
+            && sum.contains("v4l2loopback node")
+            && sum.contains("cannot be read")
+            && fix.contains("51-sdi-v4l2")),
+        "{order}: doctor: {doctor:?}"
+    );
     if !read {
         return;
     }
@@ -557,18 +568,37 @@ fn ffmpeg_view(sdid: &Sdid) -> [f64; 3] {
 /// feeds the loopback nodes and the PipeWire camera: PipeWire lists one SDI
 /// camera, pipewiresrc reads what sdid published, ffmpeg reads the loopback
 /// node, and a mode switch reaches both.
-fn check_beside(pw: &PipeWire, sdid: &Sdid, log: &FrameLog, order: &str) {
+fn check_beside(pw: &PipeWire, sdid: &Sdid, log: &FrameLog, order: &str, modes: &[&str]) {
     let camera = one_sdi_camera(pw, order);
     eprintln!(
         "{order}: PipeWire lists one SDI camera: {} ({})",
         camera["node.description"], camera["media.role"]
+    );
+    let doctor = doctor_pipewire(pw, sdid);
+    assert!(
+        doctor.iter().any(|(id, st, sum, _)| id == "pipewire"
+            && st == "ok"
+            && sum.contains("one SDI camera")),
+        "{order}: doctor: {doctor:?}"
+    );
+    let nodes: Vec<_> = doctor.iter().filter(|c| c.0 == "pw-node").collect();
+    assert_eq!(
+        nodes.len(),
+        2,
+        "{order}: the camera's view and data nodes: {doctor:?}"
+    );
+    assert!(
+        nodes
+            .iter()
+            .all(|c| c.1 == "ok" && c.2.contains("the PipeWire camera")),
+        "{order}: doctor: {doctor:?}"
     );
     let status = stdout_of(&sdid.ctl(&["status"]));
     assert!(
         status.contains("sdi-camera"),
         "{order}: the D-Bus device names both sinks: {status}"
     );
-    for mode in ["raw", "separation"] {
+    for &mode in modes {
         sdid.set_mode(mode);
         let expected = sdid.expected_view_mean();
         wait_until(
@@ -589,6 +619,7 @@ fn check_beside(pw: &PipeWire, sdid: &Sdid, log: &FrameLog, order: &str) {
 /// Issue 32's user session, both start orders, module loaded, SDI's
 /// WirePlumber rule installed.
 fn beside_loopback_both_orders() {
+    let t_phase = Instant::now();
     let config = rule_config_home();
     let log = FrameLog::file(std::path::PathBuf::from("/tmp/sdid-beside.log"));
     let runtime = vec![("XDG_RUNTIME_DIR".to_owned(), "/run/user/0".to_owned())];
@@ -606,7 +637,8 @@ fn beside_loopback_both_orders() {
         "beside, sdid first: sdi-camera listed {:.1} s after PipeWire started",
         t0.elapsed().as_secs_f64()
     );
-    check_beside(&pw, &sdid, &log, "beside, sdid first");
+    // The mode switch is checked in the other order (VM time).
+    check_beside(&pw, &sdid, &log, "beside, sdid first", &["raw"]);
     drop(sdid);
     drop(pw);
     // The camera process ended with its PipeWire connection.
@@ -618,11 +650,51 @@ fn beside_loopback_both_orders() {
     let pw = PipeWire::start_with(Some(config));
     let sdid = Sdid::start_auto(VIEW_NR, DATA_NR, PMD, 15, runtime, log.path());
     trigger();
-    check_beside(&pw, &sdid, &log, "beside, WirePlumber first");
+    check_beside(
+        &pw,
+        &sdid,
+        &log,
+        "beside, WirePlumber first",
+        &["raw", "separation"],
+    );
     // Still hidden a while after the udev change event.
     std::thread::sleep(Duration::from_secs(3));
     one_sdi_camera(&pw, "beside, WirePlumber first, 3 s after the change event");
     drop(sdid);
     drop(pw);
     loopback::unload_module().expect("rmmod");
+    eprintln!(
+        "beside the loopback nodes, both orders: {:.1} s",
+        t_phase.elapsed().as_secs_f64()
+    );
+}
+
+/// `sdictl doctor --json` as the session's user (its PipeWire): the
+/// PipeWire checks, (status, summary, fix) by id.
+fn doctor_pipewire(pw: &PipeWire, sdid: &Sdid) -> Vec<(String, String, String, String)> {
+    let out = Command::new(sdi_tests::dbus::bin("sdictl"))
+        .args(["--bus-address", &sdid.bus.address, "doctor", "--json"])
+        .envs(pw.env.iter().map(|(k, v)| (k, v)))
+        .output()
+        .expect("run sdictl doctor");
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "doctor --json is not JSON ({e}): {}",
+            String::from_utf8_lossy(&out.stdout)
+        )
+    });
+    let checks: Vec<_> = v["checks"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter(|c| c["id"] == "pipewire" || c["id"] == "pw-node")
+        .map(|c| {
+            let s = |k: &str| c[k].as_str().unwrap_or_default().to_owned();
+            (s("id"), s("status"), s("summary"), s("fix"))
+        })
+        .collect();
+    for (id, status, summary, _) in &checks {
+        eprintln!("  doctor [{status}] {id}: {summary}");
+    }
+    checks
 }

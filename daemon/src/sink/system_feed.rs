@@ -47,15 +47,21 @@ pub struct SystemFeed {
 }
 
 /// The runtime directory systemd made for sdid (`RuntimeDirectory=`), when
-/// sdid runs as a service without a user session: where the feed goes.
+/// sdid runs as a service without a user session: where the feed goes. A
+/// root sdid started outside systemd (D-Bus activation without it) uses
+/// `/run/sdi` when it exists.
 pub fn runtime_directory() -> Option<PathBuf> {
     if std::env::var_os("XDG_RUNTIME_DIR").is_some() {
         return None;
     }
-    let dir = std::env::var_os("RUNTIME_DIRECTORY")?;
-    // systemd lists several, separated by ':', when a unit names several.
-    let first = dir.to_str()?.split(':').next()?.to_owned();
-    Some(PathBuf::from(first))
+    match std::env::var_os("RUNTIME_DIRECTORY") {
+        // systemd lists several, separated by ':', when a unit names several.
+        Some(dir) => Some(PathBuf::from(dir.to_str()?.split(':').next()?)),
+        None => {
+            let dir = Path::new(sdi_camera_link::SYSTEM_RUNTIME_DIR);
+            (nix::unistd::getuid().is_root() && dir.is_dir()).then(|| dir.to_owned())
+        }
+    }
 }
 
 impl SystemFeed {
