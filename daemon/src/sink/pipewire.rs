@@ -102,7 +102,9 @@ impl Camera {
     fn link(&mut self) -> Result<&mut Link, SinkError> {
         if self.link.as_ref().is_some_and(|l| !l.alive()) {
             self.link = None;
-            tracing::warn!("the PipeWire camera process went away; starting it again");
+            if self.program.is_some() {
+                tracing::warn!("the PipeWire camera process went away; starting it again");
+            }
         }
         if self.link.is_none() {
             if Instant::now() < self.retry_at {
@@ -218,11 +220,6 @@ impl PipewireSink {
             y16: ViewRenderer::new(dw, dh, PixelFormat::Y16),
             view,
         })
-    }
-
-    /// True while the link to the camera process is up.
-    pub fn connected(&self) -> bool {
-        self.camera.link.as_ref().is_some_and(Link::alive)
     }
 
     /// Like [`PipewireSink::open`], but reaches (or starts) the camera
