@@ -42,6 +42,27 @@ pub fn camera_candidates(bin_dir: &std::path::Path) -> [PathBuf; 2] {
         bin_dir.join(CAMERA_LIBEXEC).join(CAMERA_PROGRAM),
     ]
 }
+/// The system service's feed socket, where the camera processes of users'
+/// sessions (`sdi-pipewire-camera --system-feed`, the user unit
+/// `sdi-pipewire-camera.service`) connect to the system sdid, which runs
+/// as root without a PipeWire of its own: in sdid.service's
+/// `RuntimeDirectory=sdi`, so `root:sdi` 0750, the socket 0660, and only
+/// members of the group sdi (who may control the camera anyway) reach it.
+/// The camera takes frames there only from a server running as root
+/// (SO_PEERCRED), so no other user can feed it; on this connection sdid
+/// speaks first (Hello), exactly as on a camera's own socket.
+pub const SYSTEM_FEED_NAME: &str = "camera-feed.sock";
+/// The system service's runtime directory (`RuntimeDirectory=sdi`).
+pub const SYSTEM_RUNTIME_DIR: &str = "/run/sdi";
+/// The camera's command-line flag for the feed ([`SYSTEM_FEED_NAME`]),
+/// optionally followed by the socket's path.
+pub const SYSTEM_FEED_FLAG: &str = "--system-feed";
+
+/// The system feed socket's default path.
+pub fn system_feed_path() -> PathBuf {
+    std::path::Path::new(SYSTEM_RUNTIME_DIR).join(SYSTEM_FEED_NAME)
+}
+
 /// How long the camera outlives sdid while no reader streams.
 pub const LINGER: std::time::Duration = std::time::Duration::from_secs(30);
 /// Node name of the view stream (what `pipewiresrc target-object=` takes).

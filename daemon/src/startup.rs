@@ -129,7 +129,13 @@ pub fn exit_code(result: Result<(), StartError>) -> ExitCode {
 
 /// sdid's first screen, after the private bus's lines: what is published,
 /// from where, why this sink, and what to open.
-fn first_screen(source: &str, mode: ModeId, sink: &SinkInfo, reasons: Option<&str>) -> String {
+fn first_screen(
+    source: &str,
+    mode: ModeId,
+    sink: &SinkInfo,
+    also: &[SinkInfo],
+    reasons: Option<&str>,
+) -> String {
     let published = match sink.kind {
         SinkKindName::Y4m => "a y4m stream",
         SinkKindName::Pipewire => "a PipeWire camera",
@@ -146,6 +152,12 @@ fn first_screen(source: &str, mode: ModeId, sink: &SinkInfo, reasons: Option<&st
         "  view:    {}",
         sink_select::how_to_watch(sink.kind, &sink.device)
     ));
+    for a in also {
+        lines.push(format!(
+            "  also:    {}",
+            sink_select::how_to_watch(a.kind, &a.device)
+        ));
+    }
     lines.push(
         "  control: sdictl set-mode depth-edge   (sdictl modes: every mode; sdictl status)".into(),
     );
@@ -276,10 +288,19 @@ fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
         mode,
     )?;
     let reasons = chosen.reasons();
-    let mut output = Output::spawn(chosen.sink).map_err(StartError::OutputThread)?;
+    let mut output = Output::spawn_set(chosen.sinks).map_err(StartError::OutputThread)?;
     output.set_mode(mode);
     let mut sink_info = output.info().clone();
-    let first_screen = first_screen(&backend.device(), mode, &sink_info, reasons.as_deref());
+    let first_screen = first_screen(
+        &backend.device(),
+        mode,
+        &sink_info,
+        output.also(),
+        reasons.as_deref(),
+    );
+    for also in output.also() {
+        sink_info.device = format!("{} + {}", sink_info.device, also.device);
+    }
     if let Some(reasons) = reasons {
         sink_info.device = format!("{} [auto: {reasons}]", sink_info.device);
     }

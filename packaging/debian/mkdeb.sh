@@ -130,9 +130,12 @@ build_deb() {
 ## sdi
 ROOT=$WORK/sdi
 "$MAKE" -s --no-print-directory install PREFIX=/usr DESTDIR="$ROOT" TARGETDIR="$TARGETDIR" GENDIR="$WORK/gen"
-# The PipeWire camera has its own package, wherever `make install` put it.
+# The PipeWire camera has its own package, wherever `make install` put it,
+# with the files that come with it (Makefile: install-camera-files).
 rm -f "$ROOT/usr/bin/sdi-pipewire-camera" "$ROOT/usr/libexec/sdi/sdi-pipewire-camera"
 rmdir -p "$ROOT/usr/libexec/sdi" 2>/dev/null || true
+rm -rf "$ROOT/usr/share/wireplumber" "$ROOT/usr/lib/systemd/user/pipewire.service.wants"
+rm -f "$ROOT/usr/lib/systemd/user/sdi-pipewire-camera.service"
 strip_tree "$ROOT"
 [ ! -d "$ROOT/usr/share/man" ] || find "$ROOT/usr/share/man" -type f ! -name '*.gz' -exec gzip -9n {} +
 add_docs "$ROOT" sdi
@@ -163,16 +166,19 @@ Suggests: sdi-pipewire-camera" \
 if [ -x "$TARGETDIR/sdi-pipewire-camera" ]; then
     CROOT=$WORK/sdi-pipewire-camera
     install -D -m 0755 "$TARGETDIR/sdi-pipewire-camera" "$CROOT/usr/libexec/sdi/sdi-pipewire-camera"
+    "$MAKE" -s --no-print-directory install-camera-files PREFIX=/usr DESTDIR="$CROOT" GENDIR="$WORK/gen"
     strip_tree "$CROOT"
     add_docs "$CROOT" sdi-pipewire-camera
     shlibs=$(shlibs_of "$CROOT" sdi-pipewire-camera)
     build_deb "$CROOT" sdi-pipewire-camera "$shlibs, sdi (= $VERSION)" "" \
         "SDI difference camera as a PipeWire camera
  The program sdid starts in a desktop session to publish the SDI camera
- as PipeWire nodes when the v4l2loopback module is not loaded: PipeWire
- applications, GStreamer's pipewiresrc and browsers through the camera
- portal see \"SDI camera\" without a kernel module. The nodes outlive a
- restart of sdid, so readers keep their stream."
+ as PipeWire nodes, without the v4l2loopback module or beside it:
+ PipeWire applications, GStreamer's pipewiresrc and browsers through the
+ camera portal see one \"SDI camera\" that delivers frames (a WirePlumber
+ rule keeps the loopback nodes, which PipeWire before 1.3.81 cannot read,
+ out of PipeWire). The nodes outlive a restart of sdid, so readers keep
+ their stream."
 else
     echo "note: no $TARGETDIR/sdi-pipewire-camera: package sdi-pipewire-camera not built" >&2
 fi

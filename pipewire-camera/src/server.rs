@@ -13,7 +13,7 @@ use std::io::Write;
 use std::os::fd::AsFd;
 use std::os::unix::fs::{OpenOptionsExt, PermissionsExt};
 use std::os::unix::net::{UnixListener, UnixStream};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
@@ -121,31 +121,10 @@ fn announce(line: &str) {
 
 fn run(spec: Spec) -> Result<(), ServeError> {
     let dir = link::runtime_dir().map_err(ServeError::RuntimeDir)?;
-    let lock_path = dir.join(link::LOCK_NAME);
-    let lock_file = OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .mode(0o600)
-        .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC)
-        .open(&lock_path)
-        .map_err(|source| ServeError::Lock {
-            path: lock_path.clone(),
-            source,
-        })?;
-    let _lock = match Flock::lock(lock_file, FlockArg::LockExclusiveNonblock) {
-        Ok(l) => l,
-        Err((_, Errno::EWOULDBLOCK)) => {
-            // Another camera process runs: the sdid that started this one connects to it.
-            announce(link::BUSY_LINE);
-            return Ok(());
-        }
-        Err((_, source)) => {
-            return Err(ServeError::Locking {
-                path: lock_path,
-                source,
-            })
-        }
+    let Some(_lock) = try_lock(&dir)? else {
+        // Another camera process runs: the sdid that started this one connects to it.
+        announce(link::BUSY_LINE);
+        return Ok(());
     };
     let nodes = Arc::new(Nodes::open(&spec)?);
     let sock = dir.join(link::SOCKET_NAME);
@@ -168,6 +147,30 @@ fn run(spec: Spec) -> Result<(), ServeError> {
     let r = serve(&listener, &nodes);
     let _ = std::fs::remove_file(&sock);
     r
+}
+
+/// This user's camera lock, unless another camera process holds it.
+fn try_lock(dir: &Path) -> Result<Option<Flock<std::fs::File>>, ServeError> {
+    let lock_path = dir.join(link::LOCK_NAME);
+    let lock_file = OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .mode(0o600)
+        .custom_flags(libc::O_NOFOLLOW | libc::O_CLOEXEC)
+        .open(&lock_path)
+        .map_err(|source| ServeError::Lock {
+            path: lock_path.clone(),
+            source,
+        })?;
+    match Flock::lock(lock_file, FlockArg::LockExclusiveNonblock) {
+        Ok(l) => Ok(Some(l)),
+        Err((_, Errno::EWOULDBLOCK)) => Ok(None),
+        Err((_, source)) => Err(ServeError::Locking {
+            path: lock_path,
+            source,
+        }),
+    }
 }
 
 /// The connected sdid.
@@ -215,37 +218,48 @@ fn serve(listener: &UnixListener, nodes: &Arc<Nodes>) -> Result<(), ServeError> 
             away_since = Instant::now();
             tracing::info!("sdid went away: showing the no-signal card");
         }
-        let state = nodes.state();
-        match &mut feed {
-            Some(f) if f.greeted.load(Ordering::Acquire) => {
-                let changed = f.reported.is_none_or(|r| {
-                    (r.view, r.data) != (state.view, state.data)
-                        || (r != state && f.reported_at.elapsed() >= STATE_PERIOD)
-                });
-                if changed {
-                    let mut w = f.writer.lock().unwrap_or_else(|e| e.into_inner());
-                    // A failed write: the reader thread sees the link close.
-                    let _ = link::write(&mut *w, &Message::State(state));
-                    f.reported = Some(state);
-                    f.reported_at = Instant::now();
-                }
+        let state = report_or_card(&mut feed, nodes, &mut card_at);
+        if feed.is_none()
+            && away_since.elapsed() >= LINGER
+            && state.view.is_none()
+            && state.data.is_none()
+        {
+            tracing::info!(
+                "PipeWire camera: no sdid for {} s and no reader: exiting",
+                LINGER.as_secs()
+            );
+            return Ok(());
+        }
+    }
+}
+
+/// Reports the nodes' state to the greeted sdid when it changed, or shows
+/// the "no signal" card while none feeds; returns the state.
+fn report_or_card(feed: &mut Option<Feed>, nodes: &Nodes, card_at: &mut Instant) -> State {
+    let state = nodes.state();
+    match feed {
+        Some(f) if f.greeted.load(Ordering::Acquire) => {
+            let changed = f.reported.is_none_or(|r| {
+                (r.view, r.data) != (state.view, state.data)
+                    || (r != state && f.reported_at.elapsed() >= STATE_PERIOD)
+            });
+            if changed {
+                let mut w = f.writer.lock().unwrap_or_else(|e| e.into_inner());
+                // A failed write: the reader thread sees the link close.
+                let _ = link::write(&mut *w, &Message::State(state));
+                f.reported = Some(state);
+                f.reported_at = Instant::now();
             }
-            Some(_) => {}
-            None => {
-                if card_at.elapsed() >= NO_SIGNAL_PERIOD {
-                    card_at = Instant::now();
-                    nodes.no_signal(monotonic_now_us());
-                }
-                if away_since.elapsed() >= LINGER && state.view.is_none() && state.data.is_none() {
-                    tracing::info!(
-                        "PipeWire camera: no sdid for {} s and no reader: exiting",
-                        LINGER.as_secs()
-                    );
-                    return Ok(());
-                }
+        }
+        Some(_) => {}
+        None => {
+            if card_at.elapsed() >= NO_SIGNAL_PERIOD {
+                *card_at = Instant::now();
+                nodes.no_signal(monotonic_now_us());
             }
         }
     }
+    state
 }
 
 /// Takes `s` as the feeding sdid, unless it is another user's or one
@@ -267,6 +281,18 @@ fn accept(
             return None;
         }
     }
+    start_feed(s, nodes, quit, current, None)
+}
+
+/// Takes `s` as the feeding sdid (whose `hello` was read already, when
+/// given), unless one already feeds.
+fn start_feed(
+    s: UnixStream,
+    nodes: &Arc<Nodes>,
+    quit: &Arc<AtomicBool>,
+    current: Option<&Feed>,
+    hello: Option<Spec>,
+) -> Option<Feed> {
     let setup = |s: &UnixStream| -> std::io::Result<UnixStream> {
         s.set_nonblocking(false)?;
         let w = s.try_clone()?;
@@ -295,7 +321,7 @@ fn accept(
     let reader = std::thread::Builder::new()
         .name("sdi-camera-feed".into())
         .spawn(move || {
-            match take_frames(s, &n, &w, &g, &q) {
+            match take_frames(s, hello, &n, &w, &g, &q) {
                 Ok(()) => {}
                 Err(LinkError::Io(e)) if e.kind() == std::io::ErrorKind::UnexpectedEof => {}
                 Err(e) => tracing::warn!("sdid's feed ended: {e}"),
@@ -318,9 +344,11 @@ fn accept(
     }
 }
 
-/// Reads one sdid's messages into the nodes until it goes away or quits.
+/// Reads one sdid's messages into the nodes until it goes away or quits;
+/// its Hello first, unless `hello` holds it already.
 fn take_frames(
     mut s: UnixStream,
+    hello: Option<Spec>,
     nodes: &Nodes,
     writer: &Mutex<UnixStream>,
     greeted: &AtomicBool,
@@ -330,7 +358,11 @@ fn take_frames(
         let mut w = writer.lock().unwrap_or_else(|e| e.into_inner());
         link::write(&mut *w, &m)
     };
-    match link::read(&mut s)? {
+    let first = match hello {
+        Some(spec) => Message::Hello(spec),
+        None => link::read(&mut s)?,
+    };
+    match first {
         Message::Hello(spec) if nodes.spec().same_nodes(&spec) => {
             nodes.set_mode(spec.mode);
             reply(Message::Ready)?;
@@ -385,6 +417,140 @@ fn take_frames(
                 return Ok(());
             }
             m => return Err(LinkError::Bad(format!("unexpected {m:?}"))),
+        }
+    }
+}
+
+/// Between attempts to reach the system sdid's feed socket, and to take
+/// this user's camera lock.
+const REDIAL: Duration = Duration::from_secs(2);
+
+/// Why one attempt to reach the system sdid failed.
+#[derive(Debug, thiserror::Error)]
+enum DialError {
+    #[error("connecting: {0}")]
+    Connect(#[source] std::io::Error),
+    #[error("the feed socket's peer credentials: {0}")]
+    PeerCredentials(#[source] Errno),
+    /// Only root (the system service) may feed this user's camera.
+    #[error("the feed socket is served by uid {0}, not root: refused")]
+    NotRoot(u32),
+    #[error(transparent)]
+    Link(#[from] LinkError),
+    #[error("the system sdid opened with {0}, not Hello")]
+    NotHello(String),
+}
+
+/// Connects to the system sdid's feed socket at `path` and reads its Hello.
+fn dial(path: &Path) -> Result<(UnixStream, Spec), DialError> {
+    let s = UnixStream::connect(path).map_err(DialError::Connect)?;
+    let peer = getsockopt(&s, PeerCredentials).map_err(DialError::PeerCredentials)?;
+    if peer.uid() != 0 {
+        return Err(DialError::NotRoot(peer.uid()));
+    }
+    s.set_read_timeout(Some(Duration::from_secs(5)))
+        .map_err(LinkError::Io)?;
+    let spec = match link::read(&mut &s)? {
+        Message::Hello(spec) => spec,
+        m => return Err(DialError::NotHello(format!("{m:?}"))),
+    };
+    s.set_read_timeout(None).map_err(LinkError::Io)?;
+    Ok((s, spec))
+}
+
+/// Entry point of `sdi-pipewire-camera --system-feed [PATH]`: the camera of
+/// a user's session fed by the system sdid (the user unit
+/// `sdi-pipewire-camera.service`, docs/pipewire.md). It dials PATH, again
+/// every [`REDIAL`] while no system sdid serves it, creates the nodes with
+/// the first Hello's sizes and keeps them while that sdid restarts or goes
+/// (the "no signal" card meanwhile); a Hello with other sizes ends it, and
+/// its unit starts it again.
+pub fn main_system_feed(path: PathBuf) -> ExitCode {
+    SERVING.store(true, Ordering::Relaxed);
+    match run_fed(&path) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => fail(&e),
+    }
+}
+
+fn run_fed(path: &Path) -> Result<(), ServeError> {
+    let dir = link::runtime_dir().map_err(ServeError::RuntimeDir)?;
+    // One camera per user, taken once a system sdid is there: a session's
+    // own sdid (no system service) keeps its camera meanwhile.
+    let mut lock = None;
+    tracing::info!(feed = %path.display(), "PipeWire camera waiting for the system sdid");
+    let quit = Arc::new(AtomicBool::new(false));
+    let mut nodes: Option<Arc<Nodes>> = None;
+    let mut feed: Option<Feed> = None;
+    let mut card_at = Instant::now();
+    let mut dial_at = Instant::now();
+    let mut last_error = String::new();
+    loop {
+        std::thread::sleep(Duration::from_millis(u64::from(TICK_MS)));
+        if nodes.as_ref().is_some_and(|n| n.broken()) {
+            return Err(ServeError::ConnectionLost);
+        }
+        if quit.load(Ordering::Acquire) {
+            tracing::info!("PipeWire camera: asked to quit");
+            return Ok(());
+        }
+        if feed
+            .as_ref()
+            .is_some_and(|f| f.done.load(Ordering::Acquire))
+        {
+            if let Some(f) = feed.take() {
+                let _ = f.reader.join();
+            }
+            tracing::info!("the system sdid went away: showing the no-signal card");
+        }
+        if feed.is_none() && Instant::now() >= dial_at {
+            dial_at = Instant::now() + REDIAL;
+            if lock.is_none() {
+                lock = try_lock(&dir)?;
+            }
+            if lock.is_none() {
+                if last_error != "busy" {
+                    tracing::info!("another PipeWire camera runs for this user: waiting");
+                    last_error = "busy".into();
+                }
+                continue;
+            }
+            match dial(path) {
+                Ok((s, spec)) => {
+                    let n = match &nodes {
+                        Some(n) if n.spec().same_nodes(&spec) => n.clone(),
+                        Some(n) => {
+                            return Err(ServeError::Spec(format!(
+                                "the system sdid now publishes {spec}, not {}: restarting",
+                                n.spec()
+                            )))
+                        }
+                        None => {
+                            let n = Arc::new(Nodes::open(&spec)?);
+                            nodes = Some(n.clone());
+                            n
+                        }
+                    };
+                    feed = start_feed(s, &n, &quit, None, Some(spec));
+                    last_error.clear();
+                }
+                Err(e) => {
+                    // Until it has nodes, the lock is free for the camera
+                    // of a session's own sdid.
+                    if nodes.is_none() {
+                        lock = None;
+                    }
+                    // Said once, not every 2 s while no system sdid runs.
+                    let e = e.to_string();
+                    if e != last_error {
+                        tracing::info!(feed = %path.display(), "no system sdid to feed the camera: {e}");
+                        last_error = e;
+                    }
+                }
+            }
+        }
+        if let Some(n) = &nodes {
+            report_or_card(&mut feed, n, &mut card_at);
         }
     }
 }

@@ -62,6 +62,11 @@ pub struct Sdid {
     pub sensor: Sensor,
     /// `--backend ...` (and `--sensor` for the simulator).
     backend: Vec<String>,
+    /// `--sink`, the environment added and where stderr goes (default:
+    /// loopback, none, inherited).
+    sink: &'static str,
+    env: Vec<(String, String)>,
+    log: Option<PathBuf>,
 }
 
 impl Sdid {
@@ -117,21 +122,74 @@ impl Sdid {
             fps: fps.to_string(),
             sensor,
             backend,
+            sink: "loopback",
+            env: Vec::new(),
+            log: None,
+        };
+        s.spawn();
+        s
+    }
+
+    /// Starts sdid on the simulator with `--sink auto` in a user session
+    /// (`env`: its `XDG_RUNTIME_DIR`, ...): the loopback nodes and, where
+    /// that session's PipeWire runs, the PipeWire camera beside them. Its
+    /// stderr, with every published PipeWire buffer's CRC-32
+    /// (`sdid::pipewire::frames=trace`), and the camera process's, which
+    /// inherits it, are appended to `log`.
+    pub fn start_auto(
+        view_nr: u32,
+        data_nr: u32,
+        sensor: Sensor,
+        fps: u32,
+        env: Vec<(String, String)>,
+        log: &Path,
+    ) -> Self {
+        let dir = Path::new("/tmp/sdi-clients");
+        std::fs::create_dir_all(dir).expect("mkdir /tmp/sdi-clients");
+        let config = dir.join("sdid.toml");
+        std::fs::write(
+            &config,
+            format!("[output]\nlabel = \"{VIEW_LABEL}\"\ndata_label = \"{DATA_LABEL}\"\n"),
+        )
+        .expect("write sdid.toml");
+        let mut s = Self {
+            bus: Bus::start(),
+            child: None,
+            view: PathBuf::from(format!("/dev/video{view_nr}")),
+            data: PathBuf::from(format!("/dev/video{data_nr}")),
+            config,
+            fps: fps.to_string(),
+            sensor,
+            backend: ["--backend", "sim", "--sensor", sensor.name]
+                .map(str::to_owned)
+                .to_vec(),
+            sink: "auto",
+            env,
+            log: Some(log.to_owned()),
         };
         s.spawn();
         s
     }
 
     fn spawn(&mut self) {
-        let child = Daemon::bare_command(&self.bus, &[])
-            .arg("--config")
+        let mut cmd = Daemon::bare_command(&self.bus, &[]);
+        cmd.arg("--config")
             .arg(&self.config)
             .args(&self.backend)
-            .args(["--sink", "loopback"])
+            .args(["--sink", self.sink])
             .args(["--frame-rate-hz", &self.fps, "--exposure-us", "2000"])
-            .stdout(Stdio::null())
-            .spawn()
-            .expect("spawn sdid");
+            .envs(self.env.iter().map(|(k, v)| (k, v)))
+            .stdout(Stdio::null());
+        if let Some(log) = &self.log {
+            let file = std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(log)
+                .expect("open sdid's log");
+            cmd.env("RUST_LOG", "info,sdid::pipewire::frames=trace")
+                .stderr(file);
+        }
+        let child = cmd.spawn().expect("spawn sdid");
         self.child = Some(child);
         let t = wait_until(
             "sdid serving D-Bus with both nodes capture-ready",

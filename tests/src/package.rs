@@ -27,6 +27,16 @@ pub const MAKE_INSTALL_FILES: &[&str] = &[
     "usr/share/fish/vendor_completions.d/sdictl.fish",
 ];
 
+/// What `make install` adds (PREFIX=/usr) where the PipeWire camera
+/// program was built: the `sdi-pipewire-camera` package's files.
+pub const CAMERA_INSTALL_FILES: &[&str] = &[
+    "usr/libexec/sdi/sdi-pipewire-camera",
+    "usr/share/wireplumber/main.lua.d/51-sdi-v4l2.lua",
+    "usr/share/wireplumber/wireplumber.conf.d/51-sdi-v4l2.conf",
+    "usr/lib/systemd/user/sdi-pipewire-camera.service",
+    "usr/lib/systemd/user/pipewire.service.wants/sdi-pipewire-camera.service",
+];
+
 /// The packages' version: the workspace's plus the Debian revision.
 pub const VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), "-1");
 

@@ -437,6 +437,11 @@ impl FrameLog {
         Self { path }
     }
 
+    /// Where the log is.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
     /// A handle appending to the log, for a child's stderr.
     pub fn writer(&self) -> std::fs::File {
         std::fs::OpenOptions::new()

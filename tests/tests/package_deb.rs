@@ -144,7 +144,8 @@ fn sdi_package_holds_what_make_install_installs() {
     fs::remove_dir_all(&dir).unwrap();
 }
 
-/// The PipeWire camera's package: its program in /usr/libexec/sdi, the
+/// The PipeWire camera's package: its program in /usr/libexec/sdi,
+/// WirePlumber's rule keeping the loopback nodes out of PipeWire, the
 /// docs, shared-library dependencies and exactly this version of sdi.
 fn check_camera_package(deb: &Path) {
     let mut files: Vec<String> = contents(deb)
@@ -156,9 +157,13 @@ fn check_camera_package(deb: &Path) {
     assert_eq!(
         files,
         [
+            "-rw-r--r-- root/root usr/lib/systemd/user/sdi-pipewire-camera.service",
             "-rw-r--r-- root/root usr/share/doc/sdi-pipewire-camera/changelog.Debian.gz",
             "-rw-r--r-- root/root usr/share/doc/sdi-pipewire-camera/copyright",
+            "-rw-r--r-- root/root usr/share/wireplumber/main.lua.d/51-sdi-v4l2.lua",
+            "-rw-r--r-- root/root usr/share/wireplumber/wireplumber.conf.d/51-sdi-v4l2.conf",
             "-rwxr-xr-x root/root usr/libexec/sdi/sdi-pipewire-camera",
+            "lrwxrwxrwx root/root usr/lib/systemd/user/pipewire.service.wants/sdi-pipewire-camera.service",
         ]
     );
     let depends = field(deb, "Depends");

@@ -422,3 +422,111 @@ fn no_signal_card_while_the_source_stops() {
     ));
     eprintln!("ok: 5 RGB frames of {VIEW} are the no-signal card while the replay has ended");
 }
+
+/// The system service's case (issue 32): sdid without a user session
+/// (no XDG_RUNTIME_DIR, systemd's RUNTIME_DIRECTORY) feeds the camera a
+/// user's session runs with `--system-feed` (the user unit
+/// sdi-pipewire-camera.service): the camera dials sdid's feed socket,
+/// publishes sdi-camera with what sdid rendered, follows a mode switch, and
+/// keeps its node while sdid restarts. The camera takes frames only from a
+/// root server, so this test runs as root (the VM's and CI's user).
+#[test]
+fn system_feed_camera_gets_the_system_sdids_frames() {
+    require_pipewire!();
+    if !nix::unistd::getuid().is_root() {
+        assert!(
+            std::env::var_os("SDI_REQUIRE_VM").is_none(),
+            "the system feed test needs root (the camera takes frames only from root)"
+        );
+        sdi_tests::skipped!("SKIPPED: the system feed test needs root: the camera takes frames only from a root server");
+        return;
+    }
+    let s = Session::start();
+    let run = tempfile::tempdir().expect("a runtime directory for the system sdid");
+    let feed = run
+        .path()
+        .join(sdi_daemon::sink::pipewire::SYSTEM_FEED_NAME);
+    let log = FrameLog::file(s.dir.path().join("sdid.log"));
+    let program = sdi_tests::pipewire::camera_program().expect("camera program");
+    let _camera = Reaped(
+        s.command(&program)
+            .arg(sdi_daemon::sink::pipewire::SYSTEM_FEED_FLAG)
+            .arg(&feed)
+            .env("RUST_LOG", "info,sdid::pipewire::frames=trace")
+            .stdout(Stdio::null())
+            .stderr(log.writer())
+            .spawn()
+            .expect("start the camera with --system-feed"),
+    );
+    let system_sdid = |mode: &str| {
+        let child = std::process::Command::new(bin("sdid"))
+            .args(["--bus-address", &s.bus.address, "--backend", "sim"])
+            .args([
+                "--frame-rate-hz",
+                "30",
+                "--exposure-us",
+                "2000",
+                "--sink",
+                "auto",
+            ])
+            .args(["--mode", mode])
+            .env_remove("XDG_RUNTIME_DIR")
+            .env_remove("PIPEWIRE_REMOTE")
+            .env("RUNTIME_DIRECTORY", run.path())
+            .env("RUST_LOG", "info")
+            .env_remove("INVOCATION_ID")
+            .stdout(Stdio::null())
+            .stderr(log.writer())
+            .spawn()
+            .expect("start sdid");
+        let child = Reaped(child);
+        wait_for("sdid on the bus", TIMEOUT, || {
+            sdictl(&s.bus.address, &["get", "mode"])
+                .status
+                .success()
+                .then_some(())
+        });
+        Sdid {
+            _child: child,
+            log: log.clone(),
+            address: s.bus.address.clone(),
+        }
+    };
+    let d = system_sdid("raw");
+    let device = d.ctl(&["get", "device"]);
+    assert!(device.contains("camera-feed.sock"), "{device}");
+    let view = wait_node(&s, VIEW);
+    assert_eq!(prop(&view, "media.role"), "Camera", "{view:?}");
+    let rgb_bytes = VIEW_W * VIEW_H * 3;
+    let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", 30, TIMEOUT);
+    check_published(&d, crcs_of(&rgb, rgb_bytes), VIEW, "RGB", "raw");
+    d.ctl(&["set-mode", "depth-edge"]);
+    wait_for("the node description to follow the mode", TIMEOUT, || {
+        s.node(VIEW)
+            .filter(|p| prop(p, "node.description") == "SDI camera (depth-edge)")
+    });
+    let yuyv = s.read_frames(VIEW, "video/x-raw,format=YUY2", 30, TIMEOUT);
+    check_published(
+        &d,
+        crcs_of(&yuyv, VIEW_W * VIEW_H * 2),
+        VIEW,
+        "YUYV",
+        "depth-edge",
+    );
+
+    // The system sdid restarts: the node stays, and the camera dials again.
+    drop(d);
+    std::thread::sleep(Duration::from_secs(1));
+    assert!(
+        s.node(VIEW).is_some(),
+        "the node went away with the system sdid"
+    );
+    let d = system_sdid("bipolar-colour");
+    wait_for("the node to follow the new system sdid", TIMEOUT, || {
+        s.node(VIEW)
+            .filter(|p| prop(p, "node.description") == "SDI camera (bipolar-colour)")
+    });
+    let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", 30, TIMEOUT);
+    check_published(&d, crcs_of(&rgb, rgb_bytes), VIEW, "RGB", "bipolar-colour");
+    eprintln!("ok: the --system-feed camera took the system sdid's frames across a restart");
+}

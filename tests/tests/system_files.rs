@@ -14,7 +14,7 @@ use std::process::{Command, Output};
 
 // Every file `make install` puts under DESTDIR for PREFIX=/usr (the Debian
 // package holds them too: tests/tests/package_deb.rs).
-use sdi_tests::package::MAKE_INSTALL_FILES as INSTALLED;
+use sdi_tests::package::{CAMERA_INSTALL_FILES, MAKE_INSTALL_FILES as INSTALLED};
 use sdi_tests::process::{must, repo_root, run};
 
 /// `systemd-analyze security` of the unit as shipped: no higher than the
@@ -482,7 +482,7 @@ fn make_install_with_the_built_binaries() {
     let mut expected: Vec<String> = INSTALLED.iter().map(|s| s.to_string()).collect();
     // The PipeWire camera, where it was built (CI: always).
     if bindir.join("sdi-pipewire-camera").is_file() {
-        expected.push("usr/libexec/sdi/sdi-pipewire-camera".into());
+        expected.extend(CAMERA_INSTALL_FILES.iter().map(|s| s.to_string()));
     }
     expected.sort();
     assert_eq!(installed, expected, "installed files");
@@ -503,5 +503,111 @@ fn make_install_with_the_built_binaries() {
     );
     let left = files_under(&destdir);
     assert!(left.is_empty(), "uninstall left {left:?}");
+    fs::remove_dir_all(&dir).unwrap();
+}
+
+/// WirePlumber's rule keeping the loopback nodes out of PipeWire
+/// (docs/pipewire.md): the 0.5 SPA-JSON parses (PipeWire's own parser,
+/// `spa-json-dump`) into `monitor.v4l2.rules` disabling the devices and
+/// nodes of exactly the card labels sdid and the modprobe.d file use; the
+/// 0.4 Lua names the same labels and properties (its effect is checked in
+/// the VM, vm_pipewire.rs, with WirePlumber 0.4.13).
+#[test]
+fn wireplumber_rules_match_the_loopback_labels() {
+    let root = repo_root();
+    let labels = [
+        sdi_config::Config::default().output.label,
+        "SDI data".to_owned(),
+    ];
+    let modprobe = fs::read_to_string(root.join("udev/modprobe.d/sdi-v4l2loopback.conf")).unwrap();
+    assert!(modprobe.contains(&format!("card_label=\"{}\"", labels[0])));
+    let lua = fs::read_to_string(root.join("udev/wireplumber/51-sdi-v4l2.lua")).unwrap();
+    for (key, action) in [
+        ("device.product.name", "device.disabled"),
+        ("api.v4l2.cap.card", "node.disabled"),
+    ] {
+        for label in &labels {
+            let m = format!("{{ {{ \"{key}\", \"equals\", \"{label}\" }} }}");
+            assert!(lua.contains(&m), "the Lua rule lacks {m}");
+        }
+        assert!(lua.contains(&format!("[\"{action}\"] = true")), "{action}");
+    }
+    assert_eq!(lua.matches("table.insert(v4l2_monitor.rules,").count(), 2);
+    if !sdi_tests::skip::have(
+        "spa-json-dump",
+        "pipewire-bin",
+        "parsing the WirePlumber 0.5 rule",
+    ) {
+        return;
+    }
+    let out =
+        must(Command::new("spa-json-dump").arg(root.join("udev/wireplumber/51-sdi-v4l2.conf")));
+    let conf: serde_json::Value =
+        serde_json::from_slice(&out.stdout).expect("spa-json-dump gives JSON");
+    let rules = conf["monitor.v4l2.rules"]
+        .as_array()
+        .expect("monitor.v4l2.rules");
+    let got: Vec<(Vec<(String, String)>, serde_json::Value)> = rules
+        .iter()
+        .map(|r| {
+            let matches = r["matches"]
+                .as_array()
+                .expect("matches")
+                .iter()
+                .flat_map(|m| m.as_object().expect("a match object").clone())
+                .map(|(k, v)| (k, v.as_str().expect("a string").to_owned()))
+                .collect();
+            (matches, r["actions"]["update-props"].clone())
+        })
+        .collect();
+    let want = |key: &str, action: &str| {
+        (
+            labels
+                .iter()
+                .map(|l| (key.to_owned(), l.clone()))
+                .collect::<Vec<_>>(),
+            serde_json::json!({ action: true }),
+        )
+    };
+    assert_eq!(
+        got,
+        [
+            want("device.product.name", "device.disabled"),
+            want("api.v4l2.cap.card", "node.disabled")
+        ]
+    );
+}
+
+/// The files that come with the PipeWire camera install where WirePlumber
+/// 0.4 and 0.5 and the systemd user manager read them, and go again.
+#[test]
+fn make_install_camera_files_with_destdir() {
+    let dir = scratch("camera-files");
+    let destdir = dir.join("root");
+    let vars = [
+        format!("DESTDIR={}", destdir.display()),
+        "PREFIX=/usr".to_owned(),
+    ];
+    let run_make = |target: &str| {
+        let mut args = vec![target];
+        args.extend(vars.iter().map(String::as_str));
+        make(&args);
+    };
+    run_make("install-camera-files");
+    // The program itself is installed by `install` where it was built.
+    let installed = &CAMERA_INSTALL_FILES[1..];
+    for f in installed {
+        assert!(destdir.join(f).is_file(), "{f} not installed");
+    }
+    let unit = fs::read_to_string(destdir.join("usr/lib/systemd/user/sdi-pipewire-camera.service"))
+        .unwrap();
+    assert!(
+        unit.contains("ExecStart=/usr/libexec/sdi/sdi-pipewire-camera --system-feed\n"),
+        "{unit}"
+    );
+    run_make("uninstall");
+    for f in installed {
+        assert!(!destdir.join(f).exists(), "{f} left by uninstall");
+    }
     fs::remove_dir_all(&dir).unwrap();
 }

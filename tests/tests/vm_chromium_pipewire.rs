@@ -9,6 +9,9 @@
 //! letterboxed, with a tolerance for YUV to RGB), and `sdictl set-mode`
 //! changes what it sees. Across a restart of sdid the track survives (the
 //! camera process sdid started keeps the node) and shows the new frames.
+//! Then the module is loaded and sdid restarts with `--sink auto`: it feeds
+//! the loopback nodes and the same camera (issue 32), the page keeps
+//! reading and sees a mode switch, and ffmpeg reads the loopback node.
 
 use std::path::Path;
 use std::process::Stdio;
@@ -17,12 +20,16 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
-use sdi_tests::clients::{letterbox_rows, mean_rgb, off_by, PMD};
+use sdi_tests::clients::{self, letterbox_rows, mean_rgb, off_by, DATA_LABEL, PMD, VIEW_LABEL};
+use sdi_tests::loopback;
 use sdi_tests::pipewire::{self, CameraPortal, Session};
-use sdi_tests::process::Reaped;
+use sdi_tests::process::{stdout_of, Reaped};
 use sdi_tests::vm;
 
 const TOLERANCE: f64 = 12.0;
+/// The loopback nodes of the module-loaded phase.
+const VIEW_NR: u32 = 40;
+const DATA_NR: u32 = 41;
 
 /// `sdid --sink pipewire` on the simulator, in `session`.
 struct Sdid {
@@ -32,6 +39,23 @@ struct Sdid {
 
 impl Sdid {
     fn start(session: &Session) -> Self {
+        Self::start_with(session, &["--sink", "pipewire"])
+    }
+
+    /// `sdid --sink auto` with the loopback nodes' labels (the module
+    /// loaded): the loopback sink, and the PipeWire camera beside it.
+    fn start_auto(session: &Session) -> Self {
+        let config = session.dir.path().join("sdid.toml");
+        std::fs::write(
+            &config,
+            format!("[output]\nlabel = \"{VIEW_LABEL}\"\ndata_label = \"{DATA_LABEL}\"\n"),
+        )
+        .expect("write sdid.toml");
+        let config = config.display().to_string();
+        Self::start_with(session, &["--sink", "auto", "--config", &config])
+    }
+
+    fn start_with(session: &Session, sink: &[&str]) -> Self {
         // Appended to: the camera process of the first sdid keeps writing here.
         let log = std::fs::OpenOptions::new()
             .create(true)
@@ -41,14 +65,8 @@ impl Sdid {
         let child = session
             .command(sdi_tests::dbus::bin("sdid"))
             .args(["--bus-address", &session.bus.address])
-            .args([
-                "--backend",
-                "sim",
-                "--sensor",
-                PMD.name,
-                "--sink",
-                "pipewire",
-            ])
+            .args(["--backend", "sim", "--sensor", PMD.name])
+            .args(sink)
             .args(["--frame-rate-hz", "15", "--exposure-us", "2000"])
             .env("RUST_LOG", "warn")
             .env_remove("INVOCATION_ID")
@@ -193,7 +211,80 @@ fn in_vm_checks() {
         opened_before,
         "the page had to reopen the camera across the restart"
     );
+
+    // Issue 32: with the module loaded, sdid (--sink auto) feeds the
+    // loopback nodes and this camera from the same frames: the page keeps
+    // reading, ffmpeg reads the loopback node, a mode switch reaches both.
+    let frames_before = v["frames"].as_u64().unwrap_or(0);
+    drop(sdid);
+    clients::load_module(VIEW_NR, DATA_NR);
+    let t_auto = Instant::now();
+    let sdid = Sdid::start_auto(&session);
+    let device = stdout_of(&sdid.ctl(&["get", "device"]));
+    assert!(
+        device.contains(&format!("/dev/video{VIEW_NR}")) && device.contains("sdi-camera"),
+        "both sinks: {device}"
+    );
+    let expected4 = sdid.set_mode_expect("depth-edge", &dir);
+    let (_, v) = server.wait_for(
+        &format!("chromium: depth-edge frames near {expected4:.1?} with the module loaded"),
+        i + 1,
+        Duration::from_secs(120),
+        |v| frame_like(v, expected4) && v["frames"].as_u64().unwrap_or(0) > frames_before,
+    );
+    eprintln!(
+        "chromium, module loaded: depth-edge frame {:.1} s after sdid --sink auto started: mean {:.1?} (expected {expected4:.1?})",
+        t_auto.elapsed().as_secs_f64(),
+        stats_rgb(&v, "mean")
+    );
+    let seen = ffmpeg_view(&format!("/dev/video{VIEW_NR}"));
+    eprintln!(
+        "ffmpeg on the loopback node, depth-edge: mean {seen:.1?} (expected {expected4:.1?})"
+    );
+    assert!(
+        off_by(seen, expected4) < TOLERANCE,
+        "loopback node {seen:?}, expected {expected4:?}"
+    );
     drop(browser);
+    drop(sdid);
+    loopback::unload_module().expect("rmmod");
+}
+
+/// The last of 5 frames ffmpeg reads from the loopback view node `dev`, as
+/// RGB: its mean colour.
+fn ffmpeg_view(dev: &str) -> [f64; 3] {
+    let file = "/tmp/ffmpeg-view.rgb";
+    let out = std::process::Command::new("timeout")
+        .args([
+            "180",
+            "ffmpeg",
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-nostdin",
+            "-y",
+        ])
+        .args(["-f", "v4l2", "-i", dev])
+        .args([
+            "-frames:v",
+            "5",
+            "-pix_fmt",
+            "rgb24",
+            "-f",
+            "rawvideo",
+            file,
+        ])
+        .output()
+        .expect("ffmpeg");
+    assert!(
+        out.status.success(),
+        "ffmpeg on {dev}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bytes = std::fs::read(file).expect("ffmpeg's frames");
+    let frame = 640 * 480 * 3;
+    assert_eq!(bytes.len(), 5 * frame, "5 whole frames");
+    mean_rgb(&bytes[4 * frame..])
 }
 
 #[test]

@@ -9,6 +9,9 @@
 //! starts the packaged sdid by D-Bus activation (the guest has no systemd:
 //! the bus runs the activation file's `Exec=` through its launch helper),
 //! it drives the board and headless Chromium shows a frame of "SDI camera".
+//! A user session's camera (`--system-feed`, with SDI's WirePlumber rule)
+//! is fed by that system sdid: one SDI camera in PipeWire, frames, a mode
+//! switch, and the loopback node still read by ffmpeg.
 //! The `sdi-pipewire-camera` package then installs beside it: in a user
 //! session (PipeWire, WirePlumber, a session bus), the packaged sdid finds
 //! the camera in /usr/libexec/sdi, whose node PipeWire lists as the camera
@@ -262,6 +265,12 @@ fn in_vm() {
     )
     .unwrap();
 
+    // What systemd's RuntimeDirectory=sdi makes for the service (the guest
+    // has no systemd): the directory of the PipeWire cameras' feed socket.
+    fs::create_dir_all(FEED_DIR).unwrap();
+    nix::unistd::chown(FEED_DIR, None, Some(nix::unistd::Gid::from_raw(sdi_gid))).unwrap();
+    fs::set_permissions(FEED_DIR, fs::Permissions::from_mode(0o750)).unwrap();
+
     // D-Bus activation starts the packaged sdid on the board.
     let t_activate = Instant::now();
     let mut status = None;
@@ -307,6 +316,9 @@ fn in_vm() {
     );
     server.assert_opened_view("chromium", "SDI camera", &first);
     drop(browser);
+
+    // A user session's PipeWire camera, fed by this system sdid.
+    system_feed(view);
 
     // prerm stops the service through systemd, which the guest lacks: stop
     // the activated sdid here.
@@ -376,6 +388,104 @@ fn in_vm() {
     eprintln!(
         "package installed, activated, shown in Chromium and purged in {:.1} s",
         t_start.elapsed().as_secs_f64()
+    );
+}
+
+/// The system service's runtime directory, as systemd makes it.
+const FEED_DIR: &str = "/run/sdi";
+
+/// Issue 32's system service case: the activated sdid (root, on the board,
+/// the loopback node) feeds the camera of a user session running PipeWire
+/// (`sdi-pipewire-camera --system-feed`, as its user unit runs it), with
+/// SDI's WirePlumber rule installed as the camera package does: PipeWire
+/// lists one SDI camera, `sdi-camera` with media.role Camera, a mode
+/// switch reaches its node and ffmpeg still reads the loopback node.
+fn system_feed(view: &Path) {
+    let Some(program) = pipewire::camera_program() else {
+        eprintln!("no camera program built: the system feed is not checked");
+        return;
+    };
+    let t0 = Instant::now();
+    let rules = sdi_tests::process::repo_root().join("udev/wireplumber");
+    let installed = [
+        ("51-sdi-v4l2.lua", "/usr/share/wireplumber/main.lua.d"),
+        (
+            "51-sdi-v4l2.conf",
+            "/usr/share/wireplumber/wireplumber.conf.d",
+        ),
+    ];
+    for (file, dir) in installed {
+        fs::create_dir_all(dir).unwrap();
+        fs::copy(rules.join(file), Path::new(dir).join(file)).unwrap();
+    }
+    {
+        let s = pipewire::Session::start();
+        let log = pipewire::FrameLog::file(s.dir.path().join("camera.log"));
+        let _camera = Reaped(
+            s.command(&program)
+                .arg(sdi_daemon::sink::pipewire::SYSTEM_FEED_FLAG)
+                .env("RUST_LOG", "info,sdid::pipewire::frames=trace")
+                .stderr(log.writer())
+                .spawn()
+                .expect("start the camera with --system-feed"),
+        );
+        let node = sdi_tests::wait::wait_for(
+            "the fed camera's sdi-camera node",
+            Duration::from_secs(120),
+            || s.node(VIEW_NODE),
+        );
+        assert_eq!(node["media.role"], "Camera", "{node:?}");
+        let sdi_cameras: Vec<_> = s
+            .nodes()
+            .into_iter()
+            .filter(|p| {
+                let text = |k: &str| p.get(k).and_then(|v| v.as_str()).unwrap_or("").to_owned();
+                p.get("media.role").and_then(|v| v.as_str()) == Some("Camera")
+                    && (text("node.name").starts_with("sdi-")
+                        || text("node.description").contains("SDI")
+                        || text("api.v4l2.cap.card").contains("SDI"))
+            })
+            .collect();
+        assert_eq!(sdi_cameras.len(), 1, "one SDI camera: {sdi_cameras:?}");
+        // Frames through the fed camera are read on the host
+        // (pipewire_camera.rs, system_feed_camera_gets_the_system_sdids_frames):
+        // in this guest pipewiresrc fails to start ("Failed to set pipeline
+        // to PAUSED"), as in camera_package below. Here the node follows
+        // the system sdid's mode, which only its feed tells it.
+        let out = run(Command::new("/usr/bin/sdictl").args(["set-mode", "depth-edge"]));
+        assert!(out.status.success(), "set-mode: {out:?}");
+        sdi_tests::wait::wait_for(
+            "the fed camera to follow the mode",
+            Duration::from_secs(60),
+            || {
+                s.node(VIEW_NODE)
+                    .filter(|p| p["node.description"] == "SDI camera (depth-edge)")
+            },
+        );
+        let ffmpeg = run(Command::new("timeout")
+            .args([
+                "120",
+                "ffmpeg",
+                "-hide_banner",
+                "-loglevel",
+                "error",
+                "-nostdin",
+            ])
+            .args(["-f", "v4l2", "-i"])
+            .arg(view)
+            .args(["-frames:v", "3", "-f", "null", "-"]));
+        assert!(
+            ffmpeg.status.success(),
+            "ffmpeg on {}: {ffmpeg:?}",
+            view.display()
+        );
+    }
+    for (file, dir) in installed {
+        let _ = fs::remove_file(Path::new(dir).join(file));
+    }
+    eprintln!(
+        "system feed: one SDI camera in the user session, the mode followed, ffmpeg on the loopback node, in {:.1} s",
+        t0.elapsed().as_secs_f64()
     );
 }
 

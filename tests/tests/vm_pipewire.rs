@@ -36,7 +36,8 @@ use serde_json::Value;
 use sdi_tests::clients::{self, mean_rgb, off_by, Sdid, PMD};
 use sdi_tests::dbus::Bus;
 use sdi_tests::loopback::{self, ModuleBuild};
-use sdi_tests::process::{repo_root, Reaped};
+use sdi_tests::pipewire::{frame_crcs, FrameLog};
+use sdi_tests::process::{repo_root, stdout_of, Reaped};
 use sdi_tests::udev::{self, udevadm};
 use sdi_tests::vm;
 use sdi_tests::wait::wait_until;
@@ -93,6 +94,12 @@ struct PipeWire {
 
 impl PipeWire {
     fn start() -> Self {
+        Self::start_with(None)
+    }
+
+    /// With `config_home` as `XDG_CONFIG_HOME` (WirePlumber's user
+    /// configuration), when given.
+    fn start_with(config_home: Option<&Path>) -> Self {
         let runtime = Path::new("/run/user/0");
         std::fs::create_dir_all(runtime).expect("runtime dir");
         // WirePlumber 0.4 quits ("failed to start systemd logind monitor:
@@ -102,10 +109,13 @@ impl PipeWire {
                 .expect("mkdir /run/systemd/*");
         }
         let bus = Bus::start();
-        let env = vec![
+        let mut env = vec![
             ("XDG_RUNTIME_DIR".to_owned(), runtime.display().to_string()),
             ("DBUS_SESSION_BUS_ADDRESS".to_owned(), bus.address.clone()),
         ];
+        if let Some(home) = config_home {
+            env.push(("XDG_CONFIG_HOME".to_owned(), home.display().to_string()));
+        }
         let spawn = |prog: &str| {
             let log = std::fs::File::create(format!("/tmp/{prog}.log")).expect("log");
             let mut c = Command::new(prog);
@@ -260,6 +270,17 @@ fn check(pw: &PipeWire, sdid: &Sdid, order: &str, read: bool) {
         "{order}: PipeWire node {id} (serial {serial}): {} ({})",
         props["node.description"], props["media.class"]
     );
+    // Without SDI's WirePlumber rule: doctor says this node cannot be read
+    // (PipeWire 0.3.65) and names the rule.
+    let doctor = doctor_pipewire(pw, sdid);
+    assert!(
+        doctor.iter().any(|(id, st, sum, fix)| id == "pw-node"
+            && st == "warn"
+            && sum.contains("v4l2loopback node")
+            && sum.contains("cannot be read")
+            && fix.contains("51-sdi-v4l2")),
+        "{order}: doctor: {doctor:?}"
+    );
     if !read {
         return;
     }
@@ -344,6 +365,7 @@ fn both_orders(build: ModuleBuild, read: bool) {
 
 fn in_vm_checks() {
     let _udevd = udev::start_udevd();
+    beside_loopback_both_orders();
     // Listed in both orders; reading frames through PipeWire 0.3.65 does
     // not work with v4l2loopback (docs/loopback.md: 0.12.7 reports every
     // buffer queued; no v4l2loopback has VIDIOC_EXPBUF, which PipeWire
@@ -365,4 +387,314 @@ fn vm_pipewire_lists_the_sdi_camera_in_both_orders() {
         return;
     }
     in_vm_checks();
+}
+
+/// One 640x480 YUYV frame.
+const FRAME_YUYV: usize = 640 * 480 * 2;
+
+/// SDI's WirePlumber rule (`udev/wireplumber/`, both syntaxes, as the
+/// camera package installs them) in a user configuration directory, for
+/// `XDG_CONFIG_HOME`.
+fn rule_config_home() -> &'static Path {
+    let home = Path::new("/tmp/sdi-wireplumber-config");
+    let from = repo_root().join("udev/wireplumber");
+    for (dir, file) in [
+        ("main.lua.d", "51-sdi-v4l2.lua"),
+        ("wireplumber.conf.d", "51-sdi-v4l2.conf"),
+    ] {
+        let to = home.join("wireplumber").join(dir);
+        std::fs::create_dir_all(&to).expect("mkdir the WirePlumber config");
+        std::fs::copy(from.join(file), to.join(file)).expect("copy the rule");
+    }
+    home
+}
+
+/// What PipeWire lists of SDI: (camera-role nodes naming SDI, v4l2 devices
+/// and nodes of SDI's card labels).
+fn sdi_listed(pw: &PipeWire) -> (Vec<Value>, Vec<Value>) {
+    let labels = [clients::VIEW_LABEL, clients::DATA_LABEL];
+    let mut cameras = Vec::new();
+    let mut v4l2 = Vec::new();
+    for o in pw.dump() {
+        let p = &o["info"]["props"];
+        let card = ["api.v4l2.cap.card", "device.product.name"]
+            .iter()
+            .any(|k| p[*k].as_str().is_some_and(|c| labels.contains(&c)));
+        if card {
+            v4l2.push(p.clone());
+        }
+        let names_sdi = ["node.name", "node.description", "node.nick"]
+            .iter()
+            .any(|k| {
+                p[*k]
+                    .as_str()
+                    .is_some_and(|n| n.contains("SDI") || n.starts_with("sdi-"))
+            });
+        if o["type"] == "PipeWire:Interface:Node" && p["media.role"] == "Camera" && names_sdi {
+            cameras.push(p.clone());
+        }
+    }
+    (cameras, v4l2)
+}
+
+/// Waits for exactly one SDI camera in PipeWire, the camera process's
+/// `sdi-camera` with `media.role = Camera`, and no v4l2 node or device of
+/// SDI's labels (the rule keeps them out); returns its properties.
+fn one_sdi_camera(pw: &PipeWire, order: &str) -> Value {
+    let t0 = Instant::now();
+    loop {
+        let (cameras, v4l2) = sdi_listed(pw);
+        assert!(
+            v4l2.is_empty(),
+            "{order}: the loopback node is listed despite the rule: {v4l2:?}"
+        );
+        if let [camera] = cameras.as_slice() {
+            assert_eq!(camera["node.name"], "sdi-camera", "{order}: {camera}");
+            assert_eq!(camera["media.class"], "Video/Source", "{order}: {camera}");
+            return camera.clone();
+        }
+        assert!(
+            cameras.len() < 2,
+            "{order}: more than one SDI camera: {cameras:?}"
+        );
+        if t0.elapsed() > Duration::from_secs(90) {
+            diagnose(pw);
+            panic!("{order}: PipeWire lists no sdi-camera after 90 s");
+        }
+        std::thread::sleep(Duration::from_millis(200));
+    }
+}
+
+/// Reads 30 YUYV frames of `sdi-camera` with pipewiresrc; asserts each is
+/// one the camera process logged as published in `mode` (CRC-32).
+fn read_published(pw: &PipeWire, log: &FrameLog, order: &str, mode: &str) {
+    let file = "/tmp/pw-camera.yuyv";
+    let _ = std::fs::remove_file(file);
+    let pipeline = format!(
+        "pipewiresrc target-object=sdi-camera num-buffers=30 \
+         ! video/x-raw,format=YUY2,width=640,height=480 ! filesink location={file}"
+    );
+    let t0 = Instant::now();
+    let out = Command::new("timeout")
+        .args(["180", "gst-launch-1.0", "-q"])
+        .args(pipeline.split_whitespace())
+        .envs(pw.env.iter().map(|(k, v)| (k, v)))
+        .output()
+        .expect("gst-launch-1.0");
+    if !out.status.success() {
+        diagnose(pw);
+        panic!(
+            "{order}: {pipeline}: {}\n{}{}\nsdid's log:\n{}",
+            out.status,
+            String::from_utf8_lossy(&out.stdout),
+            String::from_utf8_lossy(&out.stderr),
+            log.text()
+        );
+    }
+    let bytes = std::fs::read(file).expect("frames");
+    assert_eq!(bytes.len(), 30 * FRAME_YUYV, "{order}: 30 whole frames");
+    let crcs = frame_crcs(&bytes, FRAME_YUYV);
+    let t_read = t0.elapsed();
+    let published = |c: &String| {
+        log.published().iter().any(|p| {
+            p.get("crc32") == Some(c)
+                && p.get("stream").map(String::as_str) == Some("sdi-camera")
+                && p.get("format").map(String::as_str) == Some("YUYV")
+                && p.get("mode").map(String::as_str) == Some(mode)
+        })
+    };
+    // The log line is written before the buffer is queued; let it land.
+    let t0 = Instant::now();
+    while !crcs.iter().all(published) && t0.elapsed() < Duration::from_secs(10) {
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let missing: Vec<&String> = crcs.iter().filter(|c| !published(c)).collect();
+    assert!(
+        missing.is_empty(),
+        "{order}: {} of 30 frames read through PipeWire were not published in mode {mode}: {missing:?}",
+        missing.len()
+    );
+    let distinct: std::collections::HashSet<&String> = crcs.iter().collect();
+    assert!(
+        distinct.len() > 15,
+        "{order}: only {} distinct frames",
+        distinct.len()
+    );
+    eprintln!(
+        "{order}: pipewiresrc read 30 frames of sdi-camera in {:.1} s, all published by sdid in mode {mode} ({} distinct)",
+        t_read.as_secs_f64(),
+        distinct.len()
+    );
+}
+
+/// The last of 5 frames ffmpeg reads from the loopback view node, as RGB.
+fn ffmpeg_view(sdid: &Sdid) -> [f64; 3] {
+    let file = "/tmp/ffmpeg-view.rgb";
+    let out = Command::new("timeout")
+        .args([
+            "180",
+            "ffmpeg",
+            "-hide_banner",
+            "-loglevel",
+            "error",
+            "-nostdin",
+            "-y",
+        ])
+        .args(["-f", "v4l2", "-i"])
+        .arg(&sdid.view)
+        .args([
+            "-frames:v",
+            "5",
+            "-pix_fmt",
+            "rgb24",
+            "-f",
+            "rawvideo",
+            file,
+        ])
+        .output()
+        .expect("ffmpeg");
+    assert!(
+        out.status.success(),
+        "ffmpeg on {}: {}",
+        sdid.view.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let bytes = std::fs::read(file).expect("ffmpeg's frames");
+    assert_eq!(bytes.len(), 5 * FRAME_RGB, "5 whole frames");
+    mean_rgb(&bytes[4 * FRAME_RGB..])
+}
+
+/// With the module loaded and a PipeWire session, sdid (`--sink auto`)
+/// feeds the loopback nodes and the PipeWire camera: PipeWire lists one SDI
+/// camera, pipewiresrc reads what sdid published, ffmpeg reads the loopback
+/// node, and a mode switch reaches both.
+fn check_beside(pw: &PipeWire, sdid: &Sdid, log: &FrameLog, order: &str, modes: &[&str]) {
+    let camera = one_sdi_camera(pw, order);
+    eprintln!(
+        "{order}: PipeWire lists one SDI camera: {} ({})",
+        camera["node.description"], camera["media.role"]
+    );
+    let doctor = doctor_pipewire(pw, sdid);
+    assert!(
+        doctor.iter().any(|(id, st, sum, _)| id == "pipewire"
+            && st == "ok"
+            && sum.contains("one SDI camera")),
+        "{order}: doctor: {doctor:?}"
+    );
+    let nodes: Vec<_> = doctor.iter().filter(|c| c.0 == "pw-node").collect();
+    assert_eq!(
+        nodes.len(),
+        2,
+        "{order}: the camera's view and data nodes: {doctor:?}"
+    );
+    assert!(
+        nodes
+            .iter()
+            .all(|c| c.1 == "ok" && c.2.contains("the PipeWire camera")),
+        "{order}: doctor: {doctor:?}"
+    );
+    let status = stdout_of(&sdid.ctl(&["status"]));
+    assert!(
+        status.contains("sdi-camera"),
+        "{order}: the D-Bus device names both sinks: {status}"
+    );
+    for &mode in modes {
+        sdid.set_mode(mode);
+        let expected = sdid.expected_view_mean();
+        wait_until(
+            &format!("{order}: sdi-camera describes mode {mode}"),
+            Duration::from_secs(30),
+            || one_sdi_camera(pw, order)["node.description"] == format!("SDI camera ({mode})"),
+        );
+        read_published(pw, log, order, mode);
+        let seen = ffmpeg_view(sdid);
+        eprintln!("{order}: ffmpeg on the loopback node, {mode}: mean {seen:.1?} (expected {expected:.1?})");
+        assert!(
+            off_by(seen, expected) < TOLERANCE,
+            "{order}: {mode} through the loopback node {seen:?}, expected {expected:?}"
+        );
+    }
+}
+
+/// Issue 32's user session, both start orders, module loaded, SDI's
+/// WirePlumber rule installed.
+fn beside_loopback_both_orders() {
+    let t_phase = Instant::now();
+    let config = rule_config_home();
+    let log = FrameLog::file(std::path::PathBuf::from("/tmp/sdid-beside.log"));
+    let runtime = vec![("XDG_RUNTIME_DIR".to_owned(), "/run/user/0".to_owned())];
+    std::fs::create_dir_all("/run/user/0").expect("runtime dir");
+
+    // sdid first: its PipeWire camera starts once PipeWire is up.
+    clients::load_module(VIEW_NR, DATA_NR);
+    nodes_initialized();
+    let sdid = Sdid::start_auto(VIEW_NR, DATA_NR, PMD, 15, runtime.clone(), log.path());
+    trigger();
+    let t0 = Instant::now();
+    let pw = PipeWire::start_with(Some(config));
+    one_sdi_camera(&pw, "beside, sdid first");
+    eprintln!(
+        "beside, sdid first: sdi-camera listed {:.1} s after PipeWire started",
+        t0.elapsed().as_secs_f64()
+    );
+    // The mode switch is checked in the other order (VM time).
+    check_beside(&pw, &sdid, &log, "beside, sdid first", &["raw"]);
+    drop(sdid);
+    drop(pw);
+    // The camera process ended with its PipeWire connection.
+    loopback::unload_module().expect("rmmod");
+
+    // WirePlumber first.
+    clients::load_module(VIEW_NR, DATA_NR);
+    nodes_initialized();
+    let pw = PipeWire::start_with(Some(config));
+    let sdid = Sdid::start_auto(VIEW_NR, DATA_NR, PMD, 15, runtime, log.path());
+    trigger();
+    check_beside(
+        &pw,
+        &sdid,
+        &log,
+        "beside, WirePlumber first",
+        &["raw", "separation"],
+    );
+    // Still hidden a while after the udev change event.
+    std::thread::sleep(Duration::from_secs(3));
+    one_sdi_camera(&pw, "beside, WirePlumber first, 3 s after the change event");
+    drop(sdid);
+    drop(pw);
+    loopback::unload_module().expect("rmmod");
+    eprintln!(
+        "beside the loopback nodes, both orders: {:.1} s",
+        t_phase.elapsed().as_secs_f64()
+    );
+}
+
+/// `sdictl doctor --json` as the session's user (its PipeWire): the
+/// PipeWire checks, (status, summary, fix) by id.
+fn doctor_pipewire(pw: &PipeWire, sdid: &Sdid) -> Vec<(String, String, String, String)> {
+    let out = Command::new(sdi_tests::dbus::bin("sdictl"))
+        .args(["--bus-address", &sdid.bus.address, "doctor", "--json"])
+        .envs(pw.env.iter().map(|(k, v)| (k, v)))
+        .output()
+        .expect("run sdictl doctor");
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
+        panic!(
+            "doctor --json is not JSON ({e}): {}",
+            String::from_utf8_lossy(&out.stdout)
+        )
+    });
+    let checks: Vec<_> = v["checks"]
+        .as_array()
+        .into_iter()
+        .flatten()
+        .filter(|c| c["id"] == "pipewire" || c["id"] == "pw-node")
+        .map(|c| {
+            let s = |k: &str| c[k].as_str().unwrap_or_default().to_owned();
+            (s("id"), s("status"), s("summary"), s("fix"))
+        })
+        .collect();
+    for (id, status, summary, _) in &checks {
+        eprintln!("  doctor [{status}] {id}: {summary}");
+    }
+    checks
 }

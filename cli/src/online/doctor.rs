@@ -6,7 +6,8 @@
 //! rejected by service" case); the SDI nodes (present, `exclusive_caps`,
 //! enough buffers); the caller's groups (`sdi`, `video`); the daemon
 //! (reachable, on which bus); the board (attached, USB mode and speed);
-//! PipeWire (running, lists the SDI camera). Exit status 0 only when no
+//! PipeWire (running, which SDI nodes it lists and whether each can be
+//! read: `pipewire.rs`). Exit status 0 only when no
 //! check fails; warnings do not block.
 //!
 //! Everything is read from sysfs/procfs under `--sysroot` (default `/`, a
@@ -21,6 +22,8 @@ use serde_json::{json, Value as Json};
 
 use super::BusArgs;
 use crate::stdout::outln;
+
+mod pipewire;
 
 /// Outcome of one check.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -584,97 +587,6 @@ fn board_verdict(found: &[(&str, String, String)]) -> Check {
     c
 }
 
-/// PipeWire's view of the camera (pure over `pw-dump`'s JSON, unit-tested).
-fn pipewire_verdict(dump: Option<&str>, installed: bool, label: &str) -> Check {
-    if !installed {
-        return Check::new(
-            "pipewire",
-            Status::Skip,
-            "PipeWire is not installed (pw-dump not found)",
-        );
-    }
-    let Some(dump) = dump else {
-        return Check::new("pipewire", Status::Warn, "PipeWire is not running for this user (pw-dump failed): apps that use the camera portal (Flatpak, GNOME) will not see the camera")
-            .fix("systemctl --user enable --now pipewire wireplumber");
-    };
-    let objects: Vec<Json> = serde_json::from_str(dump).unwrap_or_default();
-    let cameras: Vec<String> = objects
-        .iter()
-        .filter_map(|o| o["info"]["props"].as_object())
-        .filter(|p| p.get("media.class").and_then(Json::as_str) == Some("Video/Source"))
-        .filter_map(|p| {
-            ["node.description", "node.nick", "api.v4l2.cap.card"]
-                .iter()
-                .find_map(|k| p.get(*k).and_then(Json::as_str))
-                .map(str::to_owned)
-        })
-        .collect();
-    if cameras.iter().any(|c| c.contains(label)) {
-        Check::new(
-            "pipewire",
-            Status::Ok,
-            format!("PipeWire lists \"{label}\" (Video/Source)"),
-        )
-    } else {
-        Check::new(
-            "pipewire",
-            Status::Warn,
-            format!("PipeWire runs but lists no \"{label}\" (Video/Source nodes: {cameras:?}): it probed the node while it was not a capture device (exclusive_caps=1, sdid not streaming yet) and probes again only on a udev event"),
-        )
-        .fix("once sdid streams: sudo udevadm trigger --action=change --subsystem-match=video4linux (or systemctl --user restart wireplumber)")
-    }
-}
-
-/// The PipeWire camera program, where sdid looks for it (pure over the
-/// candidates and which of them exist, unit-tested).
-fn camera_verdict(candidates: &[PathBuf], exists: impl Fn(&Path) -> bool) -> Check {
-    let program = sdi_camera_link::CAMERA_PROGRAM;
-    match candidates.iter().find(|p| exists(p)) {
-        Some(p) => Check::new(
-            "pipewire-camera",
-            Status::Ok,
-            format!("{program} installed: {}", p.display()),
-        ),
-        None => Check::new(
-            "pipewire-camera",
-            Status::Warn,
-            format!(
-                "the PipeWire camera ({program}) is not installed beside sdid (looked for {}): \
-                 without v4l2loopback sdid then streams y4m, and PipeWire apps see no \"SDI camera\"",
-                candidates
-                    .iter()
-                    .map(|p| p.display().to_string())
-                    .collect::<Vec<_>>()
-                    .join(", ")
-            ),
-        )
-        .fix(format!(
-            "sudo apt install ./sdi-pipewire-camera_*.deb (make deb builds it), or from a checkout: \
-             cargo build --release -p sdi-pipewire-camera, which needs {}",
-            sdi_camera_link::CAMERA_BUILD_PACKAGES
-        )),
-    }
-}
-
-/// [`camera_verdict`] for the sdid beside this sdictl.
-fn pipewire_camera() -> Check {
-    let dir = std::env::current_exe()
-        .ok()
-        .and_then(|e| e.parent().map(Path::to_path_buf))
-        .unwrap_or_default();
-    camera_verdict(&sdi_camera_link::camera_candidates(&dir), |p| p.is_file())
-}
-
-fn pipewire(label: &str) -> Check {
-    let installed = output("pw-dump", &["--version"], Duration::from_secs(5)).is_some();
-    let dump = if installed {
-        output("pw-dump", &[], Duration::from_secs(10))
-    } else {
-        None
-    };
-    pipewire_verdict(dump.as_deref(), installed, label)
-}
-
 /// Runs every check; exit status 0 only when none fails.
 fn print_checks(checks: &[Check], ok: bool, json: bool) -> Result<(), crate::stdout::StdoutError> {
     if json {
@@ -739,8 +651,8 @@ pub fn run(bus: &BusArgs, sysroot: &Path) -> ExitCode {
     };
     checks.push(daemon);
     checks.push(board_verdict(&boards(&sys)));
-    checks.push(pipewire_camera());
-    checks.push(pipewire(labels[0]));
+    checks.push(pipewire::camera());
+    checks.extend(pipewire::checks(&labels));
 
     let ok = !checks.iter().any(|c| c.status == Status::Fail);
     // A closed stdout still leaves the verdict in the exit status; any
@@ -867,41 +779,6 @@ mod tests {
         assert_eq!(
             board_verdict(&[("bulk", "12".into(), "1-1".into())]).status,
             Status::Warn
-        );
-    }
-
-    #[test]
-    fn a_missing_pipewire_camera_names_its_package() {
-        let c = sdi_camera_link::camera_candidates(Path::new("/usr/bin"));
-        let missing = camera_verdict(&c, |_| false);
-        assert_eq!(missing.status, Status::Warn);
-        let fix = missing.fix.as_deref().unwrap_or_default();
-        assert!(fix.contains("sdi-pipewire-camera"), "{fix}");
-        assert!(fix.contains("libpipewire-0.3-dev"), "{fix}");
-        assert!(missing.summary.contains("/usr/bin/sdi-pipewire-camera"));
-        let packaged = camera_verdict(&c, |p| p.starts_with("/usr/bin/../libexec"));
-        assert_eq!(packaged.status, Status::Ok);
-        assert!(packaged.summary.contains("libexec/sdi/sdi-pipewire-camera"));
-    }
-
-    #[test]
-    fn pipewire_lists_the_camera_or_says_why_not() {
-        let dump = r#"[{"id":50,"info":{"props":{"media.class":"Video/Source","node.description":"SDI camera (V4L2)","media.role":"Camera"}}}]"#;
-        assert_eq!(
-            pipewire_verdict(Some(dump), true, "SDI camera").status,
-            Status::Ok
-        );
-        assert_eq!(
-            pipewire_verdict(Some("[]"), true, "SDI camera").status,
-            Status::Warn
-        );
-        assert_eq!(
-            pipewire_verdict(None, true, "SDI camera").status,
-            Status::Warn
-        );
-        assert_eq!(
-            pipewire_verdict(None, false, "SDI camera").status,
-            Status::Skip
         );
     }
 }

@@ -1,14 +1,15 @@
 //! Where processed frames go: a v4l2loopback device, PipeWire nodes, or the
 //! y4m fallback. Each sink renders through [`sdi_core::view::ViewRenderer`]
 //! and only publishes the bytes.
-//! Sinks run on their own thread ([`output`]) so a slow reader never stalls
-//! the frame loop.
+//! Each sink runs on its own thread ([`output`]) so a slow reader never
+//! stalls the frame loop or another sink.
 
 pub mod loopback;
 pub mod output;
 pub mod pipewire;
 pub mod pipewire_launch;
 pub mod select;
+pub mod system_feed;
 pub mod y4m;
 
 use sdi_core::display::DisplayMap;
@@ -43,6 +44,9 @@ pub enum SinkError {
     CameraNotInstalled(#[from] pipewire_launch::NotInstalled),
     #[error("output device unavailable: {0}")]
     Camera(#[from] pipewire_launch::ConnectError),
+    /// The PipeWire camera waits for this user's PipeWire to come up.
+    #[error("output device unavailable: no PipeWire running for this user yet")]
+    NoPipewire,
     /// Between attempts to start the camera process again.
     #[error("output device unavailable: the PipeWire camera process is gone")]
     CameraGone,
@@ -52,6 +56,14 @@ pub enum SinkError {
     Y4m(#[source] std::io::Error),
     #[error("output I/O error: {0}")]
     Io(#[from] std::io::Error),
+}
+
+/// The sinks sdid feeds: the primary one (the D-Bus sink properties) and
+/// those fed beside it from the same frames (the PipeWire camera beside the
+/// loopback nodes, docs/pipewire.md).
+pub struct SinkSet {
+    pub primary: Box<dyn Sink>,
+    pub also: Vec<Box<dyn Sink>>,
 }
 
 /// A consumer of processed frames.

@@ -20,7 +20,8 @@ use super::pipewire_launch as launch;
 use super::{Sink, SinkError, SinkInfo, SinkKindName};
 use sdi_camera_link::{self as link, Message, Port, Spec, State, Wire};
 pub use sdi_camera_link::{
-    view_description, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, VIEW_NODE,
+    view_description, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, SYSTEM_FEED_FLAG,
+    SYSTEM_FEED_NAME, VIEW_NODE,
 };
 use sdi_core::display::DisplayMap;
 use sdi_core::mode::ModeOutput;
@@ -43,7 +44,11 @@ struct Report {
 
 impl Link {
     fn open(program: &Path, spec: &Spec) -> Result<Self, SinkError> {
-        let c = launch::connect(program, spec)?;
+        Self::over(launch::connect(program, spec)?)
+    }
+
+    /// The link over a greeted connection.
+    fn over(c: launch::Connected) -> Result<Self, SinkError> {
         let report = Arc::new(Report::default());
         let mut reader = c.stream.try_clone()?;
         let r = report.clone();
@@ -76,10 +81,14 @@ impl Link {
 /// The camera process as sdid reaches it: the live link, reconnected
 /// after the process went away.
 struct Camera {
-    program: PathBuf,
+    /// Started again when it went away; `None`: a camera that connected
+    /// to sdid (the system feed), gone for good with its link.
+    program: Option<PathBuf>,
     spec: Spec,
     link: Option<Link>,
     retry_at: Instant,
+    /// Start the camera process only once this user's PipeWire runs.
+    awaits_pipewire: bool,
 }
 
 impl Camera {
@@ -93,14 +102,22 @@ impl Camera {
     fn link(&mut self) -> Result<&mut Link, SinkError> {
         if self.link.as_ref().is_some_and(|l| !l.alive()) {
             self.link = None;
-            tracing::warn!("the PipeWire camera process went away; starting it again");
+            if self.program.is_some() {
+                tracing::warn!("the PipeWire camera process went away; starting it again");
+            }
         }
         if self.link.is_none() {
             if Instant::now() < self.retry_at {
                 return Err(SinkError::CameraGone);
             }
+            let Some(program) = &self.program else {
+                return Err(SinkError::CameraGone);
+            };
             self.retry_at = Instant::now() + RETRY;
-            self.link = Some(Link::open(&self.program, &self.spec)?);
+            if self.awaits_pipewire && launch::pipewire_socket().is_none() {
+                return Err(SinkError::NoPipewire);
+            }
+            self.link = Some(Link::open(program, &self.spec)?);
         }
         self.link.as_mut().ok_or(SinkError::CameraGone)
     }
@@ -159,30 +176,78 @@ impl PipewireSink {
         frame_rate_hz: f64,
         mode: ModeId,
     ) -> Result<Self, SinkError> {
+        let mut s = Self::when_reachable(program, sensor_width, sensor_height, frame_rate_hz, mode);
+        s.camera.awaits_pipewire = false;
+        s.camera.link = Some(Link::open(program, &s.camera.spec)?);
+        Ok(s)
+    }
+
+    /// The spec sdid greets a camera with for these sizes, rate and mode.
+    pub fn spec(
+        sensor_width: usize,
+        sensor_height: usize,
+        frame_rate_hz: f64,
+        mode: ModeId,
+    ) -> Spec {
         let frame_rate_hz = frame_rate_hz.round().clamp(1.0, 240.0) as u32;
         let view = LoopbackFormat::view(frame_rate_hz);
-        let spec = Spec {
+        Spec {
             view_width: view.width,
             view_height: view.height,
             data_width: sensor_width as u32,
             data_height: sensor_height as u32,
             frame_rate_hz,
             mode,
-        };
-        let link = Link::open(program, &spec)?;
+        }
+    }
+
+    /// Feeds a camera process that connected to sdid and was greeted with
+    /// `spec` (the system feed); it is not started again when it goes.
+    pub fn over(c: launch::Connected, spec: Spec) -> Result<Self, SinkError> {
+        let view = LoopbackFormat::view(spec.frame_rate_hz);
         let (vw, vh) = (view.width as usize, view.height as usize);
+        let (dw, dh) = (spec.data_width as usize, spec.data_height as usize);
         Ok(Self {
             camera: Camera {
-                program: program.to_path_buf(),
+                program: None,
                 spec,
-                link: Some(link),
+                link: Some(Link::over(c)?),
                 retry_at: Instant::now(),
+                awaits_pipewire: false,
+            },
+            yuyv: ViewRenderer::new(vw, vh, PixelFormat::Yuyv),
+            rgb24: ViewRenderer::new(vw, vh, PixelFormat::Rgb24),
+            y16: ViewRenderer::new(dw, dh, PixelFormat::Y16),
+            view,
+        })
+    }
+
+    /// Like [`PipewireSink::open`], but reaches (or starts) the camera
+    /// process with the first frame after this user's PipeWire is up, and
+    /// again after it went away, at most every [`RETRY`].
+    pub fn when_reachable(
+        program: &Path,
+        sensor_width: usize,
+        sensor_height: usize,
+        frame_rate_hz: f64,
+        mode: ModeId,
+    ) -> Self {
+        let spec = Self::spec(sensor_width, sensor_height, frame_rate_hz, mode);
+        let view = LoopbackFormat::view(spec.frame_rate_hz);
+        let (vw, vh) = (view.width as usize, view.height as usize);
+        Self {
+            camera: Camera {
+                program: Some(program.to_path_buf()),
+                spec,
+                link: None,
+                retry_at: Instant::now(),
+                awaits_pipewire: true,
             },
             yuyv: ViewRenderer::new(vw, vh, PixelFormat::Yuyv),
             rgb24: ViewRenderer::new(vw, vh, PixelFormat::Rgb24),
             y16: ViewRenderer::new(sensor_width, sensor_height, PixelFormat::Y16),
             view,
-        })
+        }
     }
 
     /// Buffers the camera published so far: (view, data), as last reported.

@@ -50,6 +50,18 @@ pub fn find_program() -> Result<PathBuf, NotInstalled> {
         })
 }
 
+/// The PipeWire daemon's socket for this user, if one is there: sdid does
+/// not start the camera process where no PipeWire runs.
+pub fn pipewire_socket() -> Option<PathBuf> {
+    let remote = std::env::var_os("PIPEWIRE_REMOTE").unwrap_or_else(|| "pipewire-0".into());
+    let path = PathBuf::from(remote);
+    let path = match path.is_absolute() {
+        true => path,
+        false => PathBuf::from(std::env::var_os("XDG_RUNTIME_DIR")?).join(path),
+    };
+    path.exists().then_some(path)
+}
+
 /// Why sdid could not reach a camera process; the messages are what sdid's
 /// log and first screen show.
 #[derive(Debug, thiserror::Error)]
@@ -144,6 +156,13 @@ fn greet(stream: UnixStream, spec: &Spec) -> Result<Connected, GreetError> {
     if peer.uid() != nix::unistd::getuid().as_raw() {
         return Err(GreetError::OtherUser(peer.uid()));
     }
+    hello(stream, spec)
+}
+
+/// Says Hello on `stream` to a camera process whose peer was checked by
+/// the caller, and waits for its Ready.
+pub fn hello(stream: UnixStream, spec: &Spec) -> Result<Connected, GreetError> {
+    let peer = getsockopt(&stream, PeerCredentials).map_err(GreetError::PeerCredentials)?;
     stream.set_read_timeout(Some(CONNECT_TIMEOUT))?;
     stream.set_write_timeout(Some(Duration::from_secs(2)))?;
     let mut s = &stream;

@@ -1,5 +1,6 @@
-//! The output sink the validated configuration asks for (`auto`:
-//! v4l2loopback, else PipeWire, else the y4m stream), and for `auto` why.
+//! The output sinks the validated configuration asks for (`auto`:
+//! v4l2loopback, and beside it the PipeWire camera where this user's
+//! PipeWire runs; else PipeWire; else the y4m stream), and for `auto` why.
 
 use std::path::PathBuf;
 
@@ -8,16 +9,17 @@ use v4l2loopback_glue::GlueError;
 use super::loopback::LoopbackSink;
 use super::pipewire::{PipewireSink, VIEW_NODE};
 use super::pipewire_launch;
+use super::system_feed::{self, SystemFeed};
 use super::y4m::Y4mSink;
-use super::{Sink, SinkError, SinkKindName};
+use super::{Sink, SinkError, SinkKindName, SinkSet};
 use sdi_config::{Config, SinkKind};
 use sdi_core::mode::ModeId;
 
-/// The chosen sink and, for `auto`, why: each sink passed over in a phrase
+/// The chosen sinks and, for `auto`, why: each sink passed over in a phrase
 /// that names what to install (the full errors are at debug level), and
-/// what made the chosen one fit.
+/// what made the chosen ones fit.
 pub struct Chosen {
-    pub sink: Box<dyn Sink>,
+    pub sinks: SinkSet,
     pub reasons: Option<Vec<String>>,
 }
 
@@ -51,18 +53,6 @@ fn pipewire_phrase(e: &SinkError) -> String {
     }
 }
 
-/// The PipeWire daemon's socket for this user, if one is there: `auto`
-/// does not start the camera process where no PipeWire runs.
-fn pipewire_socket() -> Option<PathBuf> {
-    let remote = std::env::var_os("PIPEWIRE_REMOTE").unwrap_or_else(|| "pipewire-0".into());
-    let path = PathBuf::from(remote);
-    let path = match path.is_absolute() {
-        true => path,
-        false => PathBuf::from(std::env::var_os("XDG_RUNTIME_DIR")?).join(path),
-    };
-    path.exists().then_some(path)
-}
-
 fn open_pipewire(
     width: usize,
     height: usize,
@@ -92,8 +82,15 @@ pub fn open(
                     "v4l2loopback device labelled \"{}\" found",
                     c.output.label
                 ));
+                let also = match auto {
+                    true => beside_loopback(width, height, fps, mode, &mut passed),
+                    false => Vec::new(),
+                };
                 return Ok(Chosen {
-                    sink: Box::new(s),
+                    sinks: SinkSet {
+                        primary: Box::new(s),
+                        also,
+                    },
                     reasons: auto.then_some(passed),
                 });
             }
@@ -104,14 +101,17 @@ pub fn open(
             }
         }
     }
-    if auto && pipewire_socket().is_none() {
+    if auto && pipewire_launch::pipewire_socket().is_none() {
         passed.push("no PipeWire running for this user".into());
     } else if auto || kind == SinkKind::Pipewire {
         match open_pipewire(width, height, fps, mode) {
             Ok(sink) => {
                 passed.push("PipeWire reachable".into());
                 return Ok(Chosen {
-                    sink,
+                    sinks: SinkSet {
+                        primary: sink,
+                        also: Vec::new(),
+                    },
                     reasons: auto.then_some(passed),
                 });
             }
@@ -124,10 +124,81 @@ pub fn open(
     }
     let path = (!c.output.y4m_path.is_empty()).then(|| PathBuf::from(&c.output.y4m_path));
     let sink = Y4mSink::new(path.as_deref(), width, height, fps).map_err(SinkError::Y4m)?;
+    let also = match (auto, system_feed::runtime_directory()) {
+        (true, Some(dir)) => feed_users(&dir, width, height, fps, mode, &mut passed),
+        _ => Vec::new(),
+    };
     Ok(Chosen {
-        sink: Box::new(sink),
+        sinks: SinkSet {
+            primary: Box::new(sink),
+            also,
+        },
         reasons: auto.then_some(passed),
     })
+}
+
+/// The PipeWire camera fed beside the loopback nodes, where it is installed;
+/// started once this user's PipeWire runs (a session's PipeWire may come up
+/// after sdid). As the system service, the users' cameras connect to sdid
+/// instead (`system_feed.rs`). PipeWire before 1.3.81 cannot read a v4l2loopback node
+/// (no VIDIOC_EXPBUF, docs/loopback.md), so its portal clients get the
+/// camera process's node instead (the loopback node is kept out of
+/// PipeWire by SDI's WirePlumber rule, docs/pipewire.md).
+fn beside_loopback(
+    width: usize,
+    height: usize,
+    fps: f64,
+    mode: ModeId,
+    passed: &mut Vec<String>,
+) -> Vec<Box<dyn Sink>> {
+    if let Some(dir) = system_feed::runtime_directory() {
+        return feed_users(&dir, width, height, fps, mode, passed);
+    }
+    let opened = match pipewire_launch::pipewire_socket() {
+        Some(_) => open_pipewire(width, height, fps, mode).map(|s| (s, "PipeWire reachable")),
+        None => pipewire_launch::find_program()
+            .map_err(SinkError::from)
+            .map(|program| {
+                let s = PipewireSink::when_reachable(&program, width, height, fps, mode);
+                let s: Box<dyn Sink> = Box::new(s);
+                (s, "no PipeWire running for this user yet")
+            }),
+    };
+    match opened {
+        Ok((sink, why)) => {
+            passed.push(format!("{why}: the PipeWire camera beside it"));
+            vec![sink]
+        }
+        Err(e) => {
+            tracing::debug!("auto: PipeWire camera beside v4l2loopback passed over: {e}");
+            passed.push(pipewire_phrase(&e));
+            Vec::new()
+        }
+    }
+}
+
+/// As the system service: the PipeWire cameras of users' sessions, which
+/// connect to sdid's feed socket in `dir` (`system_feed.rs`).
+fn feed_users(
+    dir: &std::path::Path,
+    width: usize,
+    height: usize,
+    fps: f64,
+    mode: ModeId,
+    passed: &mut Vec<String>,
+) -> Vec<Box<dyn Sink>> {
+    match SystemFeed::listen(dir, width, height, fps, mode) {
+        Ok(feed) => {
+            passed.push(
+                "system service: the PipeWire cameras of users' sessions are fed beside it".into(),
+            );
+            vec![Box::new(feed)]
+        }
+        Err(e) => {
+            passed.push(format!("no PipeWire camera feed: {e}"));
+            Vec::new()
+        }
+    }
 }
 
 /// What a person opens to watch the sink, and how: the lines of sdid's
