@@ -9,6 +9,7 @@
 //! Sources of every register and request: `docs/hardware.md`.
 
 pub mod board;
+pub mod descriptors;
 pub mod frame;
 pub mod hotplug;
 pub mod ids;
