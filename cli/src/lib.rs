@@ -12,6 +12,10 @@ mod online;
 mod output_name;
 mod stdout;
 
+/// The `.npy` stack header parser of the offline commands, public for its
+/// fuzz target.
+pub use offline::npy_header;
+
 use std::process::ExitCode;
 
 use clap::{CommandFactory, Parser, Subcommand};

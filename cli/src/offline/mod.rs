@@ -2,6 +2,7 @@
 
 pub mod frames;
 pub mod noise_report;
+pub mod npy_header;
 pub mod report_files;
 pub mod sensor_arg;
 pub mod separate;
