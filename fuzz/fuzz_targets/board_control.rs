@@ -9,8 +9,8 @@
 //! with its read-backs, the status registers and single field writes.
 //! Invariant: no panic or abort; every failure is a typed `ProtocolError`
 //! or `ConfigError`; each request makes at most `attempts` transfers, so
-//! the time is bounded by the number of requests; nothing allocates more
-//! than one serial-number buffer.
+//! the time is bounded by the number of requests; no allocation grows with
+//! the replies (the serial number is read into 32 bytes).
 #![no_main]
 
 use std::time::Duration;
