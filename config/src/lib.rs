@@ -56,11 +56,17 @@ impl Config {
             path: path.clone(),
             source,
         })?;
-        let c = toml::from_str(&text).map_err(|source| ConfigError::Parse {
+        let c = Self::parse(&text).map_err(|source| ConfigError::Parse {
             path: path.clone(),
             source,
         })?;
         Ok((c, Some(path)))
+    }
+
+    /// The file's text as sections, not validated yet (what [`Config::read`]
+    /// makes of a file).
+    pub fn parse(text: &str) -> Result<Self, toml::de::Error> {
+        toml::from_str(text)
     }
 
     /// [`Config::read`] then [`Config::validate`]: the configuration as the

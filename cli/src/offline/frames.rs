@@ -12,6 +12,7 @@ use sdi_core::sensor::SensorParams;
 use sdi_core::{Frame, Image};
 use sdi_recording::{format::is_recording_magic, Record, RecordingReader};
 
+use super::npy_header::{self, Dtype, NpyHeader};
 use crate::exit::CliError;
 
 /// Largest frame accepted from any input, pixels.
@@ -19,65 +20,6 @@ pub const MAX_PIXELS: usize = 1 << 24;
 
 fn runtime(path: &Path, e: impl std::fmt::Display) -> CliError {
     CliError::Runtime(format!("'{}': {e}", path.display()))
-}
-
-/// Element type of an input `.npy`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum Dtype {
-    F4,
-    F8,
-    I2,
-    U2,
-    I4,
-}
-
-impl Dtype {
-    fn parse(descr: &str) -> Option<(Self, bool)> {
-        let (order, t) = descr.split_at(1);
-        let big = match order {
-            "<" | "|" => false,
-            ">" => true,
-            _ => return None,
-        };
-        let d = match t {
-            "f4" => Dtype::F4,
-            "f8" => Dtype::F8,
-            "i2" => Dtype::I2,
-            "u2" => Dtype::U2,
-            "i4" => Dtype::I4,
-            _ => return None,
-        };
-        Some((d, big))
-    }
-
-    fn size(self) -> usize {
-        match self {
-            Dtype::I2 | Dtype::U2 => 2,
-            Dtype::F4 | Dtype::I4 => 4,
-            Dtype::F8 => 8,
-        }
-    }
-
-    fn decode(self, big: bool, b: &[u8]) -> f32 {
-        macro_rules! get {
-            ($t:ty, $n:expr) => {{
-                let mut a = [0u8; $n];
-                a.copy_from_slice(b);
-                if big {
-                    <$t>::from_be_bytes(a)
-                } else {
-                    <$t>::from_le_bytes(a)
-                }
-            }};
-        }
-        match self {
-            Dtype::F4 => get!(f32, 4),
-            Dtype::F8 => get!(f64, 8) as f32,
-            Dtype::I2 => f32::from(get!(i16, 2)),
-            Dtype::U2 => f32::from(get!(u16, 2)),
-            Dtype::I4 => get!(i32, 4) as f32,
-        }
-    }
 }
 
 /// An `.npy` stack read frame by frame.
@@ -90,44 +32,6 @@ pub struct NpyFrames {
     buf: Vec<u8>,
 }
 
-/// Value text after `'key':` in a .npy header dict.
-fn header_field<'a>(header: &'a str, key: &str) -> Option<&'a str> {
-    let at = header.find(&format!("'{key}'"))?;
-    let rest = &header[at + key.len() + 2..];
-    let rest = rest.trim_start().strip_prefix(':')?.trim_start();
-    Some(rest)
-}
-
-fn parse_npy_header(header: &str) -> Result<(Dtype, bool, Vec<usize>), String> {
-    let descr = header_field(header, "descr").ok_or("no 'descr'")?;
-    let descr = descr
-        .strip_prefix('\'')
-        .and_then(|s| s.split('\'').next())
-        .ok_or("bad 'descr'")?;
-    let (dtype, big) = Dtype::parse(descr).ok_or_else(|| {
-        format!("dtype '{descr}' is not supported (float32, float64, int16, uint16, int32)")
-    })?;
-    let fortran = header_field(header, "fortran_order").ok_or("no 'fortran_order'")?;
-    if fortran.starts_with("True") {
-        return Err("Fortran-ordered arrays are not supported".into());
-    }
-    let shape = header_field(header, "shape").ok_or("no 'shape'")?;
-    let inner = shape
-        .strip_prefix('(')
-        .and_then(|s| s.split(')').next())
-        .ok_or("bad 'shape'")?;
-    let dims = inner
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<usize>()
-                .map_err(|_| format!("bad dimension '{s}'"))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok((dtype, big, dims))
-}
-
 impl NpyFrames {
     /// Opens an N x H x W (or H x W: one frame) stack.
     pub fn open(path: &Path) -> Result<(Self, usize, usize), CliError> {
@@ -136,72 +40,27 @@ impl NpyFrames {
         let bad = |why: String| {
             CliError::Usage(format!("'{}': not a usable .npy: {why}", path.display()))
         };
-        let mut magic = [0u8; 8];
-        input
-            .read_exact(&mut magic)
-            .map_err(|_| bad("too short".into()))?;
-        if &magic[..6] != b"\x93NUMPY" {
-            return Err(bad("bad magic".into()));
-        }
-        let len = match magic[6] {
-            1 => {
-                let mut b = [0u8; 2];
-                input
-                    .read_exact(&mut b)
-                    .map_err(|_| bad("truncated header".into()))?;
-                usize::from(u16::from_le_bytes(b))
-            }
-            2 | 3 => {
-                let mut b = [0u8; 4];
-                input
-                    .read_exact(&mut b)
-                    .map_err(|_| bad("truncated header".into()))?;
-                u32::from_le_bytes(b) as usize
-            }
-            v => return Err(bad(format!("version {v}"))),
-        };
-        if len > 1 << 16 {
-            return Err(bad(format!("header of {len} bytes")));
-        }
-        let mut header = vec![0u8; len];
-        input
-            .read_exact(&mut header)
-            .map_err(|_| bad("truncated header".into()))?;
-        let header = String::from_utf8_lossy(&header);
-        let (dtype, big_endian, shape) = parse_npy_header(&header).map_err(bad)?;
-        let (n, h, w) = match shape[..] {
-            [n, h, w] => (n, h, w),
-            [h, w] => (1, h, w),
-            _ => {
-                return Err(bad(format!(
-                    "shape {shape:?}; expected (frames, height, width) or (height, width)"
-                )))
-            }
-        };
-        if n == 0 || h == 0 || w == 0 {
-            return Err(bad(format!("empty shape {shape:?}")));
-        }
-        if w.checked_mul(h).is_none_or(|p| p > MAX_PIXELS) {
-            return Err(bad(format!(
-                "frames of {w}x{h} are larger than 2^24 pixels"
-            )));
-        }
+        let header = npy_header::read(&mut input).map_err(|e| bad(e.to_string()))?;
         // A truncated file is caught up front rather than after minutes of work.
-        let data_start = 10 + if magic[6] == 1 { 0 } else { 2 } + len;
         let file_len = input
             .get_ref()
             .metadata()
             .map_err(|e| runtime(path, e))?
             .len();
-        let want = (n as u64)
-            .saturating_mul((w * h) as u64)
-            .saturating_mul(dtype.size() as u64)
-            .saturating_add(data_start as u64);
+        let want = header.file_bytes();
         if file_len < want {
             return Err(bad(format!(
                 "truncated: {file_len} bytes, the header promises {want}"
             )));
         }
+        let NpyHeader {
+            dtype,
+            big_endian,
+            frames: n,
+            height: h,
+            width: w,
+            ..
+        } = header;
         let buf = vec![0u8; w * h * dtype.size()];
         Ok((
             Self {

@@ -10,6 +10,7 @@
 //! Sources of every register and request: `docs/hardware.md`.
 
 pub mod board;
+pub mod descriptors;
 pub mod frame;
 pub mod health;
 pub mod hotplug;

@@ -18,6 +18,7 @@ use std::time::{Duration, Instant};
 
 use rusb::{Context, Device, DeviceHandle, Direction, TransferType, UsbContext};
 
+use super::descriptors::{self, AltSettingFields, EndpointFields};
 use super::ids;
 use super::protocol::{Transport, TransportError};
 
@@ -109,18 +110,36 @@ pub fn find_bulk_in(device: &Device<Context>, interface: u8) -> Result<BulkEndpo
     let config = device
         .active_config_descriptor()
         .map_err(|e| usb_err("reading the configuration descriptor", e))?;
+    descriptors::bulk_in_endpoint(&alt_settings(&config), interface)
+        .ok_or(UsbError::NoBulkInEndpoint { interface })
+}
+
+/// The configuration's interface descriptors as plain fields, for the
+/// choices in [`descriptors`].
+fn alt_settings(config: &rusb::ConfigDescriptor) -> Vec<AltSettingFields> {
     config
         .interfaces()
-        .filter(|i| i.number() == interface)
         .flat_map(|i| i.descriptors())
-        .flat_map(|d| d.endpoint_descriptors().collect::<Vec<_>>())
-        .find(|e| e.direction() == Direction::In && e.transfer_type() == TransferType::Bulk)
-        .map(|e| BulkEndpoint {
-            interface,
-            address: e.address(),
-            max_packet_bytes: e.max_packet_size(),
+        .map(|d| AltSettingFields {
+            interface_number: d.interface_number(),
+            class_code: d.class_code(),
+            sub_class_code: d.sub_class_code(),
+            endpoints: d
+                .endpoint_descriptors()
+                .map(|e| EndpointFields {
+                    address: e.address(),
+                    // bEndpointAddress keeps the direction bit; bmAttributes' type bits.
+                    attributes: match e.transfer_type() {
+                        TransferType::Control => 0,
+                        TransferType::Isochronous => 1,
+                        TransferType::Bulk => 2,
+                        TransferType::Interrupt => 3,
+                    },
+                    max_packet_bytes: e.max_packet_size(),
+                })
+                .collect(),
         })
-        .ok_or(UsbError::NoBulkInEndpoint { interface })
+        .collect()
 }
 
 fn serial_of(device: &Device<Context>) -> Option<String> {
@@ -254,20 +273,12 @@ pub fn uvc_switch_request(video_control_interface: u8) -> ControlRequest {
     }
 }
 
-/// The VideoControl interface (class 0x0E, subclass 0x01) of a UVC-mode
-/// board; interface 0 when the descriptors do not say (FW `uvc.c`:
-/// "Interface number is 0 for the XU").
+/// The VideoControl interface of a UVC-mode board
+/// ([`descriptors::video_control_interface`]).
 pub fn video_control_interface(device: &Device<Context>) -> u8 {
-    device
-        .active_config_descriptor()
-        .ok()
-        .and_then(|c| {
-            c.interfaces()
-                .flat_map(|i| i.descriptors())
-                .find(|d| d.class_code() == 0x0E && d.sub_class_code() == 0x01)
-                .map(|d| d.interface_number())
-        })
-        .unwrap_or(0)
+    device.active_config_descriptor().map_or(0, |c| {
+        descriptors::video_control_interface(&alt_settings(&c))
+    })
 }
 
 /// Tells a UVC-mode board to re-enumerate in bulk mode. Returns the request
