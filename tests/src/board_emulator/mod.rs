@@ -16,6 +16,7 @@
 //! Runs only as root inside the VM (modules dummy_hcd, libcomposite, usb_f_fs).
 
 mod descriptors;
+pub mod hostile;
 
 use std::collections::HashMap;
 use std::fs::{self, File, OpenOptions};
