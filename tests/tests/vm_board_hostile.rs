@@ -23,8 +23,10 @@ use sdi_tests::wait::wait_until;
 const SERIAL: &str = "EMU0031";
 /// How long each hostile device stays plugged in once sdid has reached its
 /// misbehaviour ([`HostileBoard::engaged`]): longer than the board
-/// backend's frame wait (2 s), so a stream of bad frames ends in its error.
-const ATTACK: Duration = Duration::from_secs(3);
+/// backend's frame wait (2 s): a stream of bad frames ends in its error
+/// sooner (after 8 unusable transfers), and so does a request left to NAK
+/// (1 s after the third attempt, when the device counts as engaged).
+const ATTACK: Duration = Duration::from_millis(2500);
 /// The longest wait for sdid to reach the misbehaviour.
 const ENGAGE_TIMEOUT: Duration = Duration::from_secs(20);
 /// A reply slower than this counts as sdid not answering.
