@@ -15,6 +15,7 @@ use tokio::sync::{oneshot, watch};
 
 use crate::backend::pacer::Pacer;
 use crate::backend::{Backend, BackendError, CaptureSettings};
+use crate::cause_log::{repeats, CauseLog};
 use crate::dark_capture::{DarkCapture, DarkJob, NoUsablePixels};
 use crate::frame_stream::{FrameStreams, StreamError};
 use crate::job::{Running, Settling};
@@ -47,6 +48,15 @@ pub type Reply<T> = oneshot::Sender<T>;
 const MAX_COMMAND_WAIT: Duration = Duration::from_millis(100);
 /// Wait before trying a failed capture again.
 const STALL_RETRY: Duration = Duration::from_millis(200);
+
+/// Why the source stalled, as Stats says it (and the key of its log line).
+fn stall_cause(e: &BackendError) -> &'static str {
+    match e {
+        BackendError::EndOfStream => "end of recording",
+        BackendError::Unavailable(_) => "device unavailable",
+        BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
+    }
+}
 
 /// Why a dark-frame capture or calibration gave no result.
 #[derive(Debug, thiserror::Error)]
@@ -255,6 +265,7 @@ impl FrameLoop {
         let (w, h) = (self.backend.sensor().width, self.backend.sensor().height);
         let mut frame = Frame::new(w, h);
         let mut stalled = false;
+        let mut stall_log = CauseLog::default();
         let mut pacer = Pacer::new();
         // After a failed capture, the next attempt is not before this.
         let mut retry_at = Instant::now();
@@ -273,7 +284,11 @@ impl FrameLoop {
                 Ok(()) => std::mem::replace(&mut stalled, false),
                 Err(e) => {
                     if !stalled {
-                        tracing::warn!("backend: {e}; showing no-signal");
+                        // Once per stall, and once per cause in a while: a
+                        // flapping device must not flood the log.
+                        if let Some(quiet) = stall_log.admit(stall_cause(&e)) {
+                            tracing::warn!("backend: {e}; showing no-signal{}", repeats(quiet));
+                        }
                         stalled = true;
                     }
                     self.capture_failed(e);
@@ -328,11 +343,7 @@ impl FrameLoop {
     /// The capture failed: the job fails, waiting calls are answered, and
     /// the "no signal" card goes out with Stats saying why.
     fn capture_failed(&mut self, e: BackendError) {
-        self.stats.stalled(match e {
-            BackendError::EndOfStream => "end of recording",
-            BackendError::Unavailable(_) => "device unavailable",
-            BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
-        });
+        self.stats.stalled(stall_cause(&e));
         if let Some(job) = self.job.take() {
             job.fail(&mut *self.backend, e);
         }

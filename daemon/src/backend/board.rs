@@ -10,8 +10,11 @@
 //! on a bus scan every [`RECONNECT_INTERVAL`] (every
 //! [`HOTPLUG_FALLBACK_INTERVAL`] once hotplug events have been seen): a
 //! fresh libusb scan works without udev, where libusb delivers no events.
+//! Opening runs on a thread of its own, so a device that takes seconds to
+//! fail (never answering, never leaving UVC mode) never holds the frame
+//! loop; losses, returns and failures are logged once per cause.
 
-use std::sync::Arc;
+use std::sync::{mpsc, Arc};
 use std::time::{Duration, Instant};
 
 use sdi_core::mode::ModeId;
@@ -19,13 +22,16 @@ use sdi_core::modulation::Illumination;
 use sdi_core::sensor::{SensorParams, SensorPreset};
 use sdi_core::Frame;
 
+use super::opt8241::board::Connection;
 use super::opt8241::health;
 use super::opt8241::hotplug::HotplugWatch;
 use super::opt8241::init::{PllSettings, Roi};
+use super::opt8241::usb::UsbError;
 use super::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
 use super::sim::SimBackend;
 use super::status::{DeviceStatus, StatusHandle};
 use super::{Backend, BackendError, BackendName, CaptureSettings, Limits};
+use crate::cause_log::{repeats, CauseLog};
 
 /// How often a missing board is looked for by a bus scan.
 pub const RECONNECT_INTERVAL: Duration = Duration::from_millis(500);
@@ -132,6 +138,12 @@ pub struct BoardBackend {
     reconnects: ReconnectCounts,
     /// When temperatures and op_overflow were last read.
     last_health_poll: Instant,
+    /// The board being opened again, off the frame loop's thread.
+    opening: Option<Opening>,
+    /// Losses, returns and failed reconnections, logged once per cause
+    /// ([`CauseLog`]): a device on the board's IDs decides how often they
+    /// happen (a re-enumeration storm, a stall on every request).
+    log: CauseLog,
 }
 
 fn clamp_text(board: &Opt8241) -> String {
@@ -220,6 +232,8 @@ impl BoardBackend {
             hotplug,
             arrival_pending: false,
             reconnects: ReconnectCounts::default(),
+            opening: None,
+            log: CauseLog::default(),
         })
     }
 
@@ -283,7 +297,13 @@ impl BoardBackend {
 
     fn lost(&mut self, why: &str) {
         if self.unplugged_at.is_none() {
-            tracing::warn!("board lost: {why}; on_unplug = {:?}", self.on_unplug);
+            if let Some(quiet) = self.log.admit("lost") {
+                tracing::warn!(
+                    "board lost: {why}; on_unplug = {:?}{}",
+                    self.on_unplug,
+                    repeats(quiet)
+                );
+            }
             self.unplugged_at = Some(Instant::now());
         }
         match self.on_unplug {
@@ -317,16 +337,35 @@ impl BoardBackend {
         }
     }
 
-    /// One reconnection attempt if a hotplug arrival came or a scan is
-    /// due; true when the board is back.
+    /// Starts opening the board (on a thread of its own) when a hotplug
+    /// arrival came or a scan is due, and takes the outcome once it is
+    /// there; true when the board is back.
     fn try_reconnect(&mut self) -> bool {
         if let Some(h) = &self.hotplug {
             self.arrival_pending |= h.drain().arrived;
+        }
+        if let Some(opening) = self.opening.as_mut() {
+            let Some(outcome) = opening.poll() else {
+                return false;
+            };
+            let by_hotplug = opening.by_hotplug;
+            self.opening = None;
+            return self.opened(outcome, by_hotplug);
         }
         let by_hotplug = std::mem::take(&mut self.arrival_pending);
         if !by_hotplug && Instant::now() < self.next_attempt {
             return false;
         }
+        self.opening = Some(Opening {
+            rx: self.board.reconnect_in_background(),
+            by_hotplug,
+            outcome: None,
+        });
+        false
+    }
+
+    /// Acts on the outcome of opening the board; true when it is back.
+    fn opened(&mut self, outcome: Result<Connection, BoardError>, by_hotplug: bool) -> bool {
         // After an arrival the device may not be ready at once: scan again
         // soon rather than after the slow fallback interval.
         self.next_attempt = Instant::now()
@@ -335,8 +374,9 @@ impl BoardBackend {
             } else {
                 self.poll_interval()
             };
-        match self.board.reconnect() {
-            Ok(()) => {
+        match outcome {
+            Ok(connection) => {
+                self.board.resume(connection);
                 let waited = self.unplugged_at.take().map(|t| t.elapsed());
                 let device = describe(&self.board);
                 let trigger = if by_hotplug {
@@ -346,7 +386,15 @@ impl BoardBackend {
                     self.reconnects.by_poll += 1;
                     "bus scan"
                 };
-                tracing::info!(%device, ?waited, trigger, "board is back; streaming again");
+                if let Some(quiet) = self.log.admit("back") {
+                    tracing::info!(
+                        %device,
+                        ?waited,
+                        trigger,
+                        "board is back; streaming again{}",
+                        repeats(quiet)
+                    );
+                }
                 self.stand_in = None;
                 self.status.update(|s| {
                     s.backend = "opt8241".into();
@@ -357,10 +405,62 @@ impl BoardBackend {
                 true
             }
             Err(e) => {
-                tracing::debug!("board still missing: {e}");
+                // A device on the board's IDs that cannot be used is worth one
+                // line per cause; no device at all, or one that left while
+                // being opened, is the normal wait.
+                let quiet = match e {
+                    BoardError::Usb(UsbError::NotFound { .. } | UsbError::Disconnected)
+                    | BoardError::DeviceUnavailable => None,
+                    _ => self.log.admit(e.cause()),
+                };
+                match quiet {
+                    Some(quiet) => tracing::warn!(
+                        "a device on the board's USB IDs cannot be used: {e}{}",
+                        repeats(quiet)
+                    ),
+                    None => tracing::debug!("board still missing: {e}"),
+                }
                 false
             }
         }
+    }
+}
+
+/// The board being opened on its own thread ([`Opt8241::reconnect_in_background`]).
+struct Opening {
+    rx: mpsc::Receiver<Result<Connection, BoardError>>,
+    /// Started by a hotplug arrival (else by a bus scan).
+    by_hotplug: bool,
+    /// The outcome, once [`Opening::wait`] received it.
+    outcome: Option<Result<Connection, BoardError>>,
+}
+
+impl Opening {
+    /// Waits at most `timeout` for the outcome.
+    fn wait(&mut self, timeout: Duration) {
+        if self.outcome.is_none() {
+            self.outcome = match self.rx.recv_timeout(timeout) {
+                Ok(outcome) => Some(outcome),
+                Err(mpsc::RecvTimeoutError::Timeout) => None,
+                Err(mpsc::RecvTimeoutError::Disconnected) => Some(Err(Self::ended())),
+            };
+        }
+    }
+
+    /// The outcome, when there is one.
+    fn poll(&mut self) -> Option<Result<Connection, BoardError>> {
+        self.outcome.take().or_else(|| match self.rx.try_recv() {
+            Ok(outcome) => Some(outcome),
+            Err(mpsc::TryRecvError::Empty) => None,
+            Err(mpsc::TryRecvError::Disconnected) => Some(Err(Self::ended())),
+        })
+    }
+
+    fn ended() -> BoardError {
+        BoardError::Usb(UsbError::Usb {
+            op: "opening the board",
+            error: "the thread opening it ended without an outcome".into(),
+        })
     }
 }
 
@@ -457,10 +557,11 @@ impl Backend for BoardBackend {
             if let Some(sim) = self.stand_in.as_mut() {
                 return sim.capture(illumination, frame);
             }
-            // Wake early on a hotplug arrival.
-            match &self.hotplug {
-                Some(h) => self.arrival_pending |= h.wait_arrival(RECONNECT_INTERVAL / 5),
-                None => std::thread::sleep(RECONNECT_INTERVAL / 5),
+            // Wake early when the opening ends or on a hotplug arrival.
+            match (self.opening.as_mut(), &self.hotplug) {
+                (Some(opening), _) => opening.wait(RECONNECT_INTERVAL / 5),
+                (None, Some(h)) => self.arrival_pending |= h.wait_arrival(RECONNECT_INTERVAL / 5),
+                (None, None) => std::thread::sleep(RECONNECT_INTERVAL / 5),
             }
             return Err(BackendError::Unavailable(
                 "OPT8241-CDK unplugged; waiting for it".into(),
@@ -487,6 +588,9 @@ impl Backend for BoardBackend {
             Err(e) => {
                 let stats = self.board.stats();
                 tracing::debug!(?stats, "board: {e}");
+                if let Some(quiet) = self.log.admit(e.cause()) {
+                    tracing::warn!("board: {e}{}", repeats(quiet));
+                }
                 Err(board_err(e))
             }
         }

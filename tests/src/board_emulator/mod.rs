@@ -17,10 +17,12 @@
 
 pub mod chip;
 mod descriptors;
+pub mod hostile;
 
 use std::collections::HashMap;
 use std::fs::{self, File, OpenOptions};
 use std::io::{Read, Write};
+use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
@@ -571,7 +573,14 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
         }
         let drop_bytes = shift.swap(0, Ordering::SeqCst) as usize;
         if file.is_none() {
-            file = OpenOptions::new().write(true).open(ep1).ok();
+            // Non-blocking: a write after the gadget is unbound fails at
+            // once instead of waiting for the next bind, so `Drop` can join
+            // this thread (transfers still wait to complete).
+            file = OpenOptions::new()
+                .write(true)
+                .custom_flags(nix::fcntl::OFlag::O_NONBLOCK.bits())
+                .open(ep1)
+                .ok();
         }
         let Some(f) = file.as_mut() else {
             std::thread::sleep(Duration::from_millis(20));

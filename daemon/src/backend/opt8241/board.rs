@@ -5,15 +5,18 @@
 //! its output open (showing "no signal") and calls [`Opt8241::reconnect`]
 //! until the board is back.
 
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use rusb::Context;
 use sdi_core::modulation::Illumination;
 use sdi_core::Frame;
 
-use super::frame::{Assembled, AssemblerStats, DecodeError, FrameAssembler, QuadDecoder};
+use super::frame::{
+    Assembled, AssemblerStats, DecodeError, DropReason, FrameAssembler, QuadDecoder,
+};
 use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
-use super::protocol::{ProtocolError, RegisterBus};
+use super::protocol::{ProtocolError, RegisterBus, TransportError};
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
 
 /// Transfers queued at the host controller while streaming.
@@ -22,6 +25,12 @@ pub const DEFAULT_TRANSFERS_IN_FLIGHT: usize = 4;
 pub const FRAME_WAIT: Duration = Duration::from_secs(2);
 /// Read timeout of one bulk transfer (the SDK uses 200 ms).
 pub const READ_TIMEOUT: Duration = Duration::from_millis(200);
+/// Unusable transfers (dropped frames, halts, overflows, errors) after which
+/// `next_frame` gives up before [`FRAME_WAIT`]: a board in step loses at most
+/// two frames to relock, while a device sending only garbage would
+/// otherwise hold the frame loop, and every D-Bus call waiting on it, for
+/// the whole wait on every capture.
+pub const MAX_UNUSABLE_TRANSFERS: u32 = 8;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum BoardError {
@@ -37,10 +46,49 @@ pub enum BoardError {
     #[error("board unavailable (unplugged?); waiting for it to come back")]
     DeviceUnavailable,
     #[error("no frame from the board within {waited_ms} ms ({detail})")]
-    NoFrame { waited_ms: u128, detail: String },
+    NoFrame {
+        waited_ms: u128,
+        /// What came instead, in a few words (the key of its log line).
+        cause: &'static str,
+        detail: String,
+    },
 }
 
 impl BoardError {
+    /// What went wrong, without the details that vary from one occurrence
+    /// to the next (addresses, byte counts, attempts): the key of
+    /// log-on-change ([`CauseLog`]).
+    pub fn cause(&self) -> &'static str {
+        match self {
+            BoardError::Usb(u) => match u {
+                UsbError::NotFound { .. } => "no board",
+                UsbError::Ambiguous { .. } | UsbError::AmbiguousUvc { .. } => "several boards",
+                UsbError::UvcSwitch { .. } => "UVC switch failed",
+                UsbError::UvcSwitchTimeout { .. } => "UVC switch timed out",
+                UsbError::Access => "permission denied",
+                UsbError::NoBulkInEndpoint { .. } => "no bulk IN endpoint",
+                UsbError::Busy => "busy",
+                UsbError::Disconnected => "disconnected",
+                UsbError::Usb { op, .. } => op,
+            },
+            BoardError::Protocol(p) => match p {
+                ProtocolError::Transport { source, .. } => match source {
+                    TransportError::Timeout => "control transfer timed out",
+                    TransportError::Stall => "control transfer stalled",
+                    TransportError::Disconnected => "disconnected",
+                    TransportError::Other(_) => "control transfer failed",
+                },
+                ProtocolError::Short { .. } => "short control reply",
+                ProtocolError::Range(_) | ProtocolError::ReadOnly(_) => "register access refused",
+                ProtocolError::BadSerial(_) => "serial number not text",
+            },
+            BoardError::Config(_) => "configuration refused",
+            BoardError::Decode(_) => "frame not decodable",
+            BoardError::DeviceUnavailable => "disconnected",
+            BoardError::NoFrame { cause, .. } => cause,
+        }
+    }
+
     fn from_protocol(e: ProtocolError) -> Self {
         if e.is_disconnect() {
             BoardError::DeviceUnavailable
@@ -66,6 +114,52 @@ struct Session {
     stream: BulkStream,
     assembler: FrameAssembler,
     serial: Option<String>,
+}
+
+/// A board found, opened, configured and streaming, not yet in use: what
+/// opening yields, on whichever thread it ran.
+pub struct Connection {
+    context: Context,
+    session: Session,
+    report: InitReport,
+}
+
+impl Connection {
+    fn open(
+        selector: &BoardSelector,
+        config: &BoardConfig,
+        in_flight: usize,
+    ) -> Result<Self, BoardError> {
+        // A fresh libusb context rescans the bus: works without udev or
+        // libusb hotplug support (e.g. inside minimal VMs and containers).
+        let context = new_context()?;
+        let open = open_board(&context, selector)?;
+        let mut bus = RegisterBus::new(UsbTransport {
+            handle: open.handle.clone(),
+        });
+        let report = configure(&mut bus, config).map_err(|e| match e {
+            ConfigError::Protocol(p) => BoardError::from_protocol(p),
+            other => BoardError::Config(other),
+        })?;
+        let frame_bytes = layout_of(config).frame_bytes();
+        let stream = BulkStream::start(
+            open.handle,
+            open.endpoint,
+            frame_bytes,
+            in_flight,
+            READ_TIMEOUT,
+        );
+        Ok(Self {
+            context,
+            session: Session {
+                bus,
+                stream,
+                assembler: FrameAssembler::new(frame_bytes, config.frame_numbers),
+                serial: open.serial,
+            },
+            report,
+        })
+    }
 }
 
 /// A running OPT8241-CDK.
@@ -112,34 +206,18 @@ impl Opt8241 {
 
     fn connect(&mut self) -> Result<(), BoardError> {
         self.session = None;
-        // A fresh libusb context rescans the bus: works without udev or
-        // libusb hotplug support (e.g. inside minimal VMs and containers).
-        self.context = new_context()?;
-        let open = open_board(&self.context, &self.selector)?;
-        let mut bus = RegisterBus::new(UsbTransport {
-            handle: open.handle.clone(),
-        });
-        self.report = configure(&mut bus, &self.config).map_err(|e| match e {
-            ConfigError::Protocol(p) => BoardError::from_protocol(p),
-            other => BoardError::Config(other),
-        })?;
-        let layout = layout_of(&self.config);
-        self.decoder.layout = layout;
-        self.decoder.frame_number_in_first_byte = self.config.frame_numbers;
-        let stream = BulkStream::start(
-            open.handle,
-            open.endpoint,
-            layout.frame_bytes(),
-            self.transfers_in_flight,
-            READ_TIMEOUT,
-        );
-        self.session = Some(Session {
-            bus,
-            stream,
-            assembler: FrameAssembler::new(layout.frame_bytes(), self.config.frame_numbers),
-            serial: open.serial,
-        });
+        let c = Connection::open(&self.selector, &self.config, self.transfers_in_flight)?;
+        self.install(c);
         Ok(())
+    }
+
+    /// Puts a connection to use: its session streams into this decoder.
+    fn install(&mut self, c: Connection) {
+        self.context = c.context;
+        self.report = c.report;
+        self.decoder.layout = layout_of(&self.config);
+        self.decoder.frame_number_in_first_byte = self.config.frame_numbers;
+        self.session = Some(c.session);
     }
 
     /// The configuration in use.
@@ -174,6 +252,40 @@ impl Opt8241 {
         self.connect()?;
         self.stats.reconnects += 1;
         Ok(())
+    }
+
+    /// [`Opt8241::reconnect`] on a thread of its own: against a device that
+    /// never answers a control request, or leaves UVC mode and never comes
+    /// back, opening takes seconds, and the caller (the frame loop) must
+    /// keep answering meanwhile. The receiver yields the outcome once; hand
+    /// a connection to [`Opt8241::resume`].
+    pub fn reconnect_in_background(&self) -> mpsc::Receiver<Result<Connection, BoardError>> {
+        let (tx, rx) = mpsc::sync_channel(1);
+        let (selector, config, in_flight) = (
+            self.selector.clone(),
+            self.config.clone(),
+            self.transfers_in_flight,
+        );
+        let spawned = std::thread::Builder::new()
+            .name("opt8241-open".into())
+            .spawn(move || {
+                let _ = tx.send(Connection::open(&selector, &config, in_flight));
+            });
+        if let Err(e) = spawned {
+            let (tx, failed) = mpsc::sync_channel(1);
+            let _ = tx.send(Err(BoardError::Usb(UsbError::Usb {
+                op: "starting the thread that opens the board",
+                error: e.to_string(),
+            })));
+            return failed;
+        }
+        rx
+    }
+
+    /// Streams from a connection [`Opt8241::reconnect_in_background`] made.
+    pub fn resume(&mut self, c: Connection) {
+        self.install(c);
+        self.stats.reconnects += 1;
     }
 
     pub fn is_connected(&self) -> bool {
@@ -219,13 +331,23 @@ impl Opt8241 {
         };
         let deadline = Instant::now() + FRAME_WAIT;
         let mut detail = String::from("no data");
+        let mut cause = "no data";
+        let mut unusable = 0u32;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
+            if unusable >= MAX_UNUSABLE_TRANSFERS {
+                return Err(BoardError::NoFrame {
+                    waited_ms: FRAME_WAIT.saturating_sub(left).as_millis(),
+                    cause,
+                    detail,
+                });
+            }
             let event = match session.stream.events.recv_timeout(left) {
                 Ok(ev) => ev,
                 Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
                     return Err(BoardError::NoFrame {
                         waited_ms: FRAME_WAIT.as_millis(),
+                        cause,
                         detail,
                     })
                 }
@@ -251,30 +373,90 @@ impl Opt8241 {
                     Assembled::Pending => {}
                     Assembled::Dropped(reason) => {
                         tracing::debug!(?reason, "frame dropped");
+                        unusable += 1;
                         detail = format!("last frame dropped: {reason:?}");
+                        cause = match reason {
+                            DropReason::WrongLength { .. } => "frames of the wrong length",
+                            DropReason::OutOfSequence { .. } | DropReason::Relocking => {
+                                "frames out of sequence"
+                            }
+                        };
                     }
                 },
                 StreamEvent::Timeout => self.stats.timeouts += 1,
                 StreamEvent::HaltCleared => {
                     self.stats.halts_cleared += 1;
+                    unusable += 1;
                     session.assembler.reset();
-                    tracing::warn!("bulk endpoint halted; halt cleared, resynchronizing");
+                    // Logged by the caller as the cause of no frame, if it is one.
+                    tracing::debug!("bulk endpoint halted; halt cleared, resynchronizing");
+                    cause = "bulk endpoint halted";
+                    detail = "the bulk endpoint halted; halt cleared".into();
                 }
                 StreamEvent::Overflow => {
                     self.stats.overflows += 1;
+                    unusable += 1;
                     session.assembler.reset();
+                    cause = "more data than asked";
+                    detail = "a transfer overflowed (babble)".into();
                 }
                 StreamEvent::Error(e) => {
                     self.stats.errors += 1;
-                    tracing::warn!(error = %e, "bulk transfer failed; retrying");
+                    unusable += 1;
+                    tracing::debug!(error = %e, "bulk transfer failed; retrying");
+                    cause = "bulk transfers failing";
                     detail = e;
                 }
                 StreamEvent::Disconnected => {
-                    tracing::warn!("board disconnected");
+                    // The backend logs the loss (`backend::board`).
+                    tracing::debug!("board disconnected");
                     self.session = None;
                     return Err(BoardError::DeviceUnavailable);
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_cause_does_not_vary_with_the_details() {
+        let short = |got, attempts| {
+            BoardError::Protocol(ProtocolError::Short {
+                request: 8,
+                address: 0x5880,
+                expected: 3,
+                got,
+                attempts,
+            })
+        };
+        assert_eq!(short(1, 3).cause(), short(2, 1).cause());
+        let stall = BoardError::Protocol(ProtocolError::Transport {
+            request: 8,
+            address: 0x5C4C,
+            attempts: 3,
+            source: TransportError::Stall,
+        });
+        assert_ne!(stall.cause(), short(1, 3).cause());
+        let no_frame = |cause, detail: &str| BoardError::NoFrame {
+            waited_ms: 2000,
+            cause,
+            detail: detail.into(),
+        };
+        assert_eq!(
+            no_frame("frames of the wrong length", "got 7").cause(),
+            no_frame("frames of the wrong length", "got 9").cause()
+        );
+        assert_ne!(
+            no_frame("frames of the wrong length", "").cause(),
+            no_frame("bulk endpoint halted", "").cause()
+        );
+        assert_eq!(
+            BoardError::Usb(UsbError::NoBulkInEndpoint { interface: 0 }).cause(),
+            "no bulk IN endpoint"
+        );
     }
 }

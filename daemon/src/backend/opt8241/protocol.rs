@@ -267,8 +267,9 @@ impl<T: Transport> RegisterBus<T> {
         for attempt in 1..=attempts {
             match transfer(&mut self.transport, self.timeout) {
                 Ok(n) if n == expected => return Ok(()),
+                // Per attempt at debug: the caller logs the outcome once.
                 Ok(n) => {
-                    tracing::warn!(request, address, got = n, attempt, "short control transfer");
+                    tracing::debug!(request, address, got = n, attempt, "short control transfer");
                     last = Some(ProtocolError::Short {
                         request,
                         address,
@@ -286,7 +287,7 @@ impl<T: Transport> RegisterBus<T> {
                     })
                 }
                 Err(e) => {
-                    tracing::warn!(request, address, attempt, error = %e, "control transfer failed");
+                    tracing::debug!(request, address, attempt, error = %e, "control transfer failed");
                     last = Some(ProtocolError::Transport {
                         request,
                         address,
@@ -339,8 +340,9 @@ impl<T: Transport> RegisterBus<T> {
         let next = field.insert(current, value)?;
         self.write_register(field.address, next)?;
         let actual = self.read_field(field)?;
+        // The caller reports clamps (`init::InitReport`) once per configuration.
         if actual != value {
-            tracing::warn!(
+            tracing::debug!(
                 field = field.name,
                 requested = value,
                 actual,

@@ -511,6 +511,12 @@ impl Drop for BulkStream {
     }
 }
 
+/// Pause of a reader after a transfer that failed or carried nothing (a
+/// zero-length packet on its own, which a board in step never sends: its
+/// frames end within the transfer): a device that does this on every
+/// transfer must not turn the readers into busy loops.
+pub const FAILED_TRANSFER_PAUSE: Duration = Duration::from_millis(10);
+
 fn read_loop(
     handle: &DeviceHandle<Context>,
     ep: BulkEndpoint,
@@ -539,8 +545,16 @@ fn read_loop(
             }
             Err(e) => StreamEvent::Error(e.to_string()),
         };
+        let pause = match &event {
+            StreamEvent::Data { bytes, .. } => bytes.is_empty(),
+            StreamEvent::Timeout => false,
+            _ => true,
+        };
         if tx.send(event).is_err() {
             return;
+        }
+        if pause {
+            std::thread::sleep(FAILED_TRANSFER_PAUSE);
         }
     }
 }
