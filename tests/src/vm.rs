@@ -78,3 +78,16 @@ pub fn run_test_in_vm(name: &str, timeout_s: u32) -> bool {
     );
     true
 }
+
+/// The host side of a VM test that drives sdid and sdictl: names the
+/// programs for the guest ([`crate::dbus::export_bins`]), runs test `name`
+/// of this binary inside the VM (at most `timeout_s`) and returns true;
+/// inside the VM returns false, so the test goes on to do the work.
+pub fn rerun_with_bins(name: &str, timeout_s: u32) -> bool {
+    if in_vm() {
+        return false;
+    }
+    crate::dbus::export_bins();
+    run_test_in_vm(name, timeout_s);
+    true
+}

@@ -13,7 +13,7 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use sdi_tests::board_emulator::BoardEmulator;
-use sdi_tests::dbus::{export_bins, sdictl, Bus, Daemon};
+use sdi_tests::dbus::{sdictl, Bus, Daemon};
 use sdi_tests::process::Reaped;
 use sdi_tests::vm;
 use sdi_tests::wait::{wait_for, wait_until};
@@ -168,20 +168,9 @@ fn snapshot_matches(emu: &BoardEmulator, npy: &Path) -> bool {
         .any(|(_, dn)| dn.len() == data.len() && dn[1..] == data[1..])
 }
 
-/// On the host: builds sdid and sdictl, runs test `name` inside the VM
-/// (at most `timeout_s`) and returns true; inside the VM returns false.
-fn rerun_in_vm(name: &str, timeout_s: u32) -> bool {
-    if vm::in_vm() {
-        return false;
-    }
-    export_bins();
-    vm::run_test_in_vm(name, timeout_s);
-    true
-}
-
 #[test]
 fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
-    if rerun_in_vm(
+    if vm::rerun_with_bins(
         "sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug",
         900,
     ) {
@@ -420,7 +409,7 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
 /// 0451:9105, and sdid configures it and streams its frames.
 #[test]
 fn sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams() {
-    if rerun_in_vm(
+    if vm::rerun_with_bins(
         "sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
         600,
     ) {

@@ -16,7 +16,7 @@ use std::time::{Duration, Instant};
 use sdi_api::Camera1Proxy;
 use sdi_tests::board_emulator::hostile::{HostileBoard, HostileMode};
 use sdi_tests::board_emulator::BoardEmulator;
-use sdi_tests::dbus::{export_bins, Bus, Daemon};
+use sdi_tests::dbus::{Bus, Daemon};
 use sdi_tests::vm;
 use sdi_tests::wait::wait_until;
 
@@ -160,18 +160,9 @@ fn wait_streaming(probes: &Mutex<Vec<Probe>>, what: &str) -> Duration {
     })
 }
 
-fn rerun_in_vm(name: &str, timeout_s: u32) -> bool {
-    if vm::in_vm() {
-        return false;
-    }
-    export_bins();
-    vm::run_test_in_vm(name, timeout_s);
-    true
-}
-
 #[test]
 fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
-    if rerun_in_vm(
+    if vm::rerun_with_bins(
         "sdid_survives_hostile_boards_and_streams_the_genuine_one_again",
         600,
     ) {
