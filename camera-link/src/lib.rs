@@ -380,10 +380,19 @@ pub fn read(r: &mut impl Read) -> Result<Message, LinkError> {
     })
 }
 
-/// Reads a frame's `len` bytes into `bytes` (resized).
+/// Reads a frame's `len` bytes into `bytes` (replacing its contents).
+/// The buffer grows with the bytes that arrive, not with the `len` a
+/// header claims: a peer that announces `MAX_PAYLOAD` and sends nothing
+/// costs nothing (a reused buffer keeps its capacity, so a genuine
+/// stream allocates once).
 pub fn read_payload(r: &mut impl Read, len: usize, bytes: &mut Vec<u8>) -> io::Result<()> {
-    bytes.resize(len, 0);
-    r.read_exact(bytes)
+    bytes.clear();
+    let got = r.take(len as u64).read_to_end(bytes)?;
+    if got == len {
+        Ok(())
+    } else {
+        Err(io::ErrorKind::UnexpectedEof.into())
+    }
 }
 
 /// Reads and drops a frame's `len` bytes.
@@ -498,5 +507,19 @@ mod tests {
         assert!(matches!(read(&mut short), Err(LinkError::Io(_))));
         let mut r = &[0u8; 4][..];
         assert!(skip_payload(&mut r, 8).is_err());
+    }
+
+    /// Found by fuzzing (camera_link): a frame header claiming the largest
+    /// payload, then nothing, made the reader allocate and zero 64 MiB.
+    #[test]
+    fn a_short_payload_allocates_only_what_arrived() {
+        let mut bytes = Vec::new();
+        let err = read_payload(&mut &[7u8; 100][..], MAX_PAYLOAD as usize, &mut bytes)
+            .expect_err("100 bytes of 64 MiB");
+        assert_eq!(err.kind(), io::ErrorKind::UnexpectedEof);
+        assert!(bytes.capacity() < 1 << 20, "capacity {}", bytes.capacity());
+        // A whole payload reads, into the buffer's existing capacity.
+        read_payload(&mut &[7u8; 100][..], 100, &mut bytes).expect("whole payload");
+        assert_eq!(bytes, [7u8; 100]);
     }
 }

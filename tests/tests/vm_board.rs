@@ -19,6 +19,14 @@ use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::vm;
 use sdi_tests::wait::wait_for;
 
+/// This binary's VM tests, in one boot.
+static VM: vm::VmBatch = vm::VmBatch::new(&[
+    ("opt8241_backend_against_usb_emulator", 600),
+    ("uvc_switch_that_never_comes_back_is_a_typed_timeout", 600),
+    ("backend_replug_without_udevd_is_found_by_the_bus_scan", 600),
+    ("backend_replug_with_udevd_is_found_by_a_hotplug_event", 600),
+]);
+
 fn matches_sent(emu: &BoardEmulator, frame: &Frame) -> bool {
     let s = emu.state.lock().unwrap();
     s.sent
@@ -29,7 +37,7 @@ fn matches_sent(emu: &BoardEmulator, frame: &Frame) -> bool {
 #[test]
 fn opt8241_backend_against_usb_emulator() {
     if !vm::in_vm() {
-        vm::run_test_in_vm("opt8241_backend_against_usb_emulator", 600);
+        VM.run("opt8241_backend_against_usb_emulator");
         return;
     }
     let emu = BoardEmulator::start("opt8241", "EMU0001").expect("gadget");
@@ -185,7 +193,7 @@ fn opt8241_backend_against_usb_emulator() {
 #[test]
 fn uvc_switch_that_never_comes_back_is_a_typed_timeout() {
     if !vm::in_vm() {
-        vm::run_test_in_vm("uvc_switch_that_never_comes_back_is_a_typed_timeout", 600);
+        VM.run("uvc_switch_that_never_comes_back_is_a_typed_timeout");
         return;
     }
     let emu = BoardEmulator::start_uvc("stuck", "EMU0004").expect("gadget");
@@ -279,7 +287,7 @@ fn backend_replug(name: &str, serial: &str) -> (ReconnectCounts, Option<u64>, Du
 #[test]
 fn backend_replug_without_udevd_is_found_by_the_bus_scan() {
     if !vm::in_vm() {
-        vm::run_test_in_vm("backend_replug_without_udevd_is_found_by_the_bus_scan", 600);
+        VM.run("backend_replug_without_udevd_is_found_by_the_bus_scan");
         return;
     }
     let (reconnects, events, back) = backend_replug("noudev", "EMU0005");
@@ -306,7 +314,7 @@ fn backend_replug_without_udevd_is_found_by_the_bus_scan() {
 #[test]
 fn backend_replug_with_udevd_is_found_by_a_hotplug_event() {
     if !vm::in_vm() {
-        vm::run_test_in_vm("backend_replug_with_udevd_is_found_by_a_hotplug_event", 600);
+        VM.run("backend_replug_with_udevd_is_found_by_a_hotplug_event");
         return;
     }
     let run = |cmd: &str, args: &[&str]| {

@@ -168,12 +168,15 @@ fn snapshot_matches(emu: &BoardEmulator, npy: &Path) -> bool {
         .any(|(_, dn)| dn.len() == data.len() && dn[1..] == data[1..])
 }
 
+/// This binary's VM tests, in one boot.
+static VM: vm::VmBatch = vm::VmBatch::new(&[
+    ("sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug", 900),
+    ("sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams", 600),
+]);
+
 #[test]
 fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
-    if vm::rerun_with_bins(
-        "sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug",
-        900,
-    ) {
+    if VM.rerun_with_bins("sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug") {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -409,10 +412,7 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
 /// 0451:9105, and sdid configures it and streams its frames.
 #[test]
 fn sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams() {
-    if vm::rerun_with_bins(
-        "sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
-        600,
-    ) {
+    if VM.rerun_with_bins("sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams") {
         return;
     }
     const UVC_SERIAL: &str = "EMU0003";

@@ -602,10 +602,16 @@ fn in_vm_checks() {
     loopback::unload_module().unwrap_or_else(|e| panic!("{e}"));
 }
 
+/// This binary's VM tests, in one boot.
+static VM: vm::VmBatch = vm::VmBatch::new(&[
+    ("vm_loopback_end_to_end", 900),
+    ("vm_loopback_module_switch", 300),
+]);
+
 #[test]
 fn vm_loopback_end_to_end() {
     if !vm::in_vm() {
-        vm::run_test_in_vm("vm_loopback_end_to_end", 900);
+        VM.run("vm_loopback_end_to_end");
         return;
     }
     in_vm_checks();
@@ -643,7 +649,7 @@ fn module_switch_checks() {
 #[test]
 fn vm_loopback_module_switch() {
     if !vm::in_vm() {
-        vm::run_test_in_vm("vm_loopback_module_switch", 300);
+        VM.run("vm_loopback_module_switch");
         return;
     }
     module_switch_checks();
