@@ -9,20 +9,17 @@
 //! board's serial number: a copy costs the attacker nothing, and it makes
 //! `[board] serial` no defence.
 
-use std::fs::{self, File, OpenOptions};
+use std::fs::{File, OpenOptions};
 use std::io::{Read, Write};
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 
-use super::{
-    descriptors, field, handle_setup, new_gadget, next_setups, write_attr, BoardState, Inner,
-    GADGET_ROOT,
-};
+use super::{descriptors, field, handle_setup, new_gadget, next_setups, BoardState, Inner};
 
 /// One way a device on the board's IDs misbehaves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
