@@ -48,6 +48,14 @@ pub type Reply<T> = oneshot::Sender<T>;
 const MAX_COMMAND_WAIT: Duration = Duration::from_millis(100);
 /// Wait before trying a failed capture again.
 const STALL_RETRY: Duration = Duration::from_millis(200);
+/// Longest calls waiting for a frame (a setting change's mark, a snapshot)
+/// wait while the source sends nothing yet has not failed (the board gives
+/// up after its 2 s frame wait, in slices of 100 ms: [`BackendError::NotYet`]):
+/// then they are answered as during a stall. Longer than the board's
+/// slowest frame period (350 ms at 2.86 Hz), so a slow board in step
+/// answers them with its frame; shorter than issue 31's 1 s by a slice
+/// and a margin.
+const SILENT_CALL_WAIT: Duration = Duration::from_millis(500);
 
 /// Why the source stalled, as Stats says it (and the key of its log line).
 fn stall_cause(e: &BackendError) -> &'static str {
@@ -55,6 +63,8 @@ fn stall_cause(e: &BackendError) -> &'static str {
         BackendError::EndOfStream => "end of recording",
         BackendError::Unavailable(_) => "device unavailable",
         BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
+        // never a stall (`FrameLoop::run`); named for completeness
+        BackendError::NotYet => "no frame yet",
     }
 }
 
@@ -269,6 +279,8 @@ impl FrameLoop {
         let mut pacer = Pacer::new();
         // After a failed capture, the next attempt is not before this.
         let mut retry_at = Instant::now();
+        // When the source last delivered a frame (or the loop started).
+        let mut last_frame_at = Instant::now();
         loop {
             if !self.wait_turn(&commands, &pacer, retry_at) {
                 return self.recorder.take();
@@ -282,6 +294,14 @@ impl FrameLoop {
             // must not read "device unavailable" for half a window more.
             let resumed = match self.backend.capture(&illumination, &mut frame) {
                 Ok(()) => std::mem::replace(&mut stalled, false),
+                Err(BackendError::NotYet) => {
+                    // No frame within the backend's slice: commands are
+                    // handled, and the capture goes on at once.
+                    if last_frame_at.elapsed() >= SILENT_CALL_WAIT {
+                        self.answer_while_silent();
+                    }
+                    continue;
+                }
                 Err(e) => {
                     if !stalled {
                         // Once per stall, and once per cause in a while: a
@@ -296,6 +316,7 @@ impl FrameLoop {
                     continue;
                 }
             };
+            last_frame_at = Instant::now();
             if let Some(rate_hz) = paced {
                 pacer.tick(rate_hz, captured_at);
             }
@@ -356,6 +377,14 @@ impl FrameLoop {
         let card_us = self.stamps.no_signal(monotonic_now_us());
         self.output.send_no_signal(card_us);
         self.stats_tx.send_replace(self.stats.current.clone());
+    }
+
+    /// The source has sent nothing for [`SILENT_CALL_WAIT`] but not failed:
+    /// the calls waiting for a frame are answered as while stalled, and
+    /// nothing else changes (no card: that waits for the failure).
+    fn answer_while_silent(&mut self) {
+        self.answer_pending_snapshots();
+        self.answer_marks_while_stalled();
     }
 
     /// Gives the captured frame its published timestamp and sdid's sequence
@@ -705,7 +734,7 @@ impl FrameLoop {
 
 #[cfg(test)]
 mod tests {
-    use super::{lights_needed, Command, FrameLoop};
+    use super::{lights_needed, Command, FrameLoop, FrameMark};
     use crate::backend::sim::SimBackend;
     use crate::backend::{Backend, BackendError, CaptureSettings};
     use crate::monotonic::monotonic_now_us;
@@ -720,12 +749,15 @@ mod tests {
     use std::time::{Duration, Instant};
 
     /// The simulator, failing the capture attempts marked in `fails` (a
-    /// source that pauses) and taking `first_capture` over its first frame.
+    /// source that pauses) and taking `first_capture` over its first frame;
+    /// or, when `silent`, a device with its own frame clock that never
+    /// sends a frame nor fails ([`BackendError::NotYet`] after a short slice).
     struct Scripted {
         sim: SimBackend,
         fails: Vec<bool>,
         attempt: usize,
         first_capture: Option<Duration>,
+        silent: bool,
     }
 
     impl Backend for Scripted {
@@ -745,9 +777,13 @@ mod tests {
             self.sim.configure(s)
         }
         fn paced_rate_hz(&self) -> Option<f64> {
-            self.sim.paced_rate_hz()
+            self.sim.paced_rate_hz().filter(|_| !self.silent)
         }
         fn capture(&mut self, ill: &Illumination, frame: &mut Frame) -> Result<(), BackendError> {
+            if self.silent {
+                std::thread::sleep(Duration::from_millis(10));
+                return Err(BackendError::NotYet);
+            }
             self.attempt += 1;
             if self.fails.get(self.attempt - 1).copied().unwrap_or(false) {
                 return Err(BackendError::Unavailable("paused".into()));
@@ -789,20 +825,25 @@ mod tests {
         }
     }
 
-    /// Runs the frame loop in `mode` over a source that fails the attempts
-    /// marked in `fails` until the sink has `writes` writes; returns them.
-    fn published(mode: ModeId, fails: Vec<bool>, writes: usize) -> Vec<(bool, u64, u64)> {
+    /// A 16x8 simulator at 200 Hz.
+    fn sim(mode: ModeId) -> SimBackend {
         let mut p = SensorPreset::TiOpt8241.params();
         p.width = 16;
         p.height = 8;
         p.frame_rate_hz = 200.0;
-        let backend = Scripted {
-            sim: SimBackend::new(p, mode, 1, None).unwrap(),
-            fails,
-            attempt: 0,
-            // A slow first capture: later frames must not be dated from it.
-            first_capture: Some(Duration::from_millis(40)),
-        };
+        SimBackend::new(p, mode, 1, None).unwrap()
+    }
+
+    /// The frame loop over `backend`, running on its own thread, and what
+    /// its sink is given.
+    fn spawn_loop(
+        backend: Scripted,
+        mode: ModeId,
+    ) -> (
+        std::sync::mpsc::Sender<Command>,
+        std::thread::JoinHandle<Option<crate::recorder::RecordingWriter>>,
+        Written,
+    ) {
         let written = Written::default();
         let output = Output::spawn(Box::new(Seen(written.clone()))).unwrap();
         let (stats_tx, _stats) = tokio::sync::watch::channel(Default::default());
@@ -816,7 +857,21 @@ mod tests {
             cal_tx,
         );
         let (tx, rx) = std::sync::mpsc::channel();
-        let t = std::thread::spawn(move || fl.run(rx));
+        (tx, std::thread::spawn(move || fl.run(rx)), written)
+    }
+
+    /// Runs the frame loop in `mode` over a source that fails the attempts
+    /// marked in `fails` until the sink has `writes` writes; returns them.
+    fn published(mode: ModeId, fails: Vec<bool>, writes: usize) -> Vec<(bool, u64, u64)> {
+        let backend = Scripted {
+            sim: sim(mode),
+            fails,
+            attempt: 0,
+            // A slow first capture: later frames must not be dated from it.
+            first_capture: Some(Duration::from_millis(40)),
+            silent: false,
+        };
+        let (tx, t, written) = spawn_loop(backend, mode);
         let t0 = Instant::now();
         while written.lock().unwrap().len() < writes && t0.elapsed() < Duration::from_secs(60) {
             std::thread::sleep(Duration::from_millis(5));
@@ -826,6 +881,38 @@ mod tests {
         let w = written.lock().unwrap().clone();
         assert!(w.len() >= writes, "{} of {writes} writes: {w:?}", w.len());
         w
+    }
+
+    /// A source that sends nothing yet has not failed (the board within
+    /// its 2 s frame wait) answers a setting change as a stalled one does,
+    /// with the next frame's number, without a "no signal" card.
+    #[test]
+    fn a_silent_source_answers_setting_changes_without_a_card() {
+        let backend = Scripted {
+            sim: sim(ModeId::Raw),
+            fails: Vec::new(),
+            attempt: 0,
+            first_capture: None,
+            silent: true,
+        };
+        let (tx, t, written) = spawn_loop(backend, ModeId::Raw);
+        let (reply, mark) = tokio::sync::oneshot::channel();
+        tx.send(Command::SetDisplay(DisplayMap::default(), reply))
+            .unwrap();
+        let mark = mark.blocking_recv().expect("the call is answered");
+        assert_eq!(
+            mark,
+            FrameMark {
+                sequence: 1,
+                timestamp_us: 0
+            }
+        );
+        let (reply, snapshot) = tokio::sync::oneshot::channel();
+        tx.send(Command::Snapshot(reply)).unwrap();
+        assert!(snapshot.blocking_recv().expect("answered").is_none());
+        tx.send(Command::Shutdown).unwrap();
+        t.join().unwrap();
+        assert!(written.lock().unwrap().is_empty(), "{written:?}");
     }
 
     /// Every stamp strictly after the one before, none later than the

@@ -161,6 +161,7 @@ fn board_err(e: BoardError) -> BackendError {
         BoardError::DeviceUnavailable => BackendError::Unavailable(e.to_string()),
         BoardError::Usb(u) => BackendError::Unavailable(u.to_string()),
         BoardError::Config(c) => BackendError::OutOfRange(c.to_string()),
+        BoardError::NotYet => BackendError::NotYet,
         other => BackendError::Failed(other.to_string()),
     }
 }
@@ -575,6 +576,8 @@ impl Backend for BoardBackend {
                     .map_err(board_err)
             }
             Ok(()) => Ok(()),
+            // The wait for the frame goes on at the next call.
+            Err(BoardError::NotYet) => Err(BackendError::NotYet),
             Err(BoardError::DeviceUnavailable) => {
                 // Events from before the loss (e.g. the re-enumeration of a
                 // UVC -> bulk switch) say nothing about the board coming back.

@@ -53,6 +53,10 @@ pub enum BackendError {
     EndOfStream,
     #[error("{0}")]
     Failed(String),
+    /// No frame yet within one slice of the device's wait; not a failure:
+    /// the frame loop answers its commands and asks again.
+    #[error("no frame yet")]
+    NotYet,
 }
 
 /// Which backend delivers frames; its name (strum's Display) is the D-Bus
@@ -87,7 +91,10 @@ pub trait Backend: Send {
         None
     }
     /// Writes the next frame into `frame`: at once for a paced source
-    /// ([`Backend::paced_rate_hz`]), else blocking until the device has one.
+    /// ([`Backend::paced_rate_hz`]), else blocking until the device has one,
+    /// but at most a short slice (the board's `FRAME_SLICE`, 100 ms), then
+    /// [`BackendError::NotYet`], so that the frame loop's commands never
+    /// wait for a silent device.
     fn capture(
         &mut self,
         illumination: &Illumination,

@@ -194,6 +194,51 @@ pub fn udc_name() -> std::io::Result<String> {
         .ok_or_else(|| std::io::Error::other("no UDC (is dummy_hcd loaded?)"))
 }
 
+/// Creates configfs gadget `name` (0451:`product_id`, claiming `serial`)
+/// with its configuration c.1, and the state its threads share, holding
+/// the board's power-on registers; no function yet, not plugged in. The
+/// genuine emulator and the hostile devices ([`hostile`]) both start here.
+fn new_gadget(
+    name: &str,
+    serial: &str,
+    product_id: &str,
+    manufacturer: &str,
+    product: &str,
+) -> std::io::Result<Arc<Inner>> {
+    prepare_kernel()?;
+    let gadget = Path::new(GADGET_ROOT).join(name);
+    fs::create_dir_all(&gadget)?;
+    write_attr(gadget.join("idVendor"), "0x0451")?;
+    write_attr(gadget.join("idProduct"), product_id)?;
+    write_attr(gadget.join("bcdUSB"), "0x0200")?;
+    let strings = gadget.join("strings/0x409");
+    fs::create_dir_all(&strings)?;
+    write_attr(strings.join("serialnumber"), serial)?;
+    write_attr(strings.join("manufacturer"), manufacturer)?;
+    write_attr(strings.join("product"), product)?;
+    fs::create_dir_all(gadget.join("configs/c.1"))?;
+    let inner = Arc::new(Inner {
+        name: name.into(),
+        serial: serial.into(),
+        gadget,
+        state: Arc::new(Mutex::new(BoardState::default())),
+        stop: Arc::new(AtomicBool::new(false)),
+        shift_next_frame: Arc::new(AtomicU32::new(0)),
+        ignore_uvc_switch: Arc::new(AtomicBool::new(false)),
+        mounts: Mutex::new(Vec::new()),
+        threads: Mutex::new(Vec::new()),
+        parked: Mutex::new(Vec::new()),
+    });
+    {
+        let mut s = inner.state.lock().unwrap();
+        s.registers.insert(0x5880, 1); // tg_dis
+        s.registers.insert(0x5883, 0x44);
+        s.registers.insert(0x581F, 239 << 16);
+        s.registers.insert(0x5821, 19 << 3);
+    }
+    Ok(inner)
+}
+
 impl Inner {
     fn config(&self) -> PathBuf {
         self.gadget.join("configs/c.1")
@@ -296,41 +341,19 @@ impl BoardEmulator {
     }
 
     fn start_in(name: &str, serial: &str, uvc: bool) -> std::io::Result<Self> {
-        prepare_kernel()?;
-        let gadget = Path::new(GADGET_ROOT).join(name);
-        fs::create_dir_all(&gadget)?;
-        write_attr(gadget.join("idVendor"), "0x0451")?;
-        write_attr(
-            gadget.join("idProduct"),
+        let inner = new_gadget(
+            name,
+            serial,
             if uvc { "0x9106" } else { "0x9105" },
+            "SDI test",
+            "OPT8241-CDK emulator",
         )?;
-        write_attr(gadget.join("bcdUSB"), "0x0200")?;
-        let strings = gadget.join("strings/0x409");
-        fs::create_dir_all(&strings)?;
-        write_attr(strings.join("serialnumber"), serial)?;
-        write_attr(strings.join("manufacturer"), "SDI test")?;
-        write_attr(strings.join("product"), "OPT8241-CDK emulator")?;
-        fs::create_dir_all(gadget.join("configs/c.1"))?;
-        let inner = Arc::new(Inner {
-            name: name.into(),
-            serial: serial.into(),
-            gadget,
-            state: Arc::new(Mutex::new(BoardState::default())),
-            stop: Arc::new(AtomicBool::new(false)),
-            shift_next_frame: Arc::new(AtomicU32::new(0)),
-            ignore_uvc_switch: Arc::new(AtomicBool::new(false)),
-            mounts: Mutex::new(Vec::new()),
-            threads: Mutex::new(Vec::new()),
-            parked: Mutex::new(Vec::new()),
-        });
-        {
-            let mut s = inner.state.lock().unwrap();
-            s.registers.insert(0x5880, 1); // tg_dis
-            s.registers.insert(0x5883, 0x44);
-            s.registers.insert(0x581F, 239 << 16);
-            s.registers.insert(0x5821, 19 << 3);
-            s.registers.extend(chip::LEFTOVER_PROFILE.iter().copied());
-        }
+        inner
+            .state
+            .lock()
+            .unwrap()
+            .registers
+            .extend(chip::LEFTOVER_PROFILE.iter().copied());
         if uvc {
             inner.add_uvc_function()?;
         } else {

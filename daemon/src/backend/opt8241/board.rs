@@ -1,9 +1,12 @@
 //! The OPT8241-CDK backend: open, configure, stream, decode, reconnect.
 //!
-//! `next_frame` has the shape of the daemon's `Backend::next_frame`; on
+//! `next_frame` has the shape of the daemon's `Backend::capture`; on
 //! unplug it returns [`BoardError::DeviceUnavailable`] and the daemon keeps
 //! its output open (showing "no signal") and calls [`Opt8241::reconnect`]
-//! until the board is back.
+//! until the board is back. It waits for a frame at most [`FRAME_SLICE`]
+//! per call ([`BoardError::NotYet`]), so the frame loop answers its
+//! commands meanwhile; "no frame" ([`BoardError::NoFrame`]) is decided over
+//! consecutive calls ([`FrameWait`]).
 
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -21,8 +24,13 @@ use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, U
 
 /// Transfers queued at the host controller while streaming.
 pub const DEFAULT_TRANSFERS_IN_FLIGHT: usize = 4;
-/// How long `next_frame` waits for a frame (the SDK waits 2 s).
+/// How long `next_frame` waits for a frame (the SDK waits 2 s), over
+/// consecutive calls.
 pub const FRAME_WAIT: Duration = Duration::from_secs(2);
+/// The longest one `next_frame` call waits before it returns
+/// [`BoardError::NotYet`]: a silent, NAKing or trickling device holds the
+/// frame loop, and the D-Bus calls it answers, no longer than this.
+pub const FRAME_SLICE: Duration = Duration::from_millis(100);
 /// Read timeout of one bulk transfer (the SDK uses 200 ms).
 pub const READ_TIMEOUT: Duration = Duration::from_millis(200);
 /// Unusable transfers (dropped frames, halts, overflows, errors) after which
@@ -52,6 +60,10 @@ pub enum BoardError {
         cause: &'static str,
         detail: String,
     },
+    /// No frame within [`FRAME_SLICE`], and [`FRAME_WAIT`] is not over:
+    /// call `next_frame` again (not a failure, never logged).
+    #[error("no frame yet")]
+    NotYet,
 }
 
 impl BoardError {
@@ -86,6 +98,7 @@ impl BoardError {
             BoardError::Decode(_) => "frame not decodable",
             BoardError::DeviceUnavailable => "disconnected",
             BoardError::NoFrame { cause, .. } => cause,
+            BoardError::NotYet => "no frame yet",
         }
     }
 
@@ -94,6 +107,70 @@ impl BoardError {
             BoardError::DeviceUnavailable
         } else {
             BoardError::Protocol(e)
+        }
+    }
+}
+
+/// The wait for one frame, spread over `next_frame` calls of at most
+/// [`FRAME_SLICE`] each: what came instead of a frame so far, and when the
+/// wait began.
+#[derive(Debug, Clone)]
+struct FrameWait {
+    since: Instant,
+    /// What came instead, in a few words (the key of its log line).
+    cause: &'static str,
+    detail: String,
+    /// Unusable transfers so far ([`MAX_UNUSABLE_TRANSFERS`]).
+    unusable: u32,
+}
+
+/// What `next_frame` does next while waiting ([`FrameWait::step`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum WaitStep {
+    /// Wait for the next stream event at most this long.
+    Wait(Duration),
+    /// The call's slice is over: [`BoardError::NotYet`].
+    Yield,
+    /// [`FRAME_WAIT`] is over, or too many transfers were unusable:
+    /// [`BoardError::NoFrame`].
+    GiveUp,
+}
+
+impl FrameWait {
+    fn new(since: Instant) -> Self {
+        Self {
+            since,
+            cause: "no data",
+            detail: "no data".into(),
+            unusable: 0,
+        }
+    }
+
+    /// At `now`, in a call whose slice ends at `slice_end`.
+    fn step(&self, slice_end: Instant, now: Instant) -> WaitStep {
+        let deadline = self.since + FRAME_WAIT;
+        if self.unusable >= MAX_UNUSABLE_TRANSFERS || now >= deadline {
+            WaitStep::GiveUp
+        } else if now >= slice_end {
+            WaitStep::Yield
+        } else {
+            WaitStep::Wait(slice_end.min(deadline) - now)
+        }
+    }
+
+    /// A transfer that cannot be part of a frame.
+    fn unusable(&mut self, cause: &'static str, detail: String) {
+        self.unusable += 1;
+        self.cause = cause;
+        self.detail = detail;
+    }
+
+    /// The error that ends the wait at `now`.
+    fn no_frame(self, now: Instant) -> BoardError {
+        BoardError::NoFrame {
+            waited_ms: now.saturating_duration_since(self.since).as_millis(),
+            cause: self.cause,
+            detail: self.detail,
         }
     }
 }
@@ -169,6 +246,9 @@ pub struct Opt8241 {
     config: BoardConfig,
     decoder: QuadDecoder,
     session: Option<Session>,
+    /// The wait for the next frame, when a call returned
+    /// [`BoardError::NotYet`] (cleared by a frame, an error or a new session).
+    wait: Option<FrameWait>,
     report: InitReport,
     stats: StreamStats,
     sequence: u64,
@@ -194,6 +274,7 @@ impl Opt8241 {
             decoder: QuadDecoder::new(layout_of(&config)),
             config,
             session: None,
+            wait: None,
             report: InitReport::default(),
             stats: StreamStats::default(),
             sequence: 0,
@@ -218,6 +299,7 @@ impl Opt8241 {
         self.decoder.layout = layout_of(&self.config);
         self.decoder.frame_number_in_first_byte = self.config.frame_numbers;
         self.session = Some(c.session);
+        self.wait = None;
     }
 
     /// The configuration in use.
@@ -321,36 +403,38 @@ impl Opt8241 {
 
     /// The next decoded difference frame. The light sources are driven
     /// elsewhere (`light`); `illumination` is accepted for the Backend shape.
+    /// Waits at most [`FRAME_SLICE`]: [`BoardError::NotYet`] when no frame
+    /// came and the wait for one ([`FRAME_WAIT`], across calls) goes on.
     pub fn next_frame(
         &mut self,
         _illumination: &Illumination,
         out: &mut Frame,
     ) -> Result<(), BoardError> {
+        let r = self.next_frame_within(out);
+        if !matches!(r, Err(BoardError::NotYet)) {
+            self.wait = None;
+        }
+        r
+    }
+
+    fn next_frame_within(&mut self, out: &mut Frame) -> Result<(), BoardError> {
         let Some(session) = self.session.as_mut() else {
             return Err(BoardError::DeviceUnavailable);
         };
-        let deadline = Instant::now() + FRAME_WAIT;
-        let mut detail = String::from("no data");
-        let mut cause = "no data";
-        let mut unusable = 0u32;
+        let slice_end = Instant::now() + FRAME_SLICE;
+        let wait = self
+            .wait
+            .get_or_insert_with(|| FrameWait::new(Instant::now()));
         loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if unusable >= MAX_UNUSABLE_TRANSFERS {
-                return Err(BoardError::NoFrame {
-                    waited_ms: FRAME_WAIT.saturating_sub(left).as_millis(),
-                    cause,
-                    detail,
-                });
-            }
+            let now = Instant::now();
+            let left = match wait.step(slice_end, now) {
+                WaitStep::Wait(left) => left,
+                WaitStep::Yield => return Err(BoardError::NotYet),
+                WaitStep::GiveUp => return Err(wait.clone().no_frame(now)),
+            };
             let event = match session.stream.events.recv_timeout(left) {
                 Ok(ev) => ev,
-                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
-                    return Err(BoardError::NoFrame {
-                        waited_ms: FRAME_WAIT.as_millis(),
-                        cause,
-                        detail,
-                    })
-                }
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => continue,
                 Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
                     self.session = None;
                     return Err(BoardError::DeviceUnavailable);
@@ -373,39 +457,40 @@ impl Opt8241 {
                     Assembled::Pending => {}
                     Assembled::Dropped(reason) => {
                         tracing::debug!(?reason, "frame dropped");
-                        unusable += 1;
-                        detail = format!("last frame dropped: {reason:?}");
-                        cause = match reason {
-                            DropReason::WrongLength { .. } => "frames of the wrong length",
-                            DropReason::OutOfSequence { .. } | DropReason::Relocking => {
-                                "frames out of sequence"
-                            }
-                        };
+                        wait.unusable(
+                            match reason {
+                                DropReason::WrongLength { .. } => "frames of the wrong length",
+                                DropReason::OutOfSequence { .. } | DropReason::Relocking => {
+                                    "frames out of sequence"
+                                }
+                            },
+                            format!("last frame dropped: {reason:?}"),
+                        );
                     }
                 },
                 StreamEvent::Timeout => self.stats.timeouts += 1,
                 StreamEvent::HaltCleared => {
                     self.stats.halts_cleared += 1;
-                    unusable += 1;
                     session.assembler.reset();
                     // Logged by the caller as the cause of no frame, if it is one.
                     tracing::debug!("bulk endpoint halted; halt cleared, resynchronizing");
-                    cause = "bulk endpoint halted";
-                    detail = "the bulk endpoint halted; halt cleared".into();
+                    wait.unusable(
+                        "bulk endpoint halted",
+                        "the bulk endpoint halted; halt cleared".into(),
+                    );
                 }
                 StreamEvent::Overflow => {
                     self.stats.overflows += 1;
-                    unusable += 1;
                     session.assembler.reset();
-                    cause = "more data than asked";
-                    detail = "a transfer overflowed (babble)".into();
+                    wait.unusable(
+                        "more data than asked",
+                        "a transfer overflowed (babble)".into(),
+                    );
                 }
                 StreamEvent::Error(e) => {
                     self.stats.errors += 1;
-                    unusable += 1;
                     tracing::debug!(error = %e, "bulk transfer failed; retrying");
-                    cause = "bulk transfers failing";
-                    detail = e;
+                    wait.unusable("bulk transfers failing", e);
                 }
                 StreamEvent::Disconnected => {
                     // The backend logs the loss (`backend::board`).
@@ -421,6 +506,43 @@ impl Opt8241 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A silent device: each call yields after its slice, and the wait
+    /// gives up once FRAME_WAIT is over, counted from the first call; a
+    /// stream of unusable transfers gives up sooner.
+    #[test]
+    fn the_frame_wait_is_decided_over_slices() {
+        let t0 = Instant::now();
+        let mut w = FrameWait::new(t0);
+        assert_eq!(w.step(t0 + FRAME_SLICE, t0), WaitStep::Wait(FRAME_SLICE));
+        assert_eq!(w.step(t0 + FRAME_SLICE, t0 + FRAME_SLICE), WaitStep::Yield);
+        // A call starting shortly before the deadline waits only up to it.
+        let late = t0 + FRAME_WAIT - FRAME_SLICE / 4;
+        assert_eq!(
+            w.step(late + FRAME_SLICE, late),
+            WaitStep::Wait(FRAME_SLICE / 4)
+        );
+        assert_eq!(
+            w.step(late + FRAME_SLICE, t0 + FRAME_WAIT),
+            WaitStep::GiveUp
+        );
+        let slices = FRAME_WAIT.as_millis() / FRAME_SLICE.as_millis();
+        assert!(slices >= 10, "{slices} slices in the frame wait");
+        for _ in 0..MAX_UNUSABLE_TRANSFERS {
+            assert_eq!(w.step(t0 + FRAME_SLICE, t0), WaitStep::Wait(FRAME_SLICE));
+            w.unusable("bulk endpoint halted", "halted".into());
+        }
+        assert_eq!(w.step(t0 + FRAME_SLICE, t0), WaitStep::GiveUp);
+        match w.no_frame(t0 + FRAME_WAIT) {
+            BoardError::NoFrame {
+                waited_ms, cause, ..
+            } => {
+                assert_eq!(waited_ms, FRAME_WAIT.as_millis());
+                assert_eq!(cause, "bulk endpoint halted");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
 
     #[test]
     fn a_cause_does_not_vary_with_the_details() {
