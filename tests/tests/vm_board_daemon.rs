@@ -448,7 +448,7 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     phase_calibration_fixes_a_delayed_led_path(&emu, &bus, tmp.path());
 }
 
-/// 4. The LED light 60 degrees of the modulation late: quad 0 alone reads
+/// Part 4, the LED light 60 degrees of the modulation late: quad 0 alone reads
 /// d cos 60 = d / 2. `sdictl calibrate phase` with LS1 lit alone (the
 /// emulator's scene follows the function generator sdid drives) fits the
 /// axis; the difference then matches what the emulator sent within the

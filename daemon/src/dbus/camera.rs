@@ -603,7 +603,7 @@ impl Camera {
         #[zbus(header)] hdr: Header<'_>,
     ) -> Result<PhaseCalibrationReply, SdiError> {
         let _turn = self.fairness.turn(&hdr).await;
-        if frames < 1 || frames > MAX_AVERAGE_FRAMES {
+        if !(1..=MAX_AVERAGE_FRAMES).contains(&frames) {
             return Err(SdiError::OutOfRange(format!(
                 "frames = {frames} is out of range: allowed [1, {MAX_AVERAGE_FRAMES}]"
             )));
