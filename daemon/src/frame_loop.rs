@@ -20,6 +20,7 @@ use crate::dark_capture::{DarkCapture, DarkJob, NoUsablePixels};
 use crate::frame_stream::{FrameStreams, StreamError};
 use crate::job::{Running, Settling};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
+use crate::phase_calibration::{PhaseFit, PhaseJob};
 use crate::photon_transfer::{PtcError, PtcJob};
 use crate::publish_clock::PublishClock;
 use crate::recorder::RecordingWriter;
@@ -28,6 +29,7 @@ use crate::stats::{LoopStats, StatsWindow};
 use sdi_core::calibration::PhotonTransferFit;
 use sdi_core::display::DisplayMap;
 use sdi_core::mode::{build_pipeline, ModeOutput, Pipeline, PipelineConfig};
+use sdi_core::quad_phase::{PhaseAxis, PhaseError};
 use sdi_core::sensor::SkellamMixing;
 use sdi_recording::Calibration;
 
@@ -80,6 +82,11 @@ pub enum JobError {
     NoUsablePixels(#[from] NoUsablePixels),
     #[error(transparent)]
     PhotonTransfer(#[from] PtcError),
+    #[error(transparent)]
+    Phase(#[from] PhaseError),
+    /// The light rig cannot light LS1 alone (the board's own output).
+    #[error("the light sources cannot light LS1 alone: {0}")]
+    LightsRefused(String),
     /// The job finished but its capture settings could not be put back.
     #[error("restoring the capture settings: {0}")]
     Restore(#[source] BackendError),
@@ -124,6 +131,9 @@ pub enum Command {
     /// Photon-transfer calibration with this many frames per level; on
     /// success the separation mode's H uses the fitted gain and read variance.
     PhotonTransfer(u32, Reply<Result<PhotonTransferFit, JobError>>),
+    /// Phase calibration with this many frames of LS1 alone; on success
+    /// the board decodes with the fitted axis.
+    CalibratePhase(u32, Reply<Result<PhaseFit, JobError>>),
     Snapshot(Reply<Option<SnapshotData>>),
     StartRecording(Box<RecordingWriter>, Reply<()>),
     /// Hands the recorder back; the caller finishes it (off this thread).
@@ -137,6 +147,7 @@ pub enum Command {
 enum ActiveJob {
     Dark(Running<DarkJob>, Reply<Result<DarkStats, JobError>>),
     PhotonTransfer(Running<PtcJob>, Reply<Result<PhotonTransferFit, JobError>>),
+    Phase(Running<PhaseJob>, Reply<Result<PhaseFit, JobError>>),
 }
 
 impl ActiveJob {
@@ -144,6 +155,7 @@ impl ActiveJob {
         match self {
             Self::Dark(run, _) => run.illumination(carrier_hz),
             Self::PhotonTransfer(run, _) => run.illumination(carrier_hz),
+            Self::Phase(run, _) => run.illumination(carrier_hz),
         }
     }
 
@@ -155,6 +167,11 @@ impl ActiveJob {
                 let _ = reply.send(Err(e.into()));
             }
             Self::PhotonTransfer(run, reply) => {
+                let _ = run.end(backend);
+                let _ = reply.send(Err(e.into()));
+            }
+            Self::Phase(run, reply) => {
+                let _ = backend.measure_phase(false);
                 let _ = run.end(backend);
                 let _ = reply.send(Err(e.into()));
             }
@@ -604,6 +621,10 @@ impl FrameLoop {
                 let _ = reply.send(Err(JobError::AlreadyRunning));
             }
             Command::PhotonTransfer(frames, reply) => self.start_photon_transfer(frames, reply),
+            Command::CalibratePhase(_, reply) if self.job.is_some() => {
+                let _ = reply.send(Err(JobError::AlreadyRunning));
+            }
+            Command::CalibratePhase(frames, reply) => self.start_phase(frames, reply),
             Command::Snapshot(reply) if !self.lights.is_settled() => {
                 // lights off (nobody watched) or just switched on
                 self.pending_snapshots.push(reply);
@@ -665,6 +686,27 @@ impl FrameLoop {
         }
     }
 
+    /// Starts the phase calibration: `frames` frames of LS1 alone; a
+    /// backend without phase quads answers at once.
+    fn start_phase(&mut self, frames: u32, reply: Reply<Result<PhaseFit, JobError>>) {
+        let started = self
+            .backend
+            .measure_phase(true)
+            .and_then(|()| Running::start(PhaseJob::new(frames), &mut *self.backend));
+        match started {
+            Ok(run) => self.job = Some(ActiveJob::Phase(run, reply)),
+            Err(e) => {
+                let _ = self.backend.measure_phase(false);
+                let _ = reply.send(Err(e.into()));
+            }
+        }
+    }
+
+    /// Decodes with `axis` from now on (a stored or fitted phase axis).
+    pub fn set_phase_axis(&mut self, axis: PhaseAxis) -> Result<(), BackendError> {
+        self.backend.set_phase_axis(Some(axis))
+    }
+
     /// Feeds the running job a frame; applies and answers its result once done.
     fn job_step(&mut self, frame: &Frame) {
         let Some(job) = self.job.take() else {
@@ -691,6 +733,34 @@ impl FrameLoop {
                 }
                 Err(e) => ActiveJob::PhotonTransfer(run, reply).fail(backend, e),
             },
+            ActiveJob::Phase(mut run, reply) => {
+                // A rig that cannot light LS1 alone would leave both lit:
+                // the fit would be wrong, not merely noisy.
+                if let Some(refused) = backend.lights().and_then(|l| l.refused) {
+                    let _ = backend.measure_phase(false);
+                    let _ = run.end(backend);
+                    let _ = reply.send(Err(JobError::LightsRefused(refused)));
+                    return;
+                }
+                run.job_mut().offer(backend.take_phase_sums());
+                match run.feed(frame, backend) {
+                    Ok(None) => self.job = Some(ActiveJob::Phase(run, reply)),
+                    Ok(Some(r)) => {
+                        let _ = backend.measure_phase(false);
+                        let restored = run.end(backend);
+                        let r = match (r, restored) {
+                            (Err(e), _) => Err(e.into()),
+                            (Ok(_), Err(e)) => Err(JobError::Restore(e)),
+                            (Ok(fit), Ok(())) => backend
+                                .set_phase_axis(Some(fit.axis))
+                                .map(|()| fit)
+                                .map_err(JobError::from),
+                        };
+                        let _ = reply.send(r);
+                    }
+                    Err(e) => ActiveJob::Phase(run, reply).fail(backend, e),
+                }
+            }
         }
     }
 

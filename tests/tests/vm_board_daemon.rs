@@ -2,8 +2,10 @@
 //! stack (dummy_hcd + configfs + FunctionFS), inside the VM, on a private
 //! dbus-daemon with the y4m output: auto picks the board, frames match what
 //! the emulator streamed, the firmware's clamps are seen, unplug shows
-//! "no signal" and DeviceUnavailable, replug resumes; and `[board] on_unplug`
-//! = "simulator" and "exit" behave as docs/install.md says.
+//! "no signal" and DeviceUnavailable, replug resumes; `[board] on_unplug`
+//! = "simulator" and "exit" behave as docs/install.md says; and with a
+//! delay on the LED path, `sdictl calibrate phase` (LS1 lit alone through
+//! `[lights]`) makes the difference right again and is kept across restarts.
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
@@ -14,6 +16,7 @@ use std::time::{Duration, Instant};
 
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::dbus::{sdictl, Bus, Daemon};
+use sdi_tests::light_rig::ScpiRig;
 use sdi_tests::process::Reaped;
 use sdi_tests::vm;
 use sdi_tests::wait::{wait_for, wait_until};
@@ -48,9 +51,14 @@ struct Sdid {
 
 impl Sdid {
     fn start(bus: &Bus, config: &Path) -> Self {
+        Self::start_with(bus, config, &[])
+    }
+
+    fn start_with(bus: &Bus, config: &Path, args: &[&str]) -> Self {
         let mut child = Daemon::bare_command(bus, &[])
             .args(["--sink", "y4m", "--y4m-path", "-", "--config"])
             .arg(config)
+            .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
@@ -166,6 +174,40 @@ fn snapshot_matches(emu: &BoardEmulator, npy: &Path) -> bool {
     s.sent
         .iter()
         .any(|(_, dn)| dn.len() == data.len() && dn[1..] == data[1..])
+}
+
+/// The largest |difference| over the snapshot's pixels (but pixel 0) to
+/// the closest frame the emulator sent, DN.
+fn snapshot_error_dn(emu: &BoardEmulator, npy: &Path) -> f32 {
+    let f = std::fs::File::open(npy).expect("snapshot file");
+    let (_, data) = sdi_core::npy::read_f32(f).expect("npy");
+    let s = emu.state.lock().unwrap();
+    s.sent
+        .iter()
+        .filter(|(_, dn)| dn.len() == data.len())
+        .map(|(_, dn)| {
+            dn[1..]
+                .iter()
+                .zip(&data[1..])
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max)
+        })
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// Takes snapshots until one is within `max_dn` of a frame sent or
+/// `wait` is up; the last error.
+fn snapshot_within(d: &Sdid, emu: &BoardEmulator, npy: &Path, max_dn: f32, wait: Duration) -> f32 {
+    let t0 = Instant::now();
+    loop {
+        let out = d.snapshot(npy);
+        assert!(out.status.success(), "{out:?}");
+        let err = snapshot_error_dn(emu, npy);
+        if err <= max_dn || t0.elapsed() > wait {
+            return err;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
 }
 
 /// This binary's VM tests, in one boot.
@@ -405,6 +447,72 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     wait_until("re-enumeration", Duration::from_secs(20), || {
         sdi_daemon::backend::board::board_attached().is_ok_and(|a| a)
     });
+
+    phase_calibration_fixes_a_delayed_led_path(&emu, &bus, tmp.path());
+}
+
+/// Part 4, the LED light 60 degrees of the modulation late: quad 0 alone reads
+/// d cos 60 = d / 2. `sdictl calibrate phase` with LS1 lit alone (the
+/// emulator's scene follows the function generator sdid drives) fits the
+/// axis; the difference then matches what the emulator sent within the
+/// 12-bit rounding, and again after a restart, from the store.
+fn phase_calibration_fixes_a_delayed_led_path(emu: &BoardEmulator, bus: &Bus, dir: &Path) {
+    let t0 = Instant::now();
+    let delay_deg = 60.0f64;
+    emu.state.lock().unwrap().led_delay_rad = delay_deg.to_radians();
+    let scene = emu.state.clone();
+    let rig = ScpiRig::start(move |ls1, ls2| scene.lock().unwrap().unlit = [!ls1, !ls2])
+        .expect("light rig");
+    let config = write_config(dir, "phase.toml", "no-signal");
+    let mut text = std::fs::read_to_string(&config).unwrap();
+    text += &format!(
+        "[lights]\ndriver = \"scpi-tcp\"\naddress = \"{}\"\n",
+        rig.address
+    );
+    std::fs::write(&config, text).unwrap();
+    let state_dir = dir.join("state");
+    let args = ["--state-dir", state_dir.to_str().unwrap()];
+    let d = Sdid::start_with(bus, &config, &args);
+    assert_eq!(d.prop("backend"), "opt8241");
+
+    // Uncalibrated: quad 0 alone, half of every difference.
+    let snap = dir.join("phase.npy");
+    let wrong = snapshot_within(&d, emu, &snap, 1.0, Duration::from_secs(1));
+    eprintln!("MEASURED: uncalibrated, {delay_deg} degrees late: snapshot off by up to {wrong} DN");
+    assert!(
+        wrong > 4.0,
+        "quad 0 alone matched a delayed frame: {wrong} DN"
+    );
+
+    let out = d.ctl(&["--json", "calibrate", "phase", "--frames", "8"]);
+    assert!(out.status.success(), "{out:?}");
+    let reply: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    eprintln!("calibrate phase: {reply}");
+    let angle = reply["angle_deg"].as_f64().expect("angle_deg");
+    assert!((angle - delay_deg).abs() < 2.0, "{reply}");
+    assert!(reply["coherence"].as_f64() > Some(0.9), "{reply}");
+    assert!(
+        !reply["lights"].as_str().unwrap_or("").is_empty(),
+        "{reply}"
+    );
+    assert!(reply["stored"].as_str().is_some(), "{reply}");
+    // sdid lit LS1 alone through the rig, then both again
+    let log = rig.log.lock().unwrap().clone();
+    assert!(log.iter().any(|c| c == "OUTPut2:STATe OFF"), "{log:?}");
+    let right = snapshot_within(&d, emu, &snap, 1.0, Duration::from_secs(10));
+    eprintln!("MEASURED: calibrated: snapshot off by up to {right} DN");
+    assert!(right <= 1.0, "calibrated difference off by {right} DN");
+    drop(d);
+
+    // A restart reads the axis from the store.
+    let stored = std::fs::read_to_string(state_dir.join("calibration.toml")).unwrap();
+    assert!(stored.contains("[[phase]]"), "{stored}");
+    let d = Sdid::start_with(bus, &config, &args);
+    let right = snapshot_within(&d, emu, &snap, 1.0, Duration::from_secs(10));
+    assert!(right <= 1.0, "after a restart: off by {right} DN");
+    drop(d);
+    emu.state.lock().unwrap().led_delay_rad = 0.0;
+    eprintln!("MEASURED: phase calibration part took {:?}", t0.elapsed());
 }
 
 /// A board that enumerates in UVC mode (0451:9106): `sdid --backend

@@ -32,6 +32,7 @@ use super::sim::SimBackend;
 use super::status::{DeviceStatus, StatusHandle};
 use super::{Backend, BackendError, BackendName, CaptureSettings, Limits};
 use crate::cause_log::{repeats, CauseLog};
+use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
 
 /// How often a missing board is looked for by a bus scan.
 pub const RECONNECT_INTERVAL: Duration = Duration::from_millis(500);
@@ -176,10 +177,6 @@ impl BoardBackend {
             tracing::warn!("the board clamped settings (laser safety): {clamps}");
         }
         tracing::info!(%device, "OPT8241-CDK configured and streaming");
-        tracing::warn!(
-            "no phase calibration: the difference is quad 0 alone, which assumes no delay \
-             between the modulation and the LED light (docs/hardware.md, \"Phase\")"
-        );
         let hotplug = match HotplugWatch::start() {
             Ok(Some(h)) => {
                 tracing::info!(
@@ -547,6 +544,23 @@ impl Backend for BoardBackend {
             Some(sim) if !self.board.is_connected() => sim.paced_rate_hz(),
             _ => None,
         }
+    }
+
+    /// Sums (I, Q) of the board's frames only: a stand-in's are not counted.
+    fn measure_phase(&mut self, on: bool) -> Result<(), BackendError> {
+        self.board.measure_phase(on);
+        Ok(())
+    }
+
+    fn take_phase_sums(&mut self) -> Option<PhaseSums> {
+        self.board.take_phase_sums()
+    }
+
+    /// The axis stays through unplug and replug: it belongs to the board
+    /// and its LED path, which a replug does not change.
+    fn set_phase_axis(&mut self, axis: Option<PhaseAxis>) -> Result<(), BackendError> {
+        self.board.set_phase_axis(axis);
+        Ok(())
     }
 
     fn capture(

@@ -11,8 +11,10 @@
 //! answers the vendor requests (0x08/0x09 registers, 0x1A version, 0x30
 //! revision, 0x32 serial) and, while tg_dis = 0, streams simulator frames in
 //! the raw-quad format, each ended by a zero-length packet, with the frame
-//! number in byte 0 when debug_frame_number_en is set. It is written from the
-//! public descriptions, independently of the backend's code.
+//! number in byte 0 when debug_frame_number_en is set. The test sets a phase
+//! delay on the LED path (`led_delay_rad`) and which sources light the
+//! scene (`unlit`, e.g. from [`crate::light_rig`] as sdid drives it). It is
+//! written from the public descriptions, independently of the backend's code.
 //! Runs only as root inside the VM (modules dummy_hcd, libcomposite, usb_f_fs).
 
 pub mod chip;
@@ -30,7 +32,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use sdi_core::modulation::Illumination;
+use sdi_core::modulation::{Illumination, SourceDrive};
 use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
@@ -64,6 +66,11 @@ pub struct BoardState {
     pub switched_to_bulk: Option<Instant>,
     /// op_overflow reads set whatever the configuration (`chip.rs`).
     pub force_overflow: bool,
+    /// Delay between the modulation and the LED light, as a phase of the
+    /// modulation, radians ([`encode_raw_quads_delayed`]).
+    pub led_delay_rad: f64,
+    /// LS1, LS2 switched off (by the test's light rig); both lit by default.
+    pub unlit: [bool; 2],
 }
 
 fn field(reg: u32, msb: u32, lsb: u32) -> u32 {
@@ -127,6 +134,30 @@ pub fn encode_raw_quads(dn: &[f32], quads: usize) -> (Vec<u8>, Vec<f32>) {
         px[0..2].copy_from_slice(&w0.to_le_bytes());
         if quads > 2 {
             px[4..6].copy_from_slice(&w2.to_le_bytes());
+        }
+    }
+    (out, kept)
+}
+
+/// [`encode_raw_quads`] with the light arriving `delay_rad` of a
+/// modulation period late: the difference d spread over the quads as its
+/// first harmonic, q_k = d cos(2 pi k / N - delay) (each quad rounded and
+/// clamped to 12 bits). No delay is exactly [`encode_raw_quads`]. The
+/// second vector is d as sent (rounded, clamped): what a decoder that
+/// knows the delay recovers.
+pub fn encode_raw_quads_delayed(dn: &[f32], quads: usize, delay_rad: f64) -> (Vec<u8>, Vec<f32>) {
+    if delay_rad == 0.0 {
+        return encode_raw_quads(dn, quads);
+    }
+    let mut out = vec![0u8; dn.len() * quads * 2];
+    let mut kept = Vec::with_capacity(dn.len());
+    for (px, &d) in out.chunks_exact_mut(quads * 2).zip(dn) {
+        let d = f64::from(d.round().clamp(-2048.0, 2047.0));
+        kept.push(d as f32);
+        for k in 0..quads {
+            let phase = std::f64::consts::TAU * k as f64 / quads as f64 - delay_rad;
+            let q = (d * phase.cos()).round().clamp(-2048.0, 2047.0) as i32;
+            px[2 * k..2 * k + 2].copy_from_slice(&((q & 0xFFF) as u16).to_le_bytes());
         }
     }
     (out, kept)
@@ -563,13 +594,15 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
     let mut number: u8 = 0;
     let mut file: Option<File> = None;
     while !stop.load(Ordering::SeqCst) {
-        let (running, (w, h, quads), period, numbers) = {
+        let (running, (w, h, quads), period, numbers, delay_rad, unlit) = {
             let s = state.lock().unwrap();
             (
                 field(s.reg(0x5880), 0, 0) == 0 && field(s.reg(0x5C25), 11, 8) == 15,
                 s.geometry(),
                 s.frame_period(),
                 field(s.reg(0x5C39), 12, 12) == 1,
+                s.led_delay_rad,
+                s.unlit,
             )
         };
         if !running {
@@ -588,8 +621,15 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
         let Some((simulator, _)) = sim.as_mut() else {
             return;
         };
-        simulator.capture(&Illumination::snapshot(12e6), &mut frame);
-        let (mut bytes, kept) = encode_raw_quads(&frame.dn.data, quads);
+        let mut lit = Illumination::snapshot(12e6);
+        if unlit[0] {
+            lit.ls1 = SourceDrive::Off;
+        }
+        if unlit[1] {
+            lit.ls2 = SourceDrive::Off;
+        }
+        simulator.capture(&lit, &mut frame);
+        let (mut bytes, kept) = encode_raw_quads_delayed(&frame.dn.data, quads, delay_rad);
         number = number.wrapping_add(1);
         if numbers {
             bytes[0] = number;
@@ -624,5 +664,45 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
             continue;
         }
         std::thread::sleep(period);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sdi_core::quad_phase::PhaseAxis;
+    use sdi_daemon::backend::opt8241::frame::{QuadCombine, QuadDecoder, QuadLayout};
+
+    /// The emulator's delayed quads against the backend's decoder: quad 0
+    /// alone loses the delayed part, the projection onto the delay's axis
+    /// recovers d within the 12-bit rounding of two quads.
+    #[test]
+    fn a_delayed_led_path_needs_the_projection() {
+        let dn: Vec<f32> = vec![0.0, 300.0, -120.0, 37.0, 1000.0, -2047.0];
+        let layout = QuadLayout {
+            width: dn.len(),
+            height: 1,
+            quads: 4,
+        };
+        assert_eq!(
+            encode_raw_quads_delayed(&dn, 4, 0.0),
+            encode_raw_quads(&dn, 4)
+        );
+        let delay_rad = 60f64.to_radians();
+        let (raw, sent) = encode_raw_quads_delayed(&dn, 4, delay_rad);
+        assert_eq!(sent, dn);
+        let mut dec = QuadDecoder::new(layout);
+        dec.frame_number_in_first_byte = false;
+        let mut f = Frame::new(1, 1);
+        dec.decode(&raw, &mut f).unwrap();
+        // quad 0 alone: d cos 60 degrees, half of it
+        assert!((f.dn.data[4] - 500.0).abs() <= 0.5, "{:?}", f.dn.data);
+        dec.combine = QuadCombine::Projected(PhaseAxis {
+            angle_rad: delay_rad,
+        });
+        dec.decode(&raw, &mut f).unwrap();
+        for (got, want) in f.dn.data.iter().zip(&sent) {
+            assert!((got - want).abs() <= 0.71, "{got} vs {want}");
+        }
     }
 }

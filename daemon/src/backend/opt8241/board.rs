@@ -16,11 +16,12 @@ use sdi_core::modulation::Illumination;
 use sdi_core::Frame;
 
 use super::frame::{
-    Assembled, AssemblerStats, DecodeError, DropReason, FrameAssembler, QuadDecoder,
+    Assembled, AssemblerStats, DecodeError, DropReason, FrameAssembler, QuadCombine, QuadDecoder,
 };
 use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
 use super::protocol::{ProtocolError, RegisterBus, TransportError};
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
+use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
 
 /// Transfers queued at the host controller while streaming.
 pub const DEFAULT_TRANSFERS_IN_FLIGHT: usize = 4;
@@ -254,6 +255,10 @@ pub struct Opt8241 {
     sequence: u64,
     started: Instant,
     pub transfers_in_flight: usize,
+    /// Sum each frame's (I, Q) for the phase calibration.
+    measure_phase: bool,
+    /// The sums of the last frame decoded while measuring.
+    phase_sums: Option<PhaseSums>,
 }
 
 fn new_context() -> Result<Context, BoardError> {
@@ -280,6 +285,8 @@ impl Opt8241 {
             sequence: 0,
             started: Instant::now(),
             transfers_in_flight: DEFAULT_TRANSFERS_IN_FLIGHT,
+            measure_phase: false,
+            phase_sums: None,
         };
         board.connect()?;
         Ok(board)
@@ -396,6 +403,30 @@ impl Opt8241 {
         Ok(self.decoder.set_dark_dn(dark)?)
     }
 
+    /// Decodes with the calibrated phase axis (`None`: quad 0 alone).
+    pub fn set_phase_axis(&mut self, axis: Option<PhaseAxis>) {
+        self.decoder.combine = axis.map_or(QuadCombine::Quad0, QuadCombine::Projected);
+    }
+
+    /// The axis frames are decoded with, if calibrated.
+    pub fn phase_axis(&self) -> Option<PhaseAxis> {
+        match self.decoder.combine {
+            QuadCombine::Projected(axis) => Some(axis),
+            _ => None,
+        }
+    }
+
+    /// Starts or stops summing each frame's (I, Q) ([`Opt8241::take_phase_sums`]).
+    pub fn measure_phase(&mut self, on: bool) {
+        self.measure_phase = on;
+        self.phase_sums = None;
+    }
+
+    /// The (I, Q) sums of the last frame, once, while measuring.
+    pub fn take_phase_sums(&mut self) -> Option<PhaseSums> {
+        self.phase_sums.take()
+    }
+
     /// Register access for diagnostics (status, temperatures).
     pub fn registers(&mut self) -> Option<&mut RegisterBus<UsbTransport>> {
         self.session.as_mut().map(|s| &mut s.bus)
@@ -448,6 +479,11 @@ impl Opt8241 {
                         ..
                     } => {
                         self.decoder.decode(&bytes, out)?;
+                        self.phase_sums = if self.measure_phase {
+                            Some(self.decoder.phase_sums(&bytes)?)
+                        } else {
+                            None
+                        };
                         out.sequence = self.sequence;
                         out.timestamp_us = self.started.elapsed().as_micros() as u64;
                         self.sequence += 1;

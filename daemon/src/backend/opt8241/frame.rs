@@ -18,7 +18,7 @@
 //! frames that are out of sequence and locks on again after two consecutive
 //! numbers.
 
-use sdi_core::quad_phase::{PhaseAxis, QuadBasis};
+use sdi_core::quad_phase::{PhaseAxis, PhaseSums, QuadBasis};
 use sdi_core::Frame;
 
 /// Geometry of one raw-quad frame.
@@ -167,6 +167,38 @@ impl QuadDecoder {
             out.saturated.data[0] = out.saturated.data[1];
         }
         Ok(())
+    }
+}
+
+impl QuadDecoder {
+    /// The summed (I, Q) of one raw frame's pixels, for measuring the
+    /// phase axis (`sdi_core::quad_phase::fit_axis`): pixels with a quad at
+    /// a 12-bit extreme, and pixel 0 when it carries the frame number,
+    /// are left out.
+    pub fn phase_sums(&self, raw: &[u8]) -> Result<PhaseSums, DecodeError> {
+        let l = self.layout;
+        if raw.len() != l.frame_bytes() {
+            return Err(DecodeError::Length {
+                expected: l.frame_bytes(),
+                got: raw.len(),
+            });
+        }
+        let basis = QuadBasis::new(l.quads).map_err(|_| DecodeError::Quads { quads: l.quads })?;
+        let skip = usize::from(self.frame_number_in_first_byte);
+        let mut sums = PhaseSums::new(l.quads);
+        let mut quads = [0.0f32; 6];
+        'pixels: for px in raw.chunks_exact(l.quads * 2).skip(skip) {
+            for (k, q) in quads.iter_mut().enumerate().take(l.quads) {
+                let v = sign_extend_12(u16::from_le_bytes([px[2 * k], px[2 * k + 1]]));
+                if v <= CODE_MIN_DN || v >= CODE_MAX_DN {
+                    continue 'pixels;
+                }
+                *q = f32::from(v);
+            }
+            let (i, q) = basis.in_phase_quadrature(&quads[..l.quads]);
+            sums.push(i, q);
+        }
+        Ok(sums)
     }
 }
 
@@ -451,6 +483,24 @@ mod tests {
         dec.decode(&raw, &mut f).unwrap();
         assert!((f.dn.data[0] - 300.0).abs() < 1e-3, "{:?}", f.dn.data);
         assert!((f.dn.data[1] + 120.0).abs() < 1e-3, "{:?}", f.dn.data);
+    }
+
+    #[test]
+    fn phase_sums_leave_out_the_frame_number_and_saturated_pixels() {
+        let layout = QuadLayout {
+            width: 3,
+            height: 1,
+            quads: 4,
+        };
+        // pixel 0: the frame number; 1: d = 100 a quarter period late; 2: saturated
+        let raw: Vec<u8> = [9i16, 0, 0, 0, 0, 100, 0, -100, 2047, 0, -2048, 0]
+            .iter()
+            .flat_map(|v| (*v as u16 & 0xFFF).to_le_bytes())
+            .collect();
+        let dec = QuadDecoder::new(layout);
+        let s = dec.phase_sums(&raw).unwrap();
+        assert_eq!((s.sum_i, s.sum_q, s.samples), (0.0, 200.0, 1));
+        assert!(dec.phase_sums(&raw[..4]).is_err());
     }
 
     #[test]
