@@ -16,7 +16,8 @@ use super::frame::{
     Assembled, AssemblerStats, DecodeError, DropReason, FrameAssembler, QuadDecoder,
 };
 use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
-use super::protocol::{ProtocolError, RegisterBus, TransportError};
+use super::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
+use super::saturation::{depth_frame_bytes, ProbeStats, ProbeWrite, SaturationProbe};
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
 
 /// Transfers queued at the host controller while streaming.
@@ -107,6 +108,7 @@ pub struct StreamStats {
     pub overflows: u64,
     pub errors: u64,
     pub reconnects: u64,
+    pub saturation: ProbeStats,
 }
 
 struct Session {
@@ -141,7 +143,8 @@ impl Connection {
             ConfigError::Protocol(p) => BoardError::from_protocol(p),
             other => BoardError::Config(other),
         })?;
-        let frame_bytes = layout_of(config).frame_bytes();
+        let layout = layout_of(config);
+        let frame_bytes = layout.frame_bytes();
         let stream = BulkStream::start(
             open.handle,
             open.endpoint,
@@ -149,12 +152,14 @@ impl Connection {
             in_flight,
             READ_TIMEOUT,
         );
+        let mut assembler = FrameAssembler::new(frame_bytes, config.frame_numbers);
+        assembler.also_accept(depth_frame_bytes(layout.width, layout.height));
         Ok(Self {
             context,
             session: Session {
                 bus,
                 stream,
-                assembler: FrameAssembler::new(frame_bytes, config.frame_numbers),
+                assembler,
                 serial: open.serial,
             },
             report,
@@ -168,6 +173,8 @@ pub struct Opt8241 {
     selector: BoardSelector,
     config: BoardConfig,
     decoder: QuadDecoder,
+    /// Depth frames interleaved for the chip's saturation flags.
+    probe: SaturationProbe,
     session: Option<Session>,
     report: InitReport,
     stats: StreamStats,
@@ -192,6 +199,7 @@ impl Opt8241 {
             context,
             selector,
             decoder: QuadDecoder::new(layout_of(&config)),
+            probe: SaturationProbe::default(),
             config,
             session: None,
             report: InitReport::default(),
@@ -217,6 +225,7 @@ impl Opt8241 {
         self.report = c.report;
         self.decoder.layout = layout_of(&self.config);
         self.decoder.frame_number_in_first_byte = self.config.frame_numbers;
+        self.probe.reset();
         self.session = Some(c.session);
     }
 
@@ -306,6 +315,7 @@ impl Opt8241 {
         if let Some(sess) = &self.session {
             s.assembler = sess.assembler.stats;
         }
+        s.saturation = self.probe.stats;
         s
     }
 
@@ -363,7 +373,35 @@ impl Opt8241 {
                         frame_number,
                         ..
                     } => {
+                        let l = self.decoder.layout;
+                        if bytes.len() == depth_frame_bytes(l.width, l.height) {
+                            let write = self
+                                .probe
+                                .on_depth_frame(&bytes, l.width, l.height)
+                                .map_err(|e| DecodeError::Length {
+                                    expected: e.expected,
+                                    got: e.got,
+                                })?;
+                            tracing::trace!(?frame_number, "saturation flags");
+                            if let Err(e) = probe_write(&mut session.bus, &mut self.probe, write) {
+                                self.session = None;
+                                return Err(e);
+                            }
+                            // Not a difference frame: a device sending only
+                            // these ends the wait like any unusable transfer.
+                            unusable += 1;
+                            cause = "depth frames instead of raw quads";
+                            detail = "frames of depth length (the saturation probe's)".into();
+                            continue;
+                        }
                         self.decoder.decode(&bytes, out)?;
+                        self.probe.apply(&mut out.saturated.data);
+                        if let Some(write) = self.probe.on_raw_frame() {
+                            if let Err(e) = probe_write(&mut session.bus, &mut self.probe, write) {
+                                self.session = None;
+                                return Err(e);
+                            }
+                        }
                         out.sequence = self.sequence;
                         out.timestamp_us = self.started.elapsed().as_micros() as u64;
                         self.sequence += 1;
@@ -383,7 +421,15 @@ impl Opt8241 {
                         };
                     }
                 },
-                StreamEvent::Timeout => self.stats.timeouts += 1,
+                StreamEvent::Timeout => {
+                    self.stats.timeouts += 1;
+                    if let Some(write) = self.probe.on_no_frame() {
+                        if let Err(e) = probe_write(&mut session.bus, &mut self.probe, write) {
+                            self.session = None;
+                            return Err(e);
+                        }
+                    }
+                }
                 StreamEvent::HaltCleared => {
                     self.stats.halts_cleared += 1;
                     unusable += 1;
@@ -414,6 +460,36 @@ impl Opt8241 {
                     return Err(BoardError::DeviceUnavailable);
                 }
             }
+        }
+    }
+}
+
+/// Performs a saturation probe's write. A lost board is
+/// [`BoardError::DeviceUnavailable`]; any other failure is only logged: a
+/// probe that did not start misses its depth frame, and a depth frame
+/// after a switch back that did not take asks for raw quads again.
+fn probe_write<T: Transport>(
+    bus: &mut RegisterBus<T>,
+    probe: &mut SaturationProbe,
+    write: ProbeWrite,
+) -> Result<(), BoardError> {
+    if probe.take_gave_up_notice() {
+        tracing::warn!(
+            "saturation probe: the board sent no depth frame after output_mode = 0, {} times \
+             in a row; pixels with both wells full are no longer flagged (only the 12-bit rails are)",
+            super::saturation::PROBE_MAX_FAILURES
+        );
+    }
+    let (field, value) = write.field_value();
+    match bus.write_field(field, value) {
+        Ok(_) => Ok(()),
+        Err(e) if e.is_disconnect() => Err(BoardError::DeviceUnavailable),
+        Err(e) => {
+            tracing::debug!(
+                "saturation probe: {} = {value} not written: {e}",
+                field.name
+            );
+            Ok(())
         }
     }
 }
