@@ -17,7 +17,7 @@ use super::frame::{
 };
 use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
 use super::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
-use super::saturation::{depth_frame_bytes, ProbeStats, ProbeWrite, SaturationProbe};
+use super::saturation::{depth_frame_bytes, DepthFrame, ProbeStats, ProbeWrite, SaturationProbe};
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
 
 /// Transfers queued at the host controller while streaming.
@@ -375,23 +375,34 @@ impl Opt8241 {
                     } => {
                         let l = self.decoder.layout;
                         if bytes.len() == depth_frame_bytes(l.width, l.height) {
-                            let write = self
+                            let depth = self
                                 .probe
                                 .on_depth_frame(&bytes, l.width, l.height)
                                 .map_err(|e| DecodeError::Length {
                                     expected: e.expected,
                                     got: e.got,
                                 })?;
-                            tracing::trace!(?frame_number, "saturation flags");
-                            if let Err(e) = probe_write(&mut session.bus, &mut self.probe, write) {
-                                self.session = None;
-                                return Err(e);
+                            tracing::trace!(?frame_number, ?depth, "saturation flags");
+                            let write = match depth {
+                                DepthFrame::Expected(write) => write,
+                                DepthFrame::Unasked(write) => {
+                                    // Not a difference frame, and nobody asked:
+                                    // a device sending only these ends the wait
+                                    // like any unusable transfer.
+                                    unusable += 1;
+                                    cause = "depth frames instead of raw quads";
+                                    detail = "frames of depth length, unasked".into();
+                                    Some(write)
+                                }
+                            };
+                            if let Some(write) = write {
+                                if let Err(e) =
+                                    probe_write(&mut session.bus, &mut self.probe, write)
+                                {
+                                    self.session = None;
+                                    return Err(e);
+                                }
                             }
-                            // Not a difference frame: a device sending only
-                            // these ends the wait like any unusable transfer.
-                            unusable += 1;
-                            cause = "depth frames instead of raw quads";
-                            detail = "frames of depth length (the saturation probe's)".into();
                             continue;
                         }
                         self.decoder.decode(&bytes, out)?;

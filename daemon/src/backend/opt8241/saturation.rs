@@ -7,8 +7,11 @@
 //! [`PROBE_EVERY_FRAMES`] raw-quad frames it asks for `output_mode` =
 //! depth; the depth frame's flags become the mask ORed into the
 //! `saturated` plane of the raw-quad frames that follow, until the next
-//! probe. A depth frame arriving when none was asked for (a switch back
-//! that did not take) asks for the raw quads again. When
+//! probe. Depth frames that follow the one asked for, while the write
+//! back to raw quads is on its way (a few under load: three control
+//! transfers), are expected and cost nothing; any other depth frame (a
+//! switch back that did not take, or a device sending only those) asks
+//! for the raw quads again and is unusable to the caller. When
 //! [`PROBE_MAX_FAILURES`] probes in a row get no depth frame within
 //! [`PROBE_WAIT_FRAMES`] frames, it stops probing: saturation then comes
 //! from the 12-bit rails alone, and the caller says so once.
@@ -19,6 +22,10 @@ use sdi_opt8241::registers::Field;
 pub use sdi_opt8241::saturation::{
     depth_frame_bytes, DepthFrameLength, PROBE_EVERY_FRAMES, PROBE_MAX_FAILURES, PROBE_WAIT_FRAMES,
 };
+
+/// Depth frames expected after the write back to raw quads, before the
+/// next raw-quad frame: frames the board sent before the write landed.
+pub const DEPTH_FRAMES_AFTER_END: u32 = 16;
 use sdi_opt8241::saturation::{saturated_from_depth, PROBE_END, PROBE_START};
 
 /// A register write the probe asks for.
@@ -37,6 +44,15 @@ impl ProbeWrite {
             ProbeWrite::End => PROBE_END,
         }
     }
+}
+
+/// What a depth frame was, and the write it asks for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DepthFrame {
+    /// The probe's, or one sent before the write back to raw quads landed.
+    Expected(Option<ProbeWrite>),
+    /// Nobody asked for it: the write back to raw quads again.
+    Unasked(ProbeWrite),
 }
 
 /// Counters for the stream statistics.
@@ -60,6 +76,8 @@ pub struct SaturationProbe {
     gave_up: bool,
     /// Giving up not yet said.
     gave_up_untold: bool,
+    /// Depth frames still expected after the write back to raw quads.
+    end_grace: u32,
     /// 1 = saturated at the last probe; empty before the first.
     mask: Vec<u8>,
     pub stats: ProbeStats,
@@ -81,6 +99,7 @@ impl SaturationProbe {
             missed_in_a_row: 0,
             gave_up: every_frames == 0,
             gave_up_untold: false,
+            end_grace: 0,
             mask: Vec::new(),
             stats: ProbeStats::default(),
         }
@@ -141,6 +160,7 @@ impl SaturationProbe {
 
     /// After each raw-quad frame: the write to make now, if any.
     pub fn on_raw_frame(&mut self) -> Option<ProbeWrite> {
+        self.end_grace = 0;
         if let Some(write) = self.wait_tick() {
             return write;
         }
@@ -157,19 +177,28 @@ impl SaturationProbe {
         Some(ProbeWrite::Start)
     }
 
-    /// A depth frame: its flags become the mask, and the board goes back
-    /// to raw quads (also when no probe asked for it).
+    /// A depth frame: its flags become the mask. The probe's own frame,
+    /// or one expected after it, is [`DepthFrame::Expected`]; any other
+    /// is [`DepthFrame::Unasked`]. Both may ask for the write back to raw
+    /// quads.
     pub fn on_depth_frame(
         &mut self,
         raw: &[u8],
         width: usize,
         height: usize,
-    ) -> Result<ProbeWrite, DepthFrameLength> {
-        self.waiting = None;
+    ) -> Result<DepthFrame, DepthFrameLength> {
         saturated_from_depth(raw, width, height, &mut self.mask)?;
-        self.missed_in_a_row = 0;
         self.stats.depth_frames += 1;
-        Ok(ProbeWrite::End)
+        if self.waiting.take().is_some() {
+            self.missed_in_a_row = 0;
+            self.end_grace = DEPTH_FRAMES_AFTER_END;
+            return Ok(DepthFrame::Expected(Some(ProbeWrite::End)));
+        }
+        if self.end_grace > 0 {
+            self.end_grace -= 1;
+            return Ok(DepthFrame::Expected(None));
+        }
+        Ok(DepthFrame::Unasked(ProbeWrite::End))
     }
 }
 
@@ -194,13 +223,18 @@ mod tests {
         assert_eq!(p.on_raw_frame(), None);
         assert_eq!(
             p.on_depth_frame(&depth(&[8, 0, 0xF, 7]), 2, 2),
-            Ok(ProbeWrite::End)
+            Ok(DepthFrame::Expected(Some(ProbeWrite::End)))
+        );
+        // frames the board sent before the write back landed: no new write
+        assert_eq!(
+            p.on_depth_frame(&depth(&[8, 0, 0xF, 7]), 2, 2),
+            Ok(DepthFrame::Expected(None))
         );
         let mut sat = vec![0u8; 4];
         p.apply(&mut sat);
         assert_eq!(sat, [1, 0, 1, 0]);
         assert_eq!(p.stats.probes, 1);
-        assert_eq!(p.stats.depth_frames, 1);
+        assert_eq!(p.stats.depth_frames, 2);
         for _ in 0..2 {
             assert_eq!(p.on_raw_frame(), None);
         }
@@ -224,7 +258,33 @@ mod tests {
         assert_eq!(p.on_no_frame(), None);
         assert_eq!(p.stats.missed, u64::from(PROBE_MAX_FAILURES));
         // an unasked-for depth frame still sends the board back to raw quads
-        assert_eq!(p.on_depth_frame(&depth(&[0]), 1, 1), Ok(ProbeWrite::End));
+        assert_eq!(
+            p.on_depth_frame(&depth(&[0]), 1, 1),
+            Ok(DepthFrame::Unasked(ProbeWrite::End))
+        );
+    }
+
+    #[test]
+    fn only_so_many_depth_frames_are_expected_after_the_probes() {
+        let mut p = SaturationProbe::new(1);
+        assert_eq!(p.on_raw_frame(), Some(ProbeWrite::Start));
+        assert!(matches!(
+            p.on_depth_frame(&depth(&[0]), 1, 1),
+            Ok(DepthFrame::Expected(Some(_)))
+        ));
+        for _ in 0..DEPTH_FRAMES_AFTER_END {
+            assert_eq!(
+                p.on_depth_frame(&depth(&[0]), 1, 1),
+                Ok(DepthFrame::Expected(None))
+            );
+        }
+        assert!(matches!(
+            p.on_depth_frame(&depth(&[0]), 1, 1),
+            Ok(DepthFrame::Unasked(_))
+        ));
+        // a raw-quad frame ends the grace
+        assert_eq!(p.on_raw_frame(), Some(ProbeWrite::Start));
+        assert_eq!(p.on_raw_frame(), None);
     }
 
     #[test]
