@@ -3,9 +3,11 @@
 //! dbus-daemon with the y4m output: auto picks the board, frames match what
 //! the emulator streamed, the firmware's clamps are seen, unplug shows
 //! "no signal" and DeviceUnavailable, replug resumes; `[board] on_unplug`
-//! = "simulator" and "exit" behave as docs/install.md says; and with a
-//! delay on the LED path, `sdictl calibrate phase` (LS1 lit alone through
-//! `[lights]`) makes the difference right again and is kept across restarts.
+//! = "simulator" and "exit" behave as docs/install.md says; with a delay
+//! on the LED path, `sdictl calibrate phase` (LS1 lit alone through
+//! `[lights]`) makes the difference right again and is kept across
+//! restarts; a region whose wells both fill is flagged saturated in sdid's
+//! recording and kept out of separation.
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
@@ -14,6 +16,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use sdi_tests::board_emulator::chip::SaturatedRegion;
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::dbus::{sdictl, Bus, Daemon};
 use sdi_tests::light_rig::ScpiRig;
@@ -47,6 +50,8 @@ struct Sdid {
     address: String,
     seen: Arc<Mutex<Seen>>,
     frames: Arc<AtomicU64>,
+    /// sdid's log lines so far (also passed on to the test's stderr).
+    log: Arc<Mutex<Vec<String>>>,
 }
 
 impl Sdid {
@@ -61,10 +66,19 @@ impl Sdid {
             .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(Stdio::piped())
             .spawn()
             .expect("start sdid");
         let stdout = child.stdout.take().expect("stdout");
+        let stderr = child.stderr.take().expect("stderr");
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let lines = log.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                eprintln!("{line}");
+                lines.lock().unwrap().push(line);
+            }
+        });
         let seen = Arc::new(Mutex::new(Seen::default()));
         let frames = Arc::new(AtomicU64::new(0));
         let (s, n) = (seen.clone(), frames.clone());
@@ -74,6 +88,7 @@ impl Sdid {
             address: bus.address.clone(),
             seen,
             frames,
+            log,
         };
         wait_until("sdid on the bus", Duration::from_secs(60), || {
             d.ctl(&["get", "mode"]).status.success()
@@ -241,7 +256,13 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     {
         let s = emu.state.lock().unwrap();
         assert_eq!(s.reg_value(0x5C4C) & 0x3F, 20, "intg_duty_cycle");
-        assert_eq!((s.reg_value(0x5C25) >> 8) & 0xF, 15, "raw quads");
+        // raw quads (output_mode 15), between the saturation probes' depth frames
+        let modes = s.writes.iter().filter(|w| w.address == 0x5C25);
+        assert_eq!(
+            modes.map(|w| (w.kept >> 8) & 0xF).next(),
+            Some(15),
+            "raw quads"
+        );
         assert!(s.reg_value(0x5882) & 0x3F_FFFF >= 60_000, "pix_cnt_max");
         for w in &s.writes {
             assert_eq!(w.written, w.kept, "firmware clamp hit: {w:?}");
@@ -275,12 +296,17 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     eprintln!("Limits: {limits}");
     let fr = &limits["FrameRate"];
     assert!((fr[0].as_f64().unwrap() - 2.861).abs() < 1e-3, "{limits}");
-    let writes_before = emu.state.lock().unwrap().writes.len();
+    // (output_mode, 0x5C25, is the saturation probe's, written while streaming)
+    let configuring = |emu: &BoardEmulator| {
+        let s = emu.state.lock().unwrap();
+        s.writes.iter().filter(|w| w.address != 0x5C25).count()
+    };
+    let writes_before = configuring(&emu);
     let out = d.ctl(&["set", "frame-rate", "2"]);
     assert!(!out.status.success(), "{out:?}");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("2.86"), "{err}");
-    assert_eq!(emu.state.lock().unwrap().writes.len(), writes_before);
+    assert_eq!(configuring(&emu), writes_before);
     assert_eq!(emu.state.lock().unwrap().reg_value(0x5880) & 1, 0, "tg_dis");
     let n = d.frames.load(Ordering::SeqCst);
     wait_until(
@@ -303,10 +329,17 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     assert!(text.contains("frame rate 2.86"), "{text}");
 
     // An output overflow is seen at the next poll, counted in Stats, and
-    // the frame it came with is dropped; frames go on.
+    // the frame it came with is dropped, which the log says; frames go on.
     emu.state.lock().unwrap().force_overflow = true;
     wait_until("an overflow in Stats", Duration::from_secs(15), || {
         d.prop("stats")["output_overflows"].as_u64() >= Some(1)
+    });
+    wait_until("the overflow in the log", Duration::from_secs(5), || {
+        d.log
+            .lock()
+            .unwrap()
+            .iter()
+            .any(|l| l.contains("output overflow (op_overflow)") && l.contains("frame dropped"))
     });
     emu.state.lock().unwrap().force_overflow = false;
     let n = d.frames.load(Ordering::SeqCst);
@@ -327,6 +360,8 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
         std::thread::sleep(Duration::from_millis(100));
     }
     eprintln!("MEASURED: {compared} snapshots equal frames the emulator sent");
+
+    saturated_wells_are_flagged_and_kept_out_of_separation(&emu, &d, tmp.path());
 
     // unplug mid-stream
     let t_unplug = Instant::now();
@@ -586,4 +621,107 @@ fn sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams() {
     );
     assert!(d.device_available());
     drop(d);
+}
+
+/// Both wells full in a region (ambient light with the IR filter off):
+/// the raw quads read 0 there, so only the chip's depth-output flag can
+/// tell; sdid's frames (its recording) carry the pixels as saturated, no
+/// other pixel, and separation marks them SATURATED.
+fn saturated_wells_are_flagged_and_kept_out_of_separation(
+    emu: &BoardEmulator,
+    d: &Sdid,
+    dir: &Path,
+) {
+    use sdi_core::separation::{unmix, UnmixOptions, Welford};
+    use sdi_recording::{Record, RecordingReader};
+
+    let region = SaturatedRegion {
+        x: 16,
+        y: 8,
+        width: 16,
+        height: 12,
+    };
+    emu.state.lock().unwrap().saturated_region = Some(region);
+    let rec = dir.join("saturated.sdirec");
+    let t0 = Instant::now();
+    let out = d.ctl(&["record", rec.to_str().unwrap(), "--seconds", "2.5"]);
+    assert!(out.status.success(), "{out:?}");
+    emu.state.lock().unwrap().saturated_region = None;
+    let mut frames = Vec::new();
+    wait_until("the recording finished", Duration::from_secs(10), || {
+        frames.clear();
+        let Ok(mut r) = RecordingReader::open(&rec) else {
+            return false;
+        };
+        let mut ended = false;
+        while let Some(record) = r.next_record() {
+            match record {
+                Record::Frame { frame, .. } => frames.push(frame),
+                Record::End { .. } => ended = true,
+                Record::Dark { .. } => {}
+            }
+        }
+        ended
+    });
+    let inside = |i: usize| region.contains(i % W, i / W);
+    // Frames before the first probe (one every 30 frames) or before the
+    // region reached a depth frame carry no flags yet.
+    let flagged: Vec<_> = frames
+        .iter()
+        .filter(|f| {
+            f.saturated
+                .data
+                .iter()
+                .enumerate()
+                .any(|(i, &s)| s != 0 && inside(i))
+        })
+        .collect();
+    eprintln!(
+        "MEASURED: {} of {} recorded frames flag the saturated region ({:?} for the recording)",
+        flagged.len(),
+        frames.len(),
+        t0.elapsed()
+    );
+    assert!(flagged.len() >= 2, "no frame flags the saturated region");
+    for f in &flagged {
+        for (i, &s) in f.saturated.data.iter().enumerate() {
+            assert_eq!(s != 0, inside(i), "pixel {i}: saturated = {s}");
+        }
+    }
+    assert!(
+        frames
+            .last()
+            .is_some_and(|f| flagged.iter().any(|g| g.sequence == f.sequence)),
+        "the last frame is not flagged"
+    );
+    {
+        let s = emu.state.lock().unwrap();
+        let modes: Vec<u32> = s
+            .writes
+            .iter()
+            .filter(|w| w.address == 0x5C25)
+            .map(|w| (w.kept >> 8) & 0xF)
+            .collect();
+        assert!(modes.contains(&0), "no depth frame asked for: {modes:?}");
+        assert_eq!(modes.last(), Some(&15), "left in depth output: {modes:?}");
+    }
+    let mut welford = Welford::new(W, H);
+    for f in &flagged {
+        welford.push(f).expect("push");
+    }
+    let h = sdi_core::sensor::SensorPreset::TiOpt8241.params().skellam();
+    let sep = unmix(
+        &welford.moments().expect("moments"),
+        &h,
+        UnmixOptions::default(),
+    )
+    .expect("unmix");
+    let saturated = sdi_core::PixelFlags::SATURATED.bits();
+    for (i, &f) in sep.flags.data.iter().enumerate() {
+        assert_eq!(
+            f & saturated != 0,
+            inside(i),
+            "separation flags of pixel {i}: {f:#x}"
+        );
+    }
 }

@@ -10,11 +10,13 @@
 //! The emulator keeps a register file with the firmware's laser-safety masks,
 //! answers the vendor requests (0x08/0x09 registers, 0x1A version, 0x30
 //! revision, 0x32 serial) and, while tg_dis = 0, streams simulator frames in
-//! the raw-quad format, each ended by a zero-length packet, with the frame
-//! number in byte 0 when debug_frame_number_en is set. The test sets a phase
-//! delay on the LED path (`led_delay_rad`) and which sources light the
-//! scene (`unlit`, e.g. from [`crate::light_rig`] as sdid drives it). It is
-//! written from the public descriptions, independently of the backend's code.
+//! the raw-quad format (or, with output_mode = 0, depth frames whose flags
+//! mark saturated pixels, `chip.rs`), each ended by a zero-length packet,
+//! with the frame number in byte 0 when debug_frame_number_en is set. The
+//! test sets a phase delay on the LED path (`led_delay_rad`), which sources
+//! light the scene (`unlit`, e.g. from [`crate::light_rig`] as sdid drives
+//! it) and a saturated region. It is written from the public descriptions,
+//! independently of the backend's code.
 //! Runs only as root inside the VM (modules dummy_hcd, libcomposite, usb_f_fs).
 
 pub mod chip;
@@ -71,6 +73,8 @@ pub struct BoardState {
     pub led_delay_rad: f64,
     /// LS1, LS2 switched off (by the test's light rig); both lit by default.
     pub unlit: [bool; 2],
+    /// Pixels whose wells both fill (`chip.rs`, [`chip::SaturatedRegion`]).
+    pub saturated_region: Option<chip::SaturatedRegion>,
 }
 
 fn field(reg: u32, msb: u32, lsb: u32) -> u32 {
@@ -594,15 +598,17 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
     let mut number: u8 = 0;
     let mut file: Option<File> = None;
     while !stop.load(Ordering::SeqCst) {
-        let (running, (w, h, quads), period, numbers, delay_rad, unlit) = {
+        let (running, (w, h, quads), period, numbers, delay_rad, unlit, output) = {
             let s = state.lock().unwrap();
+            let output = chip::Output::of(&s);
             (
-                field(s.reg(0x5880), 0, 0) == 0 && field(s.reg(0x5C25), 11, 8) == 15,
+                field(s.reg(0x5880), 0, 0) == 0 && output.is_some(),
                 s.geometry(),
                 s.frame_period(),
                 field(s.reg(0x5C39), 12, 12) == 1,
                 s.led_delay_rad,
                 s.unlit,
+                output,
             )
         };
         if !running {
@@ -629,7 +635,16 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
             lit.ls2 = SourceDrive::Off;
         }
         simulator.capture(&lit, &mut frame);
-        let (mut bytes, kept) = encode_raw_quads_delayed(&frame.dn.data, quads, delay_rad);
+        let region = state.lock().unwrap().saturated_region;
+        if let Some(r) = region {
+            r.fill_wells(&mut frame.dn.data, w);
+        }
+        let (mut bytes, kept) = match output {
+            Some(chip::Output::Depth(layout)) => {
+                (chip::encode_depth(w, h, region, layout), Vec::new())
+            }
+            _ => encode_raw_quads_delayed(&frame.dn.data, quads, delay_rad),
+        };
         number = number.wrapping_add(1);
         if numbers {
             bytes[0] = number;
@@ -649,7 +664,9 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
             std::thread::sleep(Duration::from_millis(20));
             continue;
         };
-        state.lock().unwrap().sent.push((number, kept));
+        if !kept.is_empty() {
+            state.lock().unwrap().sent.push((number, kept));
+        }
         // Misalignment injection: the frame rotated by `drop_bytes`, so the
         // transfer has the right length but starts mid-frame.
         let len = bytes.len();

@@ -19,7 +19,8 @@ use super::frame::{
     Assembled, AssemblerStats, DecodeError, DropReason, FrameAssembler, QuadCombine, QuadDecoder,
 };
 use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
-use super::protocol::{ProtocolError, RegisterBus, TransportError};
+use super::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
+use super::saturation::{depth_frame_bytes, DepthFrame, ProbeStats, ProbeWrite, SaturationProbe};
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
 use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
 
@@ -185,6 +186,7 @@ pub struct StreamStats {
     pub overflows: u64,
     pub errors: u64,
     pub reconnects: u64,
+    pub saturation: ProbeStats,
 }
 
 struct Session {
@@ -219,7 +221,8 @@ impl Connection {
             ConfigError::Protocol(p) => BoardError::from_protocol(p),
             other => BoardError::Config(other),
         })?;
-        let frame_bytes = layout_of(config).frame_bytes();
+        let layout = layout_of(config);
+        let frame_bytes = layout.frame_bytes();
         let stream = BulkStream::start(
             open.handle,
             open.endpoint,
@@ -227,12 +230,14 @@ impl Connection {
             in_flight,
             READ_TIMEOUT,
         );
+        let mut assembler = FrameAssembler::new(frame_bytes, config.frame_numbers);
+        assembler.also_accept(depth_frame_bytes(layout.width, layout.height));
         Ok(Self {
             context,
             session: Session {
                 bus,
                 stream,
-                assembler: FrameAssembler::new(frame_bytes, config.frame_numbers),
+                assembler,
                 serial: open.serial,
             },
             report,
@@ -246,6 +251,8 @@ pub struct Opt8241 {
     selector: BoardSelector,
     config: BoardConfig,
     decoder: QuadDecoder,
+    /// Depth frames interleaved for the chip's saturation flags.
+    probe: SaturationProbe,
     session: Option<Session>,
     /// The wait for the next frame, when a call returned
     /// [`BoardError::NotYet`] (cleared by a frame, an error or a new session).
@@ -277,6 +284,7 @@ impl Opt8241 {
             context,
             selector,
             decoder: QuadDecoder::new(layout_of(&config)),
+            probe: SaturationProbe::default(),
             config,
             session: None,
             wait: None,
@@ -305,6 +313,7 @@ impl Opt8241 {
         self.report = c.report;
         self.decoder.layout = layout_of(&self.config);
         self.decoder.frame_number_in_first_byte = self.config.frame_numbers;
+        self.probe.reset();
         self.session = Some(c.session);
         self.wait = None;
     }
@@ -395,6 +404,7 @@ impl Opt8241 {
         if let Some(sess) = &self.session {
             s.assembler = sess.assembler.stats;
         }
+        s.saturation = self.probe.stats;
         s
     }
 
@@ -478,12 +488,51 @@ impl Opt8241 {
                         frame_number,
                         ..
                     } => {
+                        let l = self.decoder.layout;
+                        if bytes.len() == depth_frame_bytes(l.width, l.height) {
+                            let depth = self
+                                .probe
+                                .on_depth_frame(&bytes, l.width, l.height)
+                                .map_err(|e| DecodeError::Length {
+                                    expected: e.expected,
+                                    got: e.got,
+                                })?;
+                            tracing::trace!(?frame_number, ?depth, "saturation flags");
+                            let write = match depth {
+                                DepthFrame::Expected(write) => write,
+                                DepthFrame::Unasked(write) => {
+                                    // Not a difference frame, and nobody asked:
+                                    // a device sending only these ends the wait
+                                    // like any unusable transfer.
+                                    unusable += 1;
+                                    cause = "depth frames instead of raw quads";
+                                    detail = "frames of depth length, unasked".into();
+                                    Some(write)
+                                }
+                            };
+                            if let Some(write) = write {
+                                if let Err(e) =
+                                    probe_write(&mut session.bus, &mut self.probe, write)
+                                {
+                                    self.session = None;
+                                    return Err(e);
+                                }
+                            }
+                            continue;
+                        }
                         self.decoder.decode(&bytes, out)?;
                         self.phase_sums = if self.measure_phase {
                             Some(self.decoder.phase_sums(&bytes)?)
                         } else {
                             None
                         };
+                        self.probe.apply(&mut out.saturated.data);
+                        if let Some(write) = self.probe.on_raw_frame() {
+                            if let Err(e) = probe_write(&mut session.bus, &mut self.probe, write) {
+                                self.session = None;
+                                return Err(e);
+                            }
+                        }
                         out.sequence = self.sequence;
                         out.timestamp_us = self.started.elapsed().as_micros() as u64;
                         self.sequence += 1;
@@ -504,7 +553,15 @@ impl Opt8241 {
                         );
                     }
                 },
-                StreamEvent::Timeout => self.stats.timeouts += 1,
+                StreamEvent::Timeout => {
+                    self.stats.timeouts += 1;
+                    if let Some(write) = self.probe.on_no_frame() {
+                        if let Err(e) = probe_write(&mut session.bus, &mut self.probe, write) {
+                            self.session = None;
+                            return Err(e);
+                        }
+                    }
+                }
                 StreamEvent::HaltCleared => {
                     self.stats.halts_cleared += 1;
                     session.assembler.reset();
@@ -535,6 +592,36 @@ impl Opt8241 {
                     return Err(BoardError::DeviceUnavailable);
                 }
             }
+        }
+    }
+}
+
+/// Performs a saturation probe's write. A lost board is
+/// [`BoardError::DeviceUnavailable`]; any other failure is only logged: a
+/// probe that did not start misses its depth frame, and a depth frame
+/// after a switch back that did not take asks for raw quads again.
+fn probe_write<T: Transport>(
+    bus: &mut RegisterBus<T>,
+    probe: &mut SaturationProbe,
+    write: ProbeWrite,
+) -> Result<(), BoardError> {
+    if probe.take_gave_up_notice() {
+        tracing::warn!(
+            "saturation probe: the board sent no depth frame after output_mode = 0, {} times \
+             in a row; pixels with both wells full are no longer flagged (only the 12-bit rails are)",
+            super::saturation::PROBE_MAX_FAILURES
+        );
+    }
+    let (field, value) = write.field_value();
+    match bus.write_field(field, value) {
+        Ok(_) => Ok(()),
+        Err(e) if e.is_disconnect() => Err(BoardError::DeviceUnavailable),
+        Err(e) => {
+            tracing::debug!(
+                "saturation probe: {} = {value} not written: {e}",
+                field.name
+            );
+            Ok(())
         }
     }
 }

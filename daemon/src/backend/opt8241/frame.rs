@@ -256,6 +256,9 @@ pub enum DropReason {
 #[derive(Debug)]
 pub struct FrameAssembler {
     frame_bytes: usize,
+    /// A second frame length taken as a whole frame: the saturation
+    /// probe's depth frames (`sdi_opt8241::saturation`).
+    also_bytes: Option<usize>,
     check_numbers: bool,
     buf: Vec<u8>,
     /// Discarding until the next short packet (after an overrun).
@@ -282,6 +285,7 @@ impl FrameAssembler {
     pub fn new(frame_bytes: usize, check_numbers: bool) -> Self {
         Self {
             frame_bytes,
+            also_bytes: None,
             check_numbers,
             buf: Vec::with_capacity(frame_bytes),
             discarding: false,
@@ -293,6 +297,12 @@ impl FrameAssembler {
 
     pub fn frame_bytes(&self) -> usize {
         self.frame_bytes
+    }
+
+    /// Also accepts frames of `bytes` (smaller than a raw-quad frame), in
+    /// the same numbering: the caller tells them apart by length.
+    pub fn also_accept(&mut self, bytes: usize) {
+        self.also_bytes = Some(bytes);
     }
 
     /// True while frames are being delivered in sequence.
@@ -318,7 +328,7 @@ impl FrameAssembler {
             return Assembled::Pending;
         }
         self.buf.extend_from_slice(data);
-        if self.buf.len() > self.frame_bytes {
+        if self.buf.len() > self.frame_bytes.max(self.also_bytes.unwrap_or(0)) {
             let got = self.buf.len();
             self.buf.clear();
             self.discarding = !short;
@@ -329,7 +339,7 @@ impl FrameAssembler {
         }
         let bytes = std::mem::take(&mut self.buf);
         self.buf.reserve(self.frame_bytes);
-        if bytes.len() != self.frame_bytes {
+        if bytes.len() != self.frame_bytes && Some(bytes.len()) != self.also_bytes {
             return self.drop_misaligned(DropReason::WrongLength { got: bytes.len() });
         }
         if !self.check_numbers {
@@ -608,6 +618,24 @@ mod tests {
         assert!(a.is_locked());
         assert_eq!(a.stats.resyncs, 1);
         assert!(a.stats.misaligned >= 2);
+    }
+
+    #[test]
+    fn a_second_length_is_a_frame_in_the_same_numbering() {
+        let mut a = FrameAssembler::new(SMALL.frame_bytes(), true);
+        a.also_accept(48);
+        a.push(&frame(1), true);
+        let mut depth = vec![0u8; 48];
+        depth[0] = 2;
+        assert!(matches!(
+            a.push(&depth, true),
+            Assembled::Frame { ref bytes, frame_number: Some(2), .. } if bytes.len() == 48
+        ));
+        assert!(matches!(a.push(&frame(3), true), Assembled::Frame { .. }));
+        assert!(matches!(
+            a.push(&depth[..47], true),
+            Assembled::Dropped(DropReason::WrongLength { got: 47 })
+        ));
     }
 
     #[test]
