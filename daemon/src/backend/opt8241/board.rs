@@ -504,9 +504,10 @@ impl Opt8241 {
                                     // Not a difference frame, and nobody asked:
                                     // a device sending only these ends the wait
                                     // like any unusable transfer.
-                                    unusable += 1;
-                                    cause = "depth frames instead of raw quads";
-                                    detail = "frames of depth length, unasked".into();
+                                    wait.unusable(
+                                        "depth frames instead of raw quads",
+                                        "frames of depth length, unasked".into(),
+                                    );
                                     Some(write)
                                 }
                             };
