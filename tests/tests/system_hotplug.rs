@@ -5,12 +5,10 @@
 //! group would see; unplugging the gadget is seen as a remove event.
 
 use std::fs;
-use std::io::{BufRead, BufReader};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
 use sdi_tests::process::{must as run, repo_root, Reaped};
 use sdi_tests::udev::{start_udevd, udevadm, usb_device, wait_initialized, UsbMonitor};
