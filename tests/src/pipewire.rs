@@ -85,6 +85,7 @@ pub struct Session {
 impl Session {
     /// Starts the session and waits until PipeWire answers `pw-dump`.
     pub fn start() -> Self {
+        logind_state_dirs();
         let dir = tempfile::tempdir().expect("temporary directory");
         let runtime = dir.path().join("runtime");
         std::fs::create_dir(&runtime).expect("runtime dir");
@@ -232,6 +233,22 @@ impl Session {
                 .spawn()
                 .expect("start gst-launch-1.0"),
         )
+    }
+}
+
+/// WirePlumber 0.4.13 quits ("failed to start systemd logind monitor: -2")
+/// when logind's state directories are missing, as in the VM (no systemd):
+/// PipeWire then runs without a session manager, a client's own nodes
+/// (the camera's) are still listed, but no stream is ever linked and
+/// `pipewiresrc` fails ("Failed to set pipeline to PAUSED"). Makes them
+/// where they are missing (they exist wherever logind runs).
+pub fn logind_state_dirs() {
+    for d in ["seats", "sessions", "users", "machines"] {
+        let d = Path::new("/run/systemd").join(d);
+        if !d.is_dir() {
+            std::fs::create_dir_all(&d)
+                .unwrap_or_else(|e| panic!("mkdir {} for WirePlumber: {e}", d.display()));
+        }
     }
 }
 
@@ -454,6 +471,47 @@ impl FrameLog {
     /// Published frames so far, as key=value fields.
     pub fn published(&self) -> Vec<HashMap<String, String>> {
         self.text().lines().filter_map(parse_published).collect()
+    }
+
+    /// Asserts that each frame of `crcs` (CRC-32s of frames a reader got)
+    /// was logged as published on `stream` in `format` and `mode`, and that
+    /// more than half of them differ (the stream moves). `what` names the
+    /// reader in the message. Waits up to 10 s for the lines: the camera
+    /// logs a frame before it queues the buffer.
+    pub fn assert_published(
+        &self,
+        crcs: &[String],
+        stream: &str,
+        format: &str,
+        mode: &str,
+        what: &str,
+    ) {
+        let published = |c: &String| {
+            self.published().iter().any(|p| {
+                p.get("crc32") == Some(c)
+                    && p.get("stream").map(String::as_str) == Some(stream)
+                    && p.get("format").map(String::as_str) == Some(format)
+                    && p.get("mode").map(String::as_str) == Some(mode)
+            })
+        };
+        let t0 = Instant::now();
+        while !crcs.iter().all(published) && t0.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let missing: Vec<&String> = crcs.iter().filter(|c| !published(c)).collect();
+        assert!(
+            missing.is_empty(),
+            "{what}: {} of {} frames read were not published on {stream} as {format} in mode {mode}: {missing:?}",
+            missing.len(),
+            crcs.len()
+        );
+        let distinct: std::collections::HashSet<&String> = crcs.iter().collect();
+        assert!(
+            distinct.len() * 2 > crcs.len(),
+            "{what}: only {} distinct frames of {}",
+            distinct.len(),
+            crcs.len()
+        );
     }
 
     /// Everything logged so far.
