@@ -161,7 +161,11 @@ done"#
         .arg("--")
         .args(["bash", "-c", &script, "sdi-vm-tests"])
         .arg(&exe)
-        .args(tests.iter().flat_map(|(n, t)| [n.to_string(), t.to_string()]))
+        .args(
+            tests
+                .iter()
+                .flat_map(|(n, t)| [n.to_string(), t.to_string()]),
+        )
         .stdout(Stdio::piped())
         .spawn()
         .expect("spawn vmrun");

@@ -227,8 +227,14 @@ fn snapshot_within(d: &Sdid, emu: &BoardEmulator, npy: &Path, max_dn: f32, wait:
 
 /// This binary's VM tests, in one boot.
 static VM: vm::VmBatch = vm::VmBatch::new(&[
-    ("sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug", 900),
-    ("sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams", 600),
+    (
+        "sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug",
+        900,
+    ),
+    (
+        "sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
+        600,
+    ),
 ]);
 
 #[test]
