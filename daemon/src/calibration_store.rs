@@ -107,6 +107,18 @@ mod tests {
     use super::*;
     use sdi_core::calibration::PhotonTransferFit;
 
+    /// A photon-transfer fit as Calibrate stores it.
+    fn fit() -> PhotonTransferFit {
+        PhotonTransferFit {
+            gain_dn_per_electron: 0.05,
+            gain_se: 0.001,
+            read_variance_dn2: 15.0,
+            read_variance_se_dn2: 0.1,
+            reduced_chi2: 1.0,
+            points: 5,
+        }
+    }
+
     #[test]
     fn save_then_load_by_model_and_serial() {
         let dir = tempfile::tempdir().unwrap();
@@ -133,14 +145,7 @@ mod tests {
     #[test]
     fn a_phase_record_joins_the_gain_of_the_same_board() {
         let dir = tempfile::tempdir().unwrap();
-        let fit = PhotonTransferFit {
-            gain_dn_per_electron: 0.05,
-            gain_se: 0.001,
-            read_variance_dn2: 15.0,
-            read_variance_se_dn2: 0.1,
-            reduced_chi2: 1.0,
-            points: 5,
-        };
+        let fit = fit();
         let rec = CalibrationRecord::from_fit("m", "s", &fit, 4.0, 30);
         save(dir.path(), rec.clone()).unwrap();
         assert!(load_phase(dir.path(), "m", "s").unwrap().is_none());
@@ -163,14 +168,7 @@ mod tests {
         let garbage = b"\xff\x00 this is [not toml";
         std::fs::write(dir.path().join(FILE_NAME), garbage).unwrap();
         assert!(load(dir.path(), "m", "s").is_err());
-        let fit = PhotonTransferFit {
-            gain_dn_per_electron: 0.05,
-            gain_se: 0.001,
-            read_variance_dn2: 15.0,
-            read_variance_se_dn2: 0.1,
-            reduced_chi2: 1.0,
-            points: 5,
-        };
+        let fit = fit();
         let rec = CalibrationRecord::from_fit("m", "s", &fit, 4.0, 30);
         save(dir.path(), rec.clone()).unwrap();
         assert_eq!(load(dir.path(), "m", "s").unwrap(), Some(rec));
