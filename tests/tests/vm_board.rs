@@ -19,10 +19,10 @@ use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::vm;
 use sdi_tests::wait::wait_for;
 
-/// This binary's VM tests, in one boot. The bus-scan test runs first: it
-/// needs a guest in which libusb has never delivered a hotplug event, and
-/// after the other tests' gadgets it did (2 events, seen once; the guest
-/// state behind it is not pinned down).
+/// This binary's VM tests, in one boot. Known flake, cause not found: the
+/// bus-scan test has seen libusb deliver 2 hotplug events without udevd,
+/// once third in the boot and once first in a fresh guest (and 0 events
+/// in another first run), so the order is not the cause.
 static VM: vm::VmBatch = vm::VmBatch::new(&[
     ("backend_replug_without_udevd_is_found_by_the_bus_scan", 600),
     ("opt8241_backend_against_usb_emulator", 600),
