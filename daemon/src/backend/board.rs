@@ -118,6 +118,9 @@ pub struct BoardBackendConfig {
     /// Seed of the stand-in simulator.
     pub seed: u64,
     pub mode: ModeId,
+    /// Listen for libusb hotplug events (sdid does). Off, only the bus scan
+    /// finds a replugged board, as with a libusb that delivers no events.
+    pub hotplug_events: bool,
 }
 
 pub struct BoardBackend {
@@ -177,11 +180,16 @@ impl BoardBackend {
             tracing::warn!("the board clamped settings (laser safety): {clamps}");
         }
         tracing::info!(%device, "OPT8241-CDK configured and streaming");
-        let hotplug = match HotplugWatch::start() {
+        let watch = if c.hotplug_events {
+            HotplugWatch::start()
+        } else {
+            Ok(None)
+        };
+        let hotplug = match watch {
             Ok(Some(h)) => {
                 tracing::info!(
                     "unplug/replug: libusb hotplug events, and a bus scan every {:?} \
-                     ({:?} once events arrive; without udevd libusb delivers none)",
+                     ({:?} once events arrive; a libusb built on udev delivers none without udevd)",
                     RECONNECT_INTERVAL,
                     HOTPLUG_FALLBACK_INTERVAL
                 );
@@ -189,7 +197,7 @@ impl BoardBackend {
             }
             Ok(None) => {
                 tracing::info!(
-                    "unplug/replug: libusb has no hotplug support; a bus scan every {:?}",
+                    "unplug/replug: no libusb hotplug events; a bus scan every {:?}",
                     RECONNECT_INTERVAL
                 );
                 None
