@@ -184,3 +184,37 @@ pub fn field(deb: &Path, name: &str) -> String {
     .trim()
     .to_owned()
 }
+
+/// `apt-get ARGS`, non-interactive, output echoed; asserts success and
+/// returns stdout and stderr together (maintainer scripts write to either).
+/// The guest runs the test in a chroot of the host's root, where udevadm
+/// ignores requests (right for a real chroot); SYSTEMD_IGNORE_CHROOT tells
+/// the maintainer scripts' udevadm that this one is the running system.
+pub fn apt_get(args: &[&str]) -> String {
+    let t0 = std::time::Instant::now();
+    let out = run(Command::new("apt-get")
+        .args(["-y", "-o", "Dpkg::Use-Pty=0"])
+        .args(args)
+        .env("DEBIAN_FRONTEND", "noninteractive")
+        .env("SYSTEMD_IGNORE_CHROOT", "1"));
+    eprintln!("apt-get {args:?}: {:.1} s", t0.elapsed().as_secs_f64());
+    assert!(
+        out.status.success(),
+        "apt-get {args:?} failed ({})",
+        out.status
+    );
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// The id of group `group`, if it exists.
+pub fn gid_of(group: &str) -> Option<u32> {
+    let out = run(Command::new("getent").args(["group", group]));
+    String::from_utf8_lossy(&out.stdout)
+        .split(':')
+        .nth(2)
+        .and_then(|g| g.trim().parse().ok())
+}

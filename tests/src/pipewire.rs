@@ -80,6 +80,27 @@ pub struct Session {
     _pipewire: Reaped,
     pub bus: Bus,
     pub dir: tempfile::TempDir,
+    clients: Clients,
+}
+
+/// The session's clients (`pw-dump`, `pipewiresrc` readers, the camera).
+impl std::ops::Deref for Session {
+    type Target = Clients;
+    fn deref(&self) -> &Clients {
+        &self.clients
+    }
+}
+
+/// How the test starts PipeWire clients of one session: with the private
+/// session's environment ([`Session`]), or as a logged-in user in that
+/// user's session, which their systemd manager runs ([`Clients::user`]).
+#[derive(Debug, Clone)]
+pub struct Clients {
+    /// Runs the client as another user (`runuser -u NAME --`), or empty.
+    prefix: Vec<String>,
+    env: Vec<(String, String)>,
+    /// Where the readers write (writable by the clients).
+    scratch: PathBuf,
 }
 
 impl Session {
@@ -119,36 +140,92 @@ impl Session {
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .status();
-        let pipewire = spawn_logged(dir.path(), &bus.address, "pipewire");
+        let clients = Clients {
+            prefix: Vec::new(),
+            env: session_env(dir.path(), &bus.address),
+            scratch: dir.path().to_owned(),
+        };
+        let pipewire = spawn_logged(&clients, "pipewire");
         wait_for(
             "PipeWire to answer pw-dump",
             Duration::from_secs(20),
-            || dump(dir.path(), &bus.address),
+            || clients.dump(),
         );
-        let wireplumber = spawn_logged(dir.path(), &bus.address, "wireplumber");
+        let wireplumber = spawn_logged(&clients, "wireplumber");
         Self {
             _wireplumber: wireplumber,
             _pipewire: pipewire,
             bus,
             dir,
+            clients,
         }
     }
 
     pub fn runtime_dir(&self) -> PathBuf {
         self.dir.path().join("runtime")
     }
+}
 
-    /// `cmd` set up for this session (runtime dir, bus, config dirs).
+impl Clients {
+    /// Clients of user `name`'s own session (uid `uid`), as systemd's user
+    /// manager runs it: `/run/user/UID` and its bus. The readers write into
+    /// `scratch`, which the user must be able to write.
+    pub fn user(name: &str, uid: u32, scratch: &Path) -> Self {
+        let runtime = format!("/run/user/{uid}");
+        Self {
+            prefix: ["runuser", "-u", name, "--"].map(str::to_owned).to_vec(),
+            env: vec![
+                (
+                    "DBUS_SESSION_BUS_ADDRESS".into(),
+                    format!("unix:path={runtime}/bus"),
+                ),
+                ("XDG_RUNTIME_DIR".into(), runtime),
+            ],
+            scratch: scratch.to_owned(),
+        }
+    }
+
+    /// `program` set up as a client of this session (runtime dir, bus,
+    /// config dirs).
     pub fn command(&self, program: impl AsRef<std::ffi::OsStr>) -> Command {
-        let mut cmd = Command::new(program);
-        env(&mut cmd, self.dir.path(), &self.bus.address);
+        let mut cmd = match self.prefix.split_first() {
+            None => Command::new(program),
+            Some((first, rest)) => {
+                // runuser keeps the caller's environment: `env` sets the
+                // session's, so none of this process's leaks in.
+                let mut cmd = Command::new(first);
+                cmd.args(rest)
+                    .arg("env")
+                    .args(self.env.iter().map(|(k, v)| format!("{k}={v}")));
+                cmd.arg(program);
+                cmd.env_clear().env("PATH", "/usr/sbin:/usr/bin:/sbin:/bin");
+                return cmd;
+            }
+        };
+        cmd.envs(self.env.iter().map(|(k, v)| (k, v)))
+            .env_remove("PIPEWIRE_REMOTE")
+            .env_remove("PIPEWIRE_RUNTIME_DIR")
+            .env_remove("DISPLAY")
+            .env_remove("WAYLAND_DISPLAY");
         cmd
+    }
+
+    /// `pw-dump`'s JSON, None while PipeWire does not answer.
+    fn dump(&self) -> Option<serde_json::Value> {
+        let out = self
+            .command("pw-dump")
+            .stderr(Stdio::null())
+            .output()
+            .ok()?;
+        if !out.status.success() {
+            return None;
+        }
+        serde_json::from_slice(&out.stdout).ok()
     }
 
     /// Properties of every node, from `pw-dump`.
     pub fn nodes(&self) -> Vec<HashMap<String, serde_json::Value>> {
-        let Some(serde_json::Value::Array(objects)) = dump(self.dir.path(), &self.bus.address)
-        else {
+        let Some(serde_json::Value::Array(objects)) = self.dump() else {
             return Vec::new();
         };
         objects
@@ -156,6 +233,22 @@ impl Session {
             .filter(|o| o["type"] == "PipeWire:Interface:Node")
             .filter_map(|o| o["info"]["props"].as_object())
             .map(|p| p.iter().map(|(k, v)| (k.clone(), v.clone())).collect())
+            .collect()
+    }
+
+    /// The nodes PipeWire lists as an SDI camera (media.role Camera and a
+    /// name, description or V4L2 card of SDI's): the fed camera, and the
+    /// loopback node unless SDI's WirePlumber rule hides it.
+    pub fn sdi_cameras(&self) -> Vec<HashMap<String, serde_json::Value>> {
+        self.nodes()
+            .into_iter()
+            .filter(|p| {
+                let text = |k: &str| p.get(k).and_then(|v| v.as_str()).unwrap_or("").to_owned();
+                p.get("media.role").and_then(|v| v.as_str()) == Some("Camera")
+                    && (text("node.name").starts_with("sdi-")
+                        || text("node.description").contains("SDI")
+                        || text("api.v4l2.cap.card").contains("SDI"))
+            })
             .collect()
     }
 
@@ -169,7 +262,7 @@ impl Session {
     /// Reads `frames` buffers of `caps` (e.g. "video/x-raw,format=RGB") from
     /// node `target` with `gst-launch-1.0 pipewiresrc`; returns the raw bytes.
     pub fn read_frames(&self, target: &str, caps: &str, frames: u32, timeout: Duration) -> Vec<u8> {
-        let out = self.dir.path().join(format!("{target}.raw"));
+        let out = self.scratch.join(format!("{target}.raw"));
         let _ = std::fs::remove_file(&out);
         let pipeline = format!(
             "pipewiresrc target-object={target} num-buffers={frames} ! {caps} ! filesink location={}",
@@ -388,27 +481,17 @@ impl CameraPortal {
 }
 
 /// Starts `program` of the session in `dir`, its stderr to `dir/program.log`.
-fn spawn_logged(dir: &Path, bus: &str, program: &str) -> Reaped {
-    let log = std::fs::File::create(dir.join(format!("{program}.log"))).expect("log file");
-    let mut cmd = Command::new(program);
-    env(&mut cmd, dir, bus);
+fn spawn_logged(clients: &Clients, program: &str) -> Reaped {
+    let log =
+        std::fs::File::create(clients.scratch.join(format!("{program}.log"))).expect("log file");
     Reaped(
-        cmd.stdout(Stdio::null())
+        clients
+            .command(program)
+            .stdout(Stdio::null())
             .stderr(log)
             .spawn()
             .unwrap_or_else(|e| panic!("start {program}: {e}")),
     )
-}
-
-/// `pw-dump`'s JSON, None while PipeWire does not answer.
-fn dump(dir: &Path, bus: &str) -> Option<serde_json::Value> {
-    let mut cmd = Command::new("pw-dump");
-    env(&mut cmd, dir, bus);
-    let out = cmd.stderr(Stdio::null()).output().ok()?;
-    if !out.status.success() {
-        return None;
-    }
-    serde_json::from_slice(&out.stdout).ok()
 }
 
 /// Waits for `child` at most `timeout`; kills it and returns None on timeout.
@@ -427,16 +510,16 @@ fn wait_child(child: &mut Child, timeout: Duration) -> Option<std::process::Exit
     }
 }
 
-fn env(cmd: &mut Command, dir: &Path, bus: &str) {
-    cmd.env("XDG_RUNTIME_DIR", dir.join("runtime"))
-        .env("XDG_CONFIG_HOME", dir.join("config"))
-        .env("XDG_STATE_HOME", dir.join("state"))
-        .env("XDG_DATA_HOME", dir.join("data"))
-        .env("DBUS_SESSION_BUS_ADDRESS", bus)
-        .env_remove("PIPEWIRE_REMOTE")
-        .env_remove("PIPEWIRE_RUNTIME_DIR")
-        .env_remove("DISPLAY")
-        .env_remove("WAYLAND_DISPLAY");
+/// The private session's environment under `dir`.
+fn session_env(dir: &Path, bus: &str) -> Vec<(String, String)> {
+    let at = |sub: &str| dir.join(sub).display().to_string();
+    vec![
+        ("XDG_RUNTIME_DIR".into(), at("runtime")),
+        ("XDG_CONFIG_HOME".into(), at("config")),
+        ("XDG_STATE_HOME".into(), at("state")),
+        ("XDG_DATA_HOME".into(), at("data")),
+        ("DBUS_SESSION_BUS_ADDRESS".into(), bus.to_owned()),
+    ]
 }
 
 /// The per-frame lines logged with `RUST_LOG=sdid::pipewire::frames=trace`
@@ -518,6 +601,16 @@ impl FrameLog {
     pub fn text(&self) -> String {
         String::from_utf8_lossy(&std::fs::read(&self.path).unwrap_or_default()).into_owned()
     }
+}
+
+/// The mode a camera node shows, from its description "SDI camera (MODE)".
+pub fn camera_mode(props: &HashMap<String, serde_json::Value>) -> Option<String> {
+    props
+        .get("node.description")?
+        .as_str()?
+        .strip_prefix("SDI camera (")?
+        .strip_suffix(')')
+        .map(str::to_owned)
 }
 
 /// A reader that runs until dropped (`pipewiresrc ! fdsink`), keeping the
