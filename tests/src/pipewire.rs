@@ -96,7 +96,7 @@ impl std::ops::Deref for Session {
 /// user's session, which their systemd manager runs ([`Clients::user`]).
 #[derive(Debug, Clone)]
 pub struct Clients {
-    /// Runs the client as another user (`runuser -u NAME --`), or empty.
+    /// Runs the client as another user (`runuser -p -u NAME --`), or empty.
     prefix: Vec<String>,
     env: Vec<(String, String)>,
     /// Where the readers write (writable by the clients).
@@ -173,7 +173,9 @@ impl Clients {
     pub fn user(name: &str, uid: u32, scratch: &Path) -> Self {
         let runtime = format!("/run/user/{uid}");
         Self {
-            prefix: ["runuser", "-u", name, "--"].map(str::to_owned).to_vec(),
+            prefix: ["runuser", "-p", "-u", name, "--"]
+                .map(str::to_owned)
+                .to_vec(),
             env: vec![
                 (
                     "DBUS_SESSION_BUS_ADDRESS".into(),
@@ -186,20 +188,16 @@ impl Clients {
     }
 
     /// `program` set up as a client of this session (runtime dir, bus,
-    /// config dirs).
+    /// config dirs). As another user, `runuser -p` keeps the environment
+    /// set here, and only that: callers add to it with `Command::env`.
     pub fn command(&self, program: impl AsRef<std::ffi::OsStr>) -> Command {
         let mut cmd = match self.prefix.split_first() {
             None => Command::new(program),
             Some((first, rest)) => {
-                // runuser keeps the caller's environment: `env` sets the
-                // session's, so none of this process's leaks in.
                 let mut cmd = Command::new(first);
-                cmd.args(rest)
-                    .arg("env")
-                    .args(self.env.iter().map(|(k, v)| format!("{k}={v}")));
-                cmd.arg(program);
+                cmd.args(rest).arg(program);
                 cmd.env_clear().env("PATH", "/usr/sbin:/usr/bin:/sbin:/bin");
-                return cmd;
+                cmd
             }
         };
         cmd.envs(self.env.iter().map(|(k, v)| (k, v)))
@@ -208,6 +206,96 @@ impl Clients {
             .env_remove("DISPLAY")
             .env_remove("WAYLAND_DISPLAY");
         cmd
+    }
+
+    /// The session bus's address.
+    pub fn bus_address(&self) -> &str {
+        self.env
+            .iter()
+            .find(|(k, _)| k == "DBUS_SESSION_BUS_ADDRESS")
+            .map(|(_, v)| v.as_str())
+            .unwrap_or_default()
+    }
+
+    /// True when `name` has an owner on the session bus.
+    fn has_owner(&self, name: &str) -> bool {
+        self.command("dbus-send")
+            .args([
+                "--session",
+                "--print-reply",
+                "--dest=org.freedesktop.DBus",
+                "/org/freedesktop/DBus",
+                "org.freedesktop.DBus.NameHasOwner",
+                &format!("string:{name}"),
+            ])
+            .output()
+            .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).contains("boolean true"))
+    }
+
+    /// Stores the camera permission "yes" for unsandboxed programs (app id
+    /// ""), starting the permission store by D-Bus activation: the portal
+    /// then asks no one.
+    pub fn grant_camera(&self) {
+        let t0 = Instant::now();
+        loop {
+            let out = self
+                .command("dbus-send")
+                .args([
+                    "--session",
+                    "--print-reply",
+                    "--dest=org.freedesktop.impl.portal.PermissionStore",
+                    "/org/freedesktop/impl/portal/PermissionStore",
+                    "org.freedesktop.impl.portal.PermissionStore.SetPermission",
+                    "string:devices",
+                    "boolean:true",
+                    "string:camera",
+                    "string:",
+                    "array:string:yes",
+                ])
+                .output()
+                .expect("run dbus-send");
+            if out.status.success() {
+                return;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "the permission store did not grant the camera in 60 s: dbus-send {}: {}; \
+                 store running: {}",
+                out.status,
+                String::from_utf8_lossy(&out.stderr).trim(),
+                self.has_owner("org.freedesktop.impl.portal.PermissionStore")
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
+    /// Waits until the portal (started by D-Bus activation, or by the
+    /// caller) exports the camera portal; `log` is its log, for the message.
+    pub fn wait_camera_portal(&self, log: impl Fn() -> String) {
+        let t0 = Instant::now();
+        while !self
+            .command("dbus-send")
+            .args([
+                "--session",
+                "--print-reply",
+                "--dest=org.freedesktop.portal.Desktop",
+                "/org/freedesktop/portal/desktop",
+                "org.freedesktop.DBus.Properties.Get",
+                "string:org.freedesktop.portal.Camera",
+                "string:version",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|st| st.success())
+        {
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "no camera portal after 60 s; its log:\n{}",
+                log()
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
     }
 
     /// `pw-dump`'s JSON, None while PipeWire does not answer.
@@ -352,6 +440,17 @@ pub fn logind_state_dirs() {
 /// `.portal` file in `XDG_DESKTOP_PORTAL_DIR` names one, and the camera
 /// permission for unsandboxed programs (app id "") is stored as "yes"
 /// beforehand, so no dialog is ever asked for and the backend need not run.
+/// A portal backend that claims `Access` for the desktop [`TEST_DESKTOP`]
+/// and never runs: with the permission stored beforehand
+/// ([`Clients::grant_camera`]) the portal exports the camera portal and
+/// asks no one.
+pub const TEST_PORTAL: &str = "[portal]\nDBusName=org.freedesktop.impl.portal.desktop.sditest\n\
+     Interfaces=org.freedesktop.impl.portal.Access;\nUseIn=sditest\n";
+/// The name of [`TEST_PORTAL`]'s file in a portals directory.
+pub const TEST_PORTAL_FILE: &str = "sdi-test.portal";
+/// `XDG_CURRENT_DESKTOP` under which the portal uses [`TEST_PORTAL`].
+pub const TEST_DESKTOP: &str = "sditest";
+
 pub struct CameraPortal {
     _portal: Reaped,
 }
@@ -373,12 +472,7 @@ impl CameraPortal {
     pub fn start(s: &Session) -> Self {
         let dir = s.dir.path().join("portals");
         std::fs::create_dir_all(&dir).expect("portals dir");
-        std::fs::write(
-            dir.join("sdi-test.portal"),
-            "[portal]\nDBusName=org.freedesktop.impl.portal.desktop.sditest\n\
-             Interfaces=org.freedesktop.impl.portal.Access;\nUseIn=sditest\n",
-        )
-        .expect("write the .portal file");
+        std::fs::write(dir.join(TEST_PORTAL_FILE), TEST_PORTAL).expect("write the .portal file");
         // `--replace`: in case a portal was started by D-Bus activation
         // already (without this environment).
         let spawn = |program: &str, log: &str| {
@@ -386,7 +480,7 @@ impl CameraPortal {
             let mut cmd = s.command(program);
             cmd.args(["--replace", "--verbose"])
                 .env("XDG_DESKTOP_PORTAL_DIR", &dir)
-                .env("XDG_CURRENT_DESKTOP", "sditest")
+                .env("XDG_CURRENT_DESKTOP", TEST_DESKTOP)
                 .stdout(log.try_clone().expect("log file"))
                 .stderr(log);
             Reaped(
@@ -394,88 +488,23 @@ impl CameraPortal {
                     .unwrap_or_else(|e| panic!("start {program}: {e}")),
             )
         };
-        // The portal is waited for until it owns its name: a call before
-        // that would start another copy by D-Bus activation, without this
-        // environment.
-        let has_owner = |name: &str| {
-            s.command("dbus-send")
-                .args([
-                    "--session",
-                    "--print-reply",
-                    "--dest=org.freedesktop.DBus",
-                    "/org/freedesktop/DBus",
-                    "org.freedesktop.DBus.NameHasOwner",
-                    &format!("string:{name}"),
-                ])
-                .output()
-                .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).contains("boolean true"))
-                .then_some(())
-        };
         // The permission store only by D-Bus activation (WirePlumber's
-        // camera lookup or the call below start it once, with the session's
+        // camera lookup or this call start it once, with the session's
         // environment, Session::start): a second store started here with
         // `--replace` shared its database directory, and one read the
         // other's half-written file ("Unable to load db file devices:
         // invalid gvdb header", 3 runs in 7), refusing every call.
-        let t0 = Instant::now();
-        loop {
-            let out = s
-                .command("dbus-send")
-                .args([
-                    "--session",
-                    "--print-reply",
-                    "--dest=org.freedesktop.impl.portal.PermissionStore",
-                    "/org/freedesktop/impl/portal/PermissionStore",
-                    "org.freedesktop.impl.portal.PermissionStore.SetPermission",
-                    "string:devices",
-                    "boolean:true",
-                    "string:camera",
-                    "string:",
-                    "array:string:yes",
-                ])
-                .output()
-                .expect("run dbus-send");
-            if out.status.success() {
-                break;
-            }
-            assert!(
-                t0.elapsed() < Duration::from_secs(60),
-                "the permission store did not grant the camera in 60 s: dbus-send {}: {}; \
-                 store running: {}",
-                out.status,
-                String::from_utf8_lossy(&out.stderr).trim(),
-                has_owner("org.freedesktop.impl.portal.PermissionStore").is_some()
-            );
-            std::thread::sleep(Duration::from_millis(200));
-        }
+        s.grant_camera();
+        // The portal is waited for until it owns its name: a call before
+        // that would start another copy by D-Bus activation, without this
+        // environment.
         let portal = spawn("/usr/libexec/xdg-desktop-portal", "portal.log");
         wait_for("the portal", Duration::from_secs(60), || {
-            has_owner("org.freedesktop.portal.Desktop")
+            s.has_owner("org.freedesktop.portal.Desktop").then_some(())
         });
-        let t0 = Instant::now();
-        while !s
-            .command("dbus-send")
-            .args([
-                "--session",
-                "--print-reply",
-                "--dest=org.freedesktop.portal.Desktop",
-                "/org/freedesktop/portal/desktop",
-                "org.freedesktop.DBus.Properties.Get",
-                "string:org.freedesktop.portal.Camera",
-                "string:version",
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .status()
-            .is_ok_and(|st| st.success())
-        {
-            assert!(
-                t0.elapsed() < Duration::from_secs(60),
-                "no camera portal after 60 s; its log:\n{}",
-                std::fs::read_to_string(s.dir.path().join("portal.log")).unwrap_or_default()
-            );
-            std::thread::sleep(Duration::from_millis(200));
-        }
+        s.wait_camera_portal(|| {
+            std::fs::read_to_string(s.dir.path().join("portal.log")).unwrap_or_default()
+        });
         Self { _portal: portal }
     }
 }
