@@ -54,27 +54,11 @@ fn vm_apt_installs_activates_and_purges_the_package() {
             vm::run_test_in_vm(NAME, 1200);
             return;
         }
-        let Some(debs) = package::debs() else { return };
-        std::env::set_var("SDI_DEB", &debs.sdi);
-        match &debs.camera {
-            Some(camera) => std::env::set_var("SDI_CAMERA_DEB", camera),
-            None => {
-                let why = "no sdi-pipewire-camera package: the camera program was not built \
-                           (cargo build -p sdi-pipewire-camera, which needs libpipewire-0.3-dev \
-                           libspa-0.2-dev clang libclang-dev)";
-                assert!(
-                    std::env::var_os("SDI_REQUIRE_VM").is_none(),
-                    "{why}, and SDI_REQUIRE_VM is set"
-                );
-                sdi_tests::skipped!("SKIPPED: the camera package's part of {NAME}: {why}");
-            }
+        if package::export_for_vm(&format!("the camera package's part of {NAME}")).is_none() {
+            return;
         }
         // Chromium needs more than the default 1 GiB.
         std::env::set_var("VMRUN_MEM", "2560");
-        std::env::set_var(
-            "VMRUN_APPEND",
-            "vmrun.overlays=/tmp,/var,/etc,/root,/home,/usr",
-        );
         vm::run_test_in_vm(NAME, 1200);
         return;
     }
