@@ -279,12 +279,15 @@ fn in_vm() {
     // sdid dies: systemd starts it again, the camera kept its node and
     // delivers again.
     let t_kill = Instant::now();
+    let restarts: u32 = unit_property("sdid.service", "NRestarts")
+        .parse()
+        .expect("NRestarts");
     must(Command::new("systemctl").args(["kill", "--signal=KILL", "sdid.service"]));
     wait_until(
         "systemd to restart sdid.service",
         Duration::from_secs(120),
         || {
-            unit_property("sdid.service", "NRestarts") == "1"
+            unit_property("sdid.service", "NRestarts") == (restarts + 1).to_string()
                 && systemctl(&["is-active", "sdid.service"]) == "active"
         },
     );
