@@ -13,7 +13,9 @@ use zbus::zvariant::{Fd, OwnedValue, SerializeDict, Type, Value};
 use std::collections::HashMap;
 
 use crate::contract::{bus_name, Member};
-use crate::types::{CalibrationReply, DarkFrameReply, RecordingReply, Stats};
+use crate::types::{
+    CalibrationReply, DarkFrameReply, PhaseCalibrationReply, RecordingReply, Stats,
+};
 use crate::SdiError;
 
 /// Declares the interface once: the proxy trait, [`Properties`] and [`members`].
@@ -116,6 +118,9 @@ camera1! {
         fn capture_dark_frame(&self, frames: u32) -> DarkFrameReply;
         /// Dark frame, then photon transfer (docs/dbus.md).
         fn calibrate(&self, frames: u32) -> CalibrationReply;
+        /// The board's phase axis from `frames` frames of LS1 alone; stored,
+        /// used from then on (docs/dbus.md).
+        fn calibrate_phase(&self, frames: u32) -> PhaseCalibrationReply;
         /// Records into a new `<state dir>/NAME.sdirec` the daemon creates.
         fn start_recording(&self, path: &str) -> ();
         /// Records into the caller's empty file; `label` is what `Recording` shows.

@@ -98,6 +98,30 @@ pub struct CalibrationReply {
     pub store_error: Option<String>,
 }
 
+/// `CalibratePhase`'s reply: the axis of LS1 - LS2 in the quads' (I, Q)
+/// plane, measured with LS1 alone lit, and where it was stored.
+#[derive(Debug, Clone, Default, PartialEq, SerializeDict, DeserializeDict, Type)]
+#[zvariant(signature = "a{sv}")]
+pub struct PhaseCalibrationReply {
+    /// Frames summed.
+    pub frames: u32,
+    /// The axis, atan2(Q, I) of LS1's light: the delay on the LED path as
+    /// a phase of the modulation, degrees in [-180, 180].
+    pub angle_deg: f64,
+    /// Mean amplitude of LS1's light per pixel and frame, DN.
+    pub amplitude_dn: f64,
+    /// |sum of (I, Q)| / sum of |(I, Q)| over the pixels: near 1 when every
+    /// pixel saw LS1's light at one phase.
+    pub coherence: f64,
+    /// The rig sdid lit LS1 alone with; "" when it drives no lights (LS2
+    /// had to be covered by hand).
+    pub lights: String,
+    /// Path of the stored calibration.
+    pub stored: Option<String>,
+    /// Why the calibration could not be stored (it is in use all the same).
+    pub store_error: Option<String>,
+}
+
 /// `StopRecording`'s reply.
 #[derive(Debug, Clone, Default, PartialEq, SerializeDict, DeserializeDict, Type)]
 #[zvariant(signature = "a{sv}")]

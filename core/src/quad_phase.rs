@@ -116,6 +116,87 @@ pub fn fit_axis(
     Ok(PhaseAxis { angle_rad })
 }
 
+/// (I, Q) of many pixels and frames with one source on, summed for
+/// [`fit_axis`]; `sum_abs` adds each pixel's |(I, Q)| so the spread of
+/// the pixels' directions is known ([`PhaseSums::coherence`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct PhaseSums {
+    /// Quads per pixel of the frames summed (4 or 6); 0 before any.
+    pub quads: usize,
+    pub sum_i: f64,
+    pub sum_q: f64,
+    pub sum_abs: f64,
+    pub samples: u64,
+}
+
+impl PhaseSums {
+    /// Nothing summed yet, of frames with `quads` quads per pixel.
+    pub fn new(quads: usize) -> Self {
+        Self {
+            quads,
+            ..Self::default()
+        }
+    }
+
+    /// Adds one pixel's (I, Q).
+    #[inline]
+    pub fn push(&mut self, i: f32, q: f32) {
+        self.sum_i += f64::from(i);
+        self.sum_q += f64::from(q);
+        self.sum_abs += f64::from(i).hypot(f64::from(q));
+        self.samples += 1;
+    }
+
+    /// Adds another frame's sums (of the same quads).
+    pub fn add(&mut self, other: &PhaseSums) {
+        if self.quads == 0 {
+            self.quads = other.quads;
+        }
+        self.sum_i += other.sum_i;
+        self.sum_q += other.sum_q;
+        self.sum_abs += other.sum_abs;
+        self.samples += other.samples;
+    }
+
+    /// |sum of (I, Q)| / sum of |(I, Q)|: 1 when every pixel's light lies
+    /// along one direction, near 0 for noise or light from both sources
+    /// at opposite phases; 0 with nothing summed.
+    pub fn coherence(&self) -> f64 {
+        if self.sum_abs > 0.0 {
+            self.sum_i.hypot(self.sum_q) / self.sum_abs
+        } else {
+            0.0
+        }
+    }
+
+    /// The axis of these sums ([`fit_axis`]).
+    pub fn fit(&self, lit: LitSource, min_dn: f64) -> Result<PhaseAxis, PhaseError> {
+        if self.quads != 4 && self.quads != 6 {
+            return Err(PhaseError::Quads { quads: self.quads });
+        }
+        fit_axis(
+            self.sum_i,
+            self.sum_q,
+            self.samples,
+            self.quads,
+            lit,
+            min_dn,
+        )
+    }
+
+    /// Mean amplitude per pixel and frame, quad 0's DN scale.
+    pub fn amplitude_dn(&self) -> f64 {
+        self.sum_i.hypot(self.sum_q) / self.samples.max(1) as f64 * 2.0 / self.quads.max(1) as f64
+    }
+}
+
+impl PhaseAxis {
+    /// An axis read back from a store: a finite angle in [-pi, pi].
+    pub fn checked(angle_rad: f64) -> Option<Self> {
+        (angle_rad.is_finite() && angle_rad.abs() <= PI).then_some(Self { angle_rad })
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -191,5 +272,43 @@ mod tests {
         ));
         assert!(fit_axis(f64::NAN, 0.0, 1, 4, LitSource::Ls1, 5.0).is_err());
         assert!(QuadBasis::new(5).is_err());
+    }
+    #[test]
+    fn sums_fit_like_fit_axis_and_measure_coherence() {
+        let b = QuadBasis::new(4).unwrap();
+        let mut sums = PhaseSums::new(4);
+        for d in [100.0f32, 120.0, 80.0] {
+            let (i, q) = b.in_phase_quadrature(&quads_for(d, 1.0, 4));
+            sums.push(i, q);
+        }
+        let axis = sums.fit(LitSource::Ls1, 5.0).unwrap();
+        assert!((axis.angle_rad - 1.0).abs() < 1e-4, "{axis:?}");
+        assert!((sums.amplitude_dn() - 100.0).abs() < 1e-3);
+        assert!((sums.coherence() - 1.0).abs() < 1e-6);
+        // two pixels at opposite phases cancel: no direction to trust
+        let mut opposed = PhaseSums::new(4);
+        opposed.push(50.0, 0.0);
+        opposed.push(-50.0, 0.0);
+        assert_eq!(opposed.coherence(), 0.0);
+        assert!(opposed.fit(LitSource::Ls1, 5.0).is_err());
+        let mut total = PhaseSums::default();
+        total.add(&sums);
+        total.add(&opposed);
+        assert_eq!((total.samples, total.quads), (5, 4));
+        // nothing summed: no quads to fit with
+        assert!(matches!(
+            PhaseSums::default().fit(LitSource::Ls1, 5.0),
+            Err(PhaseError::Quads { quads: 0 })
+        ));
+        assert_eq!(PhaseSums::default().coherence(), 0.0);
+    }
+
+    #[test]
+    fn a_stored_angle_must_be_finite_and_within_half_a_turn() {
+        assert!(PhaseAxis::checked(1.0).is_some());
+        assert!(PhaseAxis::checked(-PI).is_some());
+        assert!(PhaseAxis::checked(4.0).is_none());
+        assert!(PhaseAxis::checked(f64::NAN).is_none());
+        assert!(PhaseAxis::checked(f64::INFINITY).is_none());
     }
 }

@@ -6,7 +6,7 @@
 use std::io;
 use std::path::{Path, PathBuf};
 
-use sdi_core::calibration::{CalibrationRecord, CalibrationStore};
+use sdi_core::calibration::{CalibrationRecord, CalibrationStore, PhaseRecord};
 
 /// File name inside the state directory.
 pub const FILE_NAME: &str = "calibration.toml";
@@ -47,6 +47,11 @@ pub fn load(dir: &Path, model: &str, serial: &str) -> io::Result<Option<Calibrat
     Ok(read_store(dir)?.get(model, serial).cloned())
 }
 
+/// The stored phase record of this board, if any.
+pub fn load_phase(dir: &Path, model: &str, serial: &str) -> io::Result<Option<PhaseRecord>> {
+    Ok(read_store(dir)?.phase(model, serial).cloned())
+}
+
 /// Where an unreadable store is kept aside when a new one replaces it.
 pub const UNREADABLE_NAME: &str = "calibration.toml.unreadable";
 
@@ -56,6 +61,17 @@ pub const UNREADABLE_NAME: &str = "calibration.toml.unreadable";
 /// block this: it is kept aside as [`UNREADABLE_NAME`] (the log says so) and
 /// a new store holds `record`.
 pub fn save(dir: &Path, record: CalibrationRecord) -> io::Result<PathBuf> {
+    update(dir, |store| store.upsert(record))
+}
+
+/// Adds or replaces a board's phase record, as [`save`] does.
+pub fn save_phase(dir: &Path, record: PhaseRecord) -> io::Result<PathBuf> {
+    update(dir, |store| store.upsert_phase(record))
+}
+
+/// Reads the store (an unreadable one kept aside), changes it, writes it
+/// back atomically ([`save`]).
+fn update(dir: &Path, change: impl FnOnce(&mut CalibrationStore)) -> io::Result<PathBuf> {
     std::fs::create_dir_all(dir)?;
     let mut store = match read_store(dir) {
         Ok(store) => store,
@@ -70,7 +86,7 @@ pub fn save(dir: &Path, record: CalibrationRecord) -> io::Result<PathBuf> {
         }
         Err(e) => return Err(e),
     };
-    store.upsert(record);
+    change(&mut store);
     let text = store
         .to_toml()
         .map_err(|e| io::Error::new(io::ErrorKind::InvalidData, e.to_string()))?;
@@ -90,6 +106,18 @@ pub fn save(dir: &Path, record: CalibrationRecord) -> io::Result<PathBuf> {
 mod tests {
     use super::*;
     use sdi_core::calibration::PhotonTransferFit;
+
+    /// A photon-transfer fit as Calibrate stores it.
+    fn fit() -> PhotonTransferFit {
+        PhotonTransferFit {
+            gain_dn_per_electron: 0.05,
+            gain_se: 0.001,
+            read_variance_dn2: 15.0,
+            read_variance_se_dn2: 0.1,
+            reduced_chi2: 1.0,
+            points: 5,
+        }
+    }
 
     #[test]
     fn save_then_load_by_model_and_serial() {
@@ -115,19 +143,32 @@ mod tests {
     }
 
     #[test]
+    fn a_phase_record_joins_the_gain_of_the_same_board() {
+        let dir = tempfile::tempdir().unwrap();
+        let fit = fit();
+        let rec = CalibrationRecord::from_fit("m", "s", &fit, 4.0, 30);
+        save(dir.path(), rec.clone()).unwrap();
+        assert!(load_phase(dir.path(), "m", "s").unwrap().is_none());
+        let phase = PhaseRecord {
+            model: "m".into(),
+            serial: "s".into(),
+            angle_rad: 1.047,
+            amplitude_dn: 80.0,
+            coherence: 0.98,
+            frames: 16,
+        };
+        save_phase(dir.path(), phase.clone()).unwrap();
+        assert_eq!(load_phase(dir.path(), "m", "s").unwrap(), Some(phase));
+        assert_eq!(load(dir.path(), "m", "s").unwrap(), Some(rec));
+    }
+
+    #[test]
     fn a_garbage_store_is_kept_aside_and_replaced() {
         let dir = tempfile::tempdir().unwrap();
         let garbage = b"\xff\x00 this is [not toml";
         std::fs::write(dir.path().join(FILE_NAME), garbage).unwrap();
         assert!(load(dir.path(), "m", "s").is_err());
-        let fit = PhotonTransferFit {
-            gain_dn_per_electron: 0.05,
-            gain_se: 0.001,
-            read_variance_dn2: 15.0,
-            read_variance_se_dn2: 0.1,
-            reduced_chi2: 1.0,
-            points: 5,
-        };
+        let fit = fit();
         let rec = CalibrationRecord::from_fit("m", "s", &fit, 4.0, 30);
         save(dir.path(), rec.clone()).unwrap();
         assert_eq!(load(dir.path(), "m", "s").unwrap(), Some(rec));

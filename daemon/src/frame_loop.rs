@@ -20,6 +20,7 @@ use crate::dark_capture::{DarkCapture, DarkJob, NoUsablePixels};
 use crate::frame_stream::{FrameStreams, StreamError};
 use crate::job::{Running, Settling};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
+use crate::phase_calibration::{PhaseFit, PhaseJob};
 use crate::photon_transfer::{PtcError, PtcJob};
 use crate::publish_clock::PublishClock;
 use crate::recorder::RecordingWriter;
@@ -28,6 +29,7 @@ use crate::stats::{LoopStats, StatsWindow};
 use sdi_core::calibration::PhotonTransferFit;
 use sdi_core::display::DisplayMap;
 use sdi_core::mode::{build_pipeline, ModeOutput, Pipeline, PipelineConfig};
+use sdi_core::quad_phase::{PhaseAxis, PhaseError};
 use sdi_core::sensor::SkellamMixing;
 use sdi_recording::Calibration;
 
@@ -48,6 +50,14 @@ pub type Reply<T> = oneshot::Sender<T>;
 const MAX_COMMAND_WAIT: Duration = Duration::from_millis(100);
 /// Wait before trying a failed capture again.
 const STALL_RETRY: Duration = Duration::from_millis(200);
+/// Longest calls waiting for a frame (a setting change's mark, a snapshot)
+/// wait while the source sends nothing yet has not failed (the board gives
+/// up after its 2 s frame wait, in slices of 100 ms: [`BackendError::NotYet`]):
+/// then they are answered as during a stall. Longer than the board's
+/// slowest frame period (350 ms at 2.86 Hz), so a slow board in step
+/// answers them with its frame; shorter than issue 31's 1 s by a slice
+/// and a margin.
+const SILENT_CALL_WAIT: Duration = Duration::from_millis(500);
 
 /// Why the source stalled, as Stats says it (and the key of its log line).
 fn stall_cause(e: &BackendError) -> &'static str {
@@ -55,6 +65,8 @@ fn stall_cause(e: &BackendError) -> &'static str {
         BackendError::EndOfStream => "end of recording",
         BackendError::Unavailable(_) => "device unavailable",
         BackendError::OutOfRange(_) | BackendError::Failed(_) => "capture failing",
+        // never a stall (`FrameLoop::run`); named for completeness
+        BackendError::NotYet => "no frame yet",
     }
 }
 
@@ -70,6 +82,11 @@ pub enum JobError {
     NoUsablePixels(#[from] NoUsablePixels),
     #[error(transparent)]
     PhotonTransfer(#[from] PtcError),
+    #[error(transparent)]
+    Phase(#[from] PhaseError),
+    /// The light rig cannot light LS1 alone (the board's own output).
+    #[error("the light sources cannot light LS1 alone: {0}")]
+    LightsRefused(String),
     /// The job finished but its capture settings could not be put back.
     #[error("restoring the capture settings: {0}")]
     Restore(#[source] BackendError),
@@ -114,6 +131,9 @@ pub enum Command {
     /// Photon-transfer calibration with this many frames per level; on
     /// success the separation mode's H uses the fitted gain and read variance.
     PhotonTransfer(u32, Reply<Result<PhotonTransferFit, JobError>>),
+    /// Phase calibration with this many frames of LS1 alone; on success
+    /// the board decodes with the fitted axis.
+    CalibratePhase(u32, Reply<Result<PhaseFit, JobError>>),
     Snapshot(Reply<Option<SnapshotData>>),
     StartRecording(Box<RecordingWriter>, Reply<()>),
     /// Hands the recorder back; the caller finishes it (off this thread).
@@ -127,6 +147,7 @@ pub enum Command {
 enum ActiveJob {
     Dark(Running<DarkJob>, Reply<Result<DarkStats, JobError>>),
     PhotonTransfer(Running<PtcJob>, Reply<Result<PhotonTransferFit, JobError>>),
+    Phase(Running<PhaseJob>, Reply<Result<PhaseFit, JobError>>),
 }
 
 impl ActiveJob {
@@ -134,6 +155,7 @@ impl ActiveJob {
         match self {
             Self::Dark(run, _) => run.illumination(carrier_hz),
             Self::PhotonTransfer(run, _) => run.illumination(carrier_hz),
+            Self::Phase(run, _) => run.illumination(carrier_hz),
         }
     }
 
@@ -145,6 +167,11 @@ impl ActiveJob {
                 let _ = reply.send(Err(e.into()));
             }
             Self::PhotonTransfer(run, reply) => {
+                let _ = run.end(backend);
+                let _ = reply.send(Err(e.into()));
+            }
+            Self::Phase(run, reply) => {
+                let _ = backend.measure_phase(false);
                 let _ = run.end(backend);
                 let _ = reply.send(Err(e.into()));
             }
@@ -269,6 +296,8 @@ impl FrameLoop {
         let mut pacer = Pacer::new();
         // After a failed capture, the next attempt is not before this.
         let mut retry_at = Instant::now();
+        // When the source last delivered a frame (or the loop started).
+        let mut last_frame_at = Instant::now();
         loop {
             if !self.wait_turn(&commands, &pacer, retry_at) {
                 return self.recorder.take();
@@ -282,6 +311,14 @@ impl FrameLoop {
             // must not read "device unavailable" for half a window more.
             let resumed = match self.backend.capture(&illumination, &mut frame) {
                 Ok(()) => std::mem::replace(&mut stalled, false),
+                Err(BackendError::NotYet) => {
+                    // No frame within the backend's slice: commands are
+                    // handled, and the capture goes on at once.
+                    if last_frame_at.elapsed() >= SILENT_CALL_WAIT {
+                        self.answer_while_silent();
+                    }
+                    continue;
+                }
                 Err(e) => {
                     if !stalled {
                         // Once per stall, and once per cause in a while: a
@@ -296,6 +333,7 @@ impl FrameLoop {
                     continue;
                 }
             };
+            last_frame_at = Instant::now();
             if let Some(rate_hz) = paced {
                 pacer.tick(rate_hz, captured_at);
             }
@@ -356,6 +394,14 @@ impl FrameLoop {
         let card_us = self.stamps.no_signal(monotonic_now_us());
         self.output.send_no_signal(card_us);
         self.stats_tx.send_replace(self.stats.current.clone());
+    }
+
+    /// The source has sent nothing for [`SILENT_CALL_WAIT`] but not failed:
+    /// the calls waiting for a frame are answered as while stalled, and
+    /// nothing else changes (no card: that waits for the failure).
+    fn answer_while_silent(&mut self) {
+        self.answer_pending_snapshots();
+        self.answer_marks_while_stalled();
     }
 
     /// Gives the captured frame its published timestamp and sdid's sequence
@@ -575,6 +621,10 @@ impl FrameLoop {
                 let _ = reply.send(Err(JobError::AlreadyRunning));
             }
             Command::PhotonTransfer(frames, reply) => self.start_photon_transfer(frames, reply),
+            Command::CalibratePhase(_, reply) if self.job.is_some() => {
+                let _ = reply.send(Err(JobError::AlreadyRunning));
+            }
+            Command::CalibratePhase(frames, reply) => self.start_phase(frames, reply),
             Command::Snapshot(reply) if !self.lights.is_settled() => {
                 // lights off (nobody watched) or just switched on
                 self.pending_snapshots.push(reply);
@@ -636,6 +686,27 @@ impl FrameLoop {
         }
     }
 
+    /// Starts the phase calibration: `frames` frames of LS1 alone; a
+    /// backend without phase quads answers at once.
+    fn start_phase(&mut self, frames: u32, reply: Reply<Result<PhaseFit, JobError>>) {
+        let started = self
+            .backend
+            .measure_phase(true)
+            .and_then(|()| Running::start(PhaseJob::new(frames), &mut *self.backend));
+        match started {
+            Ok(run) => self.job = Some(ActiveJob::Phase(run, reply)),
+            Err(e) => {
+                let _ = self.backend.measure_phase(false);
+                let _ = reply.send(Err(e.into()));
+            }
+        }
+    }
+
+    /// Decodes with `axis` from now on (a stored or fitted phase axis).
+    pub fn set_phase_axis(&mut self, axis: PhaseAxis) -> Result<(), BackendError> {
+        self.backend.set_phase_axis(Some(axis))
+    }
+
     /// Feeds the running job a frame; applies and answers its result once done.
     fn job_step(&mut self, frame: &Frame) {
         let Some(job) = self.job.take() else {
@@ -662,6 +733,34 @@ impl FrameLoop {
                 }
                 Err(e) => ActiveJob::PhotonTransfer(run, reply).fail(backend, e),
             },
+            ActiveJob::Phase(mut run, reply) => {
+                // A rig that cannot light LS1 alone would leave both lit:
+                // the fit would be wrong, not merely noisy.
+                if let Some(refused) = backend.lights().and_then(|l| l.refused) {
+                    let _ = backend.measure_phase(false);
+                    let _ = run.end(backend);
+                    let _ = reply.send(Err(JobError::LightsRefused(refused)));
+                    return;
+                }
+                run.job_mut().offer(backend.take_phase_sums());
+                match run.feed(frame, backend) {
+                    Ok(None) => self.job = Some(ActiveJob::Phase(run, reply)),
+                    Ok(Some(r)) => {
+                        let _ = backend.measure_phase(false);
+                        let restored = run.end(backend);
+                        let r = match (r, restored) {
+                            (Err(e), _) => Err(e.into()),
+                            (Ok(_), Err(e)) => Err(JobError::Restore(e)),
+                            (Ok(fit), Ok(())) => backend
+                                .set_phase_axis(Some(fit.axis))
+                                .map(|()| fit)
+                                .map_err(JobError::from),
+                        };
+                        let _ = reply.send(r);
+                    }
+                    Err(e) => ActiveJob::Phase(run, reply).fail(backend, e),
+                }
+            }
         }
     }
 
@@ -705,7 +804,7 @@ impl FrameLoop {
 
 #[cfg(test)]
 mod tests {
-    use super::{lights_needed, Command, FrameLoop};
+    use super::{lights_needed, Command, FrameLoop, FrameMark};
     use crate::backend::sim::SimBackend;
     use crate::backend::{Backend, BackendError, CaptureSettings};
     use crate::monotonic::monotonic_now_us;
@@ -720,12 +819,15 @@ mod tests {
     use std::time::{Duration, Instant};
 
     /// The simulator, failing the capture attempts marked in `fails` (a
-    /// source that pauses) and taking `first_capture` over its first frame.
+    /// source that pauses) and taking `first_capture` over its first frame;
+    /// or, when `silent`, a device with its own frame clock that never
+    /// sends a frame nor fails ([`BackendError::NotYet`] after a short slice).
     struct Scripted {
         sim: SimBackend,
         fails: Vec<bool>,
         attempt: usize,
         first_capture: Option<Duration>,
+        silent: bool,
     }
 
     impl Backend for Scripted {
@@ -745,9 +847,13 @@ mod tests {
             self.sim.configure(s)
         }
         fn paced_rate_hz(&self) -> Option<f64> {
-            self.sim.paced_rate_hz()
+            self.sim.paced_rate_hz().filter(|_| !self.silent)
         }
         fn capture(&mut self, ill: &Illumination, frame: &mut Frame) -> Result<(), BackendError> {
+            if self.silent {
+                std::thread::sleep(Duration::from_millis(10));
+                return Err(BackendError::NotYet);
+            }
             self.attempt += 1;
             if self.fails.get(self.attempt - 1).copied().unwrap_or(false) {
                 return Err(BackendError::Unavailable("paused".into()));
@@ -789,20 +895,25 @@ mod tests {
         }
     }
 
-    /// Runs the frame loop in `mode` over a source that fails the attempts
-    /// marked in `fails` until the sink has `writes` writes; returns them.
-    fn published(mode: ModeId, fails: Vec<bool>, writes: usize) -> Vec<(bool, u64, u64)> {
+    /// A 16x8 simulator at 200 Hz.
+    fn sim(mode: ModeId) -> SimBackend {
         let mut p = SensorPreset::TiOpt8241.params();
         p.width = 16;
         p.height = 8;
         p.frame_rate_hz = 200.0;
-        let backend = Scripted {
-            sim: SimBackend::new(p, mode, 1, None).unwrap(),
-            fails,
-            attempt: 0,
-            // A slow first capture: later frames must not be dated from it.
-            first_capture: Some(Duration::from_millis(40)),
-        };
+        SimBackend::new(p, mode, 1, None).unwrap()
+    }
+
+    /// The frame loop over `backend`, running on its own thread, and what
+    /// its sink is given.
+    fn spawn_loop(
+        backend: Scripted,
+        mode: ModeId,
+    ) -> (
+        std::sync::mpsc::Sender<Command>,
+        std::thread::JoinHandle<Option<crate::recorder::RecordingWriter>>,
+        Written,
+    ) {
         let written = Written::default();
         let output = Output::spawn(Box::new(Seen(written.clone()))).unwrap();
         let (stats_tx, _stats) = tokio::sync::watch::channel(Default::default());
@@ -816,7 +927,21 @@ mod tests {
             cal_tx,
         );
         let (tx, rx) = std::sync::mpsc::channel();
-        let t = std::thread::spawn(move || fl.run(rx));
+        (tx, std::thread::spawn(move || fl.run(rx)), written)
+    }
+
+    /// Runs the frame loop in `mode` over a source that fails the attempts
+    /// marked in `fails` until the sink has `writes` writes; returns them.
+    fn published(mode: ModeId, fails: Vec<bool>, writes: usize) -> Vec<(bool, u64, u64)> {
+        let backend = Scripted {
+            sim: sim(mode),
+            fails,
+            attempt: 0,
+            // A slow first capture: later frames must not be dated from it.
+            first_capture: Some(Duration::from_millis(40)),
+            silent: false,
+        };
+        let (tx, t, written) = spawn_loop(backend, mode);
         let t0 = Instant::now();
         while written.lock().unwrap().len() < writes && t0.elapsed() < Duration::from_secs(60) {
             std::thread::sleep(Duration::from_millis(5));
@@ -826,6 +951,38 @@ mod tests {
         let w = written.lock().unwrap().clone();
         assert!(w.len() >= writes, "{} of {writes} writes: {w:?}", w.len());
         w
+    }
+
+    /// A source that sends nothing yet has not failed (the board within
+    /// its 2 s frame wait) answers a setting change as a stalled one does,
+    /// with the next frame's number, without a "no signal" card.
+    #[test]
+    fn a_silent_source_answers_setting_changes_without_a_card() {
+        let backend = Scripted {
+            sim: sim(ModeId::Raw),
+            fails: Vec::new(),
+            attempt: 0,
+            first_capture: None,
+            silent: true,
+        };
+        let (tx, t, written) = spawn_loop(backend, ModeId::Raw);
+        let (reply, mark) = tokio::sync::oneshot::channel();
+        tx.send(Command::SetDisplay(DisplayMap::default(), reply))
+            .unwrap();
+        let mark = mark.blocking_recv().expect("the call is answered");
+        assert_eq!(
+            mark,
+            FrameMark {
+                sequence: 1,
+                timestamp_us: 0
+            }
+        );
+        let (reply, snapshot) = tokio::sync::oneshot::channel();
+        tx.send(Command::Snapshot(reply)).unwrap();
+        assert!(snapshot.blocking_recv().expect("answered").is_none());
+        tx.send(Command::Shutdown).unwrap();
+        t.join().unwrap();
+        assert!(written.lock().unwrap().is_empty(), "{written:?}");
     }
 
     /// Every stamp strictly after the one before, none later than the

@@ -99,6 +99,11 @@ impl<J: Job> Running<J> {
         self.job.illumination(carrier_hz)
     }
 
+    /// The job, to hand it what a capture yields besides the frame.
+    pub fn job_mut(&mut self) -> &mut J {
+        &mut self.job
+    }
+
     /// Feeds a captured frame (skipped while the settings settle); the
     /// job's output once it is done.
     pub fn feed(

@@ -18,6 +18,7 @@ pub mod job;
 pub mod light;
 pub mod logging;
 pub mod monotonic;
+pub mod phase_calibration;
 pub mod photon_transfer;
 pub mod publish_clock;
 pub mod recorder;

@@ -14,6 +14,7 @@ use std::time::Duration;
 use sdi_config::{Config, ConfigError, Invalid};
 use sdi_core::display::{DisplayMap, DisplayRange};
 use sdi_core::mode::ModeId;
+use sdi_core::quad_phase::PhaseAxis;
 use sdi_core::sensor::SkellamMixing;
 use sdi_recording::{Calibration, RecordingReader};
 use tokio::sync::{watch, Notify};
@@ -314,6 +315,7 @@ fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
         state_dir: calibration_store::state_dir(options.state_dir.as_deref()),
         status: extras.status,
         recording: config.recording,
+        lights: backend.lights().map(|l| l.rig),
     };
     Ok(Opened {
         backend,
@@ -343,6 +345,22 @@ fn start_frame_loop(o: Opened, config: &Config) -> Result<(Camera, FrameLoopHand
         .with_separation(config.separation.live_method());
     if let Some(h) = stored_calibration(&o.info) {
         frame_loop.set_gain(h);
+    }
+    if o.info.backend == BackendName::Opt8241 {
+        match stored_phase_axis(&o.info) {
+            Some(axis) => match frame_loop.set_phase_axis(axis) {
+                Ok(()) => tracing::info!(
+                    angle_deg = axis.angle_rad.to_degrees(),
+                    "phase calibration loaded: the difference is the quads projected onto its axis"
+                ),
+                Err(e) => tracing::warn!("stored phase calibration not applied: {e}"),
+            },
+            None => tracing::warn!(
+                "no phase calibration: the difference is quad 0 alone, which assumes no delay \
+                 between the modulation and the LED light; run `sdictl calibrate phase` \
+                 (docs/hardware.md, \"Phase\")"
+            ),
+        }
     }
     let thread = std::thread::Builder::new()
         .name("sdid-frames".into())
@@ -387,6 +405,19 @@ fn stored_calibration(info: &CameraInfo) -> Option<SkellamMixing> {
             None
         }
     }
+}
+
+/// The phase axis stored for this board, if any and usable.
+fn stored_phase_axis(info: &CameraInfo) -> Option<PhaseAxis> {
+    let dir = info.state_dir.as_deref()?;
+    let record = calibration_store::load_phase(dir, &info.sensor.model, &info.device)
+        .map_err(|e| tracing::warn!("reading the stored calibration in {}: {e}", dir.display()))
+        .ok()
+        .flatten()?;
+    record
+        .axis()
+        .map_err(|e| tracing::warn!("stored phase calibration ignored: {e}"))
+        .ok()
 }
 
 /// Serves `camera` and then requests the name: a client that sees the

@@ -2,7 +2,8 @@
 //! USB) and sdictl (which prints it offline): the OPT9221 register map
 //! ([`registers`]), what the chip can do for a configuration ([`limits`],
 //! [`pll`]), what sdid asks of it ([`config`]) and the exact register
-//! sequence that opens and configures it ([`plan`]).
+//! sequence that opens and configures it ([`plan`]), and the depth frame
+//! whose flags say which pixels saturated ([`saturation`]).
 //!
 //! No I/O and no libusb here, so `sdictl board plan` needs neither.
 #![forbid(unsafe_code)]
@@ -12,6 +13,7 @@ pub mod limits;
 pub mod plan;
 pub mod pll;
 pub mod registers;
+pub mod saturation;
 
 pub use config::{BoardConfig, Roi};
 pub use limits::{BoardLimits, OutOfRange, Range};

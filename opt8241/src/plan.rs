@@ -18,6 +18,7 @@ use crate::config::BoardConfig;
 use crate::limits::{intg_duty_cycle_for, pix_cnt_max_for, OutOfRange};
 use crate::pll::PllSettings;
 use crate::registers::{field, safety, Field, CDK_TILLUM_SLAVE_ADDRESS};
+use crate::saturation;
 
 /// Settle time after the PLL fields, before mod_pll_update goes back to 0
 /// (SDK `TintinVCOFrequency::set`).
@@ -223,7 +224,21 @@ pub fn open_plan(config: &BoardConfig) -> Result<Plan, OutOfRange> {
         1,
         "binning as the SDK: on, merge factors 1",
     );
-    w(field::OUTPUT_MODE, 15, "raw quads out");
+    w(
+        field::OUTPUT_MODE,
+        saturation::OUTPUT_MODE_RAW_QUADS,
+        "raw quads out",
+    );
+    w(
+        field::PIXEL_DATA_SIZE,
+        saturation::PIXEL_DATA_SIZE_4_BYTES,
+        "saturation probe's depth frames: 4 bytes, with flags",
+    );
+    w(
+        field::OP_DATA_ARRANGE_MODE,
+        saturation::OP_DATA_ARRANGE_CONTINUOUS,
+        "saturation probe's depth frames: pixel by pixel",
+    );
     w(
         field::DEBUG_FRAME_NUMBER_EN,
         u32::from(config.frame_numbers),
@@ -341,6 +356,9 @@ mod tests {
             ("mod_ps2", 6),
             ("pix_cnt_max", 400_000),
             ("intg_duty_cycle", 13),
+            ("output_mode", 15),
+            ("pixel_data_size", 4),
+            ("op_data_arrange_mode", 0),
         ] {
             assert!(
                 w.contains(&(name, value)),

@@ -362,36 +362,33 @@ impl Browser {
     }
 
     /// Headless Chromium taking cameras from PipeWire through the camera
-    /// portal (`--enable-features=WebRtcPipeWireCamera`), on the session
-    /// bus and PipeWire of `session` (the portal is on that bus).
-    pub fn chromium_pipewire(url: &str, dir: &Path, session: &crate::pipewire::Session) -> Self {
-        let mut cmd = Self::chromium_command(url, dir);
+    /// portal (`--enable-features=WebRtcPipeWireCamera`), started as a
+    /// client of a PipeWire session (`session`: the private one of a
+    /// `pipewire::Session`, or a user's own), on its bus (the portal is on
+    /// that bus). `dir` must be writable by the session's user.
+    pub fn chromium_pipewire(url: &str, dir: &Path, session: &crate::pipewire::Clients) -> Self {
+        let mut cmd = Self::chromium_args(session.command("chromium"), url, dir);
         cmd.args([
             "--enable-features=WebRtcPipeWireCamera",
             // WebRTC's portal and PipeWire steps, in the log.
             "--enable-logging=stderr",
             "--vmodule=camera_portal=1,pipewire_session=1,video_capture_pipewire=1",
         ]);
-        let env = session.command("true");
-        for (k, v) in env.get_envs() {
-            match v {
-                Some(v) => cmd.env(k, v),
-                None => cmd.env_remove(k),
-            };
-        }
-        // Chromium keeps its own HOME (its profile).
-        cmd.env("HOME", dir);
         Self::spawn(
             cmd,
             &dir.join("chromium-pipewire.log"),
-            Some(&session.bus.address),
+            Some(session.bus_address()),
         )
     }
 
     fn chromium_command(url: &str, dir: &Path) -> Command {
+        Self::chromium_args(Command::new("chromium"), url, dir)
+    }
+
+    /// Chromium's arguments and profile (HOME: `dir`) added to `cmd`.
+    fn chromium_args(mut cmd: Command, url: &str, dir: &Path) -> Command {
         let profile = dir.join("chromium-profile");
         let _ = std::fs::remove_dir_all(&profile);
-        let mut cmd = Command::new("chromium");
         cmd.args([
             "--headless=new",
             "--no-sandbox",

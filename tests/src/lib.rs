@@ -7,6 +7,7 @@ pub mod browser;
 pub mod cdp;
 pub mod clients;
 pub mod dbus;
+pub mod light_rig;
 pub mod loopback;
 pub mod m1_reference;
 pub mod npy_file;

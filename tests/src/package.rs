@@ -184,3 +184,67 @@ pub fn field(deb: &Path, name: &str) -> String {
     .trim()
     .to_owned()
 }
+
+/// `apt-get ARGS`, non-interactive, output echoed; asserts success and
+/// returns stdout and stderr together (maintainer scripts write to either).
+/// The guest runs the test in a chroot of the host's root, where udevadm
+/// ignores requests (right for a real chroot); SYSTEMD_IGNORE_CHROOT tells
+/// the maintainer scripts' udevadm that this one is the running system.
+pub fn apt_get(args: &[&str]) -> String {
+    let t0 = std::time::Instant::now();
+    let out = run(Command::new("apt-get")
+        .args(["-y", "-o", "Dpkg::Use-Pty=0"])
+        .args(args)
+        .env("DEBIAN_FRONTEND", "noninteractive")
+        .env("SYSTEMD_IGNORE_CHROOT", "1"));
+    eprintln!("apt-get {args:?}: {:.1} s", t0.elapsed().as_secs_f64());
+    assert!(
+        out.status.success(),
+        "apt-get {args:?} failed ({})",
+        out.status
+    );
+    format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    )
+}
+
+/// The id of group `group`, if it exists.
+pub fn gid_of(group: &str) -> Option<u32> {
+    let out = run(Command::new("getent").args(["group", group]));
+    String::from_utf8_lossy(&out.stdout)
+        .split(':')
+        .nth(2)
+        .and_then(|g| g.trim().parse().ok())
+}
+
+/// The host side of a VM test that installs the packages: builds them
+/// ([`debs`]), names them to the guest (`SDI_DEB`, and `SDI_CAMERA_DEB`
+/// when the camera was built) and gives the guest a writable `/usr` (a
+/// throw-away overlay, like /etc and /var) for dpkg. None, after the skip
+/// line, when the packages cannot be built. Without the camera package
+/// `camera_needed_by` (a test's name, or its part) fails under
+/// `SDI_REQUIRE_VM` and is skipped otherwise.
+pub fn export_for_vm(camera_needed_by: &str) -> Option<&'static Debs> {
+    let debs = debs()?;
+    std::env::set_var("SDI_DEB", &debs.sdi);
+    match &debs.camera {
+        Some(camera) => std::env::set_var("SDI_CAMERA_DEB", camera),
+        None => {
+            let why = "no sdi-pipewire-camera package: the camera program was not built \
+                       (cargo build -p sdi-pipewire-camera, which needs libpipewire-0.3-dev \
+                       libspa-0.2-dev clang libclang-dev)";
+            assert!(
+                std::env::var_os("SDI_REQUIRE_VM").is_none(),
+                "{why}, and SDI_REQUIRE_VM is set"
+            );
+            crate::skipped!("SKIPPED: {camera_needed_by}: {why}");
+        }
+    }
+    std::env::set_var(
+        "VMRUN_APPEND",
+        "vmrun.overlays=/tmp,/var,/etc,/root,/home,/usr",
+    );
+    Some(debs)
+}

@@ -80,11 +80,33 @@ pub struct Session {
     _pipewire: Reaped,
     pub bus: Bus,
     pub dir: tempfile::TempDir,
+    clients: Clients,
+}
+
+/// The session's clients (`pw-dump`, `pipewiresrc` readers, the camera).
+impl std::ops::Deref for Session {
+    type Target = Clients;
+    fn deref(&self) -> &Clients {
+        &self.clients
+    }
+}
+
+/// How the test starts PipeWire clients of one session: with the private
+/// session's environment ([`Session`]), or as a logged-in user in that
+/// user's session, which their systemd manager runs ([`Clients::user`]).
+#[derive(Debug, Clone)]
+pub struct Clients {
+    /// Runs the client as another user (`runuser -p -u NAME --`), or empty.
+    prefix: Vec<String>,
+    env: Vec<(String, String)>,
+    /// Where the readers write (writable by the clients).
+    scratch: PathBuf,
 }
 
 impl Session {
     /// Starts the session and waits until PipeWire answers `pw-dump`.
     pub fn start() -> Self {
+        logind_state_dirs();
         let dir = tempfile::tempdir().expect("temporary directory");
         let runtime = dir.path().join("runtime");
         std::fs::create_dir(&runtime).expect("runtime dir");
@@ -118,36 +140,180 @@ impl Session {
             .stdout(Stdio::null())
             .stderr(Stdio::null())
             .status();
-        let pipewire = spawn_logged(dir.path(), &bus.address, "pipewire");
+        let clients = Clients {
+            prefix: Vec::new(),
+            env: session_env(dir.path(), &bus.address),
+            scratch: dir.path().to_owned(),
+        };
+        let pipewire = spawn_logged(&clients, "pipewire");
         wait_for(
             "PipeWire to answer pw-dump",
             Duration::from_secs(20),
-            || dump(dir.path(), &bus.address),
+            || clients.dump(),
         );
-        let wireplumber = spawn_logged(dir.path(), &bus.address, "wireplumber");
+        let wireplumber = spawn_logged(&clients, "wireplumber");
         Self {
             _wireplumber: wireplumber,
             _pipewire: pipewire,
             bus,
             dir,
+            clients,
         }
     }
 
     pub fn runtime_dir(&self) -> PathBuf {
         self.dir.path().join("runtime")
     }
+}
 
-    /// `cmd` set up for this session (runtime dir, bus, config dirs).
+impl Clients {
+    /// Clients of user `name`'s own session (uid `uid`), as systemd's user
+    /// manager runs it: `/run/user/UID` and its bus. The readers write into
+    /// `scratch`, which the user must be able to write.
+    pub fn user(name: &str, uid: u32, scratch: &Path) -> Self {
+        let runtime = format!("/run/user/{uid}");
+        Self {
+            prefix: ["runuser", "-p", "-u", name, "--"]
+                .map(str::to_owned)
+                .to_vec(),
+            env: vec![
+                (
+                    "DBUS_SESSION_BUS_ADDRESS".into(),
+                    format!("unix:path={runtime}/bus"),
+                ),
+                ("XDG_RUNTIME_DIR".into(), runtime),
+            ],
+            scratch: scratch.to_owned(),
+        }
+    }
+
+    /// `program` set up as a client of this session (runtime dir, bus,
+    /// config dirs). As another user, `runuser -p` keeps the environment
+    /// set here, and only that: callers add to it with `Command::env`.
     pub fn command(&self, program: impl AsRef<std::ffi::OsStr>) -> Command {
-        let mut cmd = Command::new(program);
-        env(&mut cmd, self.dir.path(), &self.bus.address);
+        let mut cmd = match self.prefix.split_first() {
+            None => Command::new(program),
+            Some((first, rest)) => {
+                let mut cmd = Command::new(first);
+                cmd.args(rest).arg(program);
+                cmd.env_clear().env("PATH", "/usr/sbin:/usr/bin:/sbin:/bin");
+                cmd
+            }
+        };
+        cmd.envs(self.env.iter().map(|(k, v)| (k, v)))
+            .env_remove("PIPEWIRE_REMOTE")
+            .env_remove("PIPEWIRE_RUNTIME_DIR")
+            .env_remove("DISPLAY")
+            .env_remove("WAYLAND_DISPLAY");
         cmd
+    }
+
+    /// The session bus's address.
+    pub fn bus_address(&self) -> &str {
+        self.env
+            .iter()
+            .find(|(k, _)| k == "DBUS_SESSION_BUS_ADDRESS")
+            .map(|(_, v)| v.as_str())
+            .unwrap_or_default()
+    }
+
+    /// True when `name` has an owner on the session bus.
+    fn has_owner(&self, name: &str) -> bool {
+        self.command("dbus-send")
+            .args([
+                "--session",
+                "--print-reply",
+                "--dest=org.freedesktop.DBus",
+                "/org/freedesktop/DBus",
+                "org.freedesktop.DBus.NameHasOwner",
+                &format!("string:{name}"),
+            ])
+            .output()
+            .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).contains("boolean true"))
+    }
+
+    /// Stores the camera permission "yes" for unsandboxed programs (app id
+    /// ""), starting the permission store by D-Bus activation: the portal
+    /// then asks no one.
+    pub fn grant_camera(&self) {
+        let t0 = Instant::now();
+        loop {
+            let out = self
+                .command("dbus-send")
+                .args([
+                    "--session",
+                    "--print-reply",
+                    "--dest=org.freedesktop.impl.portal.PermissionStore",
+                    "/org/freedesktop/impl/portal/PermissionStore",
+                    "org.freedesktop.impl.portal.PermissionStore.SetPermission",
+                    "string:devices",
+                    "boolean:true",
+                    "string:camera",
+                    "string:",
+                    "array:string:yes",
+                ])
+                .output()
+                .expect("run dbus-send");
+            if out.status.success() {
+                return;
+            }
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "the permission store did not grant the camera in 60 s: dbus-send {}: {}; \
+                 store running: {}",
+                out.status,
+                String::from_utf8_lossy(&out.stderr).trim(),
+                self.has_owner("org.freedesktop.impl.portal.PermissionStore")
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
+    /// Waits until the portal (started by D-Bus activation, or by the
+    /// caller) exports the camera portal; `log` is its log, for the message.
+    pub fn wait_camera_portal(&self, log: impl Fn() -> String) {
+        let t0 = Instant::now();
+        while !self
+            .command("dbus-send")
+            .args([
+                "--session",
+                "--print-reply",
+                "--dest=org.freedesktop.portal.Desktop",
+                "/org/freedesktop/portal/desktop",
+                "org.freedesktop.DBus.Properties.Get",
+                "string:org.freedesktop.portal.Camera",
+                "string:version",
+            ])
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .status()
+            .is_ok_and(|st| st.success())
+        {
+            assert!(
+                t0.elapsed() < Duration::from_secs(60),
+                "no camera portal after 60 s; its log:\n{}",
+                log()
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+    }
+
+    /// `pw-dump`'s JSON, None while PipeWire does not answer.
+    fn dump(&self) -> Option<serde_json::Value> {
+        let out = self
+            .command("pw-dump")
+            .stderr(Stdio::null())
+            .output()
+            .ok()?;
+        if !out.status.success() {
+            return None;
+        }
+        serde_json::from_slice(&out.stdout).ok()
     }
 
     /// Properties of every node, from `pw-dump`.
     pub fn nodes(&self) -> Vec<HashMap<String, serde_json::Value>> {
-        let Some(serde_json::Value::Array(objects)) = dump(self.dir.path(), &self.bus.address)
-        else {
+        let Some(serde_json::Value::Array(objects)) = self.dump() else {
             return Vec::new();
         };
         objects
@@ -155,6 +321,22 @@ impl Session {
             .filter(|o| o["type"] == "PipeWire:Interface:Node")
             .filter_map(|o| o["info"]["props"].as_object())
             .map(|p| p.iter().map(|(k, v)| (k.clone(), v.clone())).collect())
+            .collect()
+    }
+
+    /// The nodes PipeWire lists as an SDI camera (media.role Camera and a
+    /// name, description or V4L2 card of SDI's): the fed camera, and the
+    /// loopback node unless SDI's WirePlumber rule hides it.
+    pub fn sdi_cameras(&self) -> Vec<HashMap<String, serde_json::Value>> {
+        self.nodes()
+            .into_iter()
+            .filter(|p| {
+                let text = |k: &str| p.get(k).and_then(|v| v.as_str()).unwrap_or("").to_owned();
+                p.get("media.role").and_then(|v| v.as_str()) == Some("Camera")
+                    && (text("node.name").starts_with("sdi-")
+                        || text("node.description").contains("SDI")
+                        || text("api.v4l2.cap.card").contains("SDI"))
+            })
             .collect()
     }
 
@@ -168,7 +350,7 @@ impl Session {
     /// Reads `frames` buffers of `caps` (e.g. "video/x-raw,format=RGB") from
     /// node `target` with `gst-launch-1.0 pipewiresrc`; returns the raw bytes.
     pub fn read_frames(&self, target: &str, caps: &str, frames: u32, timeout: Duration) -> Vec<u8> {
-        let out = self.dir.path().join(format!("{target}.raw"));
+        let out = self.scratch.join(format!("{target}.raw"));
         let _ = std::fs::remove_file(&out);
         let pipeline = format!(
             "pipewiresrc target-object={target} num-buffers={frames} ! {caps} ! filesink location={}",
@@ -235,6 +417,22 @@ impl Session {
     }
 }
 
+/// WirePlumber 0.4.13 quits ("failed to start systemd logind monitor: -2")
+/// when logind's state directories are missing, as in the VM (no systemd):
+/// PipeWire then runs without a session manager, a client's own nodes
+/// (the camera's) are still listed, but no stream is ever linked and
+/// `pipewiresrc` fails ("Failed to set pipeline to PAUSED"). Makes them
+/// where they are missing (they exist wherever logind runs).
+pub fn logind_state_dirs() {
+    for d in ["seats", "sessions", "users", "machines"] {
+        let d = Path::new("/run/systemd").join(d);
+        if !d.is_dir() {
+            std::fs::create_dir_all(&d)
+                .unwrap_or_else(|e| panic!("mkdir {} for WirePlumber: {e}", d.display()));
+        }
+    }
+}
+
 /// The camera portal for a session: `xdg-desktop-portal` (Debian 12: 1.16)
 /// with the permission store, killed on drop. The portal exports
 /// `org.freedesktop.portal.Camera` only when some backend implements
@@ -242,6 +440,17 @@ impl Session {
 /// `.portal` file in `XDG_DESKTOP_PORTAL_DIR` names one, and the camera
 /// permission for unsandboxed programs (app id "") is stored as "yes"
 /// beforehand, so no dialog is ever asked for and the backend need not run.
+/// A portal backend that claims `Access` for the desktop [`TEST_DESKTOP`]
+/// and never runs: with the permission stored beforehand
+/// ([`Clients::grant_camera`]) the portal exports the camera portal and
+/// asks no one.
+pub const TEST_PORTAL: &str = "[portal]\nDBusName=org.freedesktop.impl.portal.desktop.sditest\n\
+     Interfaces=org.freedesktop.impl.portal.Access;\nUseIn=sditest\n";
+/// The name of [`TEST_PORTAL`]'s file in a portals directory.
+pub const TEST_PORTAL_FILE: &str = "sdi-test.portal";
+/// `XDG_CURRENT_DESKTOP` under which the portal uses [`TEST_PORTAL`].
+pub const TEST_DESKTOP: &str = "sditest";
+
 pub struct CameraPortal {
     _portal: Reaped,
 }
@@ -263,12 +472,7 @@ impl CameraPortal {
     pub fn start(s: &Session) -> Self {
         let dir = s.dir.path().join("portals");
         std::fs::create_dir_all(&dir).expect("portals dir");
-        std::fs::write(
-            dir.join("sdi-test.portal"),
-            "[portal]\nDBusName=org.freedesktop.impl.portal.desktop.sditest\n\
-             Interfaces=org.freedesktop.impl.portal.Access;\nUseIn=sditest\n",
-        )
-        .expect("write the .portal file");
+        std::fs::write(dir.join(TEST_PORTAL_FILE), TEST_PORTAL).expect("write the .portal file");
         // `--replace`: in case a portal was started by D-Bus activation
         // already (without this environment).
         let spawn = |program: &str, log: &str| {
@@ -276,7 +480,7 @@ impl CameraPortal {
             let mut cmd = s.command(program);
             cmd.args(["--replace", "--verbose"])
                 .env("XDG_DESKTOP_PORTAL_DIR", &dir)
-                .env("XDG_CURRENT_DESKTOP", "sditest")
+                .env("XDG_CURRENT_DESKTOP", TEST_DESKTOP)
                 .stdout(log.try_clone().expect("log file"))
                 .stderr(log);
             Reaped(
@@ -284,114 +488,39 @@ impl CameraPortal {
                     .unwrap_or_else(|e| panic!("start {program}: {e}")),
             )
         };
-        // The portal is waited for until it owns its name: a call before
-        // that would start another copy by D-Bus activation, without this
-        // environment.
-        let has_owner = |name: &str| {
-            s.command("dbus-send")
-                .args([
-                    "--session",
-                    "--print-reply",
-                    "--dest=org.freedesktop.DBus",
-                    "/org/freedesktop/DBus",
-                    "org.freedesktop.DBus.NameHasOwner",
-                    &format!("string:{name}"),
-                ])
-                .output()
-                .is_ok_and(|o| String::from_utf8_lossy(&o.stdout).contains("boolean true"))
-                .then_some(())
-        };
         // The permission store only by D-Bus activation (WirePlumber's
-        // camera lookup or the call below start it once, with the session's
+        // camera lookup or this call start it once, with the session's
         // environment, Session::start): a second store started here with
         // `--replace` shared its database directory, and one read the
         // other's half-written file ("Unable to load db file devices:
         // invalid gvdb header", 3 runs in 7), refusing every call.
-        let t0 = Instant::now();
-        loop {
-            let out = s
-                .command("dbus-send")
-                .args([
-                    "--session",
-                    "--print-reply",
-                    "--dest=org.freedesktop.impl.portal.PermissionStore",
-                    "/org/freedesktop/impl/portal/PermissionStore",
-                    "org.freedesktop.impl.portal.PermissionStore.SetPermission",
-                    "string:devices",
-                    "boolean:true",
-                    "string:camera",
-                    "string:",
-                    "array:string:yes",
-                ])
-                .output()
-                .expect("run dbus-send");
-            if out.status.success() {
-                break;
-            }
-            assert!(
-                t0.elapsed() < Duration::from_secs(60),
-                "the permission store did not grant the camera in 60 s: dbus-send {}: {}; \
-                 store running: {}",
-                out.status,
-                String::from_utf8_lossy(&out.stderr).trim(),
-                has_owner("org.freedesktop.impl.portal.PermissionStore").is_some()
-            );
-            std::thread::sleep(Duration::from_millis(200));
-        }
+        s.grant_camera();
+        // The portal is waited for until it owns its name: a call before
+        // that would start another copy by D-Bus activation, without this
+        // environment.
         let portal = spawn("/usr/libexec/xdg-desktop-portal", "portal.log");
         wait_for("the portal", Duration::from_secs(60), || {
-            has_owner("org.freedesktop.portal.Desktop")
+            s.has_owner("org.freedesktop.portal.Desktop").then_some(())
         });
-        let t0 = Instant::now();
-        while !s
-            .command("dbus-send")
-            .args([
-                "--session",
-                "--print-reply",
-                "--dest=org.freedesktop.portal.Desktop",
-                "/org/freedesktop/portal/desktop",
-                "org.freedesktop.DBus.Properties.Get",
-                "string:org.freedesktop.portal.Camera",
-                "string:version",
-            ])
-            .stdout(Stdio::null())
-            .stderr(Stdio::null())
-            .status()
-            .is_ok_and(|st| st.success())
-        {
-            assert!(
-                t0.elapsed() < Duration::from_secs(60),
-                "no camera portal after 60 s; its log:\n{}",
-                std::fs::read_to_string(s.dir.path().join("portal.log")).unwrap_or_default()
-            );
-            std::thread::sleep(Duration::from_millis(200));
-        }
+        s.wait_camera_portal(|| {
+            std::fs::read_to_string(s.dir.path().join("portal.log")).unwrap_or_default()
+        });
         Self { _portal: portal }
     }
 }
 
 /// Starts `program` of the session in `dir`, its stderr to `dir/program.log`.
-fn spawn_logged(dir: &Path, bus: &str, program: &str) -> Reaped {
-    let log = std::fs::File::create(dir.join(format!("{program}.log"))).expect("log file");
-    let mut cmd = Command::new(program);
-    env(&mut cmd, dir, bus);
+fn spawn_logged(clients: &Clients, program: &str) -> Reaped {
+    let log =
+        std::fs::File::create(clients.scratch.join(format!("{program}.log"))).expect("log file");
     Reaped(
-        cmd.stdout(Stdio::null())
+        clients
+            .command(program)
+            .stdout(Stdio::null())
             .stderr(log)
             .spawn()
             .unwrap_or_else(|e| panic!("start {program}: {e}")),
     )
-}
-
-/// `pw-dump`'s JSON, None while PipeWire does not answer.
-fn dump(dir: &Path, bus: &str) -> Option<serde_json::Value> {
-    let mut cmd = Command::new("pw-dump");
-    env(&mut cmd, dir, bus);
-    let out = cmd.stderr(Stdio::null()).output().ok()?;
-    if !out.status.success() {
-        return None;
-    }
-    serde_json::from_slice(&out.stdout).ok()
 }
 
 /// Waits for `child` at most `timeout`; kills it and returns None on timeout.
@@ -410,16 +539,16 @@ fn wait_child(child: &mut Child, timeout: Duration) -> Option<std::process::Exit
     }
 }
 
-fn env(cmd: &mut Command, dir: &Path, bus: &str) {
-    cmd.env("XDG_RUNTIME_DIR", dir.join("runtime"))
-        .env("XDG_CONFIG_HOME", dir.join("config"))
-        .env("XDG_STATE_HOME", dir.join("state"))
-        .env("XDG_DATA_HOME", dir.join("data"))
-        .env("DBUS_SESSION_BUS_ADDRESS", bus)
-        .env_remove("PIPEWIRE_REMOTE")
-        .env_remove("PIPEWIRE_RUNTIME_DIR")
-        .env_remove("DISPLAY")
-        .env_remove("WAYLAND_DISPLAY");
+/// The private session's environment under `dir`.
+fn session_env(dir: &Path, bus: &str) -> Vec<(String, String)> {
+    let at = |sub: &str| dir.join(sub).display().to_string();
+    vec![
+        ("XDG_RUNTIME_DIR".into(), at("runtime")),
+        ("XDG_CONFIG_HOME".into(), at("config")),
+        ("XDG_STATE_HOME".into(), at("state")),
+        ("XDG_DATA_HOME".into(), at("data")),
+        ("DBUS_SESSION_BUS_ADDRESS".into(), bus.to_owned()),
+    ]
 }
 
 /// The per-frame lines logged with `RUST_LOG=sdid::pipewire::frames=trace`
@@ -456,10 +585,61 @@ impl FrameLog {
         self.text().lines().filter_map(parse_published).collect()
     }
 
+    /// Asserts that each frame of `crcs` (CRC-32s of frames a reader got)
+    /// was logged as published on `stream` in `format` and `mode`, and that
+    /// more than half of them differ (the stream moves). `what` names the
+    /// reader in the message. Waits up to 10 s for the lines: the camera
+    /// logs a frame before it queues the buffer.
+    pub fn assert_published(
+        &self,
+        crcs: &[String],
+        stream: &str,
+        format: &str,
+        mode: &str,
+        what: &str,
+    ) {
+        let published = |c: &String| {
+            self.published().iter().any(|p| {
+                p.get("crc32") == Some(c)
+                    && p.get("stream").map(String::as_str) == Some(stream)
+                    && p.get("format").map(String::as_str) == Some(format)
+                    && p.get("mode").map(String::as_str) == Some(mode)
+            })
+        };
+        let t0 = Instant::now();
+        while !crcs.iter().all(published) && t0.elapsed() < Duration::from_secs(10) {
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let missing: Vec<&String> = crcs.iter().filter(|c| !published(c)).collect();
+        assert!(
+            missing.is_empty(),
+            "{what}: {} of {} frames read were not published on {stream} as {format} in mode {mode}: {missing:?}",
+            missing.len(),
+            crcs.len()
+        );
+        let distinct: std::collections::HashSet<&String> = crcs.iter().collect();
+        assert!(
+            distinct.len() * 2 > crcs.len(),
+            "{what}: only {} distinct frames of {}",
+            distinct.len(),
+            crcs.len()
+        );
+    }
+
     /// Everything logged so far.
     pub fn text(&self) -> String {
         String::from_utf8_lossy(&std::fs::read(&self.path).unwrap_or_default()).into_owned()
     }
+}
+
+/// The mode a camera node shows, from its description "SDI camera (MODE)".
+pub fn camera_mode(props: &HashMap<String, serde_json::Value>) -> Option<String> {
+    props
+        .get("node.description")?
+        .as_str()?
+        .strip_prefix("SDI camera (")?
+        .strip_suffix(')')
+        .map(str::to_owned)
 }
 
 /// A reader that runs until dropped (`pipewiresrc ! fdsink`), keeping the

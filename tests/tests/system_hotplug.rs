@@ -5,15 +5,13 @@
 //! group would see; unplugging the gadget is seen as a remove event.
 
 use std::fs;
-use std::io::{BufRead, BufReader};
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
-use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::process::Command;
+use std::time::Duration;
 
 use sdi_tests::process::{must as run, repo_root, Reaped};
-use sdi_tests::udev::{start_udevd, udevadm, usb_device, wait_initialized};
+use sdi_tests::udev::{start_udevd, udevadm, usb_device, wait_initialized, UsbMonitor};
 use sdi_tests::vm;
 use sdi_tests::wait::wait_until;
 
@@ -169,7 +167,7 @@ fn board_hotplug_tags_device_for_systemd_and_group() {
         ("9106", Some("uvc")),
         ("9107", None),
     ] {
-        let mut monitor = Monitor::start();
+        let mut monitor = UsbMonitor::start();
 
         let dev = plug("0451", product);
         let props = properties(&dev);
@@ -221,9 +219,7 @@ fn board_hotplug_tags_device_for_systemd_and_group() {
         // udevd broadcasts the event right after updating its database.
         wait_until("udevadm monitor to print the remove event", WAIT, || {
             monitor
-                .out
-                .lock()
-                .unwrap()
+                .output()
                 .lines()
                 .any(|l| l.contains("remove") && l.contains(&devpath))
         });
@@ -238,66 +234,5 @@ fn board_hotplug_tags_device_for_systemd_and_group() {
                 .any(|l| l.contains("remove") && l.contains(&devpath)),
             "no remove event for {devpath}:\n{out}"
         );
-    }
-}
-
-/// `udevadm monitor` for USB devices, its output collected as it comes.
-struct Monitor {
-    child: Reaped,
-    out: Arc<Mutex<String>>,
-    reader: Option<std::thread::JoinHandle<()>>,
-}
-
-impl Monitor {
-    /// Starts the monitor and returns once it is subscribed: it has printed
-    /// a synthetic change event of the root hub (a fixed wait was not
-    /// always enough under TCG, and the add event went unseen).
-    fn start() -> Self {
-        let mut child = udevadm()
-            .args(["monitor", "--udev", "--subsystem-match=usb/usb_device"])
-            .stdout(Stdio::piped())
-            .spawn()
-            .expect("spawn udevadm monitor");
-        let stdout = child.stdout.take().expect("monitor stdout");
-        let out = Arc::new(Mutex::new(String::new()));
-        let sink = out.clone();
-        let reader = std::thread::spawn(move || {
-            for line in BufReader::new(stdout).lines().map_while(Result::ok) {
-                let mut s = sink.lock().unwrap();
-                s.push_str(&line);
-                s.push('\n');
-            }
-        });
-        let m = Self {
-            child: Reaped(child),
-            out,
-            reader: Some(reader),
-        };
-        let mut last_trigger: Option<Instant> = None;
-        wait_until("udevadm monitor to subscribe", WAIT, || {
-            if last_trigger.is_none_or(|t| t.elapsed() > Duration::from_secs(1)) {
-                let _ = udevadm()
-                    .args(["trigger", "--action=change", "/sys/bus/usb/devices/usb1"])
-                    .status();
-                last_trigger = Some(Instant::now());
-            }
-            m.out
-                .lock()
-                .unwrap()
-                .lines()
-                .any(|l| l.contains(" change "))
-        });
-        m
-    }
-
-    /// Ends the monitor; everything it printed.
-    fn stop(&mut self) -> String {
-        let _ = self.child.0.kill();
-        let _ = self.child.0.wait();
-        if let Some(r) = self.reader.take() {
-            let _ = r.join();
-        }
-        let out = self.out.lock().unwrap().clone();
-        out
     }
 }

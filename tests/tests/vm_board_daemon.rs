@@ -2,8 +2,12 @@
 //! stack (dummy_hcd + configfs + FunctionFS), inside the VM, on a private
 //! dbus-daemon with the y4m output: auto picks the board, frames match what
 //! the emulator streamed, the firmware's clamps are seen, unplug shows
-//! "no signal" and DeviceUnavailable, replug resumes; and `[board] on_unplug`
-//! = "simulator" and "exit" behave as docs/install.md says.
+//! "no signal" and DeviceUnavailable, replug resumes; `[board] on_unplug`
+//! = "simulator" and "exit" behave as docs/install.md says; with a delay
+//! on the LED path, `sdictl calibrate phase` (LS1 lit alone through
+//! `[lights]`) makes the difference right again and is kept across
+//! restarts; a region whose wells both fill is flagged saturated in sdid's
+//! recording and kept out of separation.
 
 use std::io::{BufRead, BufReader, Read};
 use std::path::Path;
@@ -12,8 +16,10 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use sdi_tests::board_emulator::chip::SaturatedRegion;
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::dbus::{sdictl, Bus, Daemon};
+use sdi_tests::light_rig::ScpiRig;
 use sdi_tests::process::Reaped;
 use sdi_tests::vm;
 use sdi_tests::wait::{wait_for, wait_until};
@@ -44,19 +50,35 @@ struct Sdid {
     address: String,
     seen: Arc<Mutex<Seen>>,
     frames: Arc<AtomicU64>,
+    /// sdid's log lines so far (also passed on to the test's stderr).
+    log: Arc<Mutex<Vec<String>>>,
 }
 
 impl Sdid {
     fn start(bus: &Bus, config: &Path) -> Self {
+        Self::start_with(bus, config, &[])
+    }
+
+    fn start_with(bus: &Bus, config: &Path, args: &[&str]) -> Self {
         let mut child = Daemon::bare_command(bus, &[])
             .args(["--sink", "y4m", "--y4m-path", "-", "--config"])
             .arg(config)
+            .args(args)
             .env("RUST_LOG", "info")
             .stdout(Stdio::piped())
-            .stderr(Stdio::inherit())
+            .stderr(Stdio::piped())
             .spawn()
             .expect("start sdid");
         let stdout = child.stdout.take().expect("stdout");
+        let stderr = child.stderr.take().expect("stderr");
+        let log = Arc::new(Mutex::new(Vec::new()));
+        let lines = log.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                eprintln!("{line}");
+                lines.lock().unwrap().push(line);
+            }
+        });
         let seen = Arc::new(Mutex::new(Seen::default()));
         let frames = Arc::new(AtomicU64::new(0));
         let (s, n) = (seen.clone(), frames.clone());
@@ -66,6 +88,7 @@ impl Sdid {
             address: bus.address.clone(),
             seen,
             frames,
+            log,
         };
         wait_until("sdid on the bus", Duration::from_secs(60), || {
             d.ctl(&["get", "mode"]).status.success()
@@ -168,12 +191,55 @@ fn snapshot_matches(emu: &BoardEmulator, npy: &Path) -> bool {
         .any(|(_, dn)| dn.len() == data.len() && dn[1..] == data[1..])
 }
 
-#[test]
-fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
-    if vm::rerun_with_bins(
+/// The largest |difference| over the snapshot's pixels (but pixel 0) to
+/// the closest frame the emulator sent, DN.
+fn snapshot_error_dn(emu: &BoardEmulator, npy: &Path) -> f32 {
+    let f = std::fs::File::open(npy).expect("snapshot file");
+    let (_, data) = sdi_core::npy::read_f32(f).expect("npy");
+    let s = emu.state.lock().unwrap();
+    s.sent
+        .iter()
+        .filter(|(_, dn)| dn.len() == data.len())
+        .map(|(_, dn)| {
+            dn[1..]
+                .iter()
+                .zip(&data[1..])
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max)
+        })
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// Takes snapshots until one is within `max_dn` of a frame sent or
+/// `wait` is up; the last error.
+fn snapshot_within(d: &Sdid, emu: &BoardEmulator, npy: &Path, max_dn: f32, wait: Duration) -> f32 {
+    let t0 = Instant::now();
+    loop {
+        let out = d.snapshot(npy);
+        assert!(out.status.success(), "{out:?}");
+        let err = snapshot_error_dn(emu, npy);
+        if err <= max_dn || t0.elapsed() > wait {
+            return err;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
+/// This binary's VM tests, in one boot.
+static VM: vm::VmBatch = vm::VmBatch::new(&[
+    (
         "sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug",
         900,
-    ) {
+    ),
+    (
+        "sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
+        600,
+    ),
+]);
+
+#[test]
+fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
+    if VM.rerun_with_bins("sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug") {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -196,7 +262,13 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     {
         let s = emu.state.lock().unwrap();
         assert_eq!(s.reg_value(0x5C4C) & 0x3F, 20, "intg_duty_cycle");
-        assert_eq!((s.reg_value(0x5C25) >> 8) & 0xF, 15, "raw quads");
+        // raw quads (output_mode 15), between the saturation probes' depth frames
+        let modes = s.writes.iter().filter(|w| w.address == 0x5C25);
+        assert_eq!(
+            modes.map(|w| (w.kept >> 8) & 0xF).next(),
+            Some(15),
+            "raw quads"
+        );
         assert!(s.reg_value(0x5882) & 0x3F_FFFF >= 60_000, "pix_cnt_max");
         for w in &s.writes {
             assert_eq!(w.written, w.kept, "firmware clamp hit: {w:?}");
@@ -230,12 +302,17 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     eprintln!("Limits: {limits}");
     let fr = &limits["FrameRate"];
     assert!((fr[0].as_f64().unwrap() - 2.861).abs() < 1e-3, "{limits}");
-    let writes_before = emu.state.lock().unwrap().writes.len();
+    // (output_mode, 0x5C25, is the saturation probe's, written while streaming)
+    let configuring = |emu: &BoardEmulator| {
+        let s = emu.state.lock().unwrap();
+        s.writes.iter().filter(|w| w.address != 0x5C25).count()
+    };
+    let writes_before = configuring(&emu);
     let out = d.ctl(&["set", "frame-rate", "2"]);
     assert!(!out.status.success(), "{out:?}");
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("2.86"), "{err}");
-    assert_eq!(emu.state.lock().unwrap().writes.len(), writes_before);
+    assert_eq!(configuring(&emu), writes_before);
     assert_eq!(emu.state.lock().unwrap().reg_value(0x5880) & 1, 0, "tg_dis");
     let n = d.frames.load(Ordering::SeqCst);
     wait_until(
@@ -258,10 +335,17 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     assert!(text.contains("frame rate 2.86"), "{text}");
 
     // An output overflow is seen at the next poll, counted in Stats, and
-    // the frame it came with is dropped; frames go on.
+    // the frame it came with is dropped, which the log says; frames go on.
     emu.state.lock().unwrap().force_overflow = true;
     wait_until("an overflow in Stats", Duration::from_secs(15), || {
         d.prop("stats")["output_overflows"].as_u64() >= Some(1)
+    });
+    wait_until("the overflow in the log", Duration::from_secs(5), || {
+        d.log
+            .lock()
+            .unwrap()
+            .iter()
+            .any(|l| l.contains("output overflow (op_overflow)") && l.contains("frame dropped"))
     });
     emu.state.lock().unwrap().force_overflow = false;
     let n = d.frames.load(Ordering::SeqCst);
@@ -282,6 +366,8 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
         std::thread::sleep(Duration::from_millis(100));
     }
     eprintln!("MEASURED: {compared} snapshots equal frames the emulator sent");
+
+    saturated_wells_are_flagged_and_kept_out_of_separation(&emu, &d, tmp.path());
 
     // unplug mid-stream
     let t_unplug = Instant::now();
@@ -402,6 +488,72 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
     wait_until("re-enumeration", Duration::from_secs(20), || {
         sdi_daemon::backend::board::board_attached().is_ok_and(|a| a)
     });
+
+    phase_calibration_fixes_a_delayed_led_path(&emu, &bus, tmp.path());
+}
+
+/// Part 4, the LED light 60 degrees of the modulation late: quad 0 alone reads
+/// d cos 60 = d / 2. `sdictl calibrate phase` with LS1 lit alone (the
+/// emulator's scene follows the function generator sdid drives) fits the
+/// axis; the difference then matches what the emulator sent within the
+/// 12-bit rounding, and again after a restart, from the store.
+fn phase_calibration_fixes_a_delayed_led_path(emu: &BoardEmulator, bus: &Bus, dir: &Path) {
+    let t0 = Instant::now();
+    let delay_deg = 60.0f64;
+    emu.state.lock().unwrap().led_delay_rad = delay_deg.to_radians();
+    let scene = emu.state.clone();
+    let rig = ScpiRig::start(move |ls1, ls2| scene.lock().unwrap().unlit = [!ls1, !ls2])
+        .expect("light rig");
+    let config = write_config(dir, "phase.toml", "no-signal");
+    let mut text = std::fs::read_to_string(&config).unwrap();
+    text += &format!(
+        "[lights]\ndriver = \"scpi-tcp\"\naddress = \"{}\"\n",
+        rig.address
+    );
+    std::fs::write(&config, text).unwrap();
+    let state_dir = dir.join("state");
+    let args = ["--state-dir", state_dir.to_str().unwrap()];
+    let d = Sdid::start_with(bus, &config, &args);
+    assert_eq!(d.prop("backend"), "opt8241");
+
+    // Uncalibrated: quad 0 alone, half of every difference.
+    let snap = dir.join("phase.npy");
+    let wrong = snapshot_within(&d, emu, &snap, 1.0, Duration::from_secs(1));
+    eprintln!("MEASURED: uncalibrated, {delay_deg} degrees late: snapshot off by up to {wrong} DN");
+    assert!(
+        wrong > 4.0,
+        "quad 0 alone matched a delayed frame: {wrong} DN"
+    );
+
+    let out = d.ctl(&["--json", "calibrate", "phase", "--frames", "8"]);
+    assert!(out.status.success(), "{out:?}");
+    let reply: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    eprintln!("calibrate phase: {reply}");
+    let angle = reply["angle_deg"].as_f64().expect("angle_deg");
+    assert!((angle - delay_deg).abs() < 2.0, "{reply}");
+    assert!(reply["coherence"].as_f64() > Some(0.9), "{reply}");
+    assert!(
+        !reply["lights"].as_str().unwrap_or("").is_empty(),
+        "{reply}"
+    );
+    assert!(reply["stored"].as_str().is_some(), "{reply}");
+    // sdid lit LS1 alone through the rig, then both again
+    let log = rig.log.lock().unwrap().clone();
+    assert!(log.iter().any(|c| c == "OUTPut2:STATe OFF"), "{log:?}");
+    let right = snapshot_within(&d, emu, &snap, 1.0, Duration::from_secs(10));
+    eprintln!("MEASURED: calibrated: snapshot off by up to {right} DN");
+    assert!(right <= 1.0, "calibrated difference off by {right} DN");
+    drop(d);
+
+    // A restart reads the axis from the store.
+    let stored = std::fs::read_to_string(state_dir.join("calibration.toml")).unwrap();
+    assert!(stored.contains("[[phase]]"), "{stored}");
+    let d = Sdid::start_with(bus, &config, &args);
+    let right = snapshot_within(&d, emu, &snap, 1.0, Duration::from_secs(10));
+    assert!(right <= 1.0, "after a restart: off by {right} DN");
+    drop(d);
+    emu.state.lock().unwrap().led_delay_rad = 0.0;
+    eprintln!("MEASURED: phase calibration part took {:?}", t0.elapsed());
 }
 
 /// A board that enumerates in UVC mode (0451:9106): `sdid --backend
@@ -409,10 +561,7 @@ fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
 /// 0451:9105, and sdid configures it and streams its frames.
 #[test]
 fn sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams() {
-    if vm::rerun_with_bins(
-        "sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
-        600,
-    ) {
+    if VM.rerun_with_bins("sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams") {
         return;
     }
     const UVC_SERIAL: &str = "EMU0003";
@@ -478,4 +627,107 @@ fn sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams() {
     );
     assert!(d.device_available());
     drop(d);
+}
+
+/// Both wells full in a region (ambient light with the IR filter off):
+/// the raw quads read 0 there, so only the chip's depth-output flag can
+/// tell; sdid's frames (its recording) carry the pixels as saturated, no
+/// other pixel, and separation marks them SATURATED.
+fn saturated_wells_are_flagged_and_kept_out_of_separation(
+    emu: &BoardEmulator,
+    d: &Sdid,
+    dir: &Path,
+) {
+    use sdi_core::separation::{unmix, UnmixOptions, Welford};
+    use sdi_recording::{Record, RecordingReader};
+
+    let region = SaturatedRegion {
+        x: 16,
+        y: 8,
+        width: 16,
+        height: 12,
+    };
+    emu.state.lock().unwrap().saturated_region = Some(region);
+    let rec = dir.join("saturated.sdirec");
+    let t0 = Instant::now();
+    let out = d.ctl(&["record", rec.to_str().unwrap(), "--seconds", "2.5"]);
+    assert!(out.status.success(), "{out:?}");
+    emu.state.lock().unwrap().saturated_region = None;
+    let mut frames = Vec::new();
+    wait_until("the recording finished", Duration::from_secs(10), || {
+        frames.clear();
+        let Ok(mut r) = RecordingReader::open(&rec) else {
+            return false;
+        };
+        let mut ended = false;
+        while let Some(record) = r.next_record() {
+            match record {
+                Record::Frame { frame, .. } => frames.push(frame),
+                Record::End { .. } => ended = true,
+                Record::Dark { .. } => {}
+            }
+        }
+        ended
+    });
+    let inside = |i: usize| region.contains(i % W, i / W);
+    // Frames before the first probe (one every 30 frames) or before the
+    // region reached a depth frame carry no flags yet.
+    let flagged: Vec<_> = frames
+        .iter()
+        .filter(|f| {
+            f.saturated
+                .data
+                .iter()
+                .enumerate()
+                .any(|(i, &s)| s != 0 && inside(i))
+        })
+        .collect();
+    eprintln!(
+        "MEASURED: {} of {} recorded frames flag the saturated region ({:?} for the recording)",
+        flagged.len(),
+        frames.len(),
+        t0.elapsed()
+    );
+    assert!(flagged.len() >= 2, "no frame flags the saturated region");
+    for f in &flagged {
+        for (i, &s) in f.saturated.data.iter().enumerate() {
+            assert_eq!(s != 0, inside(i), "pixel {i}: saturated = {s}");
+        }
+    }
+    assert!(
+        frames
+            .last()
+            .is_some_and(|f| flagged.iter().any(|g| g.sequence == f.sequence)),
+        "the last frame is not flagged"
+    );
+    {
+        let s = emu.state.lock().unwrap();
+        let modes: Vec<u32> = s
+            .writes
+            .iter()
+            .filter(|w| w.address == 0x5C25)
+            .map(|w| (w.kept >> 8) & 0xF)
+            .collect();
+        assert!(modes.contains(&0), "no depth frame asked for: {modes:?}");
+        assert_eq!(modes.last(), Some(&15), "left in depth output: {modes:?}");
+    }
+    let mut welford = Welford::new(W, H);
+    for f in &flagged {
+        welford.push(f).expect("push");
+    }
+    let h = sdi_core::sensor::SensorPreset::TiOpt8241.params().skellam();
+    let sep = unmix(
+        &welford.moments().expect("moments"),
+        &h,
+        UnmixOptions::default(),
+    )
+    .expect("unmix");
+    let saturated = sdi_core::PixelFlags::SATURATED.bits();
+    for (i, &f) in sep.flags.data.iter().enumerate() {
+        assert_eq!(
+            f & saturated != 0,
+            inside(i),
+            "separation flags of pixel {i}: {f:#x}"
+        );
+    }
 }

@@ -2,7 +2,9 @@
 //! VM: one boot runs every mode of the emulator's
 //! [`HostileMode`] in turn. Between modes the genuine emulated board comes
 //! back, and sdid must stream it again. During each attack another client
-//! reads the `Stats` property every 100 ms (each answered within 1 s), sdid's
+//! reads the `Stats` property every 100 ms and sets the colormap every
+//! 500 ms, a call answered through the frame loop (each answered within
+//! 1 s, however long the device keeps the frame back), sdid's
 //! VmRSS stays within [`RSS_GROWTH_BOUND_KIB`] of its size before the first
 //! attack, and its log has at most [`MAX_LOG_LINES`] lines for the mode (one
 //! line per cause, never one per frame or per attempt).
@@ -54,9 +56,18 @@ struct Probe {
     bus_took: Duration,
 }
 
-/// Calls through sdid's frame loop (SetColormap, answered at the next frame
-/// or failed capture): when each started and how long it took.
-type Commands = Arc<Mutex<Vec<(Instant, Duration)>>>;
+/// One call through sdid's frame loop (SetColormap, answered at the next
+/// frame, a failed capture, or 0.5 s into a silence): when it started, how
+/// long it took, whether it succeeded, and the bus daemon's GetId time just
+/// before on the same connection (as [`Probe::bus_took`]).
+struct Call {
+    at: Instant,
+    took: Duration,
+    ok: bool,
+    bus_took: Duration,
+}
+
+type Commands = Arc<Mutex<Vec<Call>>>;
 
 /// Reads `Stats` every 100 ms (no property cache: a real round trip) and,
 /// concurrently on its own connection, sets the colormap every 500 ms,
@@ -84,7 +95,11 @@ fn probe_loop(
             .await
             .expect("bus proxy");
         let reader = proxy(reader_conn.clone()).await;
-        let commander = proxy(sdi_tests::dbus::connect(&address).await).await;
+        let commander_conn = sdi_tests::dbus::connect(&address).await;
+        let commander_bus = zbus::fdo::DBusProxy::new(&commander_conn)
+            .await
+            .expect("bus proxy");
+        let commander = proxy(commander_conn).await;
         let reads = async {
             while !stop.load(Ordering::SeqCst) {
                 let t = Instant::now();
@@ -106,18 +121,40 @@ fn probe_loop(
         };
         let calls = async {
             while !stop.load(Ordering::SeqCst) {
+                let t = Instant::now();
+                let _ = tokio::time::timeout(Duration::from_secs(10), commander_bus.get_id()).await;
+                let bus_took = t.elapsed();
                 let at = Instant::now();
-                let _ = tokio::time::timeout(
+                let ok = tokio::time::timeout(
                     Duration::from_secs(30),
                     commander.set_colormap("diverging"),
                 )
-                .await;
-                commands.lock().unwrap().push((at, at.elapsed()));
+                .await
+                .is_ok_and(|r| r.is_ok());
+                commands.lock().unwrap().push(Call {
+                    at,
+                    took: at.elapsed(),
+                    ok,
+                    bus_took,
+                });
                 tokio::time::sleep(Duration::from_millis(500)).await;
             }
         };
         tokio::join!(reads, calls);
     });
+}
+
+/// What one mode's attack measured, asserted once every mode ran.
+struct Report {
+    mode: HostileMode,
+    /// The slowest Stats read, and the GetId just before it.
+    slowest: Duration,
+    bus_then: Duration,
+    /// The slowest SetColormap call, and the GetId just before it.
+    slowest_command: Duration,
+    bus_then_command: Duration,
+    rss_max_kib: u64,
+    lines: Vec<String>,
 }
 
 /// VmRSS of `pid`, KiB.
@@ -282,7 +319,7 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
             .filter(|(t, _)| *t >= t0)
             .map(|(_, l)| l.clone())
             .collect();
-        let (n_probes, slowest, bus_then, slowest_command) = {
+        let (n_probes, slowest, bus_then) = {
             let p = probes.lock().unwrap();
             let window: Vec<&Probe> = p.iter().filter(|p| p.at >= t0 && p.at < t_plug).collect();
             let worst = window.iter().max_by_key(|p| p.took);
@@ -290,21 +327,25 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
                 window.len(),
                 worst.map(|p| p.took).unwrap_or_default(),
                 worst.map(|p| p.bus_took).unwrap_or_default(),
-                commands
-                    .lock()
-                    .unwrap()
-                    .iter()
-                    .filter(|c| c.0 >= t0 && c.0 < t_plug)
-                    .map(|c| c.1)
-                    .max()
-                    .unwrap_or_default(),
+            )
+        };
+        let (n_calls, failed_calls, slowest_command, bus_then_command) = {
+            let c = commands.lock().unwrap();
+            let window: Vec<&Call> = c.iter().filter(|c| c.at >= t0 && c.at < t_plug).collect();
+            let worst = window.iter().max_by_key(|c| c.took);
+            (
+                window.len(),
+                window.iter().filter(|c| !c.ok).count(),
+                worst.map(|c| c.took).unwrap_or_default(),
+                worst.map(|c| c.bus_took).unwrap_or_default(),
             )
         };
         let cpu_percent = cpu_ticks_attack as f64 / attack.as_secs_f64();
         eprintln!(
             "MEASURED: {}: {n_probes} Stats reads, slowest {slowest:?} \
              (the bus daemon's GetId just before: {bus_then:?}) \
-             (SetColormap through the frame loop: slowest {slowest_command:?}); VmRSS max {rss_max_kib} KiB \
+             ({n_calls} SetColormap calls through the frame loop, {failed_calls} failed: slowest \
+             {slowest_command:?}, GetId just before {bus_then_command:?}); VmRSS max {rss_max_kib} KiB \
              (+{} KiB); CPU {cpu_percent:.0} %; {} log lines; {transfers} hostile transfers \
              (engaged after {engaged_after:?}); \
              streaming again {recovery:?} after the genuine board came back",
@@ -315,19 +356,47 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
         for l in &lines {
             eprintln!("    | {l}");
         }
-        report.push((mode, slowest, bus_then, rss_max_kib, lines));
+        report.push(Report {
+            mode,
+            slowest,
+            bus_then,
+            slowest_command,
+            bus_then_command,
+            rss_max_kib,
+            lines,
+        });
         assert!(
             n_probes >= 5,
             "{}: only {n_probes} Stats reads",
             mode.name()
         );
+        assert!(
+            n_calls >= 2,
+            "{}: only {n_calls} SetColormap calls",
+            mode.name()
+        );
     }
     stop.store(true, Ordering::SeqCst);
     let _ = prober.join();
-    for (mode, slowest, bus_then, rss_max_kib, lines) in &report {
+    for Report {
+        mode,
+        slowest,
+        bus_then,
+        slowest_command,
+        bus_then_command,
+        rss_max_kib,
+        lines,
+    } in &report
+    {
         assert!(
             *slowest < MAX_REPLY,
             "{}: a Stats read took {slowest:?} (the bus daemon's GetId just before: {bus_then:?})",
+            mode.name()
+        );
+        assert!(
+            *slowest_command < MAX_REPLY,
+            "{}: a SetColormap call took {slowest_command:?} (the bus daemon's GetId just \
+             before: {bus_then_command:?})",
             mode.name()
         );
         assert!(

@@ -315,12 +315,19 @@ fn board_unplug_checks() {
     drop(browser);
 }
 
+/// This binary's VM tests, in one boot; two browsers need more than the
+/// default 1 GiB.
+static VM: vm::VmBatch = vm::VmBatch::new(&[
+    ("vm_chromium_track_survives_board_unplug", 900),
+    ("vm_browsers_see_the_sdi_camera", 1200),
+])
+.with_mem_mb(2560);
+
 #[test]
 fn vm_chromium_track_survives_board_unplug() {
     if !vm::in_vm() {
         sdi_tests::dbus::export_bins();
-        std::env::set_var("VMRUN_MEM", "2560");
-        vm::run_test_in_vm("vm_chromium_track_survives_board_unplug", 900);
+        VM.run("vm_chromium_track_survives_board_unplug");
         return;
     }
     board_unplug_checks();
@@ -330,9 +337,7 @@ fn vm_chromium_track_survives_board_unplug() {
 fn vm_browsers_see_the_sdi_camera() {
     if !vm::in_vm() {
         sdi_tests::dbus::export_bins();
-        // Two browsers need more than the default 1 GiB.
-        std::env::set_var("VMRUN_MEM", "2560");
-        vm::run_test_in_vm("vm_browsers_see_the_sdi_camera", 1200);
+        VM.run("vm_browsers_see_the_sdi_camera");
         return;
     }
     in_vm_checks();

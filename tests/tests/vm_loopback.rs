@@ -52,10 +52,10 @@ const NODES: [(u32, &str); 6] = [
 
 /// v4l2-compliance failures per module: (ours, ffmpeg's writer) of 45
 /// tests, each explained in docs/loopback.md.
-fn expected_failures(build: ModuleBuild) -> Option<(u32, u32)> {
+fn expected_failures(build: ModuleBuild) -> Option<u32> {
     match build {
-        ModuleBuild::Debian0127 => Some((5, 5)),
-        ModuleBuild::V0150 => Some((1, 1)),
+        ModuleBuild::Debian0127 => Some(5),
+        ModuleBuild::V0150 => Some(1),
     }
 }
 
@@ -535,15 +535,26 @@ fn module_checks(build: ModuleBuild, sim: &SimFrames, tmp: &Path) {
             &reference.output,
         );
     }
+    // ffmpeg's count is the reference, not pinned: on 0.15 its writer
+    // sometimes adds "VIDIOC_REQBUFS/CREATE_BUFS/QUERYBUF" (an unqueued
+    // buffer's g_sequence() not 0: the module shows the capture side the
+    // sequence the writer gave that buffer, when the writer filled it
+    // before the query; 2 failures instead of 1 in one fresh-check). Ours
+    // is pinned: a new failure of our writer must show.
     assert!(
         ours.total > 0 && ours.failed <= reference.failed,
         "SDI writer fails more than ffmpeg's"
     );
+    for t in &ours.failing_tests {
+        assert!(
+            reference.failing_tests.contains(t),
+            "{build}: our writer fails {t}, ffmpeg's does not"
+        );
+    }
     if let Some(want) = expected_failures(build) {
         assert_eq!(
-            (ours.failed, reference.failed),
-            want,
-            "{build}: v4l2-compliance failures (ours, ffmpeg's)"
+            ours.failed, want,
+            "{build}: v4l2-compliance failures of our writer"
         );
     }
     eprintln!("ok: view writer streamed {frames} frames through OpenCV + compliance");
@@ -602,10 +613,16 @@ fn in_vm_checks() {
     loopback::unload_module().unwrap_or_else(|e| panic!("{e}"));
 }
 
+/// This binary's VM tests, in one boot.
+static VM: vm::VmBatch = vm::VmBatch::new(&[
+    ("vm_loopback_end_to_end", 900),
+    ("vm_loopback_module_switch", 300),
+]);
+
 #[test]
 fn vm_loopback_end_to_end() {
     if !vm::in_vm() {
-        vm::run_test_in_vm("vm_loopback_end_to_end", 900);
+        VM.run("vm_loopback_end_to_end");
         return;
     }
     in_vm_checks();
@@ -643,7 +660,7 @@ fn module_switch_checks() {
 #[test]
 fn vm_loopback_module_switch() {
     if !vm::in_vm() {
-        vm::run_test_in_vm("vm_loopback_module_switch", 300);
+        VM.run("vm_loopback_module_switch");
         return;
     }
     module_switch_checks();

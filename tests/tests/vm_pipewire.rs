@@ -102,12 +102,7 @@ impl PipeWire {
     fn start_with(config_home: Option<&Path>) -> Self {
         let runtime = Path::new("/run/user/0");
         std::fs::create_dir_all(runtime).expect("runtime dir");
-        // WirePlumber 0.4 quits ("failed to start systemd logind monitor:
-        // -2") when logind's state directories are missing, as in the VM.
-        for d in ["seats", "sessions", "users", "machines"] {
-            std::fs::create_dir_all(Path::new("/run/systemd").join(d))
-                .expect("mkdir /run/systemd/*");
-        }
+        sdi_tests::pipewire::logind_state_dirs();
         let bus = Bus::start();
         let mut env = vec![
             ("XDG_RUNTIME_DIR".to_owned(), runtime.display().to_string()),
@@ -495,31 +490,8 @@ fn read_published(pw: &PipeWire, log: &FrameLog, order: &str, mode: &str) {
     assert_eq!(bytes.len(), 30 * FRAME_YUYV, "{order}: 30 whole frames");
     let crcs = frame_crcs(&bytes, FRAME_YUYV);
     let t_read = t0.elapsed();
-    let published = |c: &String| {
-        log.published().iter().any(|p| {
-            p.get("crc32") == Some(c)
-                && p.get("stream").map(String::as_str) == Some("sdi-camera")
-                && p.get("format").map(String::as_str) == Some("YUYV")
-                && p.get("mode").map(String::as_str) == Some(mode)
-        })
-    };
-    // The log line is written before the buffer is queued; let it land.
-    let t0 = Instant::now();
-    while !crcs.iter().all(published) && t0.elapsed() < Duration::from_secs(10) {
-        std::thread::sleep(Duration::from_millis(100));
-    }
-    let missing: Vec<&String> = crcs.iter().filter(|c| !published(c)).collect();
-    assert!(
-        missing.is_empty(),
-        "{order}: {} of 30 frames read through PipeWire were not published in mode {mode}: {missing:?}",
-        missing.len()
-    );
+    log.assert_published(&crcs, "sdi-camera", "YUYV", mode, order);
     let distinct: std::collections::HashSet<&String> = crcs.iter().collect();
-    assert!(
-        distinct.len() > 15,
-        "{order}: only {} distinct frames",
-        distinct.len()
-    );
     eprintln!(
         "{order}: pipewiresrc read 30 frames of sdi-camera in {:.1} s, all published by sdid in mode {mode} ({} distinct)",
         t_read.as_secs_f64(),

@@ -1,5 +1,6 @@
-//! `sdictl dark-frame` and `calibrate`: calls that take many frames, shown
-//! with a progress bar that advances at the camera's frame rate.
+//! `sdictl dark-frame`, `calibrate` and `calibrate phase`: calls that take
+//! many frames, shown with a progress bar that advances at the camera's
+//! frame rate.
 
 use std::time::{Duration, Instant};
 
@@ -60,5 +61,29 @@ pub async fn calibrate(camera: &Camera1Proxy<'_>, frames: u32, json: bool) -> Re
     let total = frames.saturating_mul(6).saturating_add(5);
     let call = camera.calibrate(frames);
     let reply = with_progress(camera, total, "calibrating", json, call).await?;
+    wire_json::print(&reply, json)
+}
+
+/// Frames the phase calibration leaves out while the light settles
+/// (sdid's `phase_calibration::FRAMES_IN_FLIGHT` and one to settle).
+const PHASE_SETTLE_FRAMES: u32 = 6;
+
+pub async fn calibrate_phase(
+    camera: &Camera1Proxy<'_>,
+    frames: u32,
+    json: bool,
+) -> Result<(), CliError> {
+    if !json {
+        eprintln!(
+            "phase calibration: LS1 alone must light the scene (sdid switches LS2 off \
+             through [lights]; without a light rig, cover LS2 now)"
+        );
+    }
+    let total = frames.saturating_add(PHASE_SETTLE_FRAMES);
+    let call = camera.calibrate_phase(frames);
+    let reply = with_progress(camera, total, "phase", json, call).await?;
+    if !json && reply.lights.is_empty() {
+        eprintln!("sdid drives no lights: the axis assumes LS2 was covered");
+    }
     wire_json::print(&reply, json)
 }

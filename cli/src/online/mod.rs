@@ -60,9 +60,13 @@ pub enum OnlineCommand {
     },
     /// Calibrate: dark frame, read noise and fixed pattern, then photon transfer
     /// (gain and read variance from LS1 at 5 exposures; stored, used for separation).
+    /// `sdictl calibrate phase`: the board's phase axis.
+    #[command(args_conflicts_with_subcommands = true)]
     Calibrate {
         #[arg(default_value_t = 64)]
         frames: u32,
+        #[command(subcommand)]
+        what: Option<CalibrateWhat>,
     },
     /// Record raw frames to a new .sdirec file (stops after --seconds if given).
     ///
@@ -112,6 +116,19 @@ pub enum OnlineCommand {
     },
 }
 
+/// What `sdictl calibrate` calibrates besides gain and read noise.
+#[derive(Debug, Subcommand)]
+pub enum CalibrateWhat {
+    /// The OPT8241-CDK's phase axis: LS1 alone lit (sdid lights it through
+    /// [lights]; without a light rig, cover LS2 first), the quads' phase
+    /// measured, stored and used from then on (docs/hardware.md, "Phase").
+    Phase {
+        /// Frames of LS1 alone to sum.
+        #[arg(long, default_value_t = 16)]
+        frames: u32,
+    },
+}
+
 /// Runs an online subcommand and maps the outcome to an exit status.
 pub fn run(cmd: OnlineCommand, bus: BusArgs) -> ExitCode {
     let json = bus.json;
@@ -142,7 +159,13 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), CliError> {
             settings::set(&cam, &property, &value, json).await
         }
         OnlineCommand::DarkFrame { frames } => long_call::dark_frame(&cam, frames, json).await,
-        OnlineCommand::Calibrate { frames } => long_call::calibrate(&cam, frames, json).await,
+        OnlineCommand::Calibrate {
+            what: Some(CalibrateWhat::Phase { frames }),
+            ..
+        } => long_call::calibrate_phase(&cam, frames, json).await,
+        OnlineCommand::Calibrate { frames, what: None } => {
+            long_call::calibrate(&cam, frames, json).await
+        }
         OnlineCommand::Record {
             path,
             seconds,

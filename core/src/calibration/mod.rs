@@ -13,4 +13,4 @@ pub use dark::DarkCalibration;
 pub use error::CalibrationError;
 pub use noise_analysis::{linear_fit, ratio_with_se, LinearFit};
 pub use photon_transfer::{fit_photon_transfer, PhotonTransferFit, PtcPoint};
-pub use store::{CalibrationRecord, CalibrationStore};
+pub use store::{CalibrationRecord, CalibrationStore, PhaseRecord};

@@ -32,6 +32,7 @@ use super::sim::SimBackend;
 use super::status::{DeviceStatus, StatusHandle};
 use super::{Backend, BackendError, BackendName, CaptureSettings, Limits};
 use crate::cause_log::{repeats, CauseLog};
+use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
 
 /// How often a missing board is looked for by a bus scan.
 pub const RECONNECT_INTERVAL: Duration = Duration::from_millis(500);
@@ -117,6 +118,9 @@ pub struct BoardBackendConfig {
     /// Seed of the stand-in simulator.
     pub seed: u64,
     pub mode: ModeId,
+    /// Listen for libusb hotplug events (sdid does). Off, only the bus scan
+    /// finds a replugged board, as with a libusb that delivers no events.
+    pub hotplug_events: bool,
 }
 
 pub struct BoardBackend {
@@ -161,6 +165,7 @@ fn board_err(e: BoardError) -> BackendError {
         BoardError::DeviceUnavailable => BackendError::Unavailable(e.to_string()),
         BoardError::Usb(u) => BackendError::Unavailable(u.to_string()),
         BoardError::Config(c) => BackendError::OutOfRange(c.to_string()),
+        BoardError::NotYet => BackendError::NotYet,
         other => BackendError::Failed(other.to_string()),
     }
 }
@@ -175,15 +180,16 @@ impl BoardBackend {
             tracing::warn!("the board clamped settings (laser safety): {clamps}");
         }
         tracing::info!(%device, "OPT8241-CDK configured and streaming");
-        tracing::warn!(
-            "no phase calibration: the difference is quad 0 alone, which assumes no delay \
-             between the modulation and the LED light (docs/hardware.md, \"Phase\")"
-        );
-        let hotplug = match HotplugWatch::start() {
+        let watch = if c.hotplug_events {
+            HotplugWatch::start()
+        } else {
+            Ok(None)
+        };
+        let hotplug = match watch {
             Ok(Some(h)) => {
                 tracing::info!(
                     "unplug/replug: libusb hotplug events, and a bus scan every {:?} \
-                     ({:?} once events arrive; without udevd libusb delivers none)",
+                     ({:?} once events arrive; a libusb built on udev delivers none without udevd)",
                     RECONNECT_INTERVAL,
                     HOTPLUG_FALLBACK_INTERVAL
                 );
@@ -191,7 +197,7 @@ impl BoardBackend {
             }
             Ok(None) => {
                 tracing::info!(
-                    "unplug/replug: libusb has no hotplug support; a bus scan every {:?}",
+                    "unplug/replug: no libusb hotplug events; a bus scan every {:?}",
                     RECONNECT_INTERVAL
                 );
                 None
@@ -548,6 +554,23 @@ impl Backend for BoardBackend {
         }
     }
 
+    /// Sums (I, Q) of the board's frames only: a stand-in's are not counted.
+    fn measure_phase(&mut self, on: bool) -> Result<(), BackendError> {
+        self.board.measure_phase(on);
+        Ok(())
+    }
+
+    fn take_phase_sums(&mut self) -> Option<PhaseSums> {
+        self.board.take_phase_sums()
+    }
+
+    /// The axis stays through unplug and replug: it belongs to the board
+    /// and its LED path, which a replug does not change.
+    fn set_phase_axis(&mut self, axis: Option<PhaseAxis>) -> Result<(), BackendError> {
+        self.board.set_phase_axis(axis);
+        Ok(())
+    }
+
     fn capture(
         &mut self,
         illumination: &Illumination,
@@ -575,6 +598,8 @@ impl Backend for BoardBackend {
                     .map_err(board_err)
             }
             Ok(()) => Ok(()),
+            // The wait for the frame goes on at the next call.
+            Err(BoardError::NotYet) => Err(BackendError::NotYet),
             Err(BoardError::DeviceUnavailable) => {
                 // Events from before the loss (e.g. the re-enumeration of a
                 // UVC -> bulk switch) say nothing about the board coming back.

@@ -12,6 +12,7 @@ pub mod status;
 
 use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
+use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
 use sdi_core::sensor::{capture_range, SensorParams};
 use sdi_core::{Frame, Image};
 
@@ -53,6 +54,10 @@ pub enum BackendError {
     EndOfStream,
     #[error("{0}")]
     Failed(String),
+    /// No frame yet within one slice of the device's wait; not a failure:
+    /// the frame loop answers its commands and asks again.
+    #[error("no frame yet")]
+    NotYet,
 }
 
 /// Which backend delivers frames; its name (strum's Display) is the D-Bus
@@ -87,7 +92,10 @@ pub trait Backend: Send {
         None
     }
     /// Writes the next frame into `frame`: at once for a paced source
-    /// ([`Backend::paced_rate_hz`]), else blocking until the device has one.
+    /// ([`Backend::paced_rate_hz`]), else blocking until the device has one,
+    /// but at most a short slice (the board's `FRAME_SLICE`, 100 ms), then
+    /// [`BackendError::NotYet`], so that the frame loop's commands never
+    /// wait for a silent device.
     fn capture(
         &mut self,
         illumination: &Illumination,
@@ -102,6 +110,43 @@ pub trait Backend: Send {
     fn take_dark_frame(&mut self) -> Option<(u32, Image<f32>)> {
         None
     }
+    /// Starts (or stops) summing each frame's (I, Q) for the phase
+    /// calibration: raw-quad sources only.
+    fn measure_phase(&mut self, _on: bool) -> Result<(), BackendError> {
+        Err(no_phase_quads(self.kind()))
+    }
+    /// The (I, Q) sums of the frame just captured, while measuring; `None`
+    /// for a frame that has none (a stand-in's).
+    fn take_phase_sums(&mut self) -> Option<PhaseSums> {
+        None
+    }
+    /// Decodes with this phase axis from the next frame on (`None`: quad 0
+    /// alone): raw-quad sources only.
+    fn set_phase_axis(&mut self, _axis: Option<PhaseAxis>) -> Result<(), BackendError> {
+        Err(no_phase_quads(self.kind()))
+    }
+    /// The rig `[lights]` drives, and why it refused the last drive asked;
+    /// `None` when sdid drives no lights.
+    fn lights(&self) -> Option<LightsState> {
+        None
+    }
+}
+
+/// What drives the light sources, as a job needs to know it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LightsState {
+    /// The rig, as `LightSource::describe` says.
+    pub rig: String,
+    /// Why the last drive asked was refused; `None` when it is in effect.
+    pub refused: Option<String>,
+}
+
+/// The error of a phase request to a source without raw quads.
+pub fn no_phase_quads(kind: BackendName) -> BackendError {
+    BackendError::Failed(format!(
+        "the {kind} backend has no phase quads: phase calibration needs the OPT8241-CDK \
+         (backend = \"opt8241\")"
+    ))
 }
 
 /// Backends selectable by name ("auto": the board when one is attached, else the simulator).

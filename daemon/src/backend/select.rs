@@ -69,6 +69,7 @@ fn open_board(c: &Config, mode: ModeId) -> Result<Opened, OpenError> {
         on_unplug,
         seed: c.seed,
         mode,
+        hotplug_events: true,
     })
     .map_err(OpenError::Board)?;
     let extras = BoardExtras {

@@ -17,7 +17,7 @@ use super::client_fd::{self, recording_label};
 use super::client_file;
 use super::errors::{
     calibration_failed, check_range, configure_refused, dark_failed, frame_loop_stopped,
-    invalid_mode, job_running, SdiError,
+    invalid_mode, job_running, phase_failed, SdiError,
 };
 use super::fairness::Fairness;
 use super::paths::OutputKind;
@@ -27,9 +27,9 @@ use crate::frame_loop::{Command, DarkStats, FrameMark};
 use crate::recorder::{RecordingWriter, StopCause};
 use crate::sink::SinkInfo;
 use crate::stats::LoopStats;
-use sdi_api::{CalibrationReply, DarkFrameReply, RecordingReply};
+use sdi_api::{CalibrationReply, DarkFrameReply, PhaseCalibrationReply, RecordingReply};
 use sdi_config::RecordingSection;
-use sdi_core::calibration::CalibrationRecord;
+use sdi_core::calibration::{CalibrationRecord, PhaseRecord};
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
 use sdi_recording::{Calibration, Header as RecHeader};
 
@@ -54,6 +54,8 @@ pub struct CameraInfo {
     pub status: Option<crate::backend::status::StatusHandle>,
     /// Storage bounds of recordings.
     pub recording: RecordingSection,
+    /// The rig `[lights]` drives; None when sdid drives no lights.
+    pub lights: Option<String>,
 }
 
 /// Longest a StopRecording call waits for storage to take the rest of the
@@ -583,6 +585,78 @@ impl Camera {
                 }
                 Err(e) => {
                     tracing::warn!("storing the calibration: {e}");
+                    reply.store_error = Some(e.to_string());
+                }
+            }
+        }
+        Ok(reply)
+    }
+
+    /// Phase calibration of the board: `frames` frames with LS1 alone lit
+    /// (through `[lights]`, else LS2 covered by hand), their quads' (I, Q)
+    /// summed and the axis of LS1 - LS2 fitted; the board decodes with it
+    /// from then on, and it is stored with the other calibration
+    /// (docs/hardware.md, "Phase").
+    async fn calibrate_phase(
+        &self,
+        frames: u32,
+        #[zbus(header)] hdr: Header<'_>,
+    ) -> Result<PhaseCalibrationReply, SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
+        if !(1..=MAX_AVERAGE_FRAMES).contains(&frames) {
+            return Err(SdiError::OutOfRange(format!(
+                "frames = {frames} is out of range: allowed [1, {MAX_AVERAGE_FRAMES}]"
+            )));
+        }
+        if self.info.backend != crate::backend::BackendName::Opt8241 {
+            return Err(SdiError::Failed(format!(
+                "phase calibration needs the OPT8241-CDK's raw quads; the backend is {} \
+                 (set backend = \"opt8241\")",
+                self.info.backend
+            )));
+        }
+        self.require_device()?;
+        let _guard = self.long_op.try_lock().map_err(job_running)?;
+        let fit = self
+            .ask(|tx| Command::CalibratePhase(frames, tx))
+            .await?
+            .map_err(phase_failed)?;
+        let mut reply = PhaseCalibrationReply {
+            frames: fit.frames,
+            angle_deg: fit.axis.angle_rad.to_degrees(),
+            amplitude_dn: fit.amplitude_dn,
+            coherence: fit.coherence,
+            lights: self.info.lights.clone().unwrap_or_default(),
+            stored: None,
+            store_error: None,
+        };
+        tracing::info!(
+            angle_deg = reply.angle_deg,
+            amplitude_dn = fit.amplitude_dn,
+            coherence = fit.coherence,
+            "phase calibrated"
+        );
+        if let Some(dir) = self.info.state_dir.clone() {
+            let record = PhaseRecord {
+                model: self.info.sensor.model.clone(),
+                serial: self.info.device.clone(),
+                angle_rad: fit.axis.angle_rad,
+                amplitude_dn: fit.amplitude_dn,
+                coherence: fit.coherence,
+                frames: fit.frames as usize,
+            };
+            let saved =
+                tokio::task::spawn_blocking(move || calibration_store::save_phase(&dir, record))
+                    .await
+                    .map_err(|e| std::io::Error::other(e.to_string()))
+                    .and_then(|r| r);
+            match saved {
+                Ok(path) => {
+                    tracing::info!(path = %path.display(), "phase calibration stored");
+                    reply.stored = Some(path.display().to_string());
+                }
+                Err(e) => {
+                    tracing::warn!("storing the phase calibration: {e}");
                     reply.store_error = Some(e.to_string());
                 }
             }

@@ -61,3 +61,12 @@ pub fn dark_failed(e: JobError) -> SdiError {
 pub fn calibration_failed(e: JobError) -> SdiError {
     SdiError::Failed(format!("photon transfer: {e}"))
 }
+
+/// A phase calibration that gave no axis: the job's own words (too dim,
+/// lights that cannot light LS1 alone, no phase quads).
+pub fn phase_failed(e: JobError) -> SdiError {
+    match e {
+        JobError::Backend(BackendError::Unavailable(m)) => SdiError::DeviceUnavailable(m),
+        other => SdiError::Failed(format!("phase calibration: {other}")),
+    }
+}

@@ -15,7 +15,8 @@ use sdi_core::sensor::SensorParams;
 use sdi_core::{Frame, Image};
 
 use super::{LightDrive, LightSource};
-use crate::backend::{Backend, BackendError, BackendName, CaptureSettings, Limits};
+use crate::backend::{Backend, BackendError, BackendName, CaptureSettings, LightsState, Limits};
+use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
 
 /// Shared on/off switch of the light sources (on by default).
 #[derive(Debug, Clone)]
@@ -137,6 +138,25 @@ impl Backend for LitBackend {
 
     fn take_dark_frame(&mut self) -> Option<(u32, Image<f32>)> {
         self.inner.take_dark_frame()
+    }
+
+    fn measure_phase(&mut self, on: bool) -> Result<(), BackendError> {
+        self.inner.measure_phase(on)
+    }
+
+    fn take_phase_sums(&mut self) -> Option<PhaseSums> {
+        self.inner.take_phase_sums()
+    }
+
+    fn set_phase_axis(&mut self, axis: Option<PhaseAxis>) -> Result<(), BackendError> {
+        self.inner.set_phase_axis(axis)
+    }
+
+    fn lights(&self) -> Option<LightsState> {
+        Some(LightsState {
+            rig: self.lights.describe(),
+            refused: self.last_error.clone(),
+        })
     }
 }
 

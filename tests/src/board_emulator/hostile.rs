@@ -9,19 +9,17 @@
 //! board's serial number: a copy costs the attacker nothing, and it makes
 //! `[board] serial` no defence.
 
-use std::fs::{self, File, OpenOptions};
+use std::fs::{File, OpenOptions};
 use std::io::{Read, Write};
 use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, AtomicU32, Ordering};
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 
-use super::{
-    descriptors, field, handle_setup, next_setups, write_attr, BoardState, Inner, GADGET_ROOT,
-};
+use super::{descriptors, field, handle_setup, new_gadget, next_setups, BoardState, Inner};
 
 /// One way a device on the board's IDs misbehaves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -155,43 +153,12 @@ impl HostileBoard {
     /// Creates gadget `name` misbehaving as `mode`, claiming `serial`, and
     /// plugs it in.
     pub fn start(name: &str, serial: &str, mode: HostileMode) -> std::io::Result<Self> {
-        super::prepare_kernel()?;
-        let gadget = Path::new(GADGET_ROOT).join(name);
-        fs::create_dir_all(&gadget)?;
-        write_attr(gadget.join("idVendor"), "0x0451")?;
-        let product = if mode == HostileMode::DisconnectDuringUvcSwitch {
+        let product_id = if mode == HostileMode::DisconnectDuringUvcSwitch {
             "0x9106"
         } else {
             "0x9105"
         };
-        write_attr(gadget.join("idProduct"), product)?;
-        write_attr(gadget.join("bcdUSB"), "0x0200")?;
-        let strings = gadget.join("strings/0x409");
-        fs::create_dir_all(&strings)?;
-        write_attr(strings.join("serialnumber"), serial)?;
-        write_attr(strings.join("manufacturer"), "SDI test (hostile)")?;
-        write_attr(strings.join("product"), mode.name())?;
-        fs::create_dir_all(gadget.join("configs/c.1"))?;
-        let inner = Arc::new(Inner {
-            name: name.into(),
-            serial: serial.into(),
-            gadget,
-            state: Arc::new(Mutex::new(BoardState::default())),
-            stop: Arc::new(AtomicBool::new(false)),
-            shift_next_frame: Arc::new(AtomicU32::new(0)),
-            ignore_uvc_switch: Arc::new(AtomicBool::new(false)),
-            mounts: Mutex::new(Vec::new()),
-            threads: Mutex::new(Vec::new()),
-            parked: Mutex::new(Vec::new()),
-        });
-        {
-            // The board's power-on registers (as `BoardEmulator::start`).
-            let mut s = inner.state.lock().unwrap();
-            s.registers.insert(0x5880, 1);
-            s.registers.insert(0x5883, 0x44);
-            s.registers.insert(0x581F, 239 << 16);
-            s.registers.insert(0x5821, 19 << 3);
-        }
+        let inner = new_gadget(name, serial, product_id, "SDI test (hostile)", mode.name())?;
         let board = Self {
             mode,
             state: inner.state.clone(),

@@ -10,9 +10,13 @@
 //! The emulator keeps a register file with the firmware's laser-safety masks,
 //! answers the vendor requests (0x08/0x09 registers, 0x1A version, 0x30
 //! revision, 0x32 serial) and, while tg_dis = 0, streams simulator frames in
-//! the raw-quad format, each ended by a zero-length packet, with the frame
-//! number in byte 0 when debug_frame_number_en is set. It is written from the
-//! public descriptions, independently of the backend's code.
+//! the raw-quad format (or, with output_mode = 0, depth frames whose flags
+//! mark saturated pixels, `chip.rs`), each ended by a zero-length packet,
+//! with the frame number in byte 0 when debug_frame_number_en is set. The
+//! test sets a phase delay on the LED path (`led_delay_rad`), which sources
+//! light the scene (`unlit`, e.g. from [`crate::light_rig`] as sdid drives
+//! it) and a saturated region. It is written from the public descriptions,
+//! independently of the backend's code.
 //! Runs only as root inside the VM (modules dummy_hcd, libcomposite, usb_f_fs).
 
 pub mod chip;
@@ -30,7 +34,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use sdi_core::modulation::Illumination;
+use sdi_core::modulation::{Illumination, SourceDrive};
 use sdi_core::scene::SceneSpec;
 use sdi_core::sensor::SensorPreset;
 use sdi_core::simulator::{SimConfig, Simulator};
@@ -64,6 +68,13 @@ pub struct BoardState {
     pub switched_to_bulk: Option<Instant>,
     /// op_overflow reads set whatever the configuration (`chip.rs`).
     pub force_overflow: bool,
+    /// Delay between the modulation and the LED light, as a phase of the
+    /// modulation, radians ([`encode_raw_quads_delayed`]).
+    pub led_delay_rad: f64,
+    /// LS1, LS2 switched off (by the test's light rig); both lit by default.
+    pub unlit: [bool; 2],
+    /// Pixels whose wells both fill (`chip.rs`, [`chip::SaturatedRegion`]).
+    pub saturated_region: Option<chip::SaturatedRegion>,
 }
 
 fn field(reg: u32, msb: u32, lsb: u32) -> u32 {
@@ -132,6 +143,30 @@ pub fn encode_raw_quads(dn: &[f32], quads: usize) -> (Vec<u8>, Vec<f32>) {
     (out, kept)
 }
 
+/// [`encode_raw_quads`] with the light arriving `delay_rad` of a
+/// modulation period late: the difference d spread over the quads as its
+/// first harmonic, q_k = d cos(2 pi k / N - delay) (each quad rounded and
+/// clamped to 12 bits). No delay is exactly [`encode_raw_quads`]. The
+/// second vector is d as sent (rounded, clamped): what a decoder that
+/// knows the delay recovers.
+pub fn encode_raw_quads_delayed(dn: &[f32], quads: usize, delay_rad: f64) -> (Vec<u8>, Vec<f32>) {
+    if delay_rad == 0.0 {
+        return encode_raw_quads(dn, quads);
+    }
+    let mut out = vec![0u8; dn.len() * quads * 2];
+    let mut kept = Vec::with_capacity(dn.len());
+    for (px, &d) in out.chunks_exact_mut(quads * 2).zip(dn) {
+        let d = f64::from(d.round().clamp(-2048.0, 2047.0));
+        kept.push(d as f32);
+        for k in 0..quads {
+            let phase = std::f64::consts::TAU * k as f64 / quads as f64 - delay_rad;
+            let q = (d * phase.cos()).round().clamp(-2048.0, 2047.0) as i32;
+            px[2 * k..2 * k + 2].copy_from_slice(&((q & 0xFFF) as u16).to_le_bytes());
+        }
+    }
+    (out, kept)
+}
+
 /// What the emulator threads share.
 struct Inner {
     name: String,
@@ -192,6 +227,51 @@ pub fn udc_name() -> std::io::Result<String> {
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .next()
         .ok_or_else(|| std::io::Error::other("no UDC (is dummy_hcd loaded?)"))
+}
+
+/// Creates configfs gadget `name` (0451:`product_id`, claiming `serial`)
+/// with its configuration c.1, and the state its threads share, holding
+/// the board's power-on registers; no function yet, not plugged in. The
+/// genuine emulator and the hostile devices ([`hostile`]) both start here.
+fn new_gadget(
+    name: &str,
+    serial: &str,
+    product_id: &str,
+    manufacturer: &str,
+    product: &str,
+) -> std::io::Result<Arc<Inner>> {
+    prepare_kernel()?;
+    let gadget = Path::new(GADGET_ROOT).join(name);
+    fs::create_dir_all(&gadget)?;
+    write_attr(gadget.join("idVendor"), "0x0451")?;
+    write_attr(gadget.join("idProduct"), product_id)?;
+    write_attr(gadget.join("bcdUSB"), "0x0200")?;
+    let strings = gadget.join("strings/0x409");
+    fs::create_dir_all(&strings)?;
+    write_attr(strings.join("serialnumber"), serial)?;
+    write_attr(strings.join("manufacturer"), manufacturer)?;
+    write_attr(strings.join("product"), product)?;
+    fs::create_dir_all(gadget.join("configs/c.1"))?;
+    let inner = Arc::new(Inner {
+        name: name.into(),
+        serial: serial.into(),
+        gadget,
+        state: Arc::new(Mutex::new(BoardState::default())),
+        stop: Arc::new(AtomicBool::new(false)),
+        shift_next_frame: Arc::new(AtomicU32::new(0)),
+        ignore_uvc_switch: Arc::new(AtomicBool::new(false)),
+        mounts: Mutex::new(Vec::new()),
+        threads: Mutex::new(Vec::new()),
+        parked: Mutex::new(Vec::new()),
+    });
+    {
+        let mut s = inner.state.lock().unwrap();
+        s.registers.insert(0x5880, 1); // tg_dis
+        s.registers.insert(0x5883, 0x44);
+        s.registers.insert(0x581F, 239 << 16);
+        s.registers.insert(0x5821, 19 << 3);
+    }
+    Ok(inner)
 }
 
 impl Inner {
@@ -296,41 +376,19 @@ impl BoardEmulator {
     }
 
     fn start_in(name: &str, serial: &str, uvc: bool) -> std::io::Result<Self> {
-        prepare_kernel()?;
-        let gadget = Path::new(GADGET_ROOT).join(name);
-        fs::create_dir_all(&gadget)?;
-        write_attr(gadget.join("idVendor"), "0x0451")?;
-        write_attr(
-            gadget.join("idProduct"),
+        let inner = new_gadget(
+            name,
+            serial,
             if uvc { "0x9106" } else { "0x9105" },
+            "SDI test",
+            "OPT8241-CDK emulator",
         )?;
-        write_attr(gadget.join("bcdUSB"), "0x0200")?;
-        let strings = gadget.join("strings/0x409");
-        fs::create_dir_all(&strings)?;
-        write_attr(strings.join("serialnumber"), serial)?;
-        write_attr(strings.join("manufacturer"), "SDI test")?;
-        write_attr(strings.join("product"), "OPT8241-CDK emulator")?;
-        fs::create_dir_all(gadget.join("configs/c.1"))?;
-        let inner = Arc::new(Inner {
-            name: name.into(),
-            serial: serial.into(),
-            gadget,
-            state: Arc::new(Mutex::new(BoardState::default())),
-            stop: Arc::new(AtomicBool::new(false)),
-            shift_next_frame: Arc::new(AtomicU32::new(0)),
-            ignore_uvc_switch: Arc::new(AtomicBool::new(false)),
-            mounts: Mutex::new(Vec::new()),
-            threads: Mutex::new(Vec::new()),
-            parked: Mutex::new(Vec::new()),
-        });
-        {
-            let mut s = inner.state.lock().unwrap();
-            s.registers.insert(0x5880, 1); // tg_dis
-            s.registers.insert(0x5883, 0x44);
-            s.registers.insert(0x581F, 239 << 16);
-            s.registers.insert(0x5821, 19 << 3);
-            s.registers.extend(chip::LEFTOVER_PROFILE.iter().copied());
-        }
+        inner
+            .state
+            .lock()
+            .unwrap()
+            .registers
+            .extend(chip::LEFTOVER_PROFILE.iter().copied());
         if uvc {
             inner.add_uvc_function()?;
         } else {
@@ -540,13 +598,17 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
     let mut number: u8 = 0;
     let mut file: Option<File> = None;
     while !stop.load(Ordering::SeqCst) {
-        let (running, (w, h, quads), period, numbers) = {
+        let (running, (w, h, quads), period, numbers, delay_rad, unlit, output) = {
             let s = state.lock().unwrap();
+            let output = chip::Output::of(&s);
             (
-                field(s.reg(0x5880), 0, 0) == 0 && field(s.reg(0x5C25), 11, 8) == 15,
+                field(s.reg(0x5880), 0, 0) == 0 && output.is_some(),
                 s.geometry(),
                 s.frame_period(),
                 field(s.reg(0x5C39), 12, 12) == 1,
+                s.led_delay_rad,
+                s.unlit,
+                output,
             )
         };
         if !running {
@@ -565,8 +627,24 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
         let Some((simulator, _)) = sim.as_mut() else {
             return;
         };
-        simulator.capture(&Illumination::snapshot(12e6), &mut frame);
-        let (mut bytes, kept) = encode_raw_quads(&frame.dn.data, quads);
+        let mut lit = Illumination::snapshot(12e6);
+        if unlit[0] {
+            lit.ls1 = SourceDrive::Off;
+        }
+        if unlit[1] {
+            lit.ls2 = SourceDrive::Off;
+        }
+        simulator.capture(&lit, &mut frame);
+        let region = state.lock().unwrap().saturated_region;
+        if let Some(r) = region {
+            r.fill_wells(&mut frame.dn.data, w);
+        }
+        let (mut bytes, kept) = match output {
+            Some(chip::Output::Depth(layout)) => {
+                (chip::encode_depth(w, h, region, layout), Vec::new())
+            }
+            _ => encode_raw_quads_delayed(&frame.dn.data, quads, delay_rad),
+        };
         number = number.wrapping_add(1);
         if numbers {
             bytes[0] = number;
@@ -586,7 +664,9 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
             std::thread::sleep(Duration::from_millis(20));
             continue;
         };
-        state.lock().unwrap().sent.push((number, kept));
+        if !kept.is_empty() {
+            state.lock().unwrap().sent.push((number, kept));
+        }
         // Misalignment injection: the frame rotated by `drop_bytes`, so the
         // transfer has the right length but starts mid-frame.
         let len = bytes.len();
@@ -601,5 +681,45 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
             continue;
         }
         std::thread::sleep(period);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use sdi_core::quad_phase::PhaseAxis;
+    use sdi_daemon::backend::opt8241::frame::{QuadCombine, QuadDecoder, QuadLayout};
+
+    /// The emulator's delayed quads against the backend's decoder: quad 0
+    /// alone loses the delayed part, the projection onto the delay's axis
+    /// recovers d within the 12-bit rounding of two quads.
+    #[test]
+    fn a_delayed_led_path_needs_the_projection() {
+        let dn: Vec<f32> = vec![0.0, 300.0, -120.0, 37.0, 1000.0, -2047.0];
+        let layout = QuadLayout {
+            width: dn.len(),
+            height: 1,
+            quads: 4,
+        };
+        assert_eq!(
+            encode_raw_quads_delayed(&dn, 4, 0.0),
+            encode_raw_quads(&dn, 4)
+        );
+        let delay_rad = 60f64.to_radians();
+        let (raw, sent) = encode_raw_quads_delayed(&dn, 4, delay_rad);
+        assert_eq!(sent, dn);
+        let mut dec = QuadDecoder::new(layout);
+        dec.frame_number_in_first_byte = false;
+        let mut f = Frame::new(1, 1);
+        dec.decode(&raw, &mut f).unwrap();
+        // quad 0 alone: d cos 60 degrees, half of it
+        assert!((f.dn.data[4] - 500.0).abs() <= 0.5, "{:?}", f.dn.data);
+        dec.combine = QuadCombine::Projected(PhaseAxis {
+            angle_rad: delay_rad,
+        });
+        dec.decode(&raw, &mut f).unwrap();
+        for (got, want) in f.dn.data.iter().zip(&sent) {
+            assert!((got - want).abs() <= 0.71, "{got} vs {want}");
+        }
     }
 }

@@ -1,7 +1,9 @@
 //! How sdid starts and ends: SIGHUP finishes a recording like SIGTERM; a
 //! private session bus dies with `sdid --session` even on kill -9; shutdown
 //! stays bounded when the source hangs; a second instance exits before it
-//! touches a sink; a warning that does not change is logged once.
+//! touches a sink; a warning that does not change is logged once; a
+//! setting of `sdid.toml` the board cannot take stops the start with the
+//! board's range.
 
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::Path;
@@ -399,4 +401,35 @@ fn the_defaults_give_a_clean_first_screen_in_every_mode() {
         .take_while(|l| !l.starts_with("  control:"))
         .count();
     assert!(screen <= 6, "a first screen of {screen} lines:\n{text}");
+}
+
+/// `sdid.toml` values are checked against the board's limits before any
+/// board is looked for: a frame rate the board's output port cannot carry
+/// at full resolution ends the start with the range and what sets it, not
+/// with "no board" (the host has none).
+#[test]
+fn a_board_setting_out_of_the_boards_range_stops_the_start_with_the_range() {
+    require_dbus!();
+    let dir = tempfile::tempdir().unwrap();
+    let bus = Bus::start();
+    for (line, name, range) in [
+        ("frame_rate_hz = 60.0", "frame_rate_hz", "31.25"),
+        ("modulation_hz = 5e6", "modulation_hz", "9375000"),
+    ] {
+        let config = dir.path().join("sdid.toml");
+        std::fs::write(&config, format!("backend = \"opt8241\"\n{line}\n")).unwrap();
+        let out = Daemon::bare_command(&bus, &[])
+            .args(["--sink", "y4m", "--y4m-path", "-", "--config"])
+            .arg(&config)
+            .stdout(Stdio::null())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{line}: {err}");
+        assert_ne!(out.status.code(), Some(101), "panicked: {err}");
+        assert!(
+            err.contains(name) && err.contains("out of range for the board") && err.contains(range),
+            "{line}: {err}"
+        );
+    }
 }

@@ -131,6 +131,11 @@ fn calibrate_fits_the_sensor_gain() {
     assert!(g_se > 0.0 && g_se < 0.03 * g_true, "gain se {g_se}");
     // The exposure is restored after the calibration.
     assert_eq!(stdout_of(&d.ctl(&["get", "exposure-us"])).trim(), "2000.0");
+    // The phase axis needs the board's quads: on the simulator, a clear
+    // error and nothing stored.
+    let out = d.ctl(&["calibrate", "phase", "--frames", "4"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && err.contains("OPT8241"), "{err}");
 
     // Stored, keyed by model and serial, and loaded by the next sdid.
     let file = state.path().join("calibration.toml");
@@ -140,6 +145,7 @@ fn calibrate_fits_the_sensor_gain() {
         text.contains("gain_dn_per_electron") && text.contains("model"),
         "{text}"
     );
+    assert!(!text.contains("[[phase]]"), "{text}");
     assert!(d.signal(Signal::SIGTERM).success());
     let mut again = Daemon::command(&bus, &[], &["--state-dir", state_dir])
         .env("RUST_LOG", "info")

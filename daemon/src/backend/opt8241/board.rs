@@ -1,9 +1,12 @@
 //! The OPT8241-CDK backend: open, configure, stream, decode, reconnect.
 //!
-//! `next_frame` has the shape of the daemon's `Backend::next_frame`; on
+//! `next_frame` has the shape of the daemon's `Backend::capture`; on
 //! unplug it returns [`BoardError::DeviceUnavailable`] and the daemon keeps
 //! its output open (showing "no signal") and calls [`Opt8241::reconnect`]
-//! until the board is back.
+//! until the board is back. It waits for a frame at most [`FRAME_SLICE`]
+//! per call ([`BoardError::NotYet`]), so the frame loop answers its
+//! commands meanwhile; "no frame" ([`BoardError::NoFrame`]) is decided over
+//! consecutive calls ([`FrameWait`]).
 
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
@@ -13,16 +16,23 @@ use sdi_core::modulation::Illumination;
 use sdi_core::Frame;
 
 use super::frame::{
-    Assembled, AssemblerStats, DecodeError, DropReason, FrameAssembler, QuadDecoder,
+    Assembled, AssemblerStats, DecodeError, DropReason, FrameAssembler, QuadCombine, QuadDecoder,
 };
 use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
-use super::protocol::{ProtocolError, RegisterBus, TransportError};
+use super::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
+use super::saturation::{depth_frame_bytes, DepthFrame, ProbeStats, ProbeWrite, SaturationProbe};
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
+use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
 
 /// Transfers queued at the host controller while streaming.
 pub const DEFAULT_TRANSFERS_IN_FLIGHT: usize = 4;
-/// How long `next_frame` waits for a frame (the SDK waits 2 s).
+/// How long `next_frame` waits for a frame (the SDK waits 2 s), over
+/// consecutive calls.
 pub const FRAME_WAIT: Duration = Duration::from_secs(2);
+/// The longest one `next_frame` call waits before it returns
+/// [`BoardError::NotYet`]: a silent, NAKing or trickling device holds the
+/// frame loop, and the D-Bus calls it answers, no longer than this.
+pub const FRAME_SLICE: Duration = Duration::from_millis(100);
 /// Read timeout of one bulk transfer (the SDK uses 200 ms).
 pub const READ_TIMEOUT: Duration = Duration::from_millis(200);
 /// Unusable transfers (dropped frames, halts, overflows, errors) after which
@@ -52,6 +62,10 @@ pub enum BoardError {
         cause: &'static str,
         detail: String,
     },
+    /// No frame within [`FRAME_SLICE`], and [`FRAME_WAIT`] is not over:
+    /// call `next_frame` again (not a failure, never logged).
+    #[error("no frame yet")]
+    NotYet,
 }
 
 impl BoardError {
@@ -86,6 +100,7 @@ impl BoardError {
             BoardError::Decode(_) => "frame not decodable",
             BoardError::DeviceUnavailable => "disconnected",
             BoardError::NoFrame { cause, .. } => cause,
+            BoardError::NotYet => "no frame yet",
         }
     }
 
@@ -94,6 +109,70 @@ impl BoardError {
             BoardError::DeviceUnavailable
         } else {
             BoardError::Protocol(e)
+        }
+    }
+}
+
+/// The wait for one frame, spread over `next_frame` calls of at most
+/// [`FRAME_SLICE`] each: what came instead of a frame so far, and when the
+/// wait began.
+#[derive(Debug, Clone)]
+struct FrameWait {
+    since: Instant,
+    /// What came instead, in a few words (the key of its log line).
+    cause: &'static str,
+    detail: String,
+    /// Unusable transfers so far ([`MAX_UNUSABLE_TRANSFERS`]).
+    unusable: u32,
+}
+
+/// What `next_frame` does next while waiting ([`FrameWait::step`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum WaitStep {
+    /// Wait for the next stream event at most this long.
+    Wait(Duration),
+    /// The call's slice is over: [`BoardError::NotYet`].
+    Yield,
+    /// [`FRAME_WAIT`] is over, or too many transfers were unusable:
+    /// [`BoardError::NoFrame`].
+    GiveUp,
+}
+
+impl FrameWait {
+    fn new(since: Instant) -> Self {
+        Self {
+            since,
+            cause: "no data",
+            detail: "no data".into(),
+            unusable: 0,
+        }
+    }
+
+    /// At `now`, in a call whose slice ends at `slice_end`.
+    fn step(&self, slice_end: Instant, now: Instant) -> WaitStep {
+        let deadline = self.since + FRAME_WAIT;
+        if self.unusable >= MAX_UNUSABLE_TRANSFERS || now >= deadline {
+            WaitStep::GiveUp
+        } else if now >= slice_end {
+            WaitStep::Yield
+        } else {
+            WaitStep::Wait(slice_end.min(deadline) - now)
+        }
+    }
+
+    /// A transfer that cannot be part of a frame.
+    fn unusable(&mut self, cause: &'static str, detail: String) {
+        self.unusable += 1;
+        self.cause = cause;
+        self.detail = detail;
+    }
+
+    /// The error that ends the wait at `now`.
+    fn no_frame(self, now: Instant) -> BoardError {
+        BoardError::NoFrame {
+            waited_ms: now.saturating_duration_since(self.since).as_millis(),
+            cause: self.cause,
+            detail: self.detail,
         }
     }
 }
@@ -107,6 +186,7 @@ pub struct StreamStats {
     pub overflows: u64,
     pub errors: u64,
     pub reconnects: u64,
+    pub saturation: ProbeStats,
 }
 
 struct Session {
@@ -141,7 +221,8 @@ impl Connection {
             ConfigError::Protocol(p) => BoardError::from_protocol(p),
             other => BoardError::Config(other),
         })?;
-        let frame_bytes = layout_of(config).frame_bytes();
+        let layout = layout_of(config);
+        let frame_bytes = layout.frame_bytes();
         let stream = BulkStream::start(
             open.handle,
             open.endpoint,
@@ -149,12 +230,14 @@ impl Connection {
             in_flight,
             READ_TIMEOUT,
         );
+        let mut assembler = FrameAssembler::new(frame_bytes, config.frame_numbers);
+        assembler.also_accept(depth_frame_bytes(layout.width, layout.height));
         Ok(Self {
             context,
             session: Session {
                 bus,
                 stream,
-                assembler: FrameAssembler::new(frame_bytes, config.frame_numbers),
+                assembler,
                 serial: open.serial,
             },
             report,
@@ -168,12 +251,21 @@ pub struct Opt8241 {
     selector: BoardSelector,
     config: BoardConfig,
     decoder: QuadDecoder,
+    /// Depth frames interleaved for the chip's saturation flags.
+    probe: SaturationProbe,
     session: Option<Session>,
+    /// The wait for the next frame, when a call returned
+    /// [`BoardError::NotYet`] (cleared by a frame, an error or a new session).
+    wait: Option<FrameWait>,
     report: InitReport,
     stats: StreamStats,
     sequence: u64,
     started: Instant,
     pub transfers_in_flight: usize,
+    /// Sum each frame's (I, Q) for the phase calibration.
+    measure_phase: bool,
+    /// The sums of the last frame decoded while measuring.
+    phase_sums: Option<PhaseSums>,
 }
 
 fn new_context() -> Result<Context, BoardError> {
@@ -192,13 +284,17 @@ impl Opt8241 {
             context,
             selector,
             decoder: QuadDecoder::new(layout_of(&config)),
+            probe: SaturationProbe::default(),
             config,
             session: None,
+            wait: None,
             report: InitReport::default(),
             stats: StreamStats::default(),
             sequence: 0,
             started: Instant::now(),
             transfers_in_flight: DEFAULT_TRANSFERS_IN_FLIGHT,
+            measure_phase: false,
+            phase_sums: None,
         };
         board.connect()?;
         Ok(board)
@@ -217,7 +313,9 @@ impl Opt8241 {
         self.report = c.report;
         self.decoder.layout = layout_of(&self.config);
         self.decoder.frame_number_in_first_byte = self.config.frame_numbers;
+        self.probe.reset();
         self.session = Some(c.session);
+        self.wait = None;
     }
 
     /// The configuration in use.
@@ -306,12 +404,37 @@ impl Opt8241 {
         if let Some(sess) = &self.session {
             s.assembler = sess.assembler.stats;
         }
+        s.saturation = self.probe.stats;
         s
     }
 
     /// Sets the dark frame subtracted from every frame (DN, row-major).
     pub fn set_dark_dn(&mut self, dark: Option<Vec<f32>>) -> Result<(), BoardError> {
         Ok(self.decoder.set_dark_dn(dark)?)
+    }
+
+    /// Decodes with the calibrated phase axis (`None`: quad 0 alone).
+    pub fn set_phase_axis(&mut self, axis: Option<PhaseAxis>) {
+        self.decoder.combine = axis.map_or(QuadCombine::Quad0, QuadCombine::Projected);
+    }
+
+    /// The axis frames are decoded with, if calibrated.
+    pub fn phase_axis(&self) -> Option<PhaseAxis> {
+        match self.decoder.combine {
+            QuadCombine::Projected(axis) => Some(axis),
+            _ => None,
+        }
+    }
+
+    /// Starts or stops summing each frame's (I, Q) ([`Opt8241::take_phase_sums`]).
+    pub fn measure_phase(&mut self, on: bool) {
+        self.measure_phase = on;
+        self.phase_sums = None;
+    }
+
+    /// The (I, Q) sums of the last frame, once, while measuring.
+    pub fn take_phase_sums(&mut self) -> Option<PhaseSums> {
+        self.phase_sums.take()
     }
 
     /// Register access for diagnostics (status, temperatures).
@@ -321,36 +444,38 @@ impl Opt8241 {
 
     /// The next decoded difference frame. The light sources are driven
     /// elsewhere (`light`); `illumination` is accepted for the Backend shape.
+    /// Waits at most [`FRAME_SLICE`]: [`BoardError::NotYet`] when no frame
+    /// came and the wait for one ([`FRAME_WAIT`], across calls) goes on.
     pub fn next_frame(
         &mut self,
         _illumination: &Illumination,
         out: &mut Frame,
     ) -> Result<(), BoardError> {
+        let r = self.next_frame_within(out);
+        if !matches!(r, Err(BoardError::NotYet)) {
+            self.wait = None;
+        }
+        r
+    }
+
+    fn next_frame_within(&mut self, out: &mut Frame) -> Result<(), BoardError> {
         let Some(session) = self.session.as_mut() else {
             return Err(BoardError::DeviceUnavailable);
         };
-        let deadline = Instant::now() + FRAME_WAIT;
-        let mut detail = String::from("no data");
-        let mut cause = "no data";
-        let mut unusable = 0u32;
+        let slice_end = Instant::now() + FRAME_SLICE;
+        let wait = self
+            .wait
+            .get_or_insert_with(|| FrameWait::new(Instant::now()));
         loop {
-            let left = deadline.saturating_duration_since(Instant::now());
-            if unusable >= MAX_UNUSABLE_TRANSFERS {
-                return Err(BoardError::NoFrame {
-                    waited_ms: FRAME_WAIT.saturating_sub(left).as_millis(),
-                    cause,
-                    detail,
-                });
-            }
+            let now = Instant::now();
+            let left = match wait.step(slice_end, now) {
+                WaitStep::Wait(left) => left,
+                WaitStep::Yield => return Err(BoardError::NotYet),
+                WaitStep::GiveUp => return Err(wait.clone().no_frame(now)),
+            };
             let event = match session.stream.events.recv_timeout(left) {
                 Ok(ev) => ev,
-                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
-                    return Err(BoardError::NoFrame {
-                        waited_ms: FRAME_WAIT.as_millis(),
-                        cause,
-                        detail,
-                    })
-                }
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => continue,
                 Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
                     self.session = None;
                     return Err(BoardError::DeviceUnavailable);
@@ -363,7 +488,52 @@ impl Opt8241 {
                         frame_number,
                         ..
                     } => {
+                        let l = self.decoder.layout;
+                        if bytes.len() == depth_frame_bytes(l.width, l.height) {
+                            let depth = self
+                                .probe
+                                .on_depth_frame(&bytes, l.width, l.height)
+                                .map_err(|e| DecodeError::Length {
+                                    expected: e.expected,
+                                    got: e.got,
+                                })?;
+                            tracing::trace!(?frame_number, ?depth, "saturation flags");
+                            let write = match depth {
+                                DepthFrame::Expected(write) => write,
+                                DepthFrame::Unasked(write) => {
+                                    // Not a difference frame, and nobody asked:
+                                    // a device sending only these ends the wait
+                                    // like any unusable transfer.
+                                    wait.unusable(
+                                        "depth frames instead of raw quads",
+                                        "frames of depth length, unasked".into(),
+                                    );
+                                    Some(write)
+                                }
+                            };
+                            if let Some(write) = write {
+                                if let Err(e) =
+                                    probe_write(&mut session.bus, &mut self.probe, write)
+                                {
+                                    self.session = None;
+                                    return Err(e);
+                                }
+                            }
+                            continue;
+                        }
                         self.decoder.decode(&bytes, out)?;
+                        self.phase_sums = if self.measure_phase {
+                            Some(self.decoder.phase_sums(&bytes)?)
+                        } else {
+                            None
+                        };
+                        self.probe.apply(&mut out.saturated.data);
+                        if let Some(write) = self.probe.on_raw_frame() {
+                            if let Err(e) = probe_write(&mut session.bus, &mut self.probe, write) {
+                                self.session = None;
+                                return Err(e);
+                            }
+                        }
                         out.sequence = self.sequence;
                         out.timestamp_us = self.started.elapsed().as_micros() as u64;
                         self.sequence += 1;
@@ -373,39 +543,48 @@ impl Opt8241 {
                     Assembled::Pending => {}
                     Assembled::Dropped(reason) => {
                         tracing::debug!(?reason, "frame dropped");
-                        unusable += 1;
-                        detail = format!("last frame dropped: {reason:?}");
-                        cause = match reason {
-                            DropReason::WrongLength { .. } => "frames of the wrong length",
-                            DropReason::OutOfSequence { .. } | DropReason::Relocking => {
-                                "frames out of sequence"
-                            }
-                        };
+                        wait.unusable(
+                            match reason {
+                                DropReason::WrongLength { .. } => "frames of the wrong length",
+                                DropReason::OutOfSequence { .. } | DropReason::Relocking => {
+                                    "frames out of sequence"
+                                }
+                            },
+                            format!("last frame dropped: {reason:?}"),
+                        );
                     }
                 },
-                StreamEvent::Timeout => self.stats.timeouts += 1,
+                StreamEvent::Timeout => {
+                    self.stats.timeouts += 1;
+                    if let Some(write) = self.probe.on_no_frame() {
+                        if let Err(e) = probe_write(&mut session.bus, &mut self.probe, write) {
+                            self.session = None;
+                            return Err(e);
+                        }
+                    }
+                }
                 StreamEvent::HaltCleared => {
                     self.stats.halts_cleared += 1;
-                    unusable += 1;
                     session.assembler.reset();
                     // Logged by the caller as the cause of no frame, if it is one.
                     tracing::debug!("bulk endpoint halted; halt cleared, resynchronizing");
-                    cause = "bulk endpoint halted";
-                    detail = "the bulk endpoint halted; halt cleared".into();
+                    wait.unusable(
+                        "bulk endpoint halted",
+                        "the bulk endpoint halted; halt cleared".into(),
+                    );
                 }
                 StreamEvent::Overflow => {
                     self.stats.overflows += 1;
-                    unusable += 1;
                     session.assembler.reset();
-                    cause = "more data than asked";
-                    detail = "a transfer overflowed (babble)".into();
+                    wait.unusable(
+                        "more data than asked",
+                        "a transfer overflowed (babble)".into(),
+                    );
                 }
                 StreamEvent::Error(e) => {
                     self.stats.errors += 1;
-                    unusable += 1;
                     tracing::debug!(error = %e, "bulk transfer failed; retrying");
-                    cause = "bulk transfers failing";
-                    detail = e;
+                    wait.unusable("bulk transfers failing", e);
                 }
                 StreamEvent::Disconnected => {
                     // The backend logs the loss (`backend::board`).
@@ -418,9 +597,76 @@ impl Opt8241 {
     }
 }
 
+/// Performs a saturation probe's write. A lost board is
+/// [`BoardError::DeviceUnavailable`]; any other failure is only logged: a
+/// probe that did not start misses its depth frame, and a depth frame
+/// after a switch back that did not take asks for raw quads again.
+fn probe_write<T: Transport>(
+    bus: &mut RegisterBus<T>,
+    probe: &mut SaturationProbe,
+    write: ProbeWrite,
+) -> Result<(), BoardError> {
+    if probe.take_gave_up_notice() {
+        tracing::warn!(
+            "saturation probe: the board sent no depth frame after output_mode = 0, {} times \
+             in a row; pixels with both wells full are no longer flagged (only the 12-bit rails are)",
+            super::saturation::PROBE_MAX_FAILURES
+        );
+    }
+    let (field, value) = write.field_value();
+    match bus.write_field(field, value) {
+        Ok(_) => Ok(()),
+        Err(e) if e.is_disconnect() => Err(BoardError::DeviceUnavailable),
+        Err(e) => {
+            tracing::debug!(
+                "saturation probe: {} = {value} not written: {e}",
+                field.name
+            );
+            Ok(())
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A silent device: each call yields after its slice, and the wait
+    /// gives up once FRAME_WAIT is over, counted from the first call; a
+    /// stream of unusable transfers gives up sooner.
+    #[test]
+    fn the_frame_wait_is_decided_over_slices() {
+        let t0 = Instant::now();
+        let mut w = FrameWait::new(t0);
+        assert_eq!(w.step(t0 + FRAME_SLICE, t0), WaitStep::Wait(FRAME_SLICE));
+        assert_eq!(w.step(t0 + FRAME_SLICE, t0 + FRAME_SLICE), WaitStep::Yield);
+        // A call starting shortly before the deadline waits only up to it.
+        let late = t0 + FRAME_WAIT - FRAME_SLICE / 4;
+        assert_eq!(
+            w.step(late + FRAME_SLICE, late),
+            WaitStep::Wait(FRAME_SLICE / 4)
+        );
+        assert_eq!(
+            w.step(late + FRAME_SLICE, t0 + FRAME_WAIT),
+            WaitStep::GiveUp
+        );
+        let slices = FRAME_WAIT.as_millis() / FRAME_SLICE.as_millis();
+        assert!(slices >= 10, "{slices} slices in the frame wait");
+        for _ in 0..MAX_UNUSABLE_TRANSFERS {
+            assert_eq!(w.step(t0 + FRAME_SLICE, t0), WaitStep::Wait(FRAME_SLICE));
+            w.unusable("bulk endpoint halted", "halted".into());
+        }
+        assert_eq!(w.step(t0 + FRAME_SLICE, t0), WaitStep::GiveUp);
+        match w.no_frame(t0 + FRAME_WAIT) {
+            BoardError::NoFrame {
+                waited_ms, cause, ..
+            } => {
+                assert_eq!(waited_ms, FRAME_WAIT.as_millis());
+                assert_eq!(cause, "bulk endpoint halted");
+            }
+            other => panic!("{other:?}"),
+        }
+    }
 
     #[test]
     fn a_cause_does_not_vary_with_the_details() {

@@ -18,7 +18,7 @@
 //! frames that are out of sequence and locks on again after two consecutive
 //! numbers.
 
-use sdi_core::quad_phase::{PhaseAxis, QuadBasis};
+use sdi_core::quad_phase::{PhaseAxis, PhaseSums, QuadBasis};
 use sdi_core::Frame;
 
 /// Geometry of one raw-quad frame.
@@ -170,6 +170,38 @@ impl QuadDecoder {
     }
 }
 
+impl QuadDecoder {
+    /// The summed (I, Q) of one raw frame's pixels, for measuring the
+    /// phase axis (`sdi_core::quad_phase::fit_axis`): pixels with a quad at
+    /// a 12-bit extreme, and pixel 0 when it carries the frame number,
+    /// are left out.
+    pub fn phase_sums(&self, raw: &[u8]) -> Result<PhaseSums, DecodeError> {
+        let l = self.layout;
+        if raw.len() != l.frame_bytes() {
+            return Err(DecodeError::Length {
+                expected: l.frame_bytes(),
+                got: raw.len(),
+            });
+        }
+        let basis = QuadBasis::new(l.quads).map_err(|_| DecodeError::Quads { quads: l.quads })?;
+        let skip = usize::from(self.frame_number_in_first_byte);
+        let mut sums = PhaseSums::new(l.quads);
+        let mut quads = [0.0f32; 6];
+        'pixels: for px in raw.chunks_exact(l.quads * 2).skip(skip) {
+            for (k, q) in quads.iter_mut().enumerate().take(l.quads) {
+                let v = sign_extend_12(u16::from_le_bytes([px[2 * k], px[2 * k + 1]]));
+                if v <= CODE_MIN_DN || v >= CODE_MAX_DN {
+                    continue 'pixels;
+                }
+                *q = f32::from(v);
+            }
+            let (i, q) = basis.in_phase_quadrature(&quads[..l.quads]);
+            sums.push(i, q);
+        }
+        Ok(sums)
+    }
+}
+
 /// Encodes a difference image as raw quads (q0 = d, q1 = q3 = 0, q2 = -d):
 /// the inverse of [`QuadDecoder::decode`] for emulators and tests.
 pub fn encode_quads(layout: QuadLayout, dn: &[f32], frame_number: Option<u8>) -> Vec<u8> {
@@ -224,6 +256,9 @@ pub enum DropReason {
 #[derive(Debug)]
 pub struct FrameAssembler {
     frame_bytes: usize,
+    /// A second frame length taken as a whole frame: the saturation
+    /// probe's depth frames (`sdi_opt8241::saturation`).
+    also_bytes: Option<usize>,
     check_numbers: bool,
     buf: Vec<u8>,
     /// Discarding until the next short packet (after an overrun).
@@ -250,6 +285,7 @@ impl FrameAssembler {
     pub fn new(frame_bytes: usize, check_numbers: bool) -> Self {
         Self {
             frame_bytes,
+            also_bytes: None,
             check_numbers,
             buf: Vec::with_capacity(frame_bytes),
             discarding: false,
@@ -261,6 +297,12 @@ impl FrameAssembler {
 
     pub fn frame_bytes(&self) -> usize {
         self.frame_bytes
+    }
+
+    /// Also accepts frames of `bytes` (smaller than a raw-quad frame), in
+    /// the same numbering: the caller tells them apart by length.
+    pub fn also_accept(&mut self, bytes: usize) {
+        self.also_bytes = Some(bytes);
     }
 
     /// True while frames are being delivered in sequence.
@@ -286,7 +328,7 @@ impl FrameAssembler {
             return Assembled::Pending;
         }
         self.buf.extend_from_slice(data);
-        if self.buf.len() > self.frame_bytes {
+        if self.buf.len() > self.frame_bytes.max(self.also_bytes.unwrap_or(0)) {
             let got = self.buf.len();
             self.buf.clear();
             self.discarding = !short;
@@ -297,7 +339,7 @@ impl FrameAssembler {
         }
         let bytes = std::mem::take(&mut self.buf);
         self.buf.reserve(self.frame_bytes);
-        if bytes.len() != self.frame_bytes {
+        if bytes.len() != self.frame_bytes && Some(bytes.len()) != self.also_bytes {
             return self.drop_misaligned(DropReason::WrongLength { got: bytes.len() });
         }
         if !self.check_numbers {
@@ -454,6 +496,24 @@ mod tests {
     }
 
     #[test]
+    fn phase_sums_leave_out_the_frame_number_and_saturated_pixels() {
+        let layout = QuadLayout {
+            width: 3,
+            height: 1,
+            quads: 4,
+        };
+        // pixel 0: the frame number; 1: d = 100 a quarter period late; 2: saturated
+        let raw: Vec<u8> = [9i16, 0, 0, 0, 0, 100, 0, -100, 2047, 0, -2048, 0]
+            .iter()
+            .flat_map(|v| (*v as u16 & 0xFFF).to_le_bytes())
+            .collect();
+        let dec = QuadDecoder::new(layout);
+        let s = dec.phase_sums(&raw).unwrap();
+        assert_eq!((s.sum_i, s.sum_q, s.samples), (0.0, 200.0, 1));
+        assert!(dec.phase_sums(&raw[..4]).is_err());
+    }
+
+    #[test]
     fn six_quads_project_against_quad_three() {
         let layout = QuadLayout {
             width: 1,
@@ -558,6 +618,24 @@ mod tests {
         assert!(a.is_locked());
         assert_eq!(a.stats.resyncs, 1);
         assert!(a.stats.misaligned >= 2);
+    }
+
+    #[test]
+    fn a_second_length_is_a_frame_in_the_same_numbering() {
+        let mut a = FrameAssembler::new(SMALL.frame_bytes(), true);
+        a.also_accept(48);
+        a.push(&frame(1), true);
+        let mut depth = vec![0u8; 48];
+        depth[0] = 2;
+        assert!(matches!(
+            a.push(&depth, true),
+            Assembled::Frame { ref bytes, frame_number: Some(2), .. } if bytes.len() == 48
+        ));
+        assert!(matches!(a.push(&frame(3), true), Assembled::Frame { .. }));
+        assert!(matches!(
+            a.push(&depth[..47], true),
+            Assembled::Dropped(DropReason::WrongLength { got: 47 })
+        ));
     }
 
     #[test]

@@ -2,6 +2,8 @@
 //!
 //! Debian's libusb takes its events from udev: without a running udevd
 //! (minimal VMs, containers) it registers the callback but never calls it.
+//! The copy rusb builds when no libusb-1.0-0-dev is installed has no
+//! libudev and reads the kernel's own uevents, with or without udevd.
 //! The backend therefore keeps scanning the bus as a fallback, slowly once
 //! events have been seen to arrive, every 0.5 s until then
 //! (`backend::board`).

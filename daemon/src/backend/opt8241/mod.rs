@@ -4,7 +4,8 @@
 //! limits and the open plan in `sdi_opt8241`, shared with sdictl) ->
 //! [`protocol`] (vendor control requests over a [`protocol::Transport`]) ->
 //! [`init`] (executes the open plan); [`frame`]
-//! (raw quads -> difference frame, alignment); [`usb`] (libusb transport,
+//! (raw quads -> difference frame, alignment); [`saturation`] (the depth
+//! frame interleaved for the chip's saturation flags); [`usb`] (libusb transport,
 //! discovery, UVC -> bulk switch, bulk stream); [`hotplug`] (libusb hotplug
 //! events); [`board`] ties them into the backend.
 //! Sources of every register and request: `docs/hardware.md`.
@@ -18,6 +19,7 @@ pub mod ids;
 pub mod init;
 pub mod protocol;
 pub use sdi_opt8241::registers;
+pub mod saturation;
 pub mod usb;
 
 pub use board::{BoardError, Opt8241};

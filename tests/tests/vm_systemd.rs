@@ -1,0 +1,343 @@
+//! The system service under a real systemd (issue 32's system service
+//! case), inside the VM booted with Debian's systemd as PID 1 (`vmrun -S`):
+//! udevd, logind, the system bus and the users' managers run as on a
+//! desktop. The `sdi` and `sdi-pipewire-camera` packages are installed;
+//! a member of the group sdi is logged in (lingering), so their systemd
+//! runs PipeWire, WirePlumber with SDI's rule, and the packaged user unit
+//! `sdi-pipewire-camera.service`, which waits for a system sdid. Then the
+//! board is plugged in: udev tags it, systemd starts `sdid.service` from
+//! the device's `SYSTEMD_WANTS` with the unit's whole sandbox, and that sdid
+//! feeds the user's camera: PipeWire lists one SDI camera (media.role
+//! Camera), `pipewiresrc` run as the user reads 30 frames the camera
+//! published, in two modes, and ffmpeg reads the loopback node. Killed,
+//! sdid is restarted by systemd (`Restart=on-failure`) and the camera,
+//! which kept its node, delivers again. Then the other order: the user
+//! logs out and in again while sdid runs, and the camera delivers.
+
+use std::fs;
+use std::os::unix::fs::{MetadataExt, PermissionsExt};
+use std::path::Path;
+use std::process::Command;
+use std::time::{Duration, Instant};
+
+use sdi_daemon::sink::pipewire::{SYSTEM_FEED_NAME, VIEW_NODE};
+use sdi_tests::board_emulator::BoardEmulator;
+use sdi_tests::package::{self, gid_of};
+use sdi_tests::pipewire::{self, camera_mode, Clients, FrameLog};
+use sdi_tests::process::{must, run};
+use sdi_tests::vm;
+use sdi_tests::wait::{wait_for, wait_until};
+
+const NAME: &str = "vm_systemd_starts_sdid_on_hotplug_and_it_feeds_a_users_camera";
+const SERIAL: &str = "EMU0007";
+const USER: &str = "sdi-user";
+const UID: u32 = 4242;
+/// Where the test and the user's camera write (mode 0777).
+const SCRATCH: &str = "/tmp/sdi-systemd";
+
+#[test]
+fn vm_systemd_starts_sdid_on_hotplug_and_it_feeds_a_users_camera() {
+    if !vm::in_vm() {
+        if vm::unavailable_reason().is_some() {
+            // Prints why it skips (or fails under SDI_REQUIRE_VM).
+            vm::run_test_in_vm(NAME, 900);
+            return;
+        }
+        let Some(debs) = package::export_for_vm(NAME) else {
+            return;
+        };
+        if debs.camera.is_none() {
+            return;
+        }
+        std::env::set_var("VMRUN_SYSTEMD", "1");
+        std::env::set_var("VMRUN_MEM", "1536");
+        vm::run_test_in_vm(NAME, 900);
+        return;
+    }
+    in_vm();
+}
+
+fn systemctl(args: &[&str]) -> String {
+    let out = run(Command::new("systemctl").args(args));
+    String::from_utf8_lossy(&out.stdout).trim().to_owned()
+}
+
+fn unit_property(unit: &str, property: &str) -> String {
+    systemctl(&["show", "-p", property, "--value", unit])
+}
+
+fn journal(unit: &str) -> String {
+    let out = run(Command::new("journalctl").args(["--no-pager", "-o", "cat", "-u", unit]));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+const USER_UNITS: [&str; 3] = [
+    "pipewire.service",
+    "wireplumber.service",
+    "sdi-pipewire-camera.service",
+];
+
+/// The user logs in (lingering: their manager runs without a terminal);
+/// returns once it runs PipeWire, WirePlumber and the SDI camera.
+fn log_in(user: &Clients) {
+    let t = Instant::now();
+    must(Command::new("loginctl").args(["enable-linger", USER]));
+    wait_until(
+        "the user's PipeWire, WirePlumber and SDI camera units",
+        Duration::from_secs(180),
+        || {
+            let out = run(user
+                .command("systemctl")
+                .args(["--user", "is-active"])
+                .args(USER_UNITS));
+            String::from_utf8_lossy(&out.stdout)
+                .lines()
+                .filter(|l| *l == "active")
+                .count()
+                == USER_UNITS.len()
+        },
+    );
+    eprintln!(
+        "MEASURED: the user's manager ran {USER_UNITS:?} {:.1} s after the login",
+        t.elapsed().as_secs_f64()
+    );
+}
+
+/// The user's manager and everything it ran end.
+fn log_out() {
+    must(Command::new("loginctl").args(["disable-linger", USER]));
+    must(Command::new("systemctl").args(["stop", &format!("user@{UID}.service")]));
+    wait_until("the user's manager to end", Duration::from_secs(60), || {
+        systemctl(&["is-active", &format!("user@{UID}.service")]) != "active"
+    });
+}
+
+fn in_vm() {
+    let t_start = Instant::now();
+    let exe = fs::read_link("/proc/1/exe").unwrap();
+    assert!(exe.ends_with("systemd"), "PID 1 is {}", exe.display());
+    for unit in [
+        "systemd-udevd.service",
+        "dbus.service",
+        "systemd-logind.service",
+    ] {
+        assert_eq!(systemctl(&["is-active", unit]), "active", "{unit}");
+    }
+    let scratch = Path::new(SCRATCH);
+    fs::create_dir_all(scratch).unwrap();
+    fs::set_permissions(scratch, fs::Permissions::from_mode(0o777)).unwrap();
+
+    // The packages, as on a desktop (man-db's trigger would rebuild the
+    // manual index for minutes under TCG; this guest-only file turns it off).
+    let _ = fs::remove_file("/var/lib/man-db/auto-update");
+    let debs: Vec<String> = ["SDI_DEB", "SDI_CAMERA_DEB"]
+        .iter()
+        .map(|v| std::env::var(v).unwrap_or_else(|_| panic!("{v} from the host side")))
+        .collect();
+    // dpkg rather than apt: apt's resolver reads the host's whole package
+    // lists over 9p (vm_package installs with apt).
+    let t_install = Instant::now();
+    must(Command::new("dpkg").arg("--install").args(&debs));
+    eprintln!(
+        "MEASURED: dpkg --install of both packages: {:.1} s",
+        t_install.elapsed().as_secs_f64()
+    );
+    let sdi_gid = gid_of("sdi").expect("postinst made the group sdi");
+    // v4l2loopback as at boot: systemd-modules-load reads the package's
+    // modules-load.d (options from its modprobe.d).
+    must(Command::new("systemctl").args(["restart", "systemd-modules-load.service"]));
+    let name = fs::read_to_string("/sys/class/video4linux/video42/name")
+        .expect("no /dev/video42 from the package's modprobe.d options");
+    assert_eq!(name.trim(), "SDI camera");
+    // The administrator's configuration: the emulated board, small and slow.
+    fs::write(
+        "/etc/sdi/sdid.toml",
+        format!(
+            "frame_rate_hz = 15.0\nexposure_us = 2000.0\n\
+             [board]\nserial = \"{SERIAL}\"\nroi = [0, 0, 64, 48]\n"
+        ),
+    )
+    .unwrap();
+
+    // A member of the group sdi logs in (lingering: their manager runs
+    // without a terminal). The camera unit's log goes to a file the test
+    // reads, with every published frame's CRC.
+    must(Command::new("useradd").args([
+        "--create-home",
+        "--uid",
+        &UID.to_string(),
+        "--groups",
+        "sdi",
+        USER,
+    ]));
+    let camera_log = FrameLog::file(scratch.join("camera.log"));
+    let dropin = Path::new("/etc/systemd/user/sdi-pipewire-camera.service.d");
+    fs::create_dir_all(dropin).unwrap();
+    fs::write(
+        dropin.join("test-log.conf"),
+        format!(
+            "[Service]\nEnvironment=RUST_LOG=info,sdid::pipewire::frames=trace\n\
+             StandardError=append:{}\n",
+            camera_log.path().display()
+        ),
+    )
+    .unwrap();
+    let user = Clients::user(USER, UID, scratch);
+    log_in(&user);
+    assert_eq!(systemctl(&["is-active", "sdid.service"]), "inactive");
+
+    // The board is plugged in: udev and systemd start sdid.service.
+    let t_plug = Instant::now();
+    let emu = BoardEmulator::start("sdi0", SERIAL).expect("board emulator gadget");
+    wait_until(
+        "systemd to start sdid.service for the board",
+        Duration::from_secs(180),
+        || systemctl(&["is-active", "sdid.service"]) == "active",
+    );
+    eprintln!(
+        "MEASURED: sdid.service active (bus name taken) {:.1} s after the board was plugged in",
+        t_plug.elapsed().as_secs_f64()
+    );
+    let wanted_by = unit_property("sdid.service", "WantedBy");
+    assert!(
+        wanted_by
+            .split_whitespace()
+            .any(|u| u.trim_matches('"').ends_with(".device")),
+        "sdid.service not wanted by the board's device unit: WantedBy={wanted_by}"
+    );
+    let main_pid = unit_property("sdid.service", "MainPID");
+    assert_eq!(
+        fs::read_link(format!("/proc/{main_pid}/exe")).unwrap(),
+        Path::new("/usr/bin/sdid")
+    );
+    // RuntimeDirectory= (root:sdi 0750) and UMask=: the feed's socket is the
+    // group's only.
+    let feed_dir = Path::new("/run/sdi");
+    let m = fs::metadata(feed_dir).unwrap();
+    assert_eq!((m.uid(), m.gid(), m.mode() & 0o777), (0, sdi_gid, 0o750));
+    let m = fs::metadata(feed_dir.join(SYSTEM_FEED_NAME)).unwrap();
+    assert_eq!((m.uid(), m.gid(), m.mode() & 0o777), (0, sdi_gid, 0o660));
+
+    // The user's camera, fed by the system sdid: one SDI camera.
+    let node = wait_for(
+        "the fed camera's node in the user's PipeWire",
+        Duration::from_secs(120),
+        || user.node(VIEW_NODE),
+    );
+    assert_eq!(node["media.role"], "Camera", "{node:?}");
+    let cameras = user.sdi_cameras();
+    assert_eq!(cameras.len(), 1, "one SDI camera: {cameras:?}");
+    eprintln!(
+        "MEASURED: one SDI camera in the user's PipeWire {:.1} s after the plug",
+        t_plug.elapsed().as_secs_f64()
+    );
+    let read = |mode: &str, what: &str| {
+        let t = Instant::now();
+        let frame_bytes = 640 * 480 * 2;
+        let yuyv = user.read_frames(
+            VIEW_NODE,
+            "video/x-raw,format=YUY2,width=640,height=480",
+            30,
+            Duration::from_secs(180),
+        );
+        assert_eq!(yuyv.len(), 30 * frame_bytes, "30 whole frames");
+        let crcs = pipewire::frame_crcs(&yuyv, frame_bytes);
+        camera_log.assert_published(&crcs, VIEW_NODE, "YUYV", mode, what);
+        eprintln!(
+            "MEASURED: {what}: pipewiresrc as {USER} read 30 frames the camera published \
+             in mode {mode}, in {:.1} s",
+            t.elapsed().as_secs_f64()
+        );
+    };
+    read(
+        &camera_mode(&node).expect("a mode in the description"),
+        "hotplug",
+    );
+    let out = run(Command::new("/usr/bin/sdictl").args(["set-mode", "depth-edge"]));
+    assert!(out.status.success(), "set-mode: {out:?}");
+    wait_for(
+        "the fed camera to follow the mode",
+        Duration::from_secs(60),
+        || {
+            user.node(VIEW_NODE)
+                .filter(|p| camera_mode(p).as_deref() == Some("depth-edge"))
+        },
+    );
+    read("depth-edge", "after a mode switch");
+    let view = Path::new("/dev/video42");
+    let ffmpeg = run(Command::new("timeout")
+        .args(["120", "ffmpeg", "-hide_banner", "-loglevel", "error"])
+        .args(["-nostdin", "-f", "v4l2", "-i"])
+        .arg(view)
+        .args(["-frames:v", "3", "-f", "null", "-"]));
+    assert!(
+        ffmpeg.status.success(),
+        "ffmpeg on {}: {ffmpeg:?}",
+        view.display()
+    );
+
+    // sdid dies: systemd starts it again, the camera kept its node and
+    // delivers again.
+    let t_kill = Instant::now();
+    let restarts: u32 = unit_property("sdid.service", "NRestarts")
+        .parse()
+        .expect("NRestarts");
+    must(Command::new("systemctl").args(["kill", "--signal=KILL", "sdid.service"]));
+    wait_until(
+        "systemd to restart sdid.service",
+        Duration::from_secs(120),
+        || {
+            unit_property("sdid.service", "NRestarts") == (restarts + 1).to_string()
+                && systemctl(&["is-active", "sdid.service"]) == "active"
+        },
+    );
+    assert_ne!(unit_property("sdid.service", "MainPID"), main_pid);
+    eprintln!(
+        "MEASURED: sdid killed, restarted by systemd and active again in {:.1} s",
+        t_kill.elapsed().as_secs_f64()
+    );
+    // The restarted sdid starts in its configured mode.
+    let node = wait_for(
+        "the fed camera's node after the restart",
+        Duration::from_secs(60),
+        || user.node(VIEW_NODE),
+    );
+    read(
+        &camera_mode(&node).expect("a mode in the description"),
+        "after systemd restarted sdid",
+    );
+    assert_eq!(
+        user.sdi_cameras().len(),
+        1,
+        "one SDI camera after the restart"
+    );
+
+    // The other order: sdid runs, then the user logs in again.
+    log_out();
+    log_in(&user);
+    let node = wait_for(
+        "the fed camera's node after a new login",
+        Duration::from_secs(120),
+        || user.node(VIEW_NODE),
+    );
+    assert_eq!(
+        user.sdi_cameras().len(),
+        1,
+        "one SDI camera after a new login"
+    );
+    read(
+        &camera_mode(&node).expect("a mode in the description"),
+        "logged in with sdid running",
+    );
+
+    let sdid_log = journal("sdid.service");
+    assert!(
+        !sdid_log.contains("panicked"),
+        "sdid's journal:\n{sdid_log}"
+    );
+    drop(emu);
+    eprintln!(
+        "MEASURED: installed, logged in, hotplug-started, fed, restarted in {:.1} s",
+        t_start.elapsed().as_secs_f64()
+    );
+}
