@@ -248,3 +248,24 @@ pub fn export_for_vm(camera_needed_by: &str) -> Option<&'static Debs> {
     );
     Some(debs)
 }
+
+/// Asserts the package's view node is there, as its modprobe.d options
+/// make it: `/dev/video42`, "SDI camera".
+pub fn assert_view_node() {
+    let name = std::fs::read_to_string("/sys/class/video4linux/video42/name")
+        .expect("no /dev/video42 from the package's modprobe.d options");
+    assert_eq!(name.trim(), "SDI camera");
+}
+
+/// The administrator's `/etc/sdi/sdid.toml` for the emulated board with
+/// `serial`: 64 x 48 at 15 Hz, small and slow enough for TCG.
+pub fn configure_emulated_board(serial: &str) {
+    std::fs::write(
+        "/etc/sdi/sdid.toml",
+        format!(
+            "frame_rate_hz = 15.0\nexposure_us = 2000.0\n\
+             [board]\nserial = \"{serial}\"\nroi = [0, 0, 64, 48]\n"
+        ),
+    )
+    .expect("write /etc/sdi/sdid.toml");
+}

@@ -201,20 +201,10 @@ fn in_vm() {
 
     // v4l2loopback as at boot: the package's node and label.
     load_modules_as_at_boot();
-    let name = fs::read_to_string("/sys/class/video4linux/video42/name")
-        .expect("no /dev/video42 from the package's modprobe.d options");
-    assert_eq!(name.trim(), "SDI camera");
+    package::assert_view_node();
 
-    // The administrator's configuration: the emulated board, small and
-    // slow enough for TCG beside Chromium.
-    fs::write(
-        "/etc/sdi/sdid.toml",
-        format!(
-            "frame_rate_hz = 15.0\nexposure_us = 2000.0\n\
-             [board]\nserial = \"{SERIAL}\"\nroi = [0, 0, 64, 48]\n"
-        ),
-    )
-    .unwrap();
+    // The administrator's configuration: the emulated board.
+    package::configure_emulated_board(SERIAL);
 
     // D-Bus activation starts the packaged sdid on the board.
     let t_activate = Instant::now();

@@ -146,18 +146,8 @@ fn in_vm() {
     // v4l2loopback as at boot: systemd-modules-load reads the package's
     // modules-load.d (options from its modprobe.d).
     must(Command::new("systemctl").args(["restart", "systemd-modules-load.service"]));
-    let name = fs::read_to_string("/sys/class/video4linux/video42/name")
-        .expect("no /dev/video42 from the package's modprobe.d options");
-    assert_eq!(name.trim(), "SDI camera");
-    // The administrator's configuration: the emulated board, small and slow.
-    fs::write(
-        "/etc/sdi/sdid.toml",
-        format!(
-            "frame_rate_hz = 15.0\nexposure_us = 2000.0\n\
-             [board]\nserial = \"{SERIAL}\"\nroi = [0, 0, 64, 48]\n"
-        ),
-    )
-    .unwrap();
+    package::assert_view_node();
+    package::configure_emulated_board(SERIAL);
 
     // A member of the group sdi logs in (lingering: their manager runs
     // without a terminal). The camera unit's log goes to a file the test
