@@ -433,13 +433,6 @@ pub fn logind_state_dirs() {
     }
 }
 
-/// The camera portal for a session: `xdg-desktop-portal` (Debian 12: 1.16)
-/// with the permission store, killed on drop. The portal exports
-/// `org.freedesktop.portal.Camera` only when some backend implements
-/// `org.freedesktop.impl.portal.Access` (it asks the user there); a
-/// `.portal` file in `XDG_DESKTOP_PORTAL_DIR` names one, and the camera
-/// permission for unsandboxed programs (app id "") is stored as "yes"
-/// beforehand, so no dialog is ever asked for and the backend need not run.
 /// A portal backend that claims `Access` for the desktop [`TEST_DESKTOP`]
 /// and never runs: with the permission stored beforehand
 /// ([`Clients::grant_camera`]) the portal exports the camera portal and
@@ -451,6 +444,13 @@ pub const TEST_PORTAL_FILE: &str = "sdi-test.portal";
 /// `XDG_CURRENT_DESKTOP` under which the portal uses [`TEST_PORTAL`].
 pub const TEST_DESKTOP: &str = "sditest";
 
+/// The camera portal for a session: `xdg-desktop-portal` (Debian 12: 1.16)
+/// with the permission store, killed on drop. The portal exports
+/// `org.freedesktop.portal.Camera` only when some backend implements
+/// `org.freedesktop.impl.portal.Access` (it asks the user there); a
+/// `.portal` file in `XDG_DESKTOP_PORTAL_DIR` names one, and the camera
+/// permission for unsandboxed programs (app id "") is stored as "yes"
+/// beforehand, so no dialog is ever asked for and the backend need not run.
 pub struct CameraPortal {
     _portal: Reaped,
 }
@@ -509,7 +509,8 @@ impl CameraPortal {
     }
 }
 
-/// Starts `program` of the session in `dir`, its stderr to `dir/program.log`.
+/// Starts `program` as a client of the session, its stderr to
+/// `program.log` in the clients' scratch directory.
 fn spawn_logged(clients: &Clients, program: &str) -> Reaped {
     let log =
         std::fs::File::create(clients.scratch.join(format!("{program}.log"))).expect("log file");

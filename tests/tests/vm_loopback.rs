@@ -50,8 +50,9 @@ const NODES: [(u32, &str); 6] = [
     (25, "ffmpeg-ref"),
 ];
 
-/// v4l2-compliance failures per module: (ours, ffmpeg's writer) of 45
-/// tests, each explained in docs/loopback.md.
+/// v4l2-compliance failures of our writer per module, of 45 tests, each
+/// explained in docs/loopback.md (ffmpeg's writer, the reference, fails
+/// at least these).
 fn expected_failures(build: ModuleBuild) -> Option<u32> {
     match build {
         ModuleBuild::Debian0127 => Some(5),
