@@ -400,6 +400,12 @@ impl Browser {
             "--disable-sync",
             "--use-fake-ui-for-media-stream",
             "--autoplay-policy=no-user-gesture-required",
+            // A child process that has not heard from the browser in 15 s
+            // quits, and under TCG with sdid busy beside it the network
+            // service did ("Terminating current process after 15 seconds
+            // with no connection"): the page never loaded. Chromium's own
+            // browser tests raise this timeout for loaded machines too.
+            "--ipc-connection-timeout=120",
         ])
         .arg(format!("--user-data-dir={}", profile.display()))
         .arg(url)

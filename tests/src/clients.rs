@@ -281,6 +281,24 @@ pub fn off_by(a: [f64; 3], b: [f64; 3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
+/// The mean colour of the whole 640x480 view frame in the daemon's current
+/// mode, for a sensor of `width` x `height`: `sdictl snapshot` (`sdictl`
+/// runs it with the arguments given) into `png`, its mean over the picture
+/// rows, black bars elsewhere.
+pub fn view_mean_of_snapshot(
+    sdictl: impl Fn(&[&str]) -> Output,
+    png: &Path,
+    width: usize,
+    height: usize,
+) -> [f64; 3] {
+    let _ = std::fs::remove_file(png);
+    let out = sdictl(&["snapshot", &png.display().to_string()]);
+    assert!(out.status.success(), "snapshot: {out:?}");
+    let img = image::open(png).expect("read snapshot png").to_rgb8();
+    let (_, rows) = letterbox_rows(width, height);
+    mean_rgb(img.as_raw()).map(|c| c * rows as f64 / 480.0)
+}
+
 /// Rows of the view node's letterbox: the sensor picture scaled into 640x480
 /// keeps its aspect, so (top bar rows, picture rows).
 pub fn letterbox_rows(w: usize, h: usize) -> (usize, usize) {

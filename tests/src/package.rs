@@ -257,14 +257,19 @@ pub fn assert_view_node() {
     assert_eq!(name.trim(), "SDI camera");
 }
 
+/// The emulated board's picture in [`configure_emulated_board`]: width,
+/// height.
+pub const EMULATED_BOARD_PX: (usize, usize) = (64, 48);
+
 /// The administrator's `/etc/sdi/sdid.toml` for the emulated board with
-/// `serial`: 64 x 48 at 15 Hz, small and slow enough for TCG.
+/// `serial`: [`EMULATED_BOARD_PX`] at 15 Hz, small and slow enough for TCG.
 pub fn configure_emulated_board(serial: &str) {
+    let (w, h) = EMULATED_BOARD_PX;
     std::fs::write(
         "/etc/sdi/sdid.toml",
         format!(
             "frame_rate_hz = 15.0\nexposure_us = 2000.0\n\
-             [board]\nserial = \"{serial}\"\nroi = [0, 0, 64, 48]\n"
+             [board]\nserial = \"{serial}\"\nroi = [0, 0, {w}, {h}]\n"
         ),
     )
     .expect("write /etc/sdi/sdid.toml");

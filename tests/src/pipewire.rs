@@ -233,9 +233,19 @@ impl Clients {
     }
 
     /// Stores the camera permission "yes" for unsandboxed programs (app id
-    /// ""), starting the permission store by D-Bus activation: the portal
-    /// then asks no one.
+    /// "") and for Chromium, starting the permission store by D-Bus
+    /// activation: the portal then asks no one. In a user session run by
+    /// systemd Chromium moves itself into a scope
+    /// (`app-org.chromium.Chromium-PID.scope`) and the portal takes its app
+    /// id from that ("Assigning app ID \"org.chromium.Chromium\""), so "" does
+    /// not cover it there.
     pub fn grant_camera(&self) {
+        for app_id in ["", CHROMIUM_APP_ID] {
+            self.grant_camera_to(app_id);
+        }
+    }
+
+    fn grant_camera_to(&self, app_id: &str) {
         let t0 = Instant::now();
         loop {
             let out = self
@@ -249,7 +259,7 @@ impl Clients {
                     "string:devices",
                     "boolean:true",
                     "string:camera",
-                    "string:",
+                    &format!("string:{app_id}"),
                     "array:string:yes",
                 ])
                 .output()
@@ -259,8 +269,8 @@ impl Clients {
             }
             assert!(
                 t0.elapsed() < Duration::from_secs(60),
-                "the permission store did not grant the camera in 60 s: dbus-send {}: {}; \
-                 store running: {}",
+                "the permission store did not grant the camera to app id {app_id:?} in 60 s: \
+                 dbus-send {}: {}; store running: {}",
                 out.status,
                 String::from_utf8_lossy(&out.stderr).trim(),
                 self.has_owner("org.freedesktop.impl.portal.PermissionStore")
@@ -439,6 +449,8 @@ pub fn logind_state_dirs() {
 /// asks no one.
 pub const TEST_PORTAL: &str = "[portal]\nDBusName=org.freedesktop.impl.portal.desktop.sditest\n\
      Interfaces=org.freedesktop.impl.portal.Access;\nUseIn=sditest\n";
+/// The app id the portal gives Chromium in a systemd user session.
+pub const CHROMIUM_APP_ID: &str = "org.chromium.Chromium";
 /// The name of [`TEST_PORTAL`]'s file in a portals directory.
 pub const TEST_PORTAL_FILE: &str = "sdi-test.portal";
 /// `XDG_CURRENT_DESKTOP` under which the portal uses [`TEST_PORTAL`].

@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
-use sdi_tests::clients::{self, letterbox_rows, mean_rgb, off_by, DATA_LABEL, PMD, VIEW_LABEL};
+use sdi_tests::clients::{self, mean_rgb, off_by, DATA_LABEL, PMD, VIEW_LABEL};
 use sdi_tests::loopback;
 use sdi_tests::pipewire::{self, CameraPortal, Session};
 use sdi_tests::process::{stdout_of, Reaped};
@@ -96,13 +96,12 @@ impl Sdid {
     fn set_mode_expect(&self, mode: &str, dir: &Path) -> [f64; 3] {
         let out = self.ctl(&["set-mode", mode]);
         assert!(out.status.success(), "set-mode {mode}: {out:?}");
-        let png = dir.join("snap.png");
-        let _ = std::fs::remove_file(&png);
-        let out = self.ctl(&["snapshot", &png.display().to_string()]);
-        assert!(out.status.success(), "snapshot: {out:?}");
-        let img = image::open(&png).expect("read snapshot png").to_rgb8();
-        let (_, rows) = letterbox_rows(PMD.width, PMD.height);
-        mean_rgb(img.as_raw()).map(|c| c * rows as f64 / 480.0)
+        clients::view_mean_of_snapshot(
+            |args| self.ctl(args),
+            &dir.join("snap.png"),
+            PMD.width,
+            PMD.height,
+        )
     }
 }
 
