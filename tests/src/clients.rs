@@ -281,16 +281,19 @@ pub fn off_by(a: [f64; 3], b: [f64; 3]) -> f64 {
         .fold(0.0, f64::max)
 }
 
-/// The mean colour of the whole 640x480 view frame in the daemon's current
-/// mode, for a sensor of `width` x `height`: `sdictl snapshot` (`sdictl`
-/// runs it with the arguments given) into `png`, its mean over the picture
-/// rows, black bars elsewhere.
-pub fn view_mean_of_snapshot(
+/// `sdictl set-mode MODE`, then the mean colour of the whole 640x480 view
+/// frame in it, for a sensor of `width` x `height`: `sdictl snapshot` into
+/// `png`, its mean over the picture rows, black bars elsewhere. `sdictl`
+/// runs sdictl with the arguments given, on the daemon's bus.
+pub fn set_mode_view_mean(
     sdictl: impl Fn(&[&str]) -> Output,
+    mode: &str,
     png: &Path,
     width: usize,
     height: usize,
 ) -> [f64; 3] {
+    let out = sdictl(&["set-mode", mode]);
+    assert!(out.status.success(), "set-mode {mode}: {out:?}");
     let _ = std::fs::remove_file(png);
     let out = sdictl(&["snapshot", &png.display().to_string()]);
     assert!(out.status.success(), "snapshot: {out:?}");

@@ -452,17 +452,26 @@ pub const TEST_PORTAL: &str = "[portal]\nDBusName=org.freedesktop.impl.portal.de
 /// The app id the portal gives Chromium in a systemd user session.
 pub const CHROMIUM_APP_ID: &str = "org.chromium.Chromium";
 /// The name of [`TEST_PORTAL`]'s file in a portals directory.
-pub const TEST_PORTAL_FILE: &str = "sdi-test.portal";
+const TEST_PORTAL_FILE: &str = "sdi-test.portal";
 /// `XDG_CURRENT_DESKTOP` under which the portal uses [`TEST_PORTAL`].
 pub const TEST_DESKTOP: &str = "sditest";
+
+/// Makes `parent/portals` with [`TEST_PORTAL`] in it, for the portal's
+/// `XDG_DESKTOP_PORTAL_DIR`; returns its path.
+pub fn test_portals_dir(parent: &Path) -> PathBuf {
+    let dir = parent.join("portals");
+    std::fs::create_dir_all(&dir).expect("portals dir");
+    std::fs::write(dir.join(TEST_PORTAL_FILE), TEST_PORTAL).expect("write the .portal file");
+    dir
+}
 
 /// The camera portal for a session: `xdg-desktop-portal` (Debian 12: 1.16)
 /// with the permission store, killed on drop. The portal exports
 /// `org.freedesktop.portal.Camera` only when some backend implements
 /// `org.freedesktop.impl.portal.Access` (it asks the user there); a
 /// `.portal` file in `XDG_DESKTOP_PORTAL_DIR` names one, and the camera
-/// permission for unsandboxed programs (app id "") is stored as "yes"
-/// beforehand, so no dialog is ever asked for and the backend need not run.
+/// permission is stored as "yes" beforehand ([`Clients::grant_camera`]),
+/// so no dialog is ever asked for and the backend need not run.
 pub struct CameraPortal {
     _portal: Reaped,
 }
@@ -482,9 +491,7 @@ impl CameraPortal {
     /// Starts the portal on the session's bus, and the permission store by
     /// D-Bus activation.
     pub fn start(s: &Session) -> Self {
-        let dir = s.dir.path().join("portals");
-        std::fs::create_dir_all(&dir).expect("portals dir");
-        std::fs::write(dir.join(TEST_PORTAL_FILE), TEST_PORTAL).expect("write the .portal file");
+        let dir = test_portals_dir(s.dir.path());
         // `--replace`: in case a portal was started by D-Bus activation
         // already (without this environment).
         let spawn = |program: &str, log: &str| {

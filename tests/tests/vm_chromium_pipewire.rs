@@ -94,10 +94,9 @@ impl Sdid {
     /// `sdictl set-mode`, then the mean colour of the whole 640x480 view
     /// frame: the snapshot's mean over the picture rows, black bars elsewhere.
     fn set_mode_expect(&self, mode: &str, dir: &Path) -> [f64; 3] {
-        let out = self.ctl(&["set-mode", mode]);
-        assert!(out.status.success(), "set-mode {mode}: {out:?}");
-        clients::view_mean_of_snapshot(
+        clients::set_mode_view_mean(
             |args| self.ctl(args),
+            mode,
             &dir.join("snap.png"),
             PMD.width,
             PMD.height,

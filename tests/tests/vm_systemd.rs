@@ -86,10 +86,8 @@ fn sdictl(args: &[&str]) -> Output {
 
 /// `sdictl set-mode mode`, then the mean colour of the view frame in it.
 fn set_mode_expect(mode: &str, dir: &Path) -> [f64; 3] {
-    let out = sdictl(&["set-mode", mode]);
-    assert!(out.status.success(), "set-mode {mode}: {out:?}");
     let (w, h) = package::EMULATED_BOARD_PX;
-    clients::view_mean_of_snapshot(sdictl, &dir.join("snap.png"), w, h)
+    clients::set_mode_view_mean(sdictl, mode, &dir.join("snap.png"), w, h)
 }
 
 /// Headless Chromium, run as the user with the PipeWire camera
@@ -103,13 +101,7 @@ fn set_mode_expect(mode: &str, dir: &Path) -> [f64; 3] {
 /// (`pipewire::TEST_PORTAL`, for the desktop `pipewire::TEST_DESKTOP`).
 fn chromium_through_the_portal(user: &Clients, scratch: &Path) {
     let t0 = Instant::now();
-    let portals = scratch.join("portals");
-    fs::create_dir_all(&portals).unwrap();
-    fs::write(
-        portals.join(pipewire::TEST_PORTAL_FILE),
-        pipewire::TEST_PORTAL,
-    )
-    .unwrap();
+    let portals = pipewire::test_portals_dir(scratch);
     // The manager's environment is what the D-Bus activated portal gets.
     must(user.command("systemctl").args([
         "--user",
@@ -357,7 +349,7 @@ fn in_vm() {
         &camera_mode(&node).expect("a mode in the description"),
         "hotplug",
     );
-    let out = run(Command::new("/usr/bin/sdictl").args(["set-mode", "depth-edge"]));
+    let out = sdictl(&["set-mode", "depth-edge"]);
     assert!(out.status.success(), "set-mode: {out:?}");
     wait_for(
         "the fed camera to follow the mode",
