@@ -1,6 +1,6 @@
 #!/bin/bash
 # Proves the README's two set-up commands work on a brand-new user's machine:
-# a Debian 12 minbase root (debootstrap, plus only build-essential, git, dbus,
+# a Debian 12 or 13 minbase root (debootstrap, plus only build-essential, git, dbus,
 # python3 and ca-certificates), this machine's Rust toolchain copied in with
 # an EMPTY cargo home (no crate cache), a fresh clone of the project as a
 # normal user's checkout, and a clean environment (env -i: PATH, HOME, USER,
@@ -31,7 +31,8 @@ export LC_ALL=C.UTF-8
 SCRIPT_DIR=$(cd "$(dirname "$0")" && pwd)
 REPO=
 REF=HEAD
-CACHE=${SDI_FRESH_CACHE:-/var/tmp/sdi-fresh-root}
+CACHE=
+RELEASE=12
 LOGS=${SDI_FRESH_LOGS:-/var/tmp/sdi-fresh-machine-logs}
 MIRROR=
 REBUILD=0
@@ -46,14 +47,15 @@ DEBOOTSTRAP_TIMEOUT_MIN=30
 UP_SECS=20
 FRAME_WAIT_SECS=30
 INCLUDE=build-essential,git,dbus,python3,ca-certificates
-SUITE=bookworm
 
 usage() {
     cat <<EOF
 usage: $0 [options]          (as root)
   --repo DIR          repository to clone (default: the one holding this script)
   --ref REV           revision to check out (default HEAD of --repo)
-  --cache DIR         cached Debian 12 root (default $CACHE)
+  --release 12|13     the Debian release of the new machine (default 12)
+  --cache DIR         cached root (default \$SDI_FRESH_CACHE or
+                      /var/tmp/sdi-fresh-root-RELEASE)
   --logs DIR          logs; each run gets a subdirectory (default $LOGS)
   --rebuild           debootstrap the cached root again
   --mirror URL        Debian mirror (default: the one this machine's apt uses)
@@ -76,6 +78,7 @@ while [ $# -gt 0 ]; do
     case $1 in
         --repo) REPO=$2; shift ;;
         --ref) REF=$2; shift ;;
+        --release) RELEASE=$2; shift ;;
         --cache) CACHE=$2; shift ;;
         --logs) LOGS=$2; shift ;;
         --mirror) MIRROR=$2; shift ;;
@@ -95,6 +98,12 @@ while [ $# -gt 0 ]; do
     shift
 done
 
+case $RELEASE in
+    12) SUITE=bookworm ;;
+    13) SUITE=trixie ;;
+    *) echo "run.sh: --release takes 12 or 13" >&2; exit 2 ;;
+esac
+[ -n "$CACHE" ] || CACHE=${SDI_FRESH_CACHE:-/var/tmp/sdi-fresh-root-$RELEASE}
 [ "$(id -u)" = 0 ] || { echo "run.sh: run as root (debootstrap, mounts, chroot)" >&2; exit 2; }
 [ -n "$REPO" ] || REPO=$(git -C "$SCRIPT_DIR" rev-parse --show-toplevel)
 REPO=$(cd "$REPO" && pwd)
@@ -210,7 +219,7 @@ apt_mirror() {
         | awk '/\/debian\/?$/ && !/security/ { print; exit }'
 }
 
-step "cached Debian 12 root ($CACHE)"
+step "cached Debian $RELEASE root ($CACHE)"
 if ! command -v debootstrap >/dev/null; then
     echo "installing debootstrap"
     DEBIAN_FRONTEND=noninteractive apt-get install -y -qq debootstrap >>"$SETUP_LOG" 2>&1 || {
@@ -536,7 +545,7 @@ OK=1
 [ "$T_RAN" = yes ] && [ "$T_RC" = 0 ] || OK=0
 {
     echo "== fresh machine: $REPO at $REF ($SHORT), $(date -Is)"
-    echo "root:      Debian 12 minbase + $INCLUDE from $MIRROR; $ROOT_NOTE"
+    echo "root:      Debian $RELEASE ($SUITE) minbase + $INCLUDE from $MIRROR; $ROOT_NOTE"
     if [ "$AS_ROOT" = 1 ]; then who="root, $RHOME/sdi"; else who="normal user '$RUSER' (uid $RUID), $RHOME/sdi"; fi
     echo "as:        $who; env -i PATH HOME USER LANG=C.UTF-8; $([ "$RUNTIME_DIR" = 1 ] && echo "XDG_RUNTIME_DIR=/run/user/$RUID" || echo "no XDG_RUNTIME_DIR"); no session bus"
     echo "toolchain: $TOOLCHAIN ($RUSTC_VERSION), empty CARGO_HOME"

@@ -6,7 +6,6 @@
 //! sdi-tests, which depends on sdi-cli), so it uses only std, sdi-core and
 //! sdi-recording.
 
-use std::io::Write;
 use std::path::Path;
 use std::process::Command;
 
@@ -46,14 +45,9 @@ pub fn numpy_python() -> Option<String> {
             .is_ok_and(|o| o.status.success())
     });
     if found.is_none() {
-        assert!(
-            std::env::var_os("SDI_REQUIRE_VM").is_none(),
-            "numpy is needed and SDI_REQUIRE_VM is set"
-        );
-        // Past libtest's capture, as `sdi_tests::skip::line` writes.
-        let _ = writeln!(
-            std::io::stderr(),
-            "SKIPPED numpy comparison: no python3 with numpy (apt-get install python3-numpy)"
+        super::skip::unavailable(
+            "SDI_REQUIRE_VM",
+            format_args!("numpy comparison: no python3 with numpy (apt-get install python3-numpy)"),
         );
     }
     found.map(str::to_owned)

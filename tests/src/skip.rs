@@ -21,6 +21,17 @@ macro_rules! skipped {
     };
 }
 
+/// The one place a test reads CI's require flags (`SDI_REQUIRE_VM`,
+/// `SDI_REQUIRE_PACKAGING`): a part the test needs is missing, so it fails
+/// when `require` is set and otherwise prints `SKIPPED: what`.
+pub fn unavailable(require: &str, what: fmt::Arguments<'_>) {
+    assert!(
+        std::env::var_os(require).is_none(),
+        "{what}, and {require} is set"
+    );
+    line(format_args!("SKIPPED: {what}"));
+}
+
 /// True when every program in `tools` (name, Debian package) is on the
 /// PATH. Otherwise prints one line naming the missing packages and returns
 /// false, or fails when the environment variable `require` is set (CI sets
@@ -44,11 +55,7 @@ pub fn have_all(what: &str, tools: &[(&str, &str)], require: &str) -> bool {
         missing.join(", "),
         missing.join(" ")
     );
-    assert!(
-        std::env::var_os(require).is_none(),
-        "{text}, and {require} is set"
-    );
-    line(format_args!("SKIPPED: {text}"));
+    unavailable(require, format_args!("{text}"));
     false
 }
 

@@ -4,7 +4,7 @@
 //! (Debian 12) turns on SO_PASSCRED only after accepting the connection: a
 //! ping that arrives before that carries no credentials, udevd logs "Invalid
 //! sender uid 65534, ignoring message", closes the socket, and settle fails
-//! with "Broken pipe" (seen once in a fresh CI run, in system_hotplug). The
+//! with "Broken pipe" (seen once in a fresh CI run, in vm_plain/hotplug). The
 //! waits here never use the control socket: `udevadm wait` watches the udev
 //! database with inotify, and `udevadm trigger --settle` listens for the
 //! events it caused on the udev monitor.

@@ -1,15 +1,35 @@
-//! Running a test inside the QEMU VM of `tests/vm/vmrun`.
+//! Running tests inside the QEMU VM of `tests/vm/vmrun`.
 //!
-//! Pattern: a host-side test re-executes its own test binary inside the VM
-//! (`IN_VM=1`), where the real kernel modules (v4l2loopback, dummy_hcd, ...)
-//! can be loaded; inside, the same test does the real work. VMs are
-//! serialized with a lock file so parallel test binaries do not starve each
-//! other on a 2-core machine.
+//! Pattern: each VM test binary (`tests/tests/vm_*`) is one [`Guest`]: a
+//! table of its tests with their time limits. On the host, the first test
+//! that reaches [`Guest::on_host`] boots the guest once, and the guest runs
+//! the binary again (`IN_VM=1`) for every test of the table the host run
+//! selected, one after the other, each in its own process; every host-side
+//! test then reads its own result. Inside the guest the same test does the
+//! real work with the real kernel modules (v4l2loopback, dummy_hcd, ...).
+//!
+//! Each test starts from a known state in the shared guest
+//! (`tests/vm/guest-run`): its own PID and mount namespaces with fresh
+//! throw-away layers over /tmp, /var, /etc, /root, /home and /usr and a
+//! fresh /run, so processes, users, configuration and files it leaves end
+//! with it; after it, the USB gadgets it left are removed and the modules
+//! it loaded are unloaded. The systemd guest ([`Guest::with_systemd`]) runs
+//! its tests without that sandbox (systemd owns the machine there).
+//!
+//! At most [`vm_slots`] guests run at once on one machine (lock files in
+//! the temporary directory), so parallel test binaries do not starve each
+//! other.
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::sync::OnceLock;
+use std::time::{Duration, Instant};
+
+/// Guest RAM of the plain guest: vmrun's default.
+pub const PLAIN_MEM_MB: u32 = 1024;
+/// Guest RAM where browsers run (Chromium and Firefox need more than 1 GiB).
+pub const DESKTOP_MEM_MB: u32 = 2560;
 
 /// True inside the VM.
 pub fn in_vm() -> bool {
@@ -19,6 +39,11 @@ pub fn in_vm() -> bool {
 /// Path of the launcher script.
 pub fn vmrun_path() -> PathBuf {
     PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/vm/vmrun"))
+}
+
+/// Path of the guest's test runner.
+fn guest_run_path() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/vm/guest-run"))
 }
 
 /// Why the VM cannot run here, if it cannot.
@@ -41,73 +66,270 @@ pub fn unavailable_reason() -> Option<String> {
     })
 }
 
-/// Runs test `name` of the current test binary inside the VM and asserts it
-/// passed there. Returns false (after printing why) when no VM can run here;
-/// with `SDI_REQUIRE_VM=1` (set by CI) that is a failure instead.
-pub fn run_test_in_vm(name: &str, timeout_s: u32) -> bool {
-    let Some(results) = boot(&[(name, timeout_s)], None) else {
-        return false;
-    };
-    assert_passed(&results, name);
-    true
+/// How many guests may run at once on this machine: `SDI_VM_SLOTS`, else 1.
+/// A TCG guest keeps about one core busy.
+pub fn vm_slots() -> usize {
+    std::env::var("SDI_VM_SLOTS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .filter(|&n| n >= 1)
+        .unwrap_or(1)
 }
 
-/// The VM tests of one test binary that share a boot. A TCG boot of the
-/// guest costs tens of seconds of CI time before a test starts, so a
-/// binary with several VM tests declares them once and runs them in one
-/// VM, each still in its own process, in the order given. The first of
-/// them the host harness reaches boots the VM; the others wait for it and
-/// read their own result. Every test of the batch runs, whatever filter
-/// the host run was given.
-pub struct VmBatch {
-    /// Test name and its own time limit inside the VM, in seconds.
+/// What the guest boots as PID 1.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Init {
+    /// vmrun's busybox init: no udevd, no system bus; each test sandboxed.
+    Plain,
+    /// The host's systemd (`vmrun -S`): udevd, logind, the system bus.
+    Systemd,
+}
+
+/// One VM guest and the tests of one test binary that run in it.
+pub struct Guest {
+    /// Test name (as libtest names it: `module::function`) and its own time
+    /// limit inside the guest, in seconds.
     tests: &'static [(&'static str, u32)],
-    /// Guest RAM when the default (vmrun's 1 GiB) is not enough.
-    mem_mb: Option<u32>,
+    mem_mb: u32,
+    init: Init,
+    /// Host-side preparation before the boot: what the guest's tests need
+    /// in the environment (programs, packages). The guest's environment is
+    /// the host's at boot. False: what the tests need cannot be made here
+    /// (it has printed why, or failed under a require flag); no boot.
+    prepare: Option<fn() -> bool>,
+    /// None: the guest cannot run here.
     results: OnceLock<Option<Results>>,
 }
 
-impl VmBatch {
+impl Guest {
+    /// The plain guest ([`PLAIN_MEM_MB`], busybox init) running `tests`.
     pub const fn new(tests: &'static [(&'static str, u32)]) -> Self {
         Self {
             tests,
-            mem_mb: None,
+            mem_mb: PLAIN_MEM_MB,
+            init: Init::Plain,
+            prepare: None,
             results: OnceLock::new(),
         }
     }
 
-    /// The same batch in a guest with `mem_mb` of RAM.
+    /// The same guest with `mem_mb` of RAM.
     pub const fn with_mem_mb(mut self, mem_mb: u32) -> Self {
-        self.mem_mb = Some(mem_mb);
+        self.mem_mb = mem_mb;
         self
     }
 
-    /// Runs the batch inside the VM (once per process) and asserts test
-    /// `name` passed there. Returns false when no VM can run here (see
-    /// [`run_test_in_vm`]).
-    pub fn run(&self, name: &str) -> bool {
-        assert!(
-            self.tests.iter().any(|(t, _)| *t == name),
-            "{name} is not in its binary's VmBatch"
-        );
-        match self.results.get_or_init(|| boot(self.tests, self.mem_mb)) {
-            Some(results) => {
-                assert_passed(results, name);
-                true
-            }
-            None => false,
-        }
+    /// The same guest booted by the host's systemd (`vmrun -S`).
+    pub const fn with_systemd(mut self) -> Self {
+        self.init = Init::Systemd;
+        self
     }
 
-    /// [`rerun_with_bins`] for a batch: on the host names the programs,
-    /// runs the batch and returns true; inside the VM returns false.
-    pub fn rerun_with_bins(&self, name: &str) -> bool {
+    /// `prepare` runs on the host once, before the boot; when it returns
+    /// false the guest's tests are skipped.
+    pub const fn prepared_by(mut self, prepare: fn() -> bool) -> Self {
+        self.prepare = Some(prepare);
+        self
+    }
+
+    /// On the host: runs the calling test in the guest (booting it, once
+    /// per process, for every selected test of the table), asserts it
+    /// passed there and returns true; prints why and returns true when no
+    /// VM can run here (a failure under `SDI_REQUIRE_VM`). Inside the guest
+    /// returns false: the caller goes on to do the test's work.
+    ///
+    /// The test is named by its thread, which libtest names after the test.
+    pub fn on_host(&self) -> bool {
         if in_vm() {
             return false;
         }
-        crate::dbus::export_bins();
-        self.run(name);
+        let name = current_test();
+        assert!(
+            self.tests.iter().any(|(t, _)| *t == name),
+            "{name} is not in its binary's Guest table"
+        );
+        let results = self.results.get_or_init(|| {
+            if let Some(reason) = unavailable_reason() {
+                crate::skip::unavailable(
+                    "SDI_REQUIRE_VM",
+                    format_args!("the VM tests cannot run: {reason}"),
+                );
+                return None;
+            }
+            if let Some(prepare) = self.prepare {
+                if !prepare() {
+                    return None;
+                }
+            }
+            let selected: Vec<(&str, u32)> = self
+                .tests
+                .iter()
+                .filter(|(t, _)| selected_by_args(t))
+                .copied()
+                .collect();
+            Some(self.boot(&selected))
+        });
+        match results {
+            Some(results) => assert_passed(results, &name),
+            None => crate::skipped!("SKIPPED: {name}: its guest cannot run here (above)"),
+        }
         true
+    }
+
+    /// Boots one VM that runs `tests` of the current test binary one after
+    /// the other, each in its own process under its own time limit, and
+    /// collects their exit statuses.
+    fn boot(&self, tests: &[(&str, u32)]) -> Results {
+        let exe = std::env::current_exe().expect("test binary path");
+        // The VM's limit: every test's own, the guest's resets and the boot.
+        let timeout_s = tests.iter().map(|(_, t)| t + 10).sum::<u32>() + 180;
+        let _slot = VmSlot::take();
+        let mut cmd = Command::new(vmrun_path());
+        // /usr writable too (a throw-away layer), for the tests that
+        // install the Debian packages with dpkg.
+        cmd.env(
+            "VMRUN_APPEND",
+            "vmrun.overlays=/tmp,/var,/etc,/root,/home,/usr",
+        )
+        .args(["-s", "2", "-t", &timeout_s.to_string(), "-e", "IN_VM=1"])
+        .arg(format!("-m{}", self.mem_mb));
+        if self.init == Init::Systemd {
+            cmd.arg("-S");
+        }
+        let sandbox = match self.init {
+            Init::Plain => "sandbox",
+            Init::Systemd => "plain",
+        };
+        cmd.arg("--")
+            .arg(guest_run_path())
+            .arg(sandbox)
+            .arg(&exe)
+            .args(
+                tests
+                    .iter()
+                    .flat_map(|(n, t)| [n.to_string(), t.to_string()]),
+            )
+            .stdout(Stdio::piped());
+        let started = Instant::now();
+        let mut child = cmd.spawn().expect("spawn vmrun");
+        let mut exits: Vec<(String, Option<i32>)> =
+            tests.iter().map(|(n, _)| (n.to_string(), None)).collect();
+        let stdout = child.stdout.take().expect("piped stdout");
+        // The guest's output goes on to this process's own stdout (not the
+        // harness's capture), as it would with an inherited descriptor.
+        let mut echo = std::io::stdout();
+        for line in BufReader::new(stdout).split(b'\n').map_while(Result::ok) {
+            let _ = echo.write_all(&line);
+            let _ = echo.write_all(b"\n");
+            let text = String::from_utf8_lossy(&line);
+            if let Some(rest) = text.strip_prefix(RESULT_MARK) {
+                let mut words = rest.split_whitespace();
+                if let (Some(name), Some(code)) = (words.next(), words.next()) {
+                    if let Some(slot) = exits.iter_mut().find(|(n, _)| n == name) {
+                        slot.1 = code.parse().ok();
+                    }
+                }
+            }
+        }
+        let vm_status = child.wait().expect("wait for vmrun");
+        let _ = writeln!(
+            echo,
+            "{BOOT_MARK} {} tests {:.0} s {vm_status}",
+            tests.len(),
+            started.elapsed().as_secs_f64()
+        );
+        Results {
+            exits,
+            vm_status,
+            timeout_s,
+        }
+    }
+}
+
+/// A line the guest prints after each test, alone on its line:
+/// `SDI-VM-TEST-EXIT NAME STATUS SECONDS`.
+const RESULT_MARK: &str = "SDI-VM-TEST-EXIT";
+/// The line the host prints after each boot (the CI timing table counts them).
+const BOOT_MARK: &str = "SDI-VM-BOOT-DONE";
+
+/// The running test's name: libtest runs each test on a thread named after it.
+fn current_test() -> String {
+    std::thread::current()
+        .name()
+        .filter(|n| *n != "main")
+        .expect("a test thread named by libtest")
+        .to_owned()
+}
+
+/// Whether this run of the test binary selects test `name`, by libtest's
+/// rules for its arguments: a name matches a filter when it contains it
+/// (equals it with `--exact`), and no `--skip` pattern matches. So
+/// `cargo test --test vm_plain board::` boots the guest for the `board`
+/// tests only.
+fn selected_by_args(name: &str) -> bool {
+    let mut filters = Vec::new();
+    let mut skips = Vec::new();
+    let mut exact = false;
+    let mut args = std::env::args().skip(1);
+    while let Some(arg) = args.next() {
+        match arg.as_str() {
+            "--exact" => exact = true,
+            "--skip" => skips.extend(args.next()),
+            // libtest's options that take a value.
+            "--test-threads" | "--format" | "--color" | "--logfile" | "-Z" | "--shuffle-seed"
+            | "--report-time" => {
+                args.next();
+            }
+            a if a.starts_with('-') => {}
+            a => filters.push(a.to_owned()),
+        }
+    }
+    let matches = |pattern: &str| {
+        if exact {
+            name == pattern
+        } else {
+            name.contains(pattern)
+        }
+    };
+    (filters.is_empty() || filters.iter().any(|f| matches(f))) && !skips.iter().any(|s| matches(s))
+}
+
+/// One of the machine's [`vm_slots`], held while a guest runs. Waits at
+/// most 30 minutes for one.
+struct VmSlot {
+    /// Held, not read: the slot is free again when it drops.
+    _lock: nix::fcntl::Flock<std::fs::File>,
+}
+
+impl VmSlot {
+    fn take() -> Self {
+        let deadline = Instant::now() + Duration::from_secs(1800);
+        loop {
+            for i in 0..vm_slots() {
+                // Slot 0 is the lock the bench scripts take too.
+                let name = match i {
+                    0 => "sdi-vm.lock".to_owned(),
+                    i => format!("sdi-vm.lock.{i}"),
+                };
+                let path = std::env::temp_dir().join(name);
+                let file = std::fs::OpenOptions::new()
+                    .create(true)
+                    .truncate(false)
+                    .write(true)
+                    .open(&path)
+                    .unwrap_or_else(|e| panic!("open {}: {e}", path.display()));
+                if let Ok(lock) =
+                    nix::fcntl::Flock::lock(file, nix::fcntl::FlockArg::LockExclusiveNonblock)
+                {
+                    return Self { _lock: lock };
+                }
+            }
+            assert!(
+                Instant::now() < deadline,
+                "waited 30 min for a VM slot (another VM test holds every one)"
+            );
+            std::thread::sleep(Duration::from_millis(500));
+        }
     }
 }
 
@@ -119,108 +341,19 @@ struct Results {
     timeout_s: u32,
 }
 
-/// A line the guest prints after each test, alone on its line.
-const RESULT_MARK: &str = "SDI-VM-TEST-EXIT";
-
-/// Boots one VM that runs `tests` of the current test binary one after the
-/// other, each in its own process under its own time limit, and collects
-/// their exit statuses (`mem_mb`: guest RAM, else vmrun's default). None when no VM can run here.
-fn boot(tests: &[(&str, u32)], mem_mb: Option<u32>) -> Option<Results> {
-    if let Some(reason) = unavailable_reason() {
-        let names: Vec<&str> = tests.iter().map(|(n, _)| *n).collect();
-        assert!(
-            std::env::var_os("SDI_REQUIRE_VM").is_none(),
-            "VM test {names:?} cannot run and SDI_REQUIRE_VM is set: {reason}"
-        );
-        for name in names {
-            crate::skipped!("SKIPPED (no VM): {name}: {reason}");
-        }
-        return None;
-    }
-    let exe = std::env::current_exe().expect("test binary path");
-    // The guest's loop: `timeout` per test, then the mark on a line of its
-    // own (the test's output may not end in a newline).
-    let script = format!(
-        r#"exe=$1; shift
-while [ $# -gt 1 ]; do
-  timeout -s KILL "$2" "$exe" --exact "$1" --nocapture --test-threads=1
-  printf '\n{RESULT_MARK} %s %s\n' "$1" "$?"
-  shift 2
-done"#
-    );
-    // The VM's limit: every test's own, plus the boot.
-    let timeout_s = tests.iter().map(|(_, t)| t).sum::<u32>() + 120;
-    let mut child = Command::new("flock")
-        // Wait at most 30 min for other VM tests; vmrun itself enforces
-        // the timeout (exit 124) and kills QEMU on any exit path.
-        .args(["-w", "1800", "-E", "75"])
-        .arg(std::env::temp_dir().join("sdi-vm.lock"))
-        .arg(vmrun_path())
-        .args(["-s", "2", "-t", &timeout_s.to_string(), "-e", "IN_VM=1"])
-        .args(mem_mb.map(|mb| format!("-m{mb}")))
-        .arg("--")
-        .args(["bash", "-c", &script, "sdi-vm-tests"])
-        .arg(&exe)
-        .args(
-            tests
-                .iter()
-                .flat_map(|(n, t)| [n.to_string(), t.to_string()]),
-        )
-        .stdout(Stdio::piped())
-        .spawn()
-        .expect("spawn vmrun");
-    let mut exits: Vec<(String, Option<i32>)> =
-        tests.iter().map(|(n, _)| (n.to_string(), None)).collect();
-    let stdout = child.stdout.take().expect("piped stdout");
-    // The guest's output goes on to this process's own stdout (not the
-    // harness's capture), as it would with an inherited descriptor.
-    let mut echo = std::io::stdout();
-    for line in BufReader::new(stdout).split(b'\n').map_while(Result::ok) {
-        let _ = echo.write_all(&line);
-        let _ = echo.write_all(b"\n");
-        let text = String::from_utf8_lossy(&line);
-        if let Some(rest) = text.strip_prefix(RESULT_MARK) {
-            let mut words = rest.split_whitespace();
-            if let (Some(name), Some(code)) = (words.next(), words.next()) {
-                if let Some(slot) = exits.iter_mut().find(|(n, _)| n == name) {
-                    slot.1 = code.parse().ok();
-                }
-            }
-        }
-    }
-    let vm_status = child.wait().expect("wait for vmrun");
-    Some(Results {
-        exits,
-        vm_status,
-        timeout_s,
-    })
-}
-
 fn assert_passed(results: &Results, name: &str) {
-    let exit = results
-        .exits
-        .iter()
-        .find(|(n, _)| n == name)
-        .and_then(|(_, code)| *code);
+    let Some((_, exit)) = results.exits.iter().find(|(n, _)| n == name) else {
+        panic!(
+            "{name} was not run in the guest: it was not selected when the guest booted \
+             (the guest runs the tests the first VM test's run selects)"
+        );
+    };
     assert!(
-        exit == Some(0),
+        *exit == Some(0),
         "{name} failed inside the VM (exit {exit:?}; 137 = killed at its time limit; \
          none = it never finished: the VM ended {status}, 124 = VM timeout after {t} s, \
-         125 = VM died (console tail above), 75 = waited 30 min for the VM lock)",
+         125 = VM died (console tail above))",
         status = results.vm_status,
         t = results.timeout_s,
     );
-}
-
-/// The host side of a VM test that drives sdid and sdictl: names the
-/// programs for the guest ([`crate::dbus::export_bins`]), runs test `name`
-/// of this binary inside the VM (at most `timeout_s`) and returns true;
-/// inside the VM returns false, so the test goes on to do the work.
-pub fn rerun_with_bins(name: &str, timeout_s: u32) -> bool {
-    if in_vm() {
-        return false;
-    }
-    crate::dbus::export_bins();
-    run_test_in_vm(name, timeout_s);
-    true
 }

@@ -511,7 +511,7 @@ fn make_install_with_the_built_binaries() {
 /// `spa-json-dump`) into `monitor.v4l2.rules` disabling the devices and
 /// nodes of exactly the card labels sdid and the modprobe.d file use; the
 /// 0.4 Lua names the same labels and properties (its effect is checked in
-/// the VM, vm_pipewire.rs, with WirePlumber 0.4.13).
+/// the VM, vm_plain/pipewire.rs, with WirePlumber 0.4.13).
 #[test]
 fn wireplumber_rules_match_the_loopback_labels() {
     let root = repo_root();

@@ -29,7 +29,7 @@ use sdi_tests::clients::{self, off_by};
 use sdi_tests::package::{self, gid_of};
 use sdi_tests::pipewire::{self, camera_mode, Clients, FrameLog};
 use sdi_tests::process::{must, run};
-use sdi_tests::vm;
+use sdi_tests::vm::{self, Guest};
 use sdi_tests::wait::{wait_for, wait_until};
 
 const NAME: &str = "vm_systemd_starts_sdid_on_hotplug_and_it_feeds_a_users_camera";
@@ -42,24 +42,20 @@ const SCRATCH: &str = "/tmp/sdi-systemd";
 /// snapshot's mean: YUV to RGB, and frames taken at other times.
 const TOLERANCE: f64 = 12.0;
 
+/// The systemd guest: Chromium needs more than the plain guest's RAM.
+static GUEST: Guest = Guest::new(&[(NAME, 900)])
+    .with_systemd()
+    .with_mem_mb(vm::DESKTOP_MEM_MB)
+    .prepared_by(prepare);
+
+/// The packages, both of them: the user's camera is the packaged one.
+fn prepare() -> bool {
+    package::export_for_vm(NAME).is_some_and(|debs| debs.camera.is_some())
+}
+
 #[test]
 fn vm_systemd_starts_sdid_on_hotplug_and_it_feeds_a_users_camera() {
-    if !vm::in_vm() {
-        if vm::unavailable_reason().is_some() {
-            // Prints why it skips (or fails under SDI_REQUIRE_VM).
-            vm::run_test_in_vm(NAME, 900);
-            return;
-        }
-        let Some(debs) = package::export_for_vm(NAME) else {
-            return;
-        };
-        if debs.camera.is_none() {
-            return;
-        }
-        std::env::set_var("VMRUN_SYSTEMD", "1");
-        // Chromium needs more than the default 1 GiB.
-        std::env::set_var("VMRUN_MEM", "2560");
-        vm::run_test_in_vm(NAME, 900);
+    if GUEST.on_host() {
         return;
     }
     in_vm();
@@ -241,7 +237,7 @@ fn in_vm() {
         .map(|v| std::env::var(v).unwrap_or_else(|_| panic!("{v} from the host side")))
         .collect();
     // dpkg rather than apt: apt's resolver reads the host's whole package
-    // lists over 9p (vm_package installs with apt).
+    // lists over 9p (vm_desktop/package installs with apt).
     let t_install = Instant::now();
     must(Command::new("dpkg").arg("--install").args(&debs));
     eprintln!(

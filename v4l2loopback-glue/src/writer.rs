@@ -528,7 +528,7 @@ impl LoopbackWriter {
                 // buffer, each later than the one before, and a reader may
                 // hold any of them), read after the fill, just before QBUF:
                 // checking only this buffer, before the conversion
-                // (milliseconds under emulation), let vm_daemon see a stamp
+                // (milliseconds under emulation), let vm_plain/daemon see a stamp
                 // go back by up to 49 us (3 runs in 15).
                 let held_us = (0..maps.len()).try_fold(0, |latest, i| {
                     query(i).map(|(_, stamp_us)| latest.max(stamp_us))

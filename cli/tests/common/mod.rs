@@ -7,6 +7,9 @@
 
 #[path = "../../../tests/src/m1_reference.rs"]
 pub mod m1_reference;
+/// The one require-or-skip function, which the M1 reference uses.
+#[path = "../../../tests/src/skip.rs"]
+pub mod skip;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};

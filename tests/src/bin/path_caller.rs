@@ -1,5 +1,5 @@
 //! `path_caller BUS_ADDRESS`: one client of sdid's path methods for
-//! `tests/tests/dbus_path_races.rs`, run as the unprivileged attacker. Reads
+//! `tests/tests/vm_plain/path_races.rs`, run as the unprivileged attacker. Reads
 //! one path per line from stdin, calls `Snapshot(path)` (what `sdictl
 //! snapshot --by-path` sends) and answers each line with `ok` or `refused
 //! ERROR` on stdout. One connection for every attempt, so an attempt costs

@@ -2,9 +2,10 @@
 //! machine, as one test binary: linking one binary instead of one per file
 //! is most of what building the tests costs. Each file stays a module, so a
 //! test is found as `cargo test -p sdi-tests --test integration -- FILE::NAME`.
-//! Timing checks, races and VM tests (`dbus_fair_share`, `daemon_frame_clock`,
-//! `daemon_lights`, `dbus_path_races`, `pipewire_camera`, `soak`, `vm_*`,
-//! `system_*`, `package_*`) stay binaries of their own.
+//! Timing checks and races (`dbus_fair_share`, `daemon_frame_clock`,
+//! `daemon_lights`, `pipewire_camera`, `soak`, `system_*`, `package_*`)
+//! stay binaries of their own; the VM tests are one binary per guest
+//! (`vm_plain`, `vm_desktop`, `vm_systemd`). Map: tests/README.md.
 
 mod daemon_in_process;
 mod daemon_lifecycle;

@@ -10,8 +10,8 @@
 //! dbus-daemon takes when systemd activation is not in use. The test checks
 //! that the installed file names the unit too.
 //!
-//! The policy lets only root own `org.sdi.Daemon`: as root the test runs on
-//! the host, otherwise inside the VM.
+//! The policy lets only root own `org.sdi.Daemon`: the test runs as root
+//! inside the VM.
 
 use std::io::ErrorKind;
 use std::path::{Path, PathBuf};
@@ -19,8 +19,7 @@ use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 use nix::sys::signal::Signal;
-use sdi_tests::process::{exists, is_root, must, repo_root, run, signal, Reaped};
-use sdi_tests::vm;
+use sdi_tests::process::{exists, must, repo_root, run, signal, Reaped};
 
 const BUS_NAME: &str = "org.sdi.Daemon";
 
@@ -89,10 +88,7 @@ fn activation_file(dir: &Path, bindir: &Path) -> String {
 
 #[test]
 fn sdictl_status_starts_sdid_by_activation() {
-    let root = is_root();
-    if !root && !vm::in_vm() {
-        sdi_tests::dbus::export_bins();
-        vm::run_test_in_vm("sdictl_status_starts_sdid_by_activation", 240);
+    if crate::GUEST.on_host() {
         return;
     }
     if Command::new("dbus-daemon")

@@ -39,7 +39,6 @@ use sdi_tests::loopback::{self, ModuleBuild};
 use sdi_tests::pipewire::{frame_crcs, FrameLog};
 use sdi_tests::process::{repo_root, stdout_of, Reaped};
 use sdi_tests::udev::{self, udevadm};
-use sdi_tests::vm;
 use sdi_tests::wait::wait_until;
 
 /// Buffers pipewiresrc may ask for: PipeWire's v4l2 source requests as
@@ -376,9 +375,7 @@ fn in_vm_checks() {
 
 #[test]
 fn vm_pipewire_lists_the_sdi_camera_in_both_orders() {
-    if !vm::in_vm() {
-        sdi_tests::dbus::export_bins();
-        vm::run_test_in_vm("vm_pipewire_lists_the_sdi_camera_in_both_orders", 1200);
+    if crate::GUEST.on_host() {
         return;
     }
     in_vm_checks();

@@ -24,7 +24,6 @@ use sdi_tests::clients::{self, mean_rgb, off_by, DATA_LABEL, PMD, VIEW_LABEL};
 use sdi_tests::loopback;
 use sdi_tests::pipewire::{self, CameraPortal, Session};
 use sdi_tests::process::{stdout_of, Reaped};
-use sdi_tests::vm;
 
 const TOLERANCE: f64 = 12.0;
 /// The loopback nodes of the module-loaded phase.
@@ -110,11 +109,10 @@ fn frame_like(v: &Value, expected: [f64; 3]) -> bool {
 
 fn in_vm_checks() {
     if let Some(why) = pipewire::missing_tools().or_else(CameraPortal::missing) {
-        assert!(
-            std::env::var_os("SDI_REQUIRE_VM").is_none(),
-            "the PipeWire camera test needs {why}, and SDI_REQUIRE_VM is set"
+        sdi_tests::skip::unavailable(
+            "SDI_REQUIRE_VM",
+            format_args!("the PipeWire camera test needs {why}"),
         );
-        sdi_tests::skipped!("SKIPPED: the PipeWire camera test needs {why}");
         return;
     }
     let session = Session::start();
@@ -282,13 +280,7 @@ fn ffmpeg_view(dev: &str) -> [f64; 3] {
 
 #[test]
 fn vm_chromium_reads_the_pipewire_camera_through_the_portal() {
-    if !vm::in_vm() {
-        sdi_tests::dbus::export_bins();
-        std::env::set_var("VMRUN_MEM", "2560");
-        vm::run_test_in_vm(
-            "vm_chromium_reads_the_pipewire_camera_through_the_portal",
-            900,
-        );
+    if crate::GUEST.on_host() {
         return;
     }
     in_vm_checks();

@@ -18,7 +18,6 @@ use serde_json::Value;
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
 use sdi_tests::clients::{self, off_by, Sdid, Sensor, PMD};
-use sdi_tests::vm;
 
 const VIEW_NR: u32 = 40;
 const DATA_NR: u32 = 41;
@@ -315,19 +314,9 @@ fn board_unplug_checks() {
     drop(browser);
 }
 
-/// This binary's VM tests, in one boot; two browsers need more than the
-/// default 1 GiB.
-static VM: vm::VmBatch = vm::VmBatch::new(&[
-    ("vm_chromium_track_survives_board_unplug", 900),
-    ("vm_browsers_see_the_sdi_camera", 1200),
-])
-.with_mem_mb(2560);
-
 #[test]
 fn vm_chromium_track_survives_board_unplug() {
-    if !vm::in_vm() {
-        sdi_tests::dbus::export_bins();
-        VM.run("vm_chromium_track_survives_board_unplug");
+    if crate::GUEST.on_host() {
         return;
     }
     board_unplug_checks();
@@ -335,9 +324,7 @@ fn vm_chromium_track_survives_board_unplug() {
 
 #[test]
 fn vm_browsers_see_the_sdi_camera() {
-    if !vm::in_vm() {
-        sdi_tests::dbus::export_bins();
-        VM.run("vm_browsers_see_the_sdi_camera");
+    if crate::GUEST.on_host() {
         return;
     }
     in_vm_checks();

@@ -12,7 +12,6 @@ use std::process::Command;
 use std::time::Instant;
 
 use sdi_tests::clients::{self, letterbox_rows, mean_rgb, Sdid, TI};
-use sdi_tests::vm;
 
 const VIEW_NR: u32 = 40;
 const DATA_NR: u32 = 41;
@@ -182,9 +181,7 @@ fn check_data(sdid: &Sdid, mode: &str) {
 
 #[test]
 fn vm_gstreamer_reads_both_nodes() {
-    if !vm::in_vm() {
-        sdi_tests::dbus::export_bins();
-        vm::run_test_in_vm("vm_gstreamer_reads_both_nodes", 400);
+    if crate::GUEST.on_host() {
         return;
     }
     in_vm_checks();

@@ -23,7 +23,6 @@ use std::time::{Duration, Instant};
 use sdi_tests::dbus::{sdictl, Bus, Daemon};
 use sdi_tests::loopback;
 use sdi_tests::process::{stdout_of, Reaped};
-use sdi_tests::vm;
 use v4l2loopback_glue::CaptureReader;
 
 const NODE: u32 = 40;
@@ -496,10 +495,7 @@ fn in_vm_checks() {
 
 #[test]
 fn vm_daemon_on_loopback_while_modes_switch() {
-    if !vm::in_vm() {
-        // Built on the host: the VM's root is read-only.
-        sdi_tests::dbus::export_bins();
-        vm::run_test_in_vm("vm_daemon_on_loopback_while_modes_switch", 600);
+    if crate::GUEST.on_host() {
         return;
     }
     in_vm_checks();

@@ -21,7 +21,6 @@ use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::dbus::{sdictl, Bus, Daemon};
 use sdi_tests::light_rig::ScpiRig;
 use sdi_tests::process::Reaped;
-use sdi_tests::vm;
 use sdi_tests::wait::{wait_for, wait_until};
 
 const SERIAL: &str = "EMU0002";
@@ -225,21 +224,9 @@ fn snapshot_within(d: &Sdid, emu: &BoardEmulator, npy: &Path, max_dn: f32, wait:
     }
 }
 
-/// This binary's VM tests, in one boot.
-static VM: vm::VmBatch = vm::VmBatch::new(&[
-    (
-        "sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug",
-        900,
-    ),
-    (
-        "sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
-        600,
-    ),
-]);
-
 #[test]
 fn sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug() {
-    if VM.rerun_with_bins("sdid_auto_picks_the_board_survives_unplug_and_follows_on_unplug") {
+    if crate::GUEST.on_host() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -561,7 +548,7 @@ fn phase_calibration_fixes_a_delayed_led_path(emu: &BoardEmulator, bus: &Bus, di
 /// 0451:9105, and sdid configures it and streams its frames.
 #[test]
 fn sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams() {
-    if VM.rerun_with_bins("sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams") {
+    if crate::GUEST.on_host() {
         return;
     }
     const UVC_SERIAL: &str = "EMU0003";

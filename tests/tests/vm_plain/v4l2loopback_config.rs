@@ -7,12 +7,9 @@ use std::fs;
 use std::path::Path;
 use std::process::Command;
 
-use sdi_tests::vm;
-
 #[test]
 fn plain_modprobe_creates_the_sdi_camera() {
-    if !vm::in_vm() {
-        vm::run_test_in_vm("plain_modprobe_creates_the_sdi_camera", 180);
+    if crate::GUEST.on_host() {
         return;
     }
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap();

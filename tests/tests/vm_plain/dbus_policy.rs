@@ -12,7 +12,6 @@ use std::time::{Duration, Instant};
 
 use sdi_tests::dbus::{bin, Bus};
 use sdi_tests::process::{must, repo_root, run, Reaped};
-use sdi_tests::vm;
 
 const BUS_NAME: &str = "org.sdi.Daemon";
 const OBJECT: &str = "/org/sdi/Camera0";
@@ -115,11 +114,7 @@ fn start_daemon(bus: &SystemLikeBus) -> Reaped {
 
 #[test]
 fn policy_controls_who_may_do_what() {
-    if !vm::in_vm() {
-        // Built on the host: the VM's root is read-only. The environment
-        // (SDID, SDICTL) is passed into the VM.
-        sdi_tests::dbus::export_bins();
-        vm::run_test_in_vm("policy_controls_who_may_do_what", 240);
+    if crate::GUEST.on_host() {
         return;
     }
     must(Command::new("groupadd").args(["--system", "sdi"]));

@@ -16,19 +16,7 @@ use sdi_daemon::backend::opt8241::usb::{open_board, UsbError, UsbTransport, UVC_
 use sdi_daemon::backend::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
 use sdi_daemon::backend::{Backend, BackendError};
 use sdi_tests::board_emulator::BoardEmulator;
-use sdi_tests::vm;
 use sdi_tests::wait::wait_for;
-
-/// This binary's VM tests, in one boot.
-static VM: vm::VmBatch = vm::VmBatch::new(&[
-    (
-        "backend_replug_without_hotplug_events_is_found_by_the_bus_scan",
-        600,
-    ),
-    ("opt8241_backend_against_usb_emulator", 600),
-    ("uvc_switch_that_never_comes_back_is_a_typed_timeout", 600),
-    ("backend_replug_with_udevd_is_found_by_a_hotplug_event", 600),
-]);
 
 fn matches_sent(emu: &BoardEmulator, frame: &Frame) -> bool {
     let s = emu.state.lock().unwrap();
@@ -55,8 +43,7 @@ fn next_frame(
 
 #[test]
 fn opt8241_backend_against_usb_emulator() {
-    if !vm::in_vm() {
-        VM.run("opt8241_backend_against_usb_emulator");
+    if crate::GUEST.on_host() {
         return;
     }
     let emu = BoardEmulator::start("opt8241", "EMU0001").expect("gadget");
@@ -205,8 +192,7 @@ fn opt8241_backend_against_usb_emulator() {
 /// `UVC_SWITCH_TIMEOUT`, not in a hang.
 #[test]
 fn uvc_switch_that_never_comes_back_is_a_typed_timeout() {
-    if !vm::in_vm() {
-        VM.run("uvc_switch_that_never_comes_back_is_a_typed_timeout");
+    if crate::GUEST.on_host() {
         return;
     }
     let emu = BoardEmulator::start_uvc("stuck", "EMU0004").expect("gadget");
@@ -308,8 +294,7 @@ fn backend_replug(
 /// without events would.
 #[test]
 fn backend_replug_without_hotplug_events_is_found_by_the_bus_scan() {
-    if !vm::in_vm() {
-        VM.run("backend_replug_without_hotplug_events_is_found_by_the_bus_scan");
+    if crate::GUEST.on_host() {
         return;
     }
     let (reconnects, events, back) = backend_replug("noudev", "EMU0005", false);
@@ -331,8 +316,7 @@ fn backend_replug_without_hotplug_events_is_found_by_the_bus_scan() {
 /// events and the arrival (not the scan) brings the board back.
 #[test]
 fn backend_replug_with_udevd_is_found_by_a_hotplug_event() {
-    if !vm::in_vm() {
-        VM.run("backend_replug_with_udevd_is_found_by_a_hotplug_event");
+    if crate::GUEST.on_host() {
         return;
     }
     let run = |cmd: &str, args: &[&str]| {

@@ -9,7 +9,6 @@ use std::time::Duration;
 
 use sdi_tests::loopback::{self, BackgroundWriter, Compliance, ModuleBuild, ModuleParams};
 use sdi_tests::sim_frames::{checksum, SimFrames};
-use sdi_tests::vm;
 use v4l2loopback_glue::{
     control_version, create_device, driver_of, find_device, query_device, remove_device,
     CaptureReader, CreateOptions, GlueError, IoMethod, LoopbackFormat, LoopbackWriter,
@@ -614,16 +613,9 @@ fn in_vm_checks() {
     loopback::unload_module().unwrap_or_else(|e| panic!("{e}"));
 }
 
-/// This binary's VM tests, in one boot.
-static VM: vm::VmBatch = vm::VmBatch::new(&[
-    ("vm_loopback_end_to_end", 900),
-    ("vm_loopback_module_switch", 300),
-]);
-
 #[test]
 fn vm_loopback_end_to_end() {
-    if !vm::in_vm() {
-        VM.run("vm_loopback_end_to_end");
+    if crate::GUEST.on_host() {
         return;
     }
     in_vm_checks();
@@ -660,8 +652,7 @@ fn module_switch_checks() {
 
 #[test]
 fn vm_loopback_module_switch() {
-    if !vm::in_vm() {
-        VM.run("vm_loopback_module_switch");
+    if crate::GUEST.on_host() {
         return;
     }
     module_switch_checks();

@@ -12,7 +12,6 @@ use std::time::Duration;
 
 use sdi_tests::process::{must as run, repo_root, Reaped};
 use sdi_tests::udev::{start_udevd, udevadm, usb_device, wait_initialized, UsbMonitor};
-use sdi_tests::vm;
 use sdi_tests::wait::wait_until;
 
 const GADGET: &str = "/sys/kernel/config/usb_gadget/sdi-board";
@@ -127,8 +126,7 @@ fn setup() -> Reaped {
 
 #[test]
 fn board_hotplug_tags_device_for_systemd_and_group() {
-    if !vm::in_vm() {
-        vm::run_test_in_vm("board_hotplug_tags_device_for_systemd_and_group", 240);
+    if crate::GUEST.on_host() {
         return;
     }
     let _udevd = setup();
