@@ -65,10 +65,6 @@ static GUEST: Guest = Guest::new(&[
         "board_daemon::sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
         600,
     ),
-    (
-        "board_hostile::sdid_survives_hostile_boards_and_streams_the_genuine_one_again",
-        600,
-    ),
     ("daemon::vm_daemon_on_loopback_while_modes_switch", 600),
     ("gstreamer::vm_gstreamer_reads_both_nodes", 400),
     ("loopback::vm_loopback_end_to_end", 900),
@@ -76,6 +72,13 @@ static GUEST: Guest = Guest::new(&[
     (
         "pipewire::vm_pipewire_lists_the_sdi_camera_in_both_orders",
         1200,
+    ),
+    // Last: its 1 s reply bound failed once (a SetColormap took 1.15 s)
+    // while CI's build and host tests still ran beside both guests; by
+    // now they are done. The cause is not yet known.
+    (
+        "board_hostile::sdid_survives_hostile_boards_and_streams_the_genuine_one_again",
+        600,
     ),
 ])
 .prepared_by(prepare);
