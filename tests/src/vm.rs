@@ -276,8 +276,7 @@ fn selected_by_args(name: &str) -> bool {
             "--exact" => exact = true,
             "--skip" => skips.extend(args.next()),
             // libtest's options that take a value.
-            "--test-threads" | "--format" | "--color" | "--logfile" | "-Z" | "--shuffle-seed"
-            | "--report-time" => {
+            "--test-threads" | "--format" | "--color" | "--logfile" | "-Z" | "--shuffle-seed" => {
                 args.next();
             }
             a if a.starts_with('-') => {}
