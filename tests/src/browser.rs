@@ -107,6 +107,12 @@ async function watch(name, constraints) {
 </script></body></html>
 "#;
 
+/// How long a browser may take from its start to the page's first report.
+/// That is the browser's own start under TCG (profile, caches, JIT), not
+/// SDI's: 48-59 s for Chromium and Firefox ESR alone on a 2-core AMD EPYC;
+/// a CI machine runs a second guest and the host's tests beside it.
+pub const PAGE_LOAD: Duration = Duration::from_secs(420);
+
 /// Reports the page POSTed, in order, with the time each arrived.
 pub type Reports = Arc<Mutex<Vec<(Instant, Value)>>>;
 
@@ -248,9 +254,10 @@ impl PageServer {
         self.len() == 0
     }
 
-    /// The page's first view frame with stats, polling until `limit`.
-    /// Panics with `failure()` (browser and other logs) when the page
-    /// reports an error or no frame comes.
+    /// The page's first view frame with stats: the page must load (its first
+    /// report) within [`PAGE_LOAD`] and draw a frame within `limit` after
+    /// that. Panics with the page's reports and `failure()` (browser and
+    /// other logs) when the page reports an error or either step times out.
     pub fn first_view_frame(
         &self,
         name: &str,
@@ -258,6 +265,19 @@ impl PageServer {
         failure: impl Fn() -> String,
     ) -> Value {
         let t0 = Instant::now();
+        while self.is_empty() {
+            assert!(
+                t0.elapsed() < PAGE_LOAD,
+                "{name}: the page did not load in {PAGE_LOAD:?} (the browser's own start)\n{}",
+                failure()
+            );
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        let loaded = self.reports.lock().expect("reports")[0].0;
+        eprintln!(
+            "{name}: the page loaded {:.1} s after the wait began",
+            loaded.saturating_duration_since(t0).as_secs_f64()
+        );
         loop {
             if let Some(v) = self.of_kind("frame").into_iter().find(|v| {
                 v["name"] == "view"
@@ -270,9 +290,12 @@ impl PageServer {
                 panic!("{name}: the page failed: {e}\n{}", failure());
             }
             assert!(
-                t0.elapsed() < limit,
-                "{name}: no frame of the SDI camera in {limit:?}; page retries {}\n{}",
+                loaded.elapsed() < limit,
+                "{name}: no frame of the SDI camera in {limit:?} after the page loaded; \
+                 page retries {}\n\
+                 the page's reports (seconds after the wait began):\n{}\n{}",
                 self.of_kind("retry").len(),
+                self.timeline(t0),
                 failure()
             );
             std::thread::sleep(Duration::from_millis(200));
@@ -307,6 +330,42 @@ impl PageServer {
     }
 
     /// Every report of `kind` (for the log).
+    /// The reports so far, one line each with its arrival in seconds after
+    /// `since`; a `frame` report only where it differs from the previous one
+    /// of its track in what matters (frames counted, stats, state), so a
+    /// stalled page reads as a few lines.
+    pub fn timeline(&self, since: Instant) -> String {
+        let reports = self.reports.lock().expect("reports");
+        let mut last_frame: std::collections::HashMap<String, String> = Default::default();
+        let mut lines = Vec::new();
+        for (at, v) in reports.iter() {
+            let t = at.saturating_duration_since(since).as_secs_f64();
+            let line = if v["kind"] == "frame" {
+                let key = format!(
+                    "frames>0={} stats={} state={} muted={}",
+                    v["frames"].as_u64().unwrap_or(0) > 0,
+                    !v["stats"].is_null(),
+                    v["state"],
+                    v["muted"]
+                );
+                let name = v["name"].as_str().unwrap_or("").to_owned();
+                if last_frame.get(&name) == Some(&key) {
+                    continue;
+                }
+                last_frame.insert(name.clone(), key.clone());
+                format!("frame {name} (page {} ms) {key}", v["ms"])
+            } else {
+                let mut short = v.clone();
+                if let Some(o) = short.as_object_mut() {
+                    o.remove("devices");
+                }
+                short.to_string()
+            };
+            lines.push(format!("{t:7.1} s  {line}"));
+        }
+        lines.join("\n")
+    }
+
     pub fn of_kind(&self, kind: &str) -> Vec<Value> {
         self.reports
             .lock()

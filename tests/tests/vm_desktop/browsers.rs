@@ -52,7 +52,9 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
     let first = server.first_view_frame(name, Duration::from_secs(240), || browser.log_tail());
     let ttff = browser.started.elapsed().as_secs_f64();
     eprintln!(
-        "{name}: time to first frame {ttff:.1} s (browser start to the page's first canvas frame)"
+        "{name}: time to first frame {ttff:.1} s (browser start to the page's first canvas frame)\n\
+         {name}: the page's reports so far (seconds after the browser started):\n{}",
+        server.timeline(browser.started)
     );
     let devices = server.assert_opened_view(name, "SDI camera", &first);
     let labels: Vec<&str> = devices["devices"]
@@ -212,18 +214,9 @@ fn board_unplug_checks() {
     let sdid = Sdid::start_on_board(VIEW_NR, DATA_NR, BOARD, 15, SERIAL);
     let server = PageServer::start();
     let browser = Browser::chromium(&server.url, dir);
-    let (_, first) = server.wait_for(
-        "chromium: first frame of the SDI camera on the board",
-        0,
-        Duration::from_secs(240),
-        |v| {
-            v["kind"] == "frame"
-                && v["name"] == "view"
-                && v["state"] == "live"
-                && v["frames"].as_u64().unwrap_or(0) > 0
-                && !v["stats"].is_null()
-        },
-    );
+    let first = server.first_view_frame("chromium on the board", Duration::from_secs(240), || {
+        browser.log_tail()
+    });
     eprintln!(
         "chromium on the board: time to first frame {:.1} s, {first}",
         browser.started.elapsed().as_secs_f64()

@@ -124,8 +124,9 @@ fn in_vm_checks() {
 
     let server = PageServer::start();
     let browser = Browser::chromium_pipewire(&server.url, &dir, &session);
-    // Chromium under TCG took 75-89 s to its first frame of the loopback
-    // camera (docs/loopback.md), more on a loaded host.
+    // Chromium under TCG took 75-89 s from its start to its first frame of
+    // the loopback camera (docs/loopback.md), more on a loaded host; the
+    // bound counts from the page's load, after the browser's own start.
     let first = server.first_view_frame("chromium", Duration::from_secs(480), || {
         format!(
             "{}\n{}\nportal log:\n{}",
