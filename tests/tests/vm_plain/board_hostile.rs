@@ -302,6 +302,7 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
         let engaged_after = engaged_at.map(|t| t - t0).unwrap_or_default();
         let transfers = hostile.transfers.load(Ordering::SeqCst);
         eprintln!("== {}: the hostile device leaves", mode.name());
+        let left_after = t0.elapsed();
         drop(hostile);
         eprintln!("== {}: the genuine board comes back", mode.name());
         let t_plug = Instant::now();
@@ -313,7 +314,7 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
             .unwrap()
             .iter()
             .filter(|(t, _)| *t >= t0)
-            .map(|(_, l)| l.clone())
+            .map(|(t, l)| format!("{:6.2} s  {l}", (*t - t0).as_secs_f64()))
             .collect();
         let (n_probes, slowest, bus_then) = {
             let p = probes.lock().unwrap();
@@ -325,7 +326,7 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
                 worst.map(|p| p.bus_took).unwrap_or_default(),
             )
         };
-        let (n_calls, failed_calls, slowest_command, bus_then_command) = {
+        let (n_calls, failed_calls, slowest_command, bus_then_command, slowest_at) = {
             let c = commands.lock().unwrap();
             let window: Vec<&Call> = c.iter().filter(|c| c.at >= t0 && c.at < t_plug).collect();
             let worst = window.iter().max_by_key(|c| c.took);
@@ -334,6 +335,7 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
                 window.iter().filter(|c| !c.ok).count(),
                 worst.map(|c| c.took).unwrap_or_default(),
                 worst.map(|c| c.bus_took).unwrap_or_default(),
+                worst.map(|c| c.at - t0).unwrap_or_default(),
             )
         };
         let cpu_percent = cpu_ticks_attack as f64 / attack.as_secs_f64();
@@ -341,9 +343,10 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
             "MEASURED: {}: {n_probes} Stats reads, slowest {slowest:?} \
              (the bus daemon's GetId just before: {bus_then:?}) \
              ({n_calls} SetColormap calls through the frame loop, {failed_calls} failed: slowest \
-             {slowest_command:?}, GetId just before {bus_then_command:?}); VmRSS max {rss_max_kib} KiB \
+             {slowest_command:?} from {slowest_at:.2?} into the attack, GetId just before \
+             {bus_then_command:?}); VmRSS max {rss_max_kib} KiB \
              (+{} KiB); CPU {cpu_percent:.0} %; {} log lines; {transfers} hostile transfers \
-             (engaged after {engaged_after:?}); \
+             (engaged after {engaged_after:.2?}, the device left after {left_after:.2?}); \
              streaming again {recovery:?} after the genuine board came back",
             mode.name(),
             rss_max_kib.saturating_sub(rss_before_kib),
