@@ -4,6 +4,7 @@
 pub mod bench;
 pub mod board_emulator;
 pub mod browser;
+pub mod capture;
 pub mod cdp;
 pub mod clients;
 pub mod dbus;

@@ -1,5 +1,5 @@
 //! Helpers for the v4l2loopback VM tests and bench: module loading, a
-//! background writer, ffmpeg / v4l2-compliance runners.
+//! background writer, the ffmpeg reader in the node's format, v4l2-compliance.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -335,40 +335,7 @@ pub fn ffmpeg_read(
     frames: u32,
     out: &Path,
 ) -> Result<Vec<u8>, String> {
-    let o = Command::new("timeout")
-        .args([
-            "180",
-            "ffmpeg",
-            "-hide_banner",
-            "-loglevel",
-            "error",
-            "-nostdin",
-            "-y",
-            "-f",
-            "v4l2",
-        ])
-        .arg("-i")
-        .arg(dev)
-        .args([
-            "-frames:v",
-            &frames.to_string(),
-            "-c:v",
-            "rawvideo",
-            "-pix_fmt",
-            cfg.format.ffmpeg_name(),
-        ])
-        .args(["-f", "rawvideo"])
-        .arg(out)
-        .output()
-        .map_err(|e| format!("spawn ffmpeg: {e}"))?;
-    if !o.status.success() {
-        return Err(format!(
-            "ffmpeg reader failed ({}): {}",
-            o.status,
-            String::from_utf8_lossy(&o.stderr)
-        ));
-    }
-    std::fs::read(out).map_err(|e| format!("read {}: {e}", out.display()))
+    crate::capture::read_frames(dev, frames, cfg.format.ffmpeg_name(), out)
 }
 
 /// v4l2-compliance totals.

@@ -20,7 +20,8 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
-use sdi_tests::clients::{self, mean_rgb, off_by, DATA_LABEL, PMD, VIEW_LABEL};
+use sdi_tests::capture;
+use sdi_tests::clients::{self, off_by, DATA_LABEL, PMD, VIEW_LABEL};
 use sdi_tests::loopback;
 use sdi_tests::pipewire::{self, CameraPortal, Session};
 use sdi_tests::process::{stdout_of, Reaped};
@@ -229,7 +230,7 @@ fn in_vm_checks() {
         t_auto.elapsed().as_secs_f64(),
         stats_rgb(&v, "mean")
     );
-    let seen = ffmpeg_view(&format!("/dev/video{VIEW_NR}"));
+    let seen = capture::last_frame_mean_rgb(Path::new(&format!("/dev/video{VIEW_NR}")), 640, 480);
     eprintln!(
         "ffmpeg on the loopback node, depth-edge: mean {seen:.1?} (expected {expected4:.1?})"
     );
@@ -240,43 +241,6 @@ fn in_vm_checks() {
     drop(browser);
     drop(sdid);
     loopback::unload_module().expect("rmmod");
-}
-
-/// The last of 5 frames ffmpeg reads from the loopback view node `dev`, as
-/// RGB: its mean colour.
-fn ffmpeg_view(dev: &str) -> [f64; 3] {
-    let file = "/tmp/ffmpeg-view.rgb";
-    let out = std::process::Command::new("timeout")
-        .args([
-            "180",
-            "ffmpeg",
-            "-hide_banner",
-            "-loglevel",
-            "error",
-            "-nostdin",
-            "-y",
-        ])
-        .args(["-f", "v4l2", "-i", dev])
-        .args([
-            "-frames:v",
-            "5",
-            "-pix_fmt",
-            "rgb24",
-            "-f",
-            "rawvideo",
-            file,
-        ])
-        .output()
-        .expect("ffmpeg");
-    assert!(
-        out.status.success(),
-        "ffmpeg on {dev}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let bytes = std::fs::read(file).expect("ffmpeg's frames");
-    let frame = 640 * 480 * 3;
-    assert_eq!(bytes.len(), 5 * frame, "5 whole frames");
-    mean_rgb(&bytes[4 * frame..])
 }
 
 #[test]

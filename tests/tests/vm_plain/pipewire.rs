@@ -33,6 +33,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+use sdi_tests::capture;
 use sdi_tests::clients::{self, mean_rgb, off_by, Sdid, PMD};
 use sdi_tests::dbus::Bus;
 use sdi_tests::loopback::{self, ModuleBuild};
@@ -496,43 +497,6 @@ fn read_published(pw: &PipeWire, log: &FrameLog, order: &str, mode: &str) {
     );
 }
 
-/// The last of 5 frames ffmpeg reads from the loopback view node, as RGB.
-fn ffmpeg_view(sdid: &Sdid) -> [f64; 3] {
-    let file = "/tmp/ffmpeg-view.rgb";
-    let out = Command::new("timeout")
-        .args([
-            "180",
-            "ffmpeg",
-            "-hide_banner",
-            "-loglevel",
-            "error",
-            "-nostdin",
-            "-y",
-        ])
-        .args(["-f", "v4l2", "-i"])
-        .arg(&sdid.view)
-        .args([
-            "-frames:v",
-            "5",
-            "-pix_fmt",
-            "rgb24",
-            "-f",
-            "rawvideo",
-            file,
-        ])
-        .output()
-        .expect("ffmpeg");
-    assert!(
-        out.status.success(),
-        "ffmpeg on {}: {}",
-        sdid.view.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let bytes = std::fs::read(file).expect("ffmpeg's frames");
-    assert_eq!(bytes.len(), 5 * FRAME_RGB, "5 whole frames");
-    mean_rgb(&bytes[4 * FRAME_RGB..])
-}
-
 /// With the module loaded and a PipeWire session, sdid (`--sink auto`)
 /// feeds the loopback nodes and the PipeWire camera: PipeWire lists one SDI
 /// camera, pipewiresrc reads what sdid published, ffmpeg reads the loopback
@@ -576,7 +540,7 @@ fn check_beside(pw: &PipeWire, sdid: &Sdid, log: &FrameLog, order: &str, modes: 
             || one_sdi_camera(pw, order)["node.description"] == format!("SDI camera ({mode})"),
         );
         read_published(pw, log, order, mode);
-        let seen = ffmpeg_view(sdid);
+        let seen = capture::last_frame_mean_rgb(&sdid.view, 640, 480);
         eprintln!("{order}: ffmpeg on the loopback node, {mode}: mean {seen:.1?} (expected {expected:.1?})");
         assert!(
             off_by(seen, expected) < TOLERANCE,
