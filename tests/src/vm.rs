@@ -31,6 +31,41 @@ pub const PLAIN_MEM_MB: u32 = 1024;
 /// Guest RAM where browsers run (Chromium and Firefox need more than 1 GiB).
 pub const DESKTOP_MEM_MB: u32 = 2560;
 
+/// Where `tests/vm/debian13-root.sh` builds the Debian 13 guest's root
+/// (`SDI_DEBIAN13_ROOT` overrides it, for the script and the tests alike).
+pub fn debian13_root() -> PathBuf {
+    std::env::var_os("SDI_DEBIAN13_ROOT")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from("/var/lib/sdi-test/debian13-root"))
+}
+
+/// The Debian release a guest's userland and kernel come from.
+#[derive(Clone, Copy, PartialEq, Eq, Debug)]
+pub enum Userland {
+    /// The host's own root (Debian 12 on CI): its kernel, its programs.
+    Host,
+    /// Debian 13 "trixie", the release users have now: the tree of
+    /// [`debian13_root`] with its own kernel 6.12, v4l2loopback 0.15,
+    /// systemd 257, PipeWire 1.4, WirePlumber 0.5; the workspace shared in.
+    Debian13,
+}
+
+impl Userland {
+    /// Why a guest of this userland cannot boot here, if it cannot.
+    fn unavailable_reason(self) -> Option<String> {
+        if let Some(reason) = unavailable_reason() {
+            return Some(reason);
+        }
+        let root = debian13_root();
+        (self == Self::Debian13 && !root.join("usr").is_dir()).then(|| {
+            format!(
+                "no Debian 13 guest root at {} (run: sudo tests/vm/debian13-root.sh)",
+                root.display()
+            )
+        })
+    }
+}
+
 /// True inside the VM.
 pub fn in_vm() -> bool {
     std::env::var_os("IN_VM").is_some()
@@ -81,7 +116,7 @@ pub fn vm_slots() -> usize {
 enum Init {
     /// vmrun's busybox init: no udevd, no system bus; each test sandboxed.
     Plain,
-    /// The host's systemd (`vmrun -S`): udevd, logind, the system bus.
+    /// The root's systemd (`vmrun -S`): udevd, logind, the system bus.
     Systemd,
 }
 
@@ -92,6 +127,7 @@ pub struct Guest {
     tests: &'static [(&'static str, u32)],
     mem_mb: u32,
     init: Init,
+    userland: Userland,
     /// Host-side preparation before the boot: what the guest's tests need
     /// in the environment (programs, packages). The guest's environment is
     /// the host's at boot. False: what the tests need cannot be made here
@@ -108,6 +144,7 @@ impl Guest {
             tests,
             mem_mb: PLAIN_MEM_MB,
             init: Init::Plain,
+            userland: Userland::Host,
             prepare: None,
             results: OnceLock::new(),
         }
@@ -119,7 +156,13 @@ impl Guest {
         self
     }
 
-    /// The same guest booted by the host's systemd (`vmrun -S`).
+    /// The same guest on `userland`'s root and kernel.
+    pub const fn on(mut self, userland: Userland) -> Self {
+        self.userland = userland;
+        self
+    }
+
+    /// The same guest booted by its root's systemd (`vmrun -S`).
     pub const fn with_systemd(mut self) -> Self {
         self.init = Init::Systemd;
         self
@@ -149,7 +192,7 @@ impl Guest {
             "{name} is not in its binary's Guest table"
         );
         let results = self.results.get_or_init(|| {
-            if let Some(reason) = unavailable_reason() {
+            if let Some(reason) = self.userland.unavailable_reason() {
                 crate::skip::unavailable(
                     "SDI_REQUIRE_VM",
                     format_args!("the VM tests cannot run: {reason}"),
@@ -195,6 +238,19 @@ impl Guest {
         .arg(format!("-m{}", self.mem_mb));
         if self.init == Init::Systemd {
             cmd.arg("-S");
+        }
+        if self.userland == Userland::Debian13 {
+            // The workspace (programs, test binaries, scripts) at the same
+            // path, read-only; the target directory too if it lies outside.
+            let workspace = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .parent()
+                .expect("workspace")
+                .to_owned();
+            cmd.arg("-r").arg(debian13_root()).arg("-o").arg(&workspace);
+            let target = exe.ancestors().nth(3).expect("target directory");
+            if !target.starts_with(&workspace) {
+                cmd.arg("-o").arg(target);
+            }
         }
         let sandbox = match self.init {
             Init::Plain => "sandbox",

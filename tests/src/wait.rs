@@ -21,6 +21,29 @@ pub fn wait_for<T>(what: &str, timeout: Duration, mut f: impl FnMut() -> Option<
     }
 }
 
+/// [`wait_for`], and on the timeout the panic says what `seen()` returns
+/// then (the state the wait was looking at).
+pub fn wait_for_or<T>(
+    what: &str,
+    timeout: Duration,
+    mut f: impl FnMut() -> Option<T>,
+    seen: impl FnOnce() -> String,
+) -> T {
+    let t0 = Instant::now();
+    loop {
+        if let Some(v) = f() {
+            return v;
+        }
+        if t0.elapsed() >= timeout {
+            panic!(
+                "timed out after {timeout:?} waiting for {what}; seen:\n{}",
+                seen()
+            );
+        }
+        std::thread::sleep(POLL);
+    }
+}
+
 /// Polls `ready` until it holds, and returns how long that took; panics
 /// naming `what` after `timeout`.
 pub fn wait_until(what: &str, timeout: Duration, mut ready: impl FnMut() -> bool) -> Duration {
