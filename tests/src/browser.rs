@@ -508,6 +508,21 @@ impl Browser {
         Self::spawn(cmd, &dir.join("firefox.log"), None)
     }
 
+    /// Each fatal error in the browser's log (a failed CHECK of Chromium or
+    /// WebRTC ends a process with "FATAL"), with the lines after it that
+    /// say which check failed and where.
+    pub fn fatal_errors(&self) -> String {
+        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
+        let lines: Vec<&str> = text.lines().collect();
+        lines
+            .iter()
+            .enumerate()
+            .filter(|(_, l)| l.contains(":FATAL:"))
+            .flat_map(|(i, _)| lines[i..lines.len().min(i + 12)].iter().copied())
+            .collect::<Vec<_>>()
+            .join("\n")
+    }
+
     /// The lines of the browser's log that contain `pattern`.
     pub fn log_lines(&self, pattern: &str) -> String {
         let text = std::fs::read_to_string(&self.log).unwrap_or_default();

@@ -1,20 +1,25 @@
 //! The system service under a real systemd (issue 32's system service
-//! case), inside the VM booted with Debian's systemd as PID 1 (`vmrun -S`):
-//! udevd, logind, the system bus and the users' managers run as on a
-//! desktop. The `sdi` and `sdi-pipewire-camera` packages are installed;
-//! a member of the group sdi is logged in (lingering), so their systemd
-//! runs PipeWire, WirePlumber with SDI's rule, and the packaged user unit
-//! `sdi-pipewire-camera.service`, which waits for a system sdid. Then the
-//! board is plugged in: udev tags it, systemd starts `sdid.service` from
-//! the device's `SYSTEMD_WANTS` with the unit's whole sandbox, and that sdid
-//! feeds the user's camera: PipeWire lists one SDI camera (media.role
-//! Camera), `pipewiresrc` run as the user reads 30 frames the camera
-//! published, in two modes, ffmpeg reads the loopback node, and headless
-//! Chromium run as the user opens it through the user's camera portal and
-//! follows a mode switch. Killed,
-//! sdid is restarted by systemd (`Restart=on-failure`) and the camera,
-//! which kept its node, delivers again. Then the other order: the user
-//! logs out and in again while sdid runs, and the camera delivers.
+//! case) on Debian 13, the release users have now: the VM boots trixie's
+//! kernel 6.12 and systemd 257 as PID 1 (`vmrun -S -r`): udevd, logind,
+//! the system bus and the users' managers run as on a desktop. The `sdi`
+//! and `sdi-pipewire-camera` packages (built on the host, as for Debian 12)
+//! are installed with dpkg; a member of the group sdi is logged in
+//! (lingering), so their systemd runs PipeWire 1.4, WirePlumber 0.5 with
+//! SDI's rule, and the packaged user unit `sdi-pipewire-camera.service`,
+//! which waits for a system sdid. Then the board is plugged in: udev tags
+//! it, systemd starts `sdid.service` from the device's `SYSTEMD_WANTS`
+//! with the unit's whole sandbox, and that sdid feeds the user's camera:
+//! PipeWire lists one SDI camera (media.role Camera; the rule hides the
+//! loopback nodes) and `sdictl doctor`, run by the user, says so and names
+//! PipeWire's version; `pipewiresrc` run as the user reads 30 frames the
+//! camera published, in two modes; ffmpeg reads the loopback node
+//! (v4l2loopback 0.15 from DKMS); headless Chromium run as the user opens
+//! the camera through the user's camera portal and follows a mode switch.
+//! Killed, sdid is restarted by systemd (`Restart=on-failure`) and the
+//! camera, which kept its node, delivers again. Then the other order: the
+//! user logs out and in again while sdid runs, and the camera delivers.
+//! Last, `dpkg --purge` leaves no file of either package. (Debian 13's
+//! lintian checks the packages on the host: `package_deb`.)
 
 use std::fs;
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
@@ -25,12 +30,13 @@ use std::time::{Duration, Instant};
 use sdi_daemon::sink::pipewire::{SYSTEM_FEED_NAME, VIEW_NODE};
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
+use sdi_tests::capture;
 use sdi_tests::clients::{self, off_by};
 use sdi_tests::package::{self, gid_of};
 use sdi_tests::pipewire::{self, camera_mode, Clients, FrameLog};
 use sdi_tests::process::{must, run};
-use sdi_tests::vm::{self, Guest};
-use sdi_tests::wait::{wait_for, wait_until};
+use sdi_tests::vm::{self, Guest, Userland};
+use sdi_tests::wait::{wait_for, wait_for_or, wait_until};
 
 const NAME: &str = "vm_systemd_starts_sdid_on_hotplug_and_it_feeds_a_users_camera";
 const SERIAL: &str = "EMU0007";
@@ -42,8 +48,11 @@ const SCRATCH: &str = "/tmp/sdi-systemd";
 /// snapshot's mean: YUV to RGB, and frames taken at other times.
 const TOLERANCE: f64 = 12.0;
 
-/// The systemd guest: Chromium needs more than the plain guest's RAM.
+/// The systemd guest on Debian 13, the release users have now (PipeWire
+/// 1.4, WirePlumber 0.5, systemd 257; tests/README.md says why this guest):
+/// Chromium needs more than the plain guest's RAM.
 static GUEST: Guest = Guest::new(&[(NAME, 900)])
+    .on(Userland::Debian13)
     .with_systemd()
     .with_mem_mb(vm::DESKTOP_MEM_MB)
     .prepared_by(prepare);
@@ -75,6 +84,36 @@ fn journal(unit: &str) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
+/// `sdictl doctor`, run by the user, finds their PipeWire (its version as
+/// the guest's `pipewire --version` says it: 1.4 on Debian 13) listing one
+/// SDI camera that can be read.
+fn doctor_sees_one_readable_camera(user: &Clients) {
+    let out = run(user.command("/usr/bin/sdictl").args(["doctor", "--json"]));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("doctor --json is not JSON ({e}): {out:?}"));
+    let pipewire = report["checks"]
+        .as_array()
+        .and_then(|a| a.iter().find(|c| c["id"] == "pipewire"))
+        .unwrap_or_else(|| panic!("no pipewire check: {report}"));
+    let installed = String::from_utf8_lossy(&run(Command::new("pipewire").arg("--version")).stdout)
+        .lines()
+        .find_map(|l| {
+            l.strip_prefix("Compiled with libpipewire ")
+                .map(str::to_owned)
+        })
+        .expect("pipewire --version");
+    let summary = pipewire["summary"].as_str().unwrap_or_default();
+    eprintln!(
+        "MEASURED: doctor as {USER}: [{}] {summary}",
+        pipewire["status"]
+    );
+    assert_eq!(pipewire["status"], "ok", "{pipewire}");
+    assert!(
+        summary.contains(&format!("PipeWire {installed} lists one SDI camera")),
+        "doctor names PipeWire {installed}: {summary}"
+    );
+}
+
 /// `sdictl` (the package's) on the system bus, as root.
 fn sdictl(args: &[&str]) -> Output {
     run(Command::new("/usr/bin/sdictl").args(args))
@@ -95,7 +134,7 @@ fn set_mode_expect(mode: &str, dir: &Path) -> [f64; 3] {
 /// of their manager; the camera permission is stored beforehand and the
 /// portal backend that would ask the user never has to run
 /// (`pipewire::TEST_PORTAL`, for the desktop `pipewire::TEST_DESKTOP`).
-fn chromium_through_the_portal(user: &Clients, scratch: &Path) {
+fn chromium_through_the_portal(user: &Clients, scratch: &Path, camera_log: &FrameLog) {
     let t0 = Instant::now();
     let portals = pipewire::test_portals_dir(scratch);
     // The manager's environment is what the D-Bus activated portal gets.
@@ -116,11 +155,21 @@ fn chromium_through_the_portal(user: &Clients, scratch: &Path) {
     let server = PageServer::start();
     let browser = Browser::chromium_pipewire(&server.url, &dir, user);
     let first = server.first_view_frame("chromium", Duration::from_secs(480), || {
+        // The camera's own lines (not one per frame): its streams' states,
+        // formats and clients, beside Chromium's side of the same stream.
+        let camera: Vec<String> = camera_log
+            .text()
+            .lines()
+            .filter(|l| pipewire::parse_published(l).is_none())
+            .map(str::to_owned)
+            .collect();
         format!(
-            "{}\n{}\nportal:\n{}",
+            "{}\n{}\n{}\nportal:\n{}\nthe camera's log:\n{}",
+            browser.fatal_errors(),
             browser.log_lines("video_capture"),
             browser.log_tail(),
-            portal_log()
+            portal_log(),
+            camera[camera.len().saturating_sub(40)..].join("\n")
         )
     });
     eprintln!(
@@ -259,7 +308,10 @@ fn in_vm() {
         "--uid",
         &UID.to_string(),
         "--groups",
-        "sdi",
+        // video: the camera nodes' group, as a desktop's seat user has
+        // them (uaccess); so the user's WirePlumber can open the loopback
+        // nodes, and only SDI's rule keeps them out of PipeWire.
+        "sdi,video",
         USER,
     ]));
     let camera_log = FrameLog::file(scratch.join("camera.log"));
@@ -268,7 +320,7 @@ fn in_vm() {
     fs::write(
         dropin.join("test-log.conf"),
         format!(
-            "[Service]\nEnvironment=RUST_LOG=info,sdid::pipewire::frames=trace\n\
+            "[Service]\nEnvironment=RUST_LOG=info,sdi_pipewire_camera=debug,sdid::pipewire::frames=trace\n\
              StandardError=append:{}\n",
             camera_log.path().display()
         ),
@@ -323,6 +375,7 @@ fn in_vm() {
         "MEASURED: one SDI camera in the user's PipeWire {:.1} s after the plug",
         t_plug.elapsed().as_secs_f64()
     );
+    doctor_sees_one_readable_camera(&user);
     let read = |mode: &str, what: &str| {
         let t = Instant::now();
         let frame_bytes = 640 * 480 * 2;
@@ -357,17 +410,10 @@ fn in_vm() {
     );
     read("depth-edge", "after a mode switch");
     let view = Path::new("/dev/video42");
-    let ffmpeg = run(Command::new("timeout")
-        .args(["120", "ffmpeg", "-hide_banner", "-loglevel", "error"])
-        .args(["-nostdin", "-f", "v4l2", "-i"])
-        .arg(view)
-        .args(["-frames:v", "3", "-f", "null", "-"]));
-    assert!(
-        ffmpeg.status.success(),
-        "ffmpeg on {}: {ffmpeg:?}",
-        view.display()
-    );
-    chromium_through_the_portal(&user, scratch);
+    let frames = capture::read_frames(view, 3, "rgb24", &scratch.join("ffmpeg-view.rgb"))
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(!frames.is_empty(), "no frame from {}", view.display());
+    chromium_through_the_portal(&user, scratch, &camera_log);
 
     // sdid dies: systemd starts it again, the camera kept its node and
     // delivers again.
@@ -428,9 +474,111 @@ fn in_vm() {
         !sdid_log.contains("panicked"),
         "sdid's journal:\n{sdid_log}"
     );
+    loopback_node_without_the_camera_package(&user);
     drop(emu);
     eprintln!(
         "MEASURED: installed, logged in, hotplug-started, fed, restarted in {:.1} s",
         t_start.elapsed().as_secs_f64()
     );
+    log_out();
+    purge_leaves_nothing();
+}
+
+/// Without the camera package (its program and WirePlumber rule gone),
+/// PipeWire 1.4 lists the loopback view node itself as the SDI camera and
+/// reads it (PipeWire reads v4l2loopback from 1.3.81; docs/loopback.md):
+/// pipewiresrc gets whole frames, and `sdictl doctor` says the one SDI
+/// camera can be read. With the package, the rule hides the node and the
+/// camera process's node is the one camera (above): one camera either way.
+fn loopback_node_without_the_camera_package(user: &Clients) {
+    run(user
+        .command("systemctl")
+        .args(["--user", "stop", "sdi-pipewire-camera.service"]));
+    must(Command::new("dpkg").args(["--purge", "sdi-pipewire-camera"]));
+    assert!(!Path::new("/usr/libexec/sdi/sdi-pipewire-camera").exists());
+    run(user
+        .command("systemctl")
+        .args(["--user", "restart", "wireplumber.service"]));
+    let t = Instant::now();
+    let camera = wait_for_or(
+        "PipeWire to list the loopback view node as the SDI camera",
+        Duration::from_secs(120),
+        || {
+            let cameras = user.sdi_cameras();
+            (cameras.len() == 1
+                && cameras[0]
+                    .get("api.v4l2.cap.card")
+                    .and_then(|v| v.as_str())
+                    .is_some_and(|c| c.starts_with("SDI camera")))
+            .then(|| cameras[0].clone())
+        },
+        || {
+            let video: Vec<String> = user
+                .nodes()
+                .iter()
+                .filter(|p| {
+                    p.get("media.class")
+                        .and_then(|v| v.as_str())
+                        .is_some_and(|c| c.starts_with("Video"))
+                })
+                .map(|p| format!("{p:?}"))
+                .collect();
+            format!(
+                "the user's video nodes:\n{}\nWirePlumber's log:\n{}",
+                video.join("\n"),
+                journal_of_user_unit("wireplumber.service")
+            )
+        },
+    );
+    let name = camera["node.name"].as_str().expect("node.name").to_owned();
+    let frame_bytes = 640 * 480 * 2;
+    let yuyv = user.read_frames(
+        &name,
+        "video/x-raw,format=YUY2,width=640,height=480",
+        30,
+        Duration::from_secs(180),
+    );
+    assert_eq!(yuyv.len(), 30 * frame_bytes, "30 whole frames of {name}");
+    eprintln!(
+        "MEASURED: without the camera package: PipeWire lists the loopback node {name} as the one \
+         SDI camera and pipewiresrc read 30 frames of it, {:.1} s after WirePlumber's restart",
+        t.elapsed().as_secs_f64()
+    );
+    doctor_sees_one_readable_camera(user);
+}
+
+/// `dpkg --purge` of the packages while sdid runs: the service stops, and
+/// no file of either package and no state is left; the administrator's
+/// `/etc/sdi/sdid.toml` stays.
+fn purge_leaves_nothing() {
+    let files: Vec<String> = ["sdi"]
+        .iter()
+        .flat_map(|p| {
+            String::from_utf8_lossy(&run(Command::new("dpkg-query").args(["-L", p])).stdout)
+                .lines()
+                .map(str::to_owned)
+                .collect::<Vec<_>>()
+        })
+        .filter(|f| Path::new(f).is_file())
+        .collect();
+    assert!(files.len() > 5, "the packages' files: {files:?}");
+    must(Command::new("dpkg").args(["--purge", "sdi"]));
+    assert_ne!(systemctl(&["is-active", "sdid.service"]), "active");
+    let left: Vec<&String> = files.iter().filter(|f| Path::new(f).exists()).collect();
+    assert!(left.is_empty(), "files left after the purge: {left:?}");
+    assert!(
+        !Path::new("/var/lib/sdi").exists(),
+        "/var/lib/sdi left after the purge"
+    );
+    // What the administrator wrote (not the package's) stays, as dpkg
+    // leaves every file it does not own.
+    let etc: Vec<String> = fs::read_dir("/etc/sdi")
+        .map(|d| {
+            d.flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    assert_eq!(etc, ["sdid.toml"], "/etc/sdi after the purge");
+    eprintln!("MEASURED: purged: none of the {} files left", files.len());
 }
