@@ -101,18 +101,45 @@ pub struct Clients {
     scratch: PathBuf,
 }
 
+/// What a [`Session`] starts with beyond its defaults (a runtime directory
+/// of its own, no user configuration).
+#[derive(Default, Clone, Copy)]
+pub struct SessionOptions<'a> {
+    /// `XDG_RUNTIME_DIR`, fixed: a program started before the session (an
+    /// sdid whose PipeWire camera waits for the daemon) finds its socket.
+    pub runtime_dir: Option<&'a Path>,
+    /// `XDG_CONFIG_HOME`: WirePlumber's user configuration (SDI's rule).
+    pub config_home: Option<&'a Path>,
+}
+
 impl Session {
     /// Starts the session and waits until PipeWire answers `pw-dump`.
     pub fn start() -> Self {
+        Self::start_with(SessionOptions::default())
+    }
+
+    /// [`Session::start`] with `options`.
+    pub fn start_with(options: SessionOptions) -> Self {
         logind_state_dirs();
         let dir = tempfile::tempdir().expect("temporary directory");
-        let runtime = dir.path().join("runtime");
-        std::fs::create_dir(&runtime).expect("runtime dir");
+        let runtime = options
+            .runtime_dir
+            .map_or_else(|| dir.path().join("runtime"), Path::to_owned);
+        std::fs::create_dir_all(&runtime).expect("runtime dir");
         std::fs::set_permissions(
             &runtime,
             std::os::unix::fs::PermissionsExt::from_mode(0o700),
         )
         .expect("chmod runtime dir");
+        // A previous daemon's socket in a fixed directory would answer the
+        // wait below at once, and WirePlumber would quit ("Failed to
+        // connect to PipeWire").
+        for stale in ["pipewire-0", "pipewire-0.lock"] {
+            let _ = std::fs::remove_file(runtime.join(stale));
+        }
+        let config = options
+            .config_home
+            .map_or_else(|| dir.path().join("config"), Path::to_owned);
         let bus = Bus::start();
         // Services the bus starts on demand (WirePlumber asks the portal's
         // permission store) get the session's directories, not the caller's
@@ -132,7 +159,7 @@ impl Session {
                 "dict:string:string:{},{},{},{}",
                 set("HOME", &home),
                 set("XDG_DATA_HOME", &dir.path().join("data")),
-                set("XDG_CONFIG_HOME", &dir.path().join("config")),
+                set("XDG_CONFIG_HOME", &config),
                 set("XDG_RUNTIME_DIR", &runtime),
             ))
             .stdout(Stdio::null())
@@ -140,7 +167,7 @@ impl Session {
             .status();
         let clients = Clients {
             prefix: Vec::new(),
-            env: session_env(dir.path(), &bus.address),
+            env: session_env(dir.path(), &runtime, &config, &bus.address),
             scratch: dir.path().to_owned(),
         };
         let pipewire = spawn_logged(&clients, "pipewire");
@@ -160,7 +187,29 @@ impl Session {
     }
 
     pub fn runtime_dir(&self) -> PathBuf {
-        self.dir.path().join("runtime")
+        PathBuf::from(self.clients.var("XDG_RUNTIME_DIR"))
+    }
+
+    /// The log of the session's `program` ("pipewire", "wireplumber").
+    pub fn log_path(&self, program: &str) -> PathBuf {
+        self.clients.scratch.join(format!("{program}.log"))
+    }
+
+    /// Waits until WirePlumber is a client of the daemon (it then has
+    /// loaded its configuration and starts its monitors); false after
+    /// `timeout`.
+    pub fn wait_wireplumber(&self, timeout: Duration) -> bool {
+        let t0 = Instant::now();
+        while !self.objects().iter().any(|o| {
+            o["type"] == "PipeWire:Interface:Client"
+                && o["info"]["props"]["application.name"] == "WirePlumber"
+        }) {
+            if t0.elapsed() > timeout {
+                return false;
+            }
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        true
     }
 }
 
@@ -208,11 +257,24 @@ impl Clients {
 
     /// The session bus's address.
     pub fn bus_address(&self) -> &str {
+        self.var("DBUS_SESSION_BUS_ADDRESS")
+    }
+
+    /// A variable of the clients' environment ("" when unset).
+    fn var(&self, name: &str) -> &str {
         self.env
             .iter()
-            .find(|(k, _)| k == "DBUS_SESSION_BUS_ADDRESS")
+            .find(|(k, _)| k == name)
             .map(|(_, v)| v.as_str())
             .unwrap_or_default()
+    }
+
+    /// Every object `pw-dump` lists (none while PipeWire does not answer).
+    pub fn objects(&self) -> Vec<serde_json::Value> {
+        match self.dump() {
+            Some(serde_json::Value::Array(objects)) => objects,
+            _ => Vec::new(),
+        }
     }
 
     /// True when `name` has an owner on the session bus.
@@ -534,6 +596,10 @@ fn spawn_logged(clients: &Clients, program: &str) -> Reaped {
     Reaped(
         clients
             .command(program)
+            // Warnings and errors: WirePlumber's reasons for a node it did
+            // not make, the v4l2 plugin's for a failed link.
+            .env("WIREPLUMBER_DEBUG", "2")
+            .env("PIPEWIRE_DEBUG", "2")
             .stdout(Stdio::null())
             .stderr(log)
             .spawn()
@@ -557,12 +623,13 @@ fn wait_child(child: &mut Child, timeout: Duration) -> Option<std::process::Exit
     }
 }
 
-/// The private session's environment under `dir`.
-fn session_env(dir: &Path, bus: &str) -> Vec<(String, String)> {
+/// The private session's environment under `dir`, with its runtime and
+/// configuration directories.
+fn session_env(dir: &Path, runtime: &Path, config: &Path, bus: &str) -> Vec<(String, String)> {
     let at = |sub: &str| dir.join(sub).display().to_string();
     vec![
-        ("XDG_RUNTIME_DIR".into(), at("runtime")),
-        ("XDG_CONFIG_HOME".into(), at("config")),
+        ("XDG_RUNTIME_DIR".into(), runtime.display().to_string()),
+        ("XDG_CONFIG_HOME".into(), config.display().to_string()),
         ("XDG_STATE_HOME".into(), at("state")),
         ("XDG_DATA_HOME".into(), at("data")),
         ("DBUS_SESSION_BUS_ADDRESS".into(), bus.to_owned()),

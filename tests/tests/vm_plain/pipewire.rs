@@ -24,21 +24,19 @@
 //!   command line from the unit file.
 //!
 //! systemd-udevd runs in the guest (PipeWire listens to udev, not to the
-//! kernel); PipeWire and WirePlumber run as root with their own runtime
-//! directory and a private session bus.
+//! kernel); PipeWire and WirePlumber run as root in the harness's
+//! `pipewire::Session` (a private session bus), in root's runtime directory.
 
 use std::path::Path;
-use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
 use sdi_tests::capture;
 use sdi_tests::clients::{self, mean_rgb, off_by, Sdid, PMD};
-use sdi_tests::dbus::Bus;
 use sdi_tests::loopback::{self, ModuleBuild};
-use sdi_tests::pipewire::{frame_crcs, FrameLog};
-use sdi_tests::process::{repo_root, stdout_of, Reaped};
+use sdi_tests::pipewire::{frame_crcs, FrameLog, Session, SessionOptions};
+use sdi_tests::process::{repo_root, stdout_of};
 use sdi_tests::udev::{self, udevadm};
 use sdi_tests::wait::wait_until;
 
@@ -85,134 +83,76 @@ fn trigger() -> Vec<String> {
     trigger
 }
 
-/// PipeWire + WirePlumber (+ pipewire-pulse not needed), killed on drop.
-struct PipeWire {
-    _bus: Bus,
-    _procs: Vec<Reaped>,
-    env: Vec<(String, String)>,
+/// Where the session's PipeWire runs (root's runtime directory): sdid's
+/// PipeWire camera, started before the session in one order, waits for the
+/// daemon's socket there.
+const RUNTIME: &str = "/run/user/0";
+
+/// A PipeWire + WirePlumber session of this test (`sdi_tests::pipewire`),
+/// in [`RUNTIME`], with WirePlumber's user configuration `config_home` when
+/// given; returned once WirePlumber is up.
+fn start_session(config_home: Option<&Path>) -> Session {
+    let pw = Session::start_with(SessionOptions {
+        runtime_dir: Some(Path::new(RUNTIME)),
+        config_home,
+    });
+    if !pw.wait_wireplumber(Duration::from_secs(120)) {
+        diagnose(&pw);
+        panic!("WirePlumber did not connect to PipeWire in 120 s");
+    }
+    pw
 }
 
-impl PipeWire {
-    fn start() -> Self {
-        Self::start_with(None)
-    }
-
-    /// With `config_home` as `XDG_CONFIG_HOME` (WirePlumber's user
-    /// configuration), when given.
-    fn start_with(config_home: Option<&Path>) -> Self {
-        let runtime = Path::new("/run/user/0");
-        std::fs::create_dir_all(runtime).expect("runtime dir");
-        sdi_tests::pipewire::logind_state_dirs();
-        let bus = Bus::start();
-        let mut env = vec![
-            ("XDG_RUNTIME_DIR".to_owned(), runtime.display().to_string()),
-            ("DBUS_SESSION_BUS_ADDRESS".to_owned(), bus.address.clone()),
-        ];
-        if let Some(home) = config_home {
-            env.push(("XDG_CONFIG_HOME".to_owned(), home.display().to_string()));
-        }
-        let spawn = |prog: &str| {
-            let log = std::fs::File::create(format!("/tmp/{prog}.log")).expect("log");
-            let mut c = Command::new(prog);
-            c.envs(env.iter().map(|(k, v)| (k, v)))
-                .env("WIREPLUMBER_DEBUG", "2")
-                // Errors and warnings: the v4l2 plugin's reasons for a failed link.
-                .env("PIPEWIRE_DEBUG", "2")
-                .stdin(Stdio::null())
-                .stdout(log.try_clone().expect("log"))
-                .stderr(log);
-            Reaped(c.spawn().unwrap_or_else(|e| panic!("spawn {prog}: {e}")))
-        };
-        // The previous daemon's socket would pass the wait below at once,
-        // and WirePlumber would quit ("Failed to connect to PipeWire").
-        for stale in ["pipewire-0", "pipewire-0.lock"] {
-            let _ = std::fs::remove_file(runtime.join(stale));
-        }
-        let pw = spawn("pipewire");
-        wait_until("pipewire's socket", Duration::from_secs(60), || {
-            runtime.join("pipewire-0").exists()
-        });
-        let wp = spawn("wireplumber");
-        let me = Self {
-            _bus: bus,
-            _procs: vec![wp, pw],
-            env,
-        };
-        // WirePlumber is up when it shows as a client.
-        let t0 = Instant::now();
-        while !me
-            .dump()
+/// The SDI camera's node: (id, props), if PipeWire lists it.
+fn sdi_node(pw: &Session) -> Option<(u64, Value)> {
+    pw.objects().into_iter().find_map(|o| {
+        let p = &o["info"]["props"];
+        let name = ["node.description", "node.nick", "api.v4l2.cap.card"]
             .iter()
-            .any(|o| o["info"]["props"]["application.name"] == "WirePlumber")
-        {
-            if t0.elapsed() > Duration::from_secs(120) {
-                diagnose(&me);
-                panic!("WirePlumber did not connect to PipeWire in 120 s");
-            }
-            std::thread::sleep(Duration::from_millis(200));
-        }
-        me
-    }
+            .find_map(|k| p[*k].as_str())
+            .unwrap_or("");
+        (p["media.class"] == "Video/Source" && name.contains(clients::VIEW_LABEL))
+            .then(|| (o["id"].as_u64().unwrap_or(0), p.clone()))
+    })
+}
 
-    fn dump(&self) -> Vec<Value> {
-        let out = Command::new("pw-dump")
-            .envs(self.env.iter().map(|(k, v)| (k, v)))
-            .output()
-            .expect("pw-dump");
-        serde_json::from_slice(&out.stdout).unwrap_or_default()
+/// Reads 8 frames of the node of serial `serial` with pipewiresrc
+/// (at most `READ_BUFFERS` buffers); returns the last frame as RGB and
+/// the seconds from gst-launch's start to its end of stream.
+fn read_view(pw: &Session, serial: &str) -> (Vec<u8>, f64) {
+    let file = "/tmp/pw-view.rgb";
+    let _ = std::fs::remove_file(file);
+    let t0 = Instant::now();
+    let pipeline = format!(
+        "pipewiresrc target-object={serial} max-buffers={READ_BUFFERS} always-copy=true num-buffers=8 \
+         ! video/x-raw,format=YUY2,width=640,height=480 \
+         ! videoconvert ! video/x-raw,format=RGB ! filesink location={file}"
+    );
+    let out = pw
+        .command("timeout")
+        .args(["120", "gst-launch-1.0"])
+        .args(pipeline.split_whitespace())
+        .output()
+        .expect("gst-launch-1.0");
+    let secs = t0.elapsed().as_secs_f64();
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    if !out.status.success() {
+        diagnose(pw);
+        panic!("{pipeline}: {}\n{log}", out.status);
     }
-
-    /// The SDI camera's node: (id, props), if PipeWire lists it.
-    fn sdi_node(&self) -> Option<(u64, Value)> {
-        self.dump().into_iter().find_map(|o| {
-            let p = &o["info"]["props"];
-            let name = ["node.description", "node.nick", "api.v4l2.cap.card"]
-                .iter()
-                .find_map(|k| p[*k].as_str())
-                .unwrap_or("");
-            (p["media.class"] == "Video/Source" && name.contains(clients::VIEW_LABEL))
-                .then(|| (o["id"].as_u64().unwrap_or(0), p.clone()))
-        })
-    }
-
-    /// Reads 8 frames of the node of serial `serial` with pipewiresrc
-    /// (at most `READ_BUFFERS` buffers); returns the last frame as RGB and
-    /// the seconds from gst-launch's start to its end of stream.
-    fn read(&self, serial: &str) -> (Vec<u8>, f64) {
-        let file = "/tmp/pw-view.rgb";
-        let _ = std::fs::remove_file(file);
-        let t0 = Instant::now();
-        let pipeline = format!(
-            "pipewiresrc target-object={serial} max-buffers={READ_BUFFERS} always-copy=true num-buffers=8 \
-             ! video/x-raw,format=YUY2,width=640,height=480 \
-             ! videoconvert ! video/x-raw,format=RGB ! filesink location={file}"
-        );
-        let out = Command::new("timeout")
-            .args(["120", "gst-launch-1.0"])
-            .args(pipeline.split_whitespace())
-            .envs(self.env.iter().map(|(k, v)| (k, v)))
-            .output()
-            .expect("gst-launch-1.0");
-        let secs = t0.elapsed().as_secs_f64();
-        let log = format!(
-            "{}{}",
-            String::from_utf8_lossy(&out.stdout),
-            String::from_utf8_lossy(&out.stderr)
-        );
-        if !out.status.success() {
-            diagnose(self);
-            panic!("{pipeline}: {}\n{log}", out.status);
-        }
-        let bytes = std::fs::read(file).expect("frames");
-        assert_eq!(bytes.len() % FRAME_RGB, 0, "whole frames: {log}");
-        assert_eq!(bytes.len() / FRAME_RGB, 8, "8 frames: {log}");
-        (bytes[bytes.len() - FRAME_RGB..].to_vec(), secs)
-    }
+    let bytes = std::fs::read(file).expect("frames");
+    assert_eq!(bytes.len() % FRAME_RGB, 0, "whole frames: {log}");
+    assert_eq!(bytes.len() / FRAME_RGB, 8, "8 frames: {log}");
+    (bytes[bytes.len() - FRAME_RGB..].to_vec(), secs)
 }
 
 /// Prints what PipeWire lists, udev's view of the node and the daemons' logs.
-fn diagnose(pw: &PipeWire) {
-    for o in pw.dump() {
+fn diagnose(pw: &Session) {
+    for o in pw.objects() {
         let p = &o["info"]["props"];
         eprintln!(
             "pw-dump {} {}: class {} name {} card {} path {}",
@@ -230,11 +170,13 @@ fn diagnose(pw: &PipeWire) {
         .map(|o| String::from_utf8_lossy(&o.stdout).into_owned())
         .unwrap_or_default();
     eprintln!("udevadm info:\n{info}");
-    for log in ["/tmp/pipewire.log", "/tmp/wireplumber.log"] {
-        let text = std::fs::read_to_string(log).unwrap_or_default();
+    for program in ["pipewire", "wireplumber"] {
+        let log = pw.log_path(program);
+        let text = std::fs::read_to_string(&log).unwrap_or_default();
         let lines: Vec<&str> = text.lines().collect();
         eprintln!(
-            "{log}:\n{}",
+            "{}:\n{}",
+            log.display(),
             lines[lines.len().saturating_sub(80)..].join("\n")
         );
     }
@@ -242,9 +184,9 @@ fn diagnose(pw: &PipeWire) {
 
 /// Waits for PipeWire to list the SDI camera; on timeout prints what it
 /// lists, udev's view of the node and the daemons' logs, then panics.
-fn wait_listed(pw: &PipeWire, what: &str) -> Duration {
+fn wait_listed(pw: &Session, what: &str) -> Duration {
     let t0 = Instant::now();
-    while pw.sdi_node().is_none() {
+    while sdi_node(pw).is_none() {
         if t0.elapsed() > Duration::from_secs(60) {
             diagnose(pw);
             panic!("{what}: PipeWire does not list the SDI camera after 60 s");
@@ -257,8 +199,8 @@ fn wait_listed(pw: &PipeWire, what: &str) -> Duration {
 /// The node's properties, then frames of the current mode read through
 /// PipeWire: the mean colour of the mode (`sdictl snapshot`), black
 /// letterbox bars, and a mode switch seen.
-fn check(pw: &PipeWire, sdid: &Sdid, order: &str, read: bool) {
-    let (id, props) = pw.sdi_node().expect("listed");
+fn check(pw: &Session, sdid: &Sdid, order: &str, read: bool) {
+    let (id, props) = sdi_node(pw).expect("listed");
     assert_eq!(props["media.role"], "Camera", "{order}: {props}");
     let serial = props["object.serial"].to_string();
     eprintln!(
@@ -282,7 +224,7 @@ fn check(pw: &PipeWire, sdid: &Sdid, order: &str, read: bool) {
     for (i, mode) in ["raw", "separation"].into_iter().enumerate() {
         sdid.set_mode(mode);
         let expected = sdid.expected_view_mean();
-        let (frame, secs) = pw.read(&serial);
+        let (frame, secs) = read_view(pw, &serial);
         let mean = mean_rgb(&frame);
         let top = mean_rgb(&frame[..640 * 3 * 4]);
         eprintln!(
@@ -313,7 +255,7 @@ fn both_orders(build: ModuleBuild, read: bool) {
     // ID_V4L_CAPABILITIES); sdid.service's change event updates it.
     trigger();
     let t0 = Instant::now();
-    let pw = PipeWire::start();
+    let pw = start_session(None);
     let t = wait_listed(&pw, "sdid first");
     eprintln!(
         "sdid first: listed {:.1} s after PipeWire started ({:.1} s for WirePlumber)",
@@ -328,14 +270,14 @@ fn both_orders(build: ModuleBuild, read: bool) {
     loopback::unload_module().expect("rmmod");
     clients::load_module_build(build, VIEW_NR, DATA_NR);
     nodes_initialized();
-    let pw = PipeWire::start();
+    let pw = start_session(None);
     assert!(
-        pw.sdi_node().is_none(),
+        sdi_node(&pw).is_none(),
         "listed before a producer: exclusive_caps=1 should hide it"
     );
     let sdid = Sdid::start(VIEW_NR, DATA_NR, PMD, 15);
     nodes_initialized();
-    let hidden = pw.sdi_node().is_none();
+    let hidden = sdi_node(&pw).is_none();
     eprintln!(
         "WirePlumber first: {} once sdid streams, before any udev event",
         if hidden {
@@ -404,11 +346,11 @@ fn rule_config_home() -> &'static Path {
 
 /// What PipeWire lists of SDI: (camera-role nodes naming SDI, v4l2 devices
 /// and nodes of SDI's card labels).
-fn sdi_listed(pw: &PipeWire) -> (Vec<Value>, Vec<Value>) {
+fn sdi_listed(pw: &Session) -> (Vec<Value>, Vec<Value>) {
     let labels = [clients::VIEW_LABEL, clients::DATA_LABEL];
     let mut cameras = Vec::new();
     let mut v4l2 = Vec::new();
-    for o in pw.dump() {
+    for o in pw.objects() {
         let p = &o["info"]["props"];
         let card = ["api.v4l2.cap.card", "device.product.name"]
             .iter()
@@ -433,7 +375,7 @@ fn sdi_listed(pw: &PipeWire) -> (Vec<Value>, Vec<Value>) {
 /// Waits for exactly one SDI camera in PipeWire, the camera process's
 /// `sdi-camera` with `media.role = Camera`, and no v4l2 node or device of
 /// SDI's labels (the rule keeps them out); returns its properties.
-fn one_sdi_camera(pw: &PipeWire, order: &str) -> Value {
+fn one_sdi_camera(pw: &Session, order: &str) -> Value {
     let t0 = Instant::now();
     loop {
         let (cameras, v4l2) = sdi_listed(pw);
@@ -460,7 +402,7 @@ fn one_sdi_camera(pw: &PipeWire, order: &str) -> Value {
 
 /// Reads 30 YUYV frames of `sdi-camera` with pipewiresrc; asserts each is
 /// one the camera process logged as published in `mode` (CRC-32).
-fn read_published(pw: &PipeWire, log: &FrameLog, order: &str, mode: &str) {
+fn read_published(pw: &Session, log: &FrameLog, order: &str, mode: &str) {
     let file = "/tmp/pw-camera.yuyv";
     let _ = std::fs::remove_file(file);
     let pipeline = format!(
@@ -468,10 +410,10 @@ fn read_published(pw: &PipeWire, log: &FrameLog, order: &str, mode: &str) {
          ! video/x-raw,format=YUY2,width=640,height=480 ! filesink location={file}"
     );
     let t0 = Instant::now();
-    let out = Command::new("timeout")
+    let out = pw
+        .command("timeout")
         .args(["180", "gst-launch-1.0", "-q"])
         .args(pipeline.split_whitespace())
-        .envs(pw.env.iter().map(|(k, v)| (k, v)))
         .output()
         .expect("gst-launch-1.0");
     if !out.status.success() {
@@ -501,7 +443,7 @@ fn read_published(pw: &PipeWire, log: &FrameLog, order: &str, mode: &str) {
 /// feeds the loopback nodes and the PipeWire camera: PipeWire lists one SDI
 /// camera, pipewiresrc reads what sdid published, ffmpeg reads the loopback
 /// node, and a mode switch reaches both.
-fn check_beside(pw: &PipeWire, sdid: &Sdid, log: &FrameLog, order: &str, modes: &[&str]) {
+fn check_beside(pw: &Session, sdid: &Sdid, log: &FrameLog, order: &str, modes: &[&str]) {
     let camera = one_sdi_camera(pw, order);
     eprintln!(
         "{order}: PipeWire lists one SDI camera: {} ({})",
@@ -555,8 +497,8 @@ fn beside_loopback_both_orders() {
     let t_phase = Instant::now();
     let config = rule_config_home();
     let log = FrameLog::file(std::path::PathBuf::from("/tmp/sdid-beside.log"));
-    let runtime = vec![("XDG_RUNTIME_DIR".to_owned(), "/run/user/0".to_owned())];
-    std::fs::create_dir_all("/run/user/0").expect("runtime dir");
+    let runtime = vec![("XDG_RUNTIME_DIR".to_owned(), RUNTIME.to_owned())];
+    std::fs::create_dir_all(RUNTIME).expect("runtime dir");
 
     // sdid first: its PipeWire camera starts once PipeWire is up.
     clients::load_module(VIEW_NR, DATA_NR);
@@ -564,7 +506,7 @@ fn beside_loopback_both_orders() {
     let sdid = Sdid::start_auto(VIEW_NR, DATA_NR, PMD, 15, runtime.clone(), log.path());
     trigger();
     let t0 = Instant::now();
-    let pw = PipeWire::start_with(Some(config));
+    let pw = start_session(Some(config));
     one_sdi_camera(&pw, "beside, sdid first");
     eprintln!(
         "beside, sdid first: sdi-camera listed {:.1} s after PipeWire started",
@@ -580,7 +522,7 @@ fn beside_loopback_both_orders() {
     // WirePlumber first.
     clients::load_module(VIEW_NR, DATA_NR);
     nodes_initialized();
-    let pw = PipeWire::start_with(Some(config));
+    let pw = start_session(Some(config));
     let sdid = Sdid::start_auto(VIEW_NR, DATA_NR, PMD, 15, runtime, log.path());
     trigger();
     check_beside(
@@ -604,10 +546,10 @@ fn beside_loopback_both_orders() {
 
 /// `sdictl doctor --json` as the session's user (its PipeWire): the
 /// PipeWire checks, (status, summary, fix) by id.
-fn doctor_pipewire(pw: &PipeWire, sdid: &Sdid) -> Vec<(String, String, String, String)> {
-    let out = Command::new(sdi_tests::dbus::bin("sdictl"))
+fn doctor_pipewire(pw: &Session, sdid: &Sdid) -> Vec<(String, String, String, String)> {
+    let out = pw
+        .command(sdi_tests::dbus::bin("sdictl"))
         .args(["--bus-address", &sdid.bus.address, "doctor", "--json"])
-        .envs(pw.env.iter().map(|(k, v)| (k, v)))
         .output()
         .expect("run sdictl doctor");
     let v: Value = serde_json::from_slice(&out.stdout).unwrap_or_else(|e| {
