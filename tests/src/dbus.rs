@@ -10,6 +10,7 @@ use std::time::Duration;
 use nix::sys::signal::Signal;
 
 use crate::process::Reaped;
+use crate::sdid_command::SdidCommand;
 use crate::wait::{wait_for, wait_until};
 
 /// `target/<profile>` of the running test binary.
@@ -265,19 +266,7 @@ impl Daemon {
     /// sdid for `bus` (run by `wrapper`, if any) with only the bus address
     /// and the environment of a test: no sink, rate or exposure.
     pub fn bare_command(bus: &Bus, wrapper: &[&str]) -> Command {
-        let mut cmd = match wrapper.split_first() {
-            Some((program, args)) => {
-                let mut c = Command::new(program);
-                c.args(args).arg(bin("sdid"));
-                c
-            }
-            None => Command::new(bin("sdid")),
-        };
-        cmd.args(["--bus-address", &bus.address])
-            .env("RUST_LOG", "warn")
-            // Not a systemd service, even when the tests run inside one.
-            .env_remove("INVOCATION_ID");
-        cmd
+        SdidCommand::wrapped_by(wrapper).bus(&bus.address).command()
     }
 
     /// Waits until sdid answers on its bus.

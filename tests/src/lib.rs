@@ -15,6 +15,7 @@ pub mod npy_file;
 pub mod package;
 pub mod pipewire;
 pub mod process;
+pub mod sdid_command;
 pub mod sim_frames;
 pub mod skip;
 pub mod udev;

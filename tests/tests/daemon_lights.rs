@@ -160,18 +160,12 @@ fn unreachable_instrument_is_a_clear_startup_error() {
         format!("[lights]\ndriver = \"scpi-tcp\"\naddress = \"127.0.0.1:{port}\"\n"),
     )
     .unwrap();
-    let out = std::process::Command::new(sdi_tests::dbus::bin("sdid"))
-        .args([
-            "--session",
-            "--backend",
-            "sim",
-            "--sink",
-            "y4m",
-            "--y4m-path",
-            "-",
-        ])
-        .arg("--config")
-        .arg(&cfg)
+    let out = sdi_tests::sdid_command::SdidCommand::new()
+        .args(["--session"])
+        .sim()
+        .y4m("-")
+        .config(&cfg)
+        .command()
         .stdout(std::process::Stdio::null())
         .output()
         .unwrap();

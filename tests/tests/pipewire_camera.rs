@@ -11,10 +11,11 @@ use std::collections::{HashMap, HashSet};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use sdi_tests::dbus::{bin, sdictl};
+use sdi_tests::dbus::sdictl;
 use sdi_tests::pipewire::{frame_crcs, FrameLog, Session};
 use sdi_tests::process::Reaped;
 use sdi_tests::require_pipewire;
+use sdi_tests::sdid_command::SdidCommand;
 use sdi_tests::wait::wait_for;
 
 const VIEW: &str = "sdi-camera";
@@ -38,14 +39,13 @@ impl Sdid {
     /// it) goes to the session's `sdid.log`.
     fn start(s: &Session, extra: &[&str]) -> Self {
         let log = FrameLog::file(s.dir.path().join("sdid.log"));
-        let child = s
-            .command(bin("sdid"))
-            .args(["--bus-address", &s.bus.address, "--backend", "sim"])
+        let child = SdidCommand::client_of(s)
+            .bus(&s.bus.address)
+            .sim()
             .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
             .args(extra)
-            .env("RUST_LOG", "info,sdid::pipewire::frames=trace")
-            .env_remove("INVOCATION_ID")
-            .env_remove("JOURNAL_STREAM")
+            .log("info,sdid::pipewire::frames=trace")
+            .command()
             .stdout(Stdio::null())
             .stderr(log.writer())
             .spawn()
@@ -363,13 +363,13 @@ fn sink_auto_prefers_pipewire_then_y4m() {
     // No PipeWire for this runtime directory: y4m, and it says why.
     let empty = s.dir.path().join("empty-runtime");
     std::fs::create_dir(&empty).expect("mkdir");
-    let mut cmd = s.command(bin("sdid"));
-    cmd.args(["--bus-address", &s.bus.address, "--backend", "sim"])
+    let mut cmd = SdidCommand::client_of(&s)
+        .bus(&s.bus.address)
+        .sim()
         .args(["--sink", "auto", "--config", &config])
-        .env("XDG_RUNTIME_DIR", &empty)
-        .env("RUST_LOG", "info")
-        .env_remove("INVOCATION_ID")
-        .env_remove("JOURNAL_STREAM")
+        .log("info")
+        .command();
+    cmd.env("XDG_RUNTIME_DIR", &empty)
         .stdout(Stdio::null())
         .stderr(Stdio::null());
     let _d = Reaped(cmd.spawn().expect("start sdid"));
@@ -460,8 +460,9 @@ fn system_feed_camera_gets_the_system_sdids_frames() {
             .expect("start the camera with --system-feed"),
     );
     let system_sdid = |mode: &str| {
-        let child = std::process::Command::new(bin("sdid"))
-            .args(["--bus-address", &s.bus.address, "--backend", "sim"])
+        let child = SdidCommand::new()
+            .bus(&s.bus.address)
+            .sim()
             .args([
                 "--frame-rate-hz",
                 "30",
@@ -471,11 +472,11 @@ fn system_feed_camera_gets_the_system_sdids_frames() {
                 "auto",
             ])
             .args(["--mode", mode])
+            .log("info")
+            .command()
             .env_remove("XDG_RUNTIME_DIR")
             .env_remove("PIPEWIRE_REMOTE")
             .env("RUNTIME_DIRECTORY", run.path())
-            .env("RUST_LOG", "info")
-            .env_remove("INVOCATION_ID")
             .stdout(Stdio::null())
             .stderr(log.writer())
             .spawn()

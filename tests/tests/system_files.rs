@@ -183,20 +183,12 @@ fn user_unit_stands_down_while_the_system_service_runs() {
         .success()
     };
     assert!(allowed(&bus), "condition failed with no system service");
-    let mut sdid = Command::new(sdi_tests::dbus::bin("sdid"))
-        .args([
-            "--bus-address",
-            &bus.address,
-            "--backend",
-            "sim",
-            "--sink",
-            "y4m",
-        ])
-        .arg("--y4m-path")
-        .arg(dir.join("view.y4m"))
-        .arg("--state-dir")
-        .arg(dir.join("state"))
-        .env_remove("INVOCATION_ID")
+    let mut sdid = sdi_tests::sdid_command::SdidCommand::new()
+        .bus(&bus.address)
+        .sim()
+        .y4m(dir.join("view.y4m"))
+        .state_dir(&dir.join("state"))
+        .command()
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()

@@ -12,9 +12,10 @@ use std::time::{Duration, Instant};
 
 use nix::sys::signal::Signal;
 use sdi_recording::{Record, RecordingReader};
-use sdi_tests::dbus::{bin, Bus, Daemon};
+use sdi_tests::dbus::{Bus, Daemon};
 use sdi_tests::process::{signal, Reaped};
 use sdi_tests::require_dbus;
+use sdi_tests::sdid_command::SdidCommand;
 use sdi_tests::wait::wait_for;
 use strum::IntoEnumIterator;
 
@@ -119,12 +120,13 @@ fn start_with_private_bus(
     String,
     Vec<String>,
 ) {
-    let mut child = Command::new(bin("sdid"))
-        .args(["--session", "--sink", "y4m", "--y4m-path", "-"])
+    let mut child = SdidCommand::new()
+        .args(["--session"])
+        .y4m("-")
+        .log("info")
+        .command()
         .env_remove("DBUS_SESSION_BUS_ADDRESS")
         .env("XDG_RUNTIME_DIR", runtime)
-        .env("RUST_LOG", "info")
-        .env_remove("INVOCATION_ID")
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
         .spawn()

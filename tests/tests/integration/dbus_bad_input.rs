@@ -139,11 +139,13 @@ fn one_frame_rate_range_on_the_bus_the_command_line_and_the_file() {
     // sdid refuses the same values before it starts: command line and file.
     let dir = tempfile::tempdir().unwrap();
     let sdid = |args: &[&str]| {
-        std::process::Command::new(sdi_tests::dbus::bin("sdid"))
-            .args(["--bus-address", &bus.address, "--backend", "sim"])
-            .args(["--sink", "y4m", "--y4m-path", "-"])
+        sdi_tests::sdid_command::SdidCommand::new()
+            .bus(&bus.address)
+            .sim()
+            .y4m("-")
             .args(args)
-            .env("RUST_LOG", "error")
+            .log("error")
+            .command()
             .stdout(std::process::Stdio::null())
             .output()
             .unwrap()

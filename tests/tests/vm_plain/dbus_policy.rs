@@ -12,6 +12,7 @@ use std::time::{Duration, Instant};
 
 use sdi_tests::dbus::{bin, Bus};
 use sdi_tests::process::{must, repo_root, run, Reaped};
+use sdi_tests::sdid_command::SdidCommand;
 
 const BUS_NAME: &str = "org.sdi.Daemon";
 const OBJECT: &str = "/org/sdi/Camera0";
@@ -103,8 +104,10 @@ fn denied(out: &Output) -> bool {
 /// The real sdid owning `org.sdi.Daemon` as root, on the simulator, connected
 /// the production way (system bus; here the address of the test bus).
 fn start_daemon(bus: &SystemLikeBus) -> Reaped {
-    let child = Command::new(bin("sdid"))
-        .args(["--backend", "sim", "--sink", "y4m"])
+    let child = SdidCommand::new()
+        .sim()
+        .args(["--sink", "y4m"])
+        .command()
         .env("DBUS_SYSTEM_BUS_ADDRESS", &bus.address)
         .stdout(Stdio::null())
         .spawn()

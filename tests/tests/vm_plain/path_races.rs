@@ -23,6 +23,7 @@ use std::time::{Duration, Instant};
 
 use sdi_tests::dbus::{bin, Bus};
 use sdi_tests::process::{runnable_copy, Reaped};
+use sdi_tests::sdid_command::SdidCommand;
 use sdi_tests::{require_dbus, vm};
 
 const CALLER_UID: u32 = 65534;
@@ -37,14 +38,12 @@ fn attempts() -> usize {
 /// The sdid and sdictl under test: built here on the host; inside the VM
 /// (read-only root, no cargo) the ones the host built and exported.
 struct Binaries {
-    sdid: PathBuf,
     sdictl: PathBuf,
 }
 
 impl Binaries {
     fn here() -> Self {
         Self {
-            sdid: bin("sdid"),
             sdictl: bin("sdictl"),
         }
     }
@@ -105,20 +104,14 @@ impl Setup {
         } else {
             ("60", &[])
         };
-        let sdid = Command::new(&bins.sdid)
-            .args([
-                "--bus-address",
-                &address,
-                "--backend",
-                "sim",
-                "--sink",
-                "y4m",
-            ])
-            .args(["--y4m-path", "-", "--frame-rate-hz", fps])
+        let sdid = SdidCommand::new()
+            .bus(&address)
+            .sim()
+            .y4m("-")
+            .args(["--frame-rate-hz", fps])
             .args(sensor)
-            .args(["--state-dir", state.to_str().unwrap()])
-            .env("RUST_LOG", "warn")
-            .env_remove("INVOCATION_ID")
+            .state_dir(&state)
+            .command()
             .stdout(Stdio::null())
             .spawn()
             .expect("start sdid");
