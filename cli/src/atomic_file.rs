@@ -72,6 +72,37 @@ impl AtomicFile {
         sync_dir(parent_dir(&self.dest))
     }
 
+    /// Gives the finished file the first of `names` that names no file
+    /// (each tried with an atomic no-replace link, so two commits at once
+    /// never take the same name); returns it. Removed on failure.
+    pub fn commit_first_free(
+        self,
+        names: impl IntoIterator<Item = PathBuf>,
+    ) -> std::io::Result<PathBuf> {
+        self.tmp.as_file().sync_all()?;
+        let mut tmp = self.tmp;
+        for name in names {
+            match tmp.persist_noclobber(&name) {
+                Ok(_) => {
+                    sync_dir(parent_dir(&name))?;
+                    return Ok(name);
+                }
+                Err(e) if e.error.kind() == std::io::ErrorKind::AlreadyExists => tmp = e.file,
+                // No hard links (as in `commit_new`): rename if still free.
+                Err(e) if name.symlink_metadata().is_err() => {
+                    e.file.persist(&name).map_err(|e| e.error)?;
+                    sync_dir(parent_dir(&name))?;
+                    return Ok(name);
+                }
+                Err(e) => return Err(e.error),
+            }
+        }
+        Err(std::io::Error::new(
+            std::io::ErrorKind::AlreadyExists,
+            "every name is taken",
+        ))
+    }
+
     /// Gives the finished file its name, never replacing a file that
     /// appeared there meanwhile (`AlreadyExists`); the temporary file is
     /// removed on failure.

@@ -176,7 +176,14 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), CliError> {
             files::snapshot(&cam, &path, by_path, json).await
         }
         OnlineCommand::Monitor { count } => monitor::run(&cam, count, json).await,
-        OnlineCommand::View(args) => crate::view::run(cam, args).await,
+        OnlineCommand::View(args) => {
+            let bus = bus.clone();
+            let connect = Box::new(move || {
+                let bus = bus.clone();
+                Box::pin(async move { connect(&bus).await }) as _
+            });
+            crate::view::run(cam, connect, args).await
+        }
         // Handled by `run` before a bus is needed.
         OnlineCommand::Export { .. } | OnlineCommand::Doctor { .. } => Ok(()),
     }

@@ -61,6 +61,49 @@ impl NewFile {
             .commit_new()
             .map_err(|e| io_error("cannot create", &self.dest, e))
     }
+
+    /// The empty temporary file for a new `dir/stem-N.ext`, N chosen when
+    /// it is committed ([`Numbered::commit`]).
+    pub fn numbered(dir: &Path, stem: &str, ext: &str) -> Result<Numbered, CliError> {
+        let first = dir.join(format!("{stem}-1.{ext}"));
+        let file = AtomicFile::new(&first).map_err(|e| io_error("cannot create", &first, e))?;
+        Ok(Numbered {
+            file,
+            dir: dir.to_owned(),
+            stem: stem.to_owned(),
+            ext: ext.to_owned(),
+        })
+    }
+}
+
+/// A new file named `stem-N.ext` with the first N free when it is linked
+/// into place: the link refuses a taken name atomically and the next N is
+/// tried, so files made at the same time never collide.
+pub struct Numbered {
+    file: AtomicFile,
+    dir: std::path::PathBuf,
+    stem: String,
+    ext: String,
+}
+
+impl Numbered {
+    /// The open file, to pass to the daemon.
+    pub fn file(&self) -> &File {
+        self.file.file()
+    }
+
+    /// Links the finished file to the first free name; returns it.
+    pub fn commit(self) -> Result<std::path::PathBuf, CliError> {
+        let Self {
+            file,
+            dir,
+            stem,
+            ext,
+        } = self;
+        let names = (1u32..).map(|n| dir.join(format!("{stem}-{n}.{ext}")));
+        file.commit_first_free(names)
+            .map_err(|e| io_error("cannot create a file in", &dir, e))
+    }
 }
 
 #[cfg(test)]
@@ -68,6 +111,17 @@ mod tests {
     use super::*;
     use crate::atomic_file::tests::entries;
     use std::io::Write;
+
+    #[test]
+    fn numbered_files_take_the_next_free_number() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join("s-1.npy"), b"x").unwrap();
+        let a = NewFile::numbered(dir.path(), "s", "npy").unwrap();
+        let b = NewFile::numbered(dir.path(), "s", "npy").unwrap();
+        assert_eq!(b.commit().unwrap(), dir.path().join("s-2.npy"));
+        assert_eq!(a.commit().unwrap(), dir.path().join("s-3.npy"));
+        assert_eq!(entries(dir.path()), ["s-1.npy", "s-2.npy", "s-3.npy"]);
+    }
 
     #[test]
     fn commit_links_and_drop_cleans_up() {

@@ -1,7 +1,10 @@
 //! The page's requests to sdid: status, settings, snapshot, recording and
 //! calibration, each one D-Bus call through the proxy with the user's
 //! rights; sdid's typed errors come back as JSON for the page to show in
-//! place (`{"error": kind, "message": ...}`).
+//! place (`{"error": kind, "message": ...}`). Every string from the page
+//! that goes on to the bus is checked to be a D-Bus string first
+//! ([`bus_text`]): the bus drops the connection of a client that sends
+//! another.
 
 use std::collections::HashMap;
 use std::path::PathBuf;
@@ -19,13 +22,14 @@ use serde_json::{json, Map, Value as Json_};
 use tokio::sync::Mutex;
 use zbus::zvariant::Fd;
 
+use super::bus::Link;
 use crate::exit::{CliError, Outcome};
 use crate::online::new_file::NewFile;
 use crate::online::wire_json;
 
 /// What the handlers share.
 pub struct Controls {
-    pub camera: Camera1Proxy<'static>,
+    pub bus: Link<Camera1Proxy<'static>>,
     /// Where snapshots and recordings go.
     pub out_dir: PathBuf,
     /// The recording this page started, for its growing size.
@@ -60,7 +64,10 @@ type Reply = Result<Json<Json_>, PageError>;
 /// (`ModeId::spec`, the table `sdictl status` reads through sdid), the
 /// valid ranges of the controls (`ranges`), and the recording's size.
 pub async fn status(State(c): State<Arc<Controls>>) -> Reply {
-    let props = Properties::read(&c.camera).await?;
+    let props = c
+        .bus
+        .call(|cam| async move { Ok(Properties::read(&cam).await?) })
+        .await?;
     let modes: Vec<Json_> = ModeId::NAMES
         .iter()
         .filter_map(|n| ModeId::from_name(n).ok())
@@ -112,10 +119,23 @@ pub struct SetRequest {
     value: String,
 }
 
+/// `text` if it is a D-Bus string: UTF-8 (a `str` is) without NUL.
+fn bus_text<'a>(what: &str, text: &'a str) -> Result<&'a str, CliError> {
+    if text.contains('\0') {
+        return Err(CliError::Usage(format!(
+            "{what} contains a NUL character, which D-Bus strings cannot carry"
+        )));
+    }
+    Ok(text)
+}
+
 /// Changes one setting; replies with the first frame under it.
 pub async fn set(State(c): State<Arc<Controls>>, Json(r): Json<SetRequest>) -> Reply {
-    let change = Setting::from_user(&r.setting)?.change(&r.value)?;
-    let (sequence, timestamp_us) = change.send(&c.camera).await?;
+    let change = Setting::from_user(&r.setting)?.change(bus_text("the value", &r.value)?)?;
+    let (sequence, timestamp_us) = c
+        .bus
+        .call(|cam| async move { Ok(change.send(&cam).await?) })
+        .await?;
     Ok(Json(
         json!({"sequence": sequence, "timestamp_us": timestamp_us}),
     ))
@@ -127,7 +147,9 @@ pub struct SnapshotRequest {
 }
 
 /// Saves the latest frame as a new `sdi-snapshot-N.png|npy` in the output
-/// directory, created by sdictl and written by sdid through the descriptor.
+/// directory, created by sdictl and written by sdid through the descriptor;
+/// N is the first number free when the finished file is linked into place,
+/// so snapshots at the same time each get their own.
 pub async fn snapshot(State(c): State<Arc<Controls>>, Json(r): Json<SnapshotRequest>) -> Reply {
     let ext = match r.format.as_str() {
         "png" | "npy" => r.format.as_str(),
@@ -138,10 +160,12 @@ pub async fn snapshot(State(c): State<Arc<Controls>>, Json(r): Json<SnapshotRequ
             .into())
         }
     };
-    let path = free_name(&c.out_dir, "sdi-snapshot", ext);
-    let out = NewFile::create(&path)?;
-    c.camera.snapshot_to_fd(Fd::from(out.file()), ext).await?;
-    out.commit()?;
+    let out = NewFile::numbered(&c.out_dir, "sdi-snapshot", ext)?;
+    let fd = Fd::from(out.file());
+    c.bus
+        .call(|cam| async move { Ok(cam.snapshot_to_fd(fd, ext).await?) })
+        .await?;
+    let path = out.commit()?;
     Ok(Json(json!({"path": path})))
 }
 
@@ -151,21 +175,31 @@ pub struct RecordRequest {
 }
 
 /// Starts a recording into a new `sdi-recording-N.sdirec`, or stops it.
+/// (One at a time: the lock on `recording` is held throughout.)
 pub async fn record(State(c): State<Arc<Controls>>, Json(r): Json<RecordRequest>) -> Reply {
     let mut recording = c.recording.lock().await;
     if !r.start {
-        let reply = c.camera.stop_recording().await?;
+        let reply = c
+            .bus
+            .call(|cam| async move { Ok(cam.stop_recording().await?) })
+            .await?;
         *recording = None;
         return Ok(Json(Json_::Object(wire_json::object(&reply)?)));
     }
     let path = free_name(&c.out_dir, "sdi-recording", "sdirec");
+    // The output directory comes from sdictl's command line: no NUL.
     let label = path.display().to_string();
+    let label = bus_text("the path", &label)?;
     let out = NewFile::create(&path)?;
-    c.camera
-        .start_recording_to_fd(Fd::from(out.file()), &label)
+    let fd = Fd::from(out.file());
+    c.bus
+        .call(|cam| async move { Ok(cam.start_recording_to_fd(fd, label).await?) })
         .await?;
     if let Err(e) = out.commit() {
-        let _ = c.camera.stop_recording().await;
+        let _ = c
+            .bus
+            .call(|cam| async move { Ok(cam.stop_recording().await?) })
+            .await;
         return Err(e.into());
     }
     *recording = Some(path.clone());
@@ -180,12 +214,15 @@ pub struct CalibrateRequest {
 /// Runs sdid's calibration (dark frame, then photon transfer); the page
 /// shows its progress while this call runs.
 pub async fn calibrate(State(c): State<Arc<Controls>>, Json(r): Json<CalibrateRequest>) -> Reply {
-    let reply = c.camera.calibrate(r.frames).await?;
+    let reply = c
+        .bus
+        .call(|cam| async move { Ok(cam.calibrate(r.frames).await?) })
+        .await?;
     Ok(Json(Json_::Object(wire_json::object(&reply)?)))
 }
 
 /// `dir/stem-N.ext` for the first N naming no file (NewFile refuses to
-/// replace one that appears in between).
+/// replace one that appears in between; one recording at a time).
 fn free_name(dir: &std::path::Path, stem: &str, ext: &str) -> PathBuf {
     (1u32..)
         .map(|n| dir.join(format!("{stem}-{n}.{ext}")))
@@ -208,5 +245,13 @@ mod tests {
         assert_eq!(r["frame-rate"], json!([2.861, 31.25]));
         assert_eq!(r["modulation-hz"], Json_::Null);
         assert_eq!(r["range"], json!([0.0, MAX_RANGE_DN]));
+    }
+
+    #[test]
+    fn a_nul_is_no_bus_text() {
+        assert_eq!(bus_text("v", "raw").unwrap(), "raw");
+        let e = bus_text("the value", "raw\0").unwrap_err();
+        assert!(matches!(e, CliError::Usage(_)), "{e}");
+        assert!(e.to_string().contains("NUL"), "{e}");
     }
 }

@@ -1,12 +1,18 @@
 //! `sdictl view`: a live viewer and control panel for the running sdid in
 //! the browser, served on 127.0.0.1 at a random port behind a random token
-//! (`security`), fed with sdid's frames over D-Bus (`frames`), talking to
-//! sdid with the user's rights (`controls`), with the page's statistics in
-//! Rust (`analysis`) and the page embedded in the binary (`server`).
+//! (`security`) that reaches the browser through a private file
+//! (`redirect`), with bounded connections (`connections`), fed with sdid's
+//! frames over D-Bus (`frames`), talking to sdid with the user's rights
+//! over a connection made again when lost (`bus`, `controls`), with the
+//! page's statistics in Rust (`analysis`) and the page embedded in the
+//! binary (`server`).
 
 mod analysis;
+mod bus;
+mod connections;
 mod controls;
 mod frames;
+mod redirect;
 mod security;
 mod server;
 
@@ -29,16 +35,26 @@ pub struct ViewArgs {
     /// Port on 127.0.0.1; 0 picks a free one.
     #[arg(long, default_value_t = 0)]
     pub port: u16,
-    /// Print the URL only, do not start a browser.
+    /// Do not start a browser; open the file sdictl prints yourself.
     #[arg(long)]
     pub no_open: bool,
+    /// Also print the page's URL with its secret token first (anyone who
+    /// sees it may drive the camera as you; never pass it on a command line).
+    #[arg(long)]
+    pub print_url: bool,
     /// Directory for the page's snapshots and recordings.
     #[arg(long, default_value = ".")]
     pub out_dir: PathBuf,
 }
 
-/// Serves the page until sdid's frame stream ends or Ctrl-C.
-pub async fn run(camera: Camera1Proxy<'static>, args: ViewArgs) -> Result<(), CliError> {
+/// Serves the page until sdid's frame stream ends or Ctrl-C; `connect`
+/// makes a new connection to sdid when the bus drops `camera`'s.
+pub async fn run(
+    camera: Camera1Proxy<'static>,
+    connect: bus::Connect<Camera1Proxy<'static>>,
+    args: ViewArgs,
+) -> Result<(), CliError> {
+    let limits = connections::Limits::from_env()?;
     let stream = frames::open(&camera).await?;
     let (tx, rx) = watch::channel(None);
     let listener =
@@ -53,20 +69,24 @@ pub async fn run(camera: Camera1Proxy<'static>, args: ViewArgs) -> Result<(), Cl
         token: Token::random(),
         port,
     };
-    let url = format!("http://127.0.0.1:{port}/?token={}", guard.token.as_str());
+    let url = format!("http://127.0.0.1:{port}/#token={}", guard.token.as_str());
+    let file = redirect::RedirectFile::write(&url)?;
     let app = server::App {
         controls: Arc::new(Controls {
-            camera,
+            bus: bus::Link::new(camera, connect),
             out_dir: args.out_dir,
             recording: Mutex::new(None),
         }),
         frames: rx,
     };
-    outln!("{url}")?;
-    if !args.no_open {
-        open_browser(&url);
+    if args.print_url {
+        outln!("{url}")?;
     }
-    let serve = axum::serve(listener, server::router(app, guard));
+    outln!("{}", file.path().display())?;
+    if !args.no_open {
+        open_browser(file.path());
+    }
+    let serve = connections::serve(listener, server::router(app, guard, limits), limits);
     tokio::select! {
         r = serve => r.map_err(|e| CliError::Runtime(format!("serving the page: {e}"))),
         r = frames::pump(stream, tx) => r.map_err(|e| CliError::Runtime(e.to_string())),
@@ -74,9 +94,9 @@ pub async fn run(camera: Camera1Proxy<'static>, args: ViewArgs) -> Result<(), Cl
     }
 }
 
-/// Starts the desktop's browser on `url` when there is a display; the URL
-/// is printed either way.
-fn open_browser(url: &str) {
+/// Starts the desktop's browser on the redirect file when there is a
+/// display; its path is printed either way.
+fn open_browser(file: &std::path::Path) {
     let has_display = ["DISPLAY", "WAYLAND_DISPLAY"]
         .iter()
         .any(|v| std::env::var_os(v).is_some_and(|s| !s.is_empty()));
@@ -84,11 +104,11 @@ fn open_browser(url: &str) {
         return;
     }
     if let Err(e) = std::process::Command::new("xdg-open")
-        .arg(url)
+        .arg(file)
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())
         .spawn()
     {
-        eprintln!("xdg-open: {e}; open the URL above");
+        eprintln!("xdg-open: {e}; open the file above in a browser");
     }
 }

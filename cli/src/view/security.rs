@@ -1,14 +1,20 @@
 //! Who may use the page: every request and WebSocket must carry the random
-//! token of the URL sdictl printed, name this server in `Host` (no DNS
-//! rebinding: a foreign name resolving to 127.0.0.1 is refused) and, when it
-//! has an `Origin`, come from this server's origin (no cross-site request).
-//! Requests that change something must have an `Origin`; anything else
-//! gets 403 and changes nothing.
+//! token (which reaches the browser through `redirect`), name this server
+//! in `Host` (no DNS rebinding: a foreign name resolving to 127.0.0.1 is
+//! refused) and, when it has an `Origin`, come from this server's origin
+//! (no cross-site request). Requests that change something must have an
+//! `Origin`; anything else gets 403 and changes nothing. The one exception
+//! to the token is `GET /`, the page itself: static, holding no secret, and
+//! loaded with the token in the URL's fragment, which is never sent. A
+//! request that passes with the token marks its connection trusted
+//! (`connections::Admission`).
 
 use axum::extract::{Request, State};
 use axum::http::{header, Method, StatusCode};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
+
+use super::connections::Admission;
 
 /// The secret in the page's URL.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -58,8 +64,8 @@ impl Guard {
         .any(|o| o.eq_ignore_ascii_case(origin))
     }
 
-    /// Whether `req` may be served.
-    pub fn allows(&self, req: &Request) -> bool {
+    /// Whether `req` may be served, and how.
+    pub fn allows(&self, req: &Request) -> Access {
         let text = |name: header::HeaderName| {
             req.headers()
                 .get(name)
@@ -80,16 +86,37 @@ impl Guard {
             Some(o) => self.origin_ok(&o),
             None => !needs_origin,
         };
-        token_ok && host_ok && origin_ok
+        let is_page = req.method() == Method::GET && req.uri().path() == "/" && !is_websocket;
+        match (host_ok && origin_ok, token_ok, is_page) {
+            (true, true, _) => Access::Token,
+            (true, false, true) => Access::Page,
+            _ => Access::Refused,
+        }
     }
+}
+
+/// What the guard lets a request do.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Access {
+    /// Everything: it carries the token.
+    Token,
+    /// Load the page only.
+    Page,
+    /// Nothing: 403.
+    Refused,
 }
 
 /// The middleware in front of every route.
 pub async fn check(State(guard): State<Guard>, req: Request, next: Next) -> Response {
-    if guard.allows(&req) {
-        next.run(req).await
-    } else {
-        (StatusCode::FORBIDDEN, "forbidden\n").into_response()
+    match guard.allows(&req) {
+        Access::Token => {
+            if let Some(a) = req.extensions().get::<Admission>() {
+                a.trust();
+            }
+            next.run(req).await
+        }
+        Access::Page => next.run(req).await,
+        Access::Refused => (StatusCode::FORBIDDEN, "forbidden\n").into_response(),
     }
 }
 
@@ -118,20 +145,37 @@ mod tests {
         let g = guard();
         let host = ("host", "127.0.0.1:8080");
         let origin = ("origin", "http://127.0.0.1:8080");
-        assert!(g.allows(&req(Method::GET, "/?token=00ff", &[host])));
-        assert!(g.allows(&req(Method::POST, "/api?token=00ff", &[host, origin])));
-        assert!(!g.allows(&req(Method::GET, "/", &[host])));
-        assert!(!g.allows(&req(Method::GET, "/?token=00fe", &[host])));
-        assert!(!g.allows(&req(Method::GET, "/?token=00f", &[host])));
-        assert!(!g.allows(&req(Method::GET, "/?token=00ff", &[("host", "evil:8080")])));
-        assert!(!g.allows(&req(Method::GET, "/?token=00ff", &[])));
+        let allows = |m, uri, h: &[(&str, &str)]| g.allows(&req(m, uri, h)) == Access::Token;
+        assert!(allows(Method::GET, "/api/status?token=00ff", &[host]));
+        assert!(allows(Method::POST, "/api?token=00ff", &[host, origin]));
+        assert!(!allows(Method::GET, "/api/status", &[host]));
+        assert!(!allows(Method::GET, "/api/status?token=00fe", &[host]));
+        assert!(!allows(Method::GET, "/api/status?token=00f", &[host]));
+        let evil_host = ("host", "evil:8080");
+        assert!(!allows(Method::GET, "/api/status?token=00ff", &[evil_host]));
+        assert!(!allows(Method::GET, "/api/status?token=00ff", &[]));
         let evil = ("origin", "http://evil.example");
-        assert!(!g.allows(&req(Method::GET, "/?token=00ff", &[host, evil])));
+        assert!(!allows(
+            Method::GET,
+            "/api/status?token=00ff",
+            &[host, evil]
+        ));
         // Changes and WebSockets need the Origin.
-        assert!(!g.allows(&req(Method::POST, "/api?token=00ff", &[host])));
+        assert!(!allows(Method::POST, "/api?token=00ff", &[host]));
         let ws = ("upgrade", "websocket");
-        assert!(!g.allows(&req(Method::GET, "/ws?token=00ff", &[host, ws])));
-        assert!(g.allows(&req(Method::GET, "/ws?token=00ff", &[host, ws, origin])));
+        assert!(!allows(Method::GET, "/ws?token=00ff", &[host, ws]));
+        assert!(allows(Method::GET, "/ws?token=00ff", &[host, ws, origin]));
+        // The page itself needs no token, but this server's Host and Origin.
+        let page = |h: &[(&str, &str)]| g.allows(&req(Method::GET, "/", h));
+        assert_eq!(page(&[host]), Access::Page);
+        assert_eq!(page(&[host, origin]), Access::Page);
+        assert_eq!(page(&[evil_host]), Access::Refused);
+        assert_eq!(page(&[host, evil]), Access::Refused);
+        assert_eq!(page(&[host, ws, origin]), Access::Refused);
+        assert_eq!(
+            g.allows(&req(Method::POST, "/", &[host, origin])),
+            Access::Refused
+        );
     }
 
     #[test]

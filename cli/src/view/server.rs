@@ -19,6 +19,7 @@ use serde_json::json;
 use tokio::sync::watch;
 
 use super::analysis::{Histogram, Probe, Region, HISTOGRAM_BINS};
+use super::connections::{self, Limits};
 use super::controls::{self, Controls};
 use super::frames::LiveFrame;
 use super::security::{self, Guard};
@@ -33,8 +34,8 @@ pub struct App {
     pub frames: watch::Receiver<Option<Arc<LiveFrame>>>,
 }
 
-/// The router, every route behind the guard.
-pub fn router(app: App, guard: Guard) -> Router {
+/// The router, every route behind the guard, then the body's timeout.
+pub fn router(app: App, guard: Guard, limits: Limits) -> Router {
     let api = Router::new()
         .route("/api/status", get(controls::status))
         .route("/api/set", post(controls::set))
@@ -47,10 +48,16 @@ pub fn router(app: App, guard: Guard) -> Router {
         .route("/ws", get(ws))
         .with_state(app)
         .merge(api)
+        .layer(axum::middleware::from_fn_with_state(
+            limits,
+            connections::read_body,
+        ))
         .layer(axum::middleware::from_fn_with_state(guard, security::check))
 }
 
-/// The page with its script inline: one request, which carries the token.
+/// The page with its script inline: one request. It holds no secret and
+/// reads nothing of sdid's, so it needs no token (it arrives in the URL's
+/// fragment, which the browser keeps to itself); everything else does.
 async fn index() -> Html<String> {
     Html(INDEX_HTML.replace("/*APP_JS*/", APP_JS))
 }

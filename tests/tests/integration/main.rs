@@ -22,4 +22,5 @@ mod dbus_setting_contract;
 mod dbus_wrong_input;
 mod npy_numpy;
 mod science_recording;
+mod view_connections;
 mod view_page;

@@ -21,38 +21,54 @@ use serde_json::Value;
 const PYTHON: &str = "/usr/bin/python3";
 
 /// A running `sdictl view` and where it serves.
-struct View {
+pub(crate) struct View {
     child: Child,
-    url: String,
-    port: u16,
-    token: String,
+    /// Kept open: sdictl stops when its stdout is closed.
+    _stdout: BufReader<std::process::ChildStdout>,
+    pub(crate) url: String,
+    pub(crate) port: u16,
+    pub(crate) token: String,
 }
 
 impl View {
-    fn start(d: &Daemon, out_dir: &Path) -> Self {
-        let mut child = Command::new(bin("sdictl"))
-            .args([
-                "--bus-address",
-                &d.address,
-                "view",
-                "--no-open",
-                "--out-dir",
-            ])
-            .arg(out_dir)
+    pub(crate) fn start(d: &Daemon, out_dir: &Path) -> Self {
+        Self::start_with(d, out_dir, &[])
+    }
+
+    /// With `env` set for sdictl (test hooks such as `SDI_VIEW_TIMEOUT_MS`).
+    pub(crate) fn start_with(d: &Daemon, out_dir: &Path, env: &[(&str, &str)]) -> Self {
+        Self::spawn(
+            Command::new(bin("sdictl"))
+                .args([
+                    "--bus-address",
+                    &d.address,
+                    "view",
+                    "--no-open",
+                    "--print-url",
+                    "--out-dir",
+                ])
+                .arg(out_dir)
+                .envs(env.iter().copied()),
+        )
+    }
+
+    /// Starts `cmd` (an `sdictl view --print-url`: its first line is the URL).
+    pub(crate) fn spawn(cmd: &mut Command) -> Self {
+        let mut child = cmd
             .stdout(Stdio::piped())
             .stderr(Stdio::inherit())
             .spawn()
             .expect("start sdictl view");
         let mut line = String::new();
-        BufReader::new(child.stdout.take().unwrap())
-            .read_line(&mut line)
-            .unwrap();
+        let mut stdout = BufReader::new(child.stdout.take().unwrap());
+        stdout.read_line(&mut line).unwrap();
         let url = line.trim().to_owned();
         let rest = url.strip_prefix("http://127.0.0.1:").expect(&url);
         let port = rest.split('/').next().unwrap().parse().unwrap();
         let token = url.split("token=").nth(1).unwrap().to_owned();
         Self {
             child,
+            _stdout: stdout,
             url,
             port,
             token,
@@ -60,7 +76,7 @@ impl View {
     }
 
     /// Sends a raw HTTP/1.1 request; returns the status code.
-    fn status_of(&self, request: &str) -> u16 {
+    pub(crate) fn status_of(&self, request: &str) -> u16 {
         let mut s = TcpStream::connect(("127.0.0.1", self.port)).unwrap();
         s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
         s.write_all(request.as_bytes()).unwrap();
@@ -68,6 +84,45 @@ impl View {
         s.read_exact(&mut head).unwrap();
         let text = String::from_utf8_lossy(&head);
         text[9..12].parse().expect(&text)
+    }
+
+    /// Sends a raw HTTP/1.1 request with `Connection: close`; returns the
+    /// status code and the body.
+    pub(crate) fn response_to(&self, request: &str) -> (u16, String) {
+        let mut s = TcpStream::connect(("127.0.0.1", self.port)).unwrap();
+        s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+        s.write_all(request.as_bytes()).unwrap();
+        let mut head = [0u8; 12];
+        s.read_exact(&mut head).unwrap();
+        let text = String::from_utf8_lossy(&head);
+        let status = text[9..12].parse().expect(&text);
+        let mut rest = Vec::new();
+        let _ = s.read_to_end(&mut rest);
+        let rest = String::from_utf8_lossy(&rest).into_owned();
+        let body = rest
+            .split_once("\r\n\r\n")
+            .map_or("", |(_, b)| b)
+            .to_owned();
+        (status, body)
+    }
+
+    /// `POST /api/PATH` with the token, Host, Origin and the JSON `body`.
+    pub(crate) fn post(&self, path: &str, body: &str) -> (u16, String) {
+        let host = format!("127.0.0.1:{}", self.port);
+        self.response_to(&format!(
+            "POST /api/{path}?token={} HTTP/1.1\r\nHost: {host}\r\nOrigin: http://{host}\r\n\
+             Content-Type: application/json\r\nContent-Length: {}\r\nConnection: close\r\n\r\n{body}",
+            self.token,
+            body.len()
+        ))
+    }
+
+    /// `GET /api/status` with the token and Host.
+    pub(crate) fn status(&self) -> (u16, String) {
+        self.response_to(&format!(
+            "GET /api/status?token={} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\nConnection: close\r\n\r\n",
+            self.token, self.port
+        ))
     }
 }
 
@@ -139,8 +194,8 @@ fn without_token_own_host_and_origin_everything_is_403_and_nothing_changes() {
             set_exposure(&format!("evil.example:{}", v.port), Some(&origin), &good),
         ),
         (
-            "page without token",
-            format!("GET / HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n"),
+            "status without token",
+            format!("GET /api/status HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n"),
         ),
         (
             "page for a foreign host",
@@ -432,4 +487,178 @@ fn stream_frames_checks_its_descriptor_and_streams_frames() {
             tokio::time::sleep(Duration::from_millis(50)).await;
         }
     });
+}
+
+/// Issue 43 (1): `sdictl view` opens a 0600 file in the user's runtime
+/// directory that carries the token, never the URL: no process's command
+/// line (xdg-open's, the browser's) shows the token, and the page opened
+/// from the file works and drops the token from its address.
+#[test]
+fn the_token_is_on_no_command_line_only_in_a_private_file() {
+    use std::os::unix::fs::{MetadataExt, PermissionsExt};
+    require_dbus!();
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &[]);
+    let dir = tempfile::tempdir().unwrap();
+    let (runtime, fake_bin, record) = (
+        dir.path().join("run"),
+        dir.path().join("bin"),
+        dir.path().join("xdg-open.argv"),
+    );
+    for p in [&runtime, &fake_bin] {
+        std::fs::create_dir(p).unwrap();
+        std::fs::set_permissions(p, std::fs::Permissions::from_mode(0o700)).unwrap();
+    }
+    // A fake xdg-open: records its arguments, NUL-separated.
+    let xdg_open = fake_bin.join("xdg-open");
+    std::fs::write(
+        &xdg_open,
+        "#!/bin/sh\nprintf '%s\\0' \"$@\" > \"$SDI_TEST_RECORD.tmp\"\n\
+         mv \"$SDI_TEST_RECORD.tmp\" \"$SDI_TEST_RECORD\"\n",
+    )
+    .unwrap();
+    std::fs::set_permissions(&xdg_open, std::fs::Permissions::from_mode(0o700)).unwrap();
+    let path = format!(
+        "{}:{}",
+        fake_bin.display(),
+        std::env::var("PATH").unwrap_or_default()
+    );
+    let mut child = Command::new(bin("sdictl"))
+        .args(["--bus-address", &d.address, "view", "--out-dir"])
+        .arg(dir.path())
+        .env("PATH", path)
+        .env("DISPLAY", ":99")
+        .env("XDG_RUNTIME_DIR", &runtime)
+        .env("SDI_TEST_RECORD", &record)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .expect("start sdictl view");
+    struct Kill(Child);
+    impl Drop for Kill {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let _child = Kill(child);
+    let mut first_line = String::new();
+    stdout.read_line(&mut first_line).unwrap();
+    sdi_tests::wait::wait_until("xdg-open ran", Duration::from_secs(30), || record.exists());
+    let argv: Vec<String> = std::fs::read(&record)
+        .unwrap()
+        .split(|&b| b == 0)
+        .filter(|a| !a.is_empty())
+        .map(|a| String::from_utf8_lossy(a).into_owned())
+        .collect();
+    assert!(
+        argv.len() == 1 && !argv[0].contains("token"),
+        "xdg-open was given {argv:?}"
+    );
+    let file = Path::new(argv[0].strip_prefix("file://").unwrap_or(&argv[0]));
+    assert!(file.starts_with(&runtime), "{file:?} not in {runtime:?}");
+    let meta = std::fs::metadata(file).unwrap();
+    assert_eq!(meta.mode() & 0o777, 0o600, "{file:?}");
+    assert_eq!(meta.uid(), nix::unistd::getuid().as_raw(), "{file:?}");
+    let html = std::fs::read_to_string(file).unwrap();
+    let token: String = html
+        .split("token=")
+        .nth(1)
+        .unwrap_or("")
+        .chars()
+        .take_while(char::is_ascii_hexdigit)
+        .collect();
+    assert_eq!(token.len(), 32, "no token in {html}");
+    assert!(!first_line.contains(&token), "stdout: {first_line}");
+    // No command line on the machine carries the token.
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        if let Ok(cmdline) = std::fs::read(entry.path().join("cmdline")) {
+            let cmdline = String::from_utf8_lossy(&cmdline);
+            assert!(
+                !cmdline.contains(&token),
+                "{:?}: {cmdline}",
+                entry.file_name()
+            );
+        }
+    }
+    // The page served with that token works, and from the file too.
+    let port: u16 = html
+        .split("http://127.0.0.1:")
+        .nth(1)
+        .and_then(|r| r.split('/').next())
+        .and_then(|p| p.parse().ok())
+        .expect(&html);
+    let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    write!(
+        s,
+        "GET /api/status?token={token} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut reply = String::new();
+    let _ = s.read_to_string(&mut reply);
+    assert!(reply.starts_with("HTTP/1.1 200"), "{reply}");
+    let Some(mut page) = Chromium::start(&format!("file://{}", file.display())) else {
+        return;
+    };
+    let long = Duration::from_secs(60);
+    page.wait_for("!!(window.sdiView && sdiView.status && sdiView.meta)", long);
+    let href = page.eval("location.href");
+    assert!(
+        !href.as_str().unwrap_or("").contains(&token),
+        "the address keeps the token: {href}"
+    );
+}
+
+/// Issue 43 (2): a value with a NUL (not a D-Bus string) is refused with
+/// 400 before it reaches the bus, and the viewer's controls keep working.
+#[test]
+fn a_nul_in_a_control_value_is_refused_and_the_controls_keep_working() {
+    require_dbus!();
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &[]);
+    let dir = tempfile::tempdir().unwrap();
+    let v = View::start(&d, dir.path());
+    for (setting, value) in [("mode", "raw\\u0000"), ("colormap", "\\u0000")] {
+        let body = format!(r#"{{"setting":"{setting}","value":"{value}"}}"#);
+        let (status, reply) = v.post("set", &body);
+        assert_eq!(status, 400, "{body}: {reply}");
+        assert!(reply.contains("NUL"), "{body}: {reply}");
+    }
+    let (status, reply) = v.status();
+    assert_eq!(status, 200, "after a NUL: {reply}");
+    let (status, reply) = v.post("set", r#"{"setting":"mode","value":"depth-edge"}"#);
+    assert_eq!(status, 200, "{reply}");
+}
+
+/// Issue 43 (7): simultaneous snapshots each get a file of their own.
+#[test]
+fn concurrent_snapshots_get_distinct_files() {
+    require_dbus!();
+    let bus = Bus::start();
+    let d = Daemon::start(&bus, &[]);
+    let dir = tempfile::tempdir().unwrap();
+    let v = View::start(&d, dir.path());
+    sdi_tests::wait::wait_until("a first frame", Duration::from_secs(30), || {
+        v.post("snapshot", r#"{"format":"png"}"#).0 == 200
+    });
+    let replies: Vec<(u16, String)> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..12)
+            .map(|_| s.spawn(|| v.post("snapshot", r#"{"format":"npy"}"#)))
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    let mut paths = std::collections::BTreeSet::new();
+    for (status, reply) in &replies {
+        assert_eq!(*status, 200, "{reply}");
+        let v: Value = serde_json::from_str(reply).expect(reply);
+        let path = v["path"].as_str().expect(reply).to_owned();
+        assert!(
+            std::fs::metadata(&path).is_ok_and(|m| m.len() > 0),
+            "{path} is empty"
+        );
+        paths.insert(path);
+    }
+    assert_eq!(paths.len(), 12, "{replies:?}");
 }

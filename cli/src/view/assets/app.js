@@ -3,7 +3,19 @@
 // line/bar plots do not need a library). The statistics arrive computed
 // (cli/src/view/analysis.rs); the page only draws them.
 "use strict";
-const token = new URLSearchParams(location.search).get("token") || "";
+// The token arrives in the URL's fragment (sdictl's redirect file), which
+// the browser never sends; it is kept in this tab's session storage (this
+// origin's only) and dropped from the address bar and the tab's history.
+const token = (() => {
+  const given = new URLSearchParams(location.hash.slice(1)).get("token")
+    || new URLSearchParams(location.search).get("token");
+  if (given) {
+    sessionStorage.setItem("sdi-token", given);
+    history.replaceState(null, "", location.pathname);
+    return given;
+  }
+  return sessionStorage.getItem("sdi-token") || "";
+})();
 const q = "?token=" + encodeURIComponent(token);
 const $ = (id) => document.getElementById(id);
 // What the tests and the benchmark read: the last frame's metadata and the
