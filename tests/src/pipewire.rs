@@ -383,10 +383,7 @@ impl Clients {
 
     /// Properties of every node, from `pw-dump`.
     pub fn nodes(&self) -> Vec<HashMap<String, serde_json::Value>> {
-        let Some(serde_json::Value::Array(objects)) = self.dump() else {
-            return Vec::new();
-        };
-        objects
+        self.objects()
             .iter()
             .filter(|o| o["type"] == "PipeWire:Interface:Node")
             .filter_map(|o| o["info"]["props"].as_object())

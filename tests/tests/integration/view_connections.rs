@@ -116,15 +116,7 @@ fn with_the_cap_reached_the_page_still_gets_its_status_and_frames() {
         Command::new("prlimit")
             .arg("--nofile=64")
             .arg(bin("sdictl"))
-            .args([
-                "--bus-address",
-                &d.address,
-                "view",
-                "--no-open",
-                "--print-url",
-                "--out-dir",
-            ])
-            .arg(dir.path()),
+            .args(View::args(&d, dir.path())),
     );
     let host = format!("127.0.0.1:{}", v.port);
     // The page's WebSocket, open before the flood.

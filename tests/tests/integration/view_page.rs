@@ -39,17 +39,26 @@ impl View {
     pub(crate) fn start_with(d: &Daemon, out_dir: &Path, env: &[(&str, &str)]) -> Self {
         Self::spawn(
             Command::new(bin("sdictl"))
-                .args([
-                    "--bus-address",
-                    &d.address,
-                    "view",
-                    "--no-open",
-                    "--print-url",
-                    "--out-dir",
-                ])
-                .arg(out_dir)
+                .args(Self::args(d, out_dir))
                 .envs(env.iter().copied()),
         )
+    }
+
+    /// sdictl's arguments for a viewer of `d` that opens no browser and
+    /// prints its URL first, saving into `out_dir`.
+    pub(crate) fn args(d: &Daemon, out_dir: &Path) -> Vec<std::ffi::OsString> {
+        [
+            "--bus-address",
+            &d.address,
+            "view",
+            "--no-open",
+            "--print-url",
+            "--out-dir",
+        ]
+        .iter()
+        .map(Into::into)
+        .chain([out_dir.as_os_str().to_owned()])
+        .collect()
     }
 
     /// Starts `cmd` (an `sdictl view --print-url`: its first line is the URL).
