@@ -66,6 +66,9 @@ pub enum NodesError {
 
 /// How long [`Nodes::open`] waits for the PipeWire thread to connect.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+/// The node property the session manager reads for how long a node may
+/// idle before it suspends it (0: never), WirePlumber 0.4 and 0.5 alike.
+const SUSPEND_TIMEOUT_KEY: &str = "session.suspend-timeout-seconds";
 /// Buffers per stream: the reader may hold some while we fill another.
 const BUFFERS: (i32, i32, i32) = (4, 2, 8);
 
@@ -744,6 +747,13 @@ fn make_stream(
         *pw::keys::NODE_NAME => spec.node,
         *pw::keys::NODE_DESCRIPTION => spec.description.as_str(),
         "node.nick" => "SDI camera",
+        // Never suspended by the session manager (WirePlumber suspends a
+        // node idle for 5 s): a suspend that lands while the next reader's
+        // link allocates buffers fails that link ("Buffer allocation
+        // failed" on PipeWire 1.4: a browser that closes its probe stream
+        // and opens the camera again seconds later). A node of this process
+        // holds no device to power down.
+        SUSPEND_TIMEOUT_KEY => "0",
     };
     if spec.camera {
         props.insert(*pw::keys::MEDIA_ROLE, "Camera");

@@ -407,6 +407,16 @@ impl Clients {
             .collect()
     }
 
+    /// The state of the node named `name` ("suspended", "idle", "running",
+    /// "error"), once it exists.
+    pub fn node_state(&self, name: &str) -> Option<String> {
+        self.objects().iter().find_map(|o| {
+            let info = &o["info"];
+            (o["type"] == "PipeWire:Interface:Node" && info["props"]["node.name"] == name)
+                .then(|| info["state"].as_str().unwrap_or("").to_owned())
+        })
+    }
+
     /// The properties of the node named `name`, once it exists.
     pub fn node(&self, name: &str) -> Option<HashMap<String, serde_json::Value>> {
         self.nodes()

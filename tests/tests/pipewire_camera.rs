@@ -27,6 +27,11 @@ const VIEW_H: usize = 480;
 const SENSOR_W: usize = 320;
 const SENSOR_H: usize = 240;
 const FRAMES: u32 = 40;
+/// How long WirePlumber lets a node idle before it suspends it (its
+/// default `session.suspend-timeout-seconds`).
+const WIREPLUMBER_SUSPEND: Duration = Duration::from_secs(5);
+/// The node property WirePlumber reads for that time (0: never).
+const SUSPEND_TIMEOUT_KEY: &str = "session.suspend-timeout-seconds";
 
 struct Sdid {
     _child: Reaped,
@@ -230,6 +235,30 @@ fn pipewire_camera_node_frames_mode_switch_and_restart() {
     let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", FRAMES, TIMEOUT);
     let raw_crcs = check_published(&d, crcs_of(&rgb, rgb_bytes), VIEW, "RGB", "raw");
     rgb.chunks_exact(rgb_bytes).for_each(assert_doubled_rgb);
+
+    // Never suspended: WirePlumber suspends a node idle for 5 s, and a
+    // suspend while the next reader's link allocates its buffers fails
+    // that link (PipeWire 1.4: Chromium's "Buffer allocation failed" when
+    // it reopens the camera seconds after its probe). The camera asks for
+    // no suspend; the node idles past WirePlumber's 5 s and is still idle.
+    assert_eq!(
+        view.get(SUSPEND_TIMEOUT_KEY),
+        Some(&serde_json::json!(0)),
+        "{view:?}"
+    );
+    let t_idle = Instant::now();
+    std::thread::sleep(WIREPLUMBER_SUSPEND + Duration::from_secs(2));
+    let state = s.node_state(VIEW);
+    assert_eq!(
+        state.as_deref(),
+        Some("idle"),
+        "{VIEW} {:.1} s after its reader left",
+        t_idle.elapsed().as_secs_f64()
+    );
+    eprintln!(
+        "ok: {VIEW} still idle (not suspended) {:.1} s after its reader left",
+        t_idle.elapsed().as_secs_f64()
+    );
 
     // The raw data node: Y16 at the sensor size.
     let y16 = s.read_frames(DATA, "video/x-raw,format=GRAY16_LE", 30, TIMEOUT);

@@ -163,12 +163,15 @@ fn chromium_through_the_portal(user: &Clients, scratch: &Path, camera_log: &Fram
             .filter(|l| pipewire::parse_published(l).is_none())
             .map(str::to_owned)
             .collect();
+        let wireplumber = journal_of_user_unit("wireplumber.service");
+        let wireplumber: Vec<&str> = wireplumber.lines().collect();
         format!(
-            "{}\n{}\n{}\nportal:\n{}\nthe camera's log:\n{}",
+            "{}\n{}\n{}\nportal:\n{}\nWirePlumber:\n{}\nthe camera's log:\n{}",
             browser.fatal_errors(),
             browser.log_lines("video_capture"),
             browser.log_tail(),
             portal_log(),
+            wireplumber[wireplumber.len().saturating_sub(20)..].join("\n"),
             camera[camera.len().saturating_sub(40)..].join("\n")
         )
     });
@@ -369,6 +372,9 @@ fn in_vm() {
         || user.node(VIEW_NODE),
     );
     assert_eq!(node["media.role"], "Camera", "{node:?}");
+    // Never suspended (see the camera's node properties): WirePlumber
+    // 0.5's suspend landing on Chromium's reopened link failed it.
+    assert_eq!(node["session.suspend-timeout-seconds"], 0, "{node:?}");
     let cameras = user.sdi_cameras();
     assert_eq!(cameras.len(), 1, "one SDI camera: {cameras:?}");
     eprintln!(
