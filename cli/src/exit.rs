@@ -214,6 +214,15 @@ pub fn report(result: Result<(), CliError>, json: bool) -> ExitCode {
     ExitCode::from(outcome.exit_code())
 }
 
+/// Prints the JSON error object of a usage error clap found (the text
+/// itself goes to stderr as clap prints it).
+pub fn report_usage_json(message: &str) {
+    let _ = crate::stdout::outln!(
+        "{}",
+        serde_json::json!({"error": Outcome::Invalid.kind(), "message": message})
+    );
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
