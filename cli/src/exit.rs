@@ -138,7 +138,9 @@ fn daemon_outcome(e: &SdiError) -> Outcome {
         SdiError::Busy(_) => Outcome::Busy,
         SdiError::DeviceUnavailable(_) => Outcome::DeviceUnavailable,
         SdiError::NotRecording(_) | SdiError::NoFrame(_) => Outcome::NothingToDo,
-        SdiError::Failed(_) | SdiError::RecordingStopped(_) => Outcome::Failed,
+        SdiError::Failed(_) | SdiError::RecordingStopped(_) | SdiError::Cancelled(_) => {
+            Outcome::Failed
+        }
     }
 }
 
