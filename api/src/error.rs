@@ -14,12 +14,17 @@ pub enum SdiError {
     OutOfRange(String),
     /// The sensor or output device is gone.
     DeviceUnavailable(String),
-    /// Another long operation (dark frame, calibration, recording) is running.
+    /// Another long operation (dark frame, calibration, recording) is running;
+    /// the message names it.
     Busy(String),
+    /// The job (dark frame, calibration) was cancelled: `Cancel`, its caller
+    /// left the bus, or it ran past its deadline; the message says which.
+    Cancelled(String),
     /// A path a path method refuses (anything but a new `<state dir>/NAME.ext`;
     /// one message whatever the reason), or a recording label it cannot show.
     InvalidPath(String),
-    /// A passed file descriptor that is not an empty regular file open for writing.
+    /// A passed file descriptor the method does not take (the message says
+    /// what it was given and what it takes).
     InvalidFd(String),
     /// StopRecording without a recording.
     NotRecording(String),

@@ -20,7 +20,9 @@ pub mod types;
 pub use error::SdiError;
 pub use proxy::{Camera1Proxy, Properties};
 pub use setting::{Change, Setting, SettingError};
-pub use types::{CalibrationReply, DarkFrameReply, PhaseCalibrationReply, RecordingReply, Stats};
+pub use types::{
+    CalibrationReply, DarkFrameReply, JobProgress, PhaseCalibrationReply, RecordingReply, Stats,
+};
 
 /// Well-known bus name of sdid.
 pub const BUS_NAME: &str = "org.sdi.Daemon";

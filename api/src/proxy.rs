@@ -14,7 +14,7 @@ use std::collections::HashMap;
 
 use crate::contract::{bus_name, Member};
 use crate::types::{
-    CalibrationReply, DarkFrameReply, PhaseCalibrationReply, RecordingReply, Stats,
+    CalibrationReply, DarkFrameReply, JobProgress, PhaseCalibrationReply, RecordingReply, Stats,
 };
 use crate::SdiError;
 
@@ -131,9 +131,13 @@ camera1! {
         /// Writes the latest frame into the caller's empty file, `png` or `npy`.
         fn snapshot_to_fd(&self, fd: Fd<'_>, format: &str) -> ();
         /// Writes every mode output into the caller's pipe or socket
-        /// (`frame_stream`'s format) until the caller closes it; a slow
-        /// reader loses frames, never delays sdid.
+        /// (`frame_stream`'s format) until the caller closes it or leaves
+        /// the bus; a slow reader loses frames, never delays sdid. At most
+        /// 2 streams per connection, 4 in all.
         fn stream_frames(&self, fd: Fd<'_>) -> ();
+        /// Cancels the running job (its call ends with `Cancelled`); the
+        /// job's name, "" when none runs.
+        fn cancel(&self) -> String;
     }
     properties {
         /// Current mode name.
@@ -168,6 +172,9 @@ camera1! {
         /// "FrameRate", "ModulationHz" -> (min, max); the board's own while
         /// it is the source.
         fn limits(&self) -> HashMap<String, (f64, f64)>;
+        /// The job holding the camera and its progress ({name, frames_done,
+        /// frames_total}; name "" when none).
+        fn job(&self) -> JobProgress;
     }
     signals {
         /// The daemon stopped a recording by itself (size limit, free-space

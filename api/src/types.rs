@@ -4,6 +4,21 @@
 
 use zbus::zvariant::{DeserializeDict, OwnedValue, SerializeDict, Type, Value};
 
+/// The `Job` property: the job holding the camera (dark frame,
+/// calibration, phase calibration) and its progress.
+#[derive(
+    Debug, Clone, Default, PartialEq, Eq, SerializeDict, DeserializeDict, Type, Value, OwnedValue,
+)]
+#[zvariant(signature = "a{sv}")]
+pub struct JobProgress {
+    /// "dark frame", "calibration", "phase calibration"; "" when none runs.
+    pub name: String,
+    /// Frames the job has taken so far.
+    pub frames_done: u32,
+    /// Frames it takes in all (without the few its settings need to settle).
+    pub frames_total: u32,
+}
+
 /// The `Stats` property, emitted about once a second.
 #[derive(Debug, Clone, PartialEq, SerializeDict, DeserializeDict, Type, Value, OwnedValue)]
 #[zvariant(signature = "a{sv}")]

@@ -138,7 +138,9 @@ fn daemon_outcome(e: &SdiError) -> Outcome {
         SdiError::Busy(_) => Outcome::Busy,
         SdiError::DeviceUnavailable(_) => Outcome::DeviceUnavailable,
         SdiError::NotRecording(_) | SdiError::NoFrame(_) => Outcome::NothingToDo,
-        SdiError::Failed(_) | SdiError::RecordingStopped(_) => Outcome::Failed,
+        SdiError::Failed(_) | SdiError::RecordingStopped(_) | SdiError::Cancelled(_) => {
+            Outcome::Failed
+        }
     }
 }
 
@@ -212,6 +214,15 @@ pub fn report(result: Result<(), CliError>, json: bool) -> ExitCode {
     }
     let _ = writeln!(std::io::stderr(), "error: {e}");
     ExitCode::from(outcome.exit_code())
+}
+
+/// Prints the JSON error object of a usage error clap found (the text
+/// itself goes to stderr as clap prints it).
+pub fn report_usage_json(message: &str) {
+    let _ = crate::stdout::outln!(
+        "{}",
+        serde_json::json!({"error": Outcome::Invalid.kind(), "message": message})
+    );
 }
 
 #[cfg(test)]

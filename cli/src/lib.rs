@@ -68,6 +68,52 @@ enum Board {
     Plan(offline::board_plan::BoardPlanArgs),
 }
 
+/// Parses `args` (the program name first) and runs them. A command line
+/// clap refuses exits 2 as clap says (help and version print as usual);
+/// under `--json` its message is also the JSON error object on stdout, as
+/// for every other refusal.
+pub fn main_with_args<I, T>(args: I) -> ExitCode
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let args: Vec<std::ffi::OsString> = args.into_iter().map(Into::into).collect();
+    match Cli::try_parse_from(&args) {
+        Ok(cli) => run(cli),
+        Err(e) if !e.use_stderr() => {
+            // --help, --version: text on stdout, exit 0.
+            let _ = e.print();
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            if json_asked(&args) {
+                let message = e.kind().as_str().map_or_else(
+                    || e.to_string().trim().to_owned(),
+                    |kind| format!("{kind}: {}", first_line(&e.to_string())),
+                );
+                exit::report_usage_json(&message);
+            }
+            let _ = e.print();
+            ExitCode::from(exit::Outcome::Invalid.exit_code())
+        }
+    }
+}
+
+/// Whether `--json` is among the options (before a `--`): clap refused
+/// the line, so it is looked for by hand.
+fn json_asked(args: &[std::ffi::OsString]) -> bool {
+    args.iter()
+        .skip(1)
+        .take_while(|a| *a != "--")
+        .any(|a| a == "--json")
+}
+
+/// clap's message without its "error: " prefix and usage lines.
+fn first_line(text: &str) -> &str {
+    let line = text.lines().next().unwrap_or_default();
+    line.strip_prefix("error: ").unwrap_or(line).trim()
+}
+
 /// Runs one parsed command line; the exit code follows `exit`'s table.
 pub fn run(cli: Cli) -> ExitCode {
     let json = cli.bus.json;
@@ -95,6 +141,6 @@ pub fn run(cli: Cli) -> ExitCode {
                 .and_then(|()| stdout::write_all(&text).map_err(exit::CliError::from))
         }
     };
-    // Offline commands report errors on stderr only, also under --json.
-    exit::report(result, false)
+    // Under --json every refusal is also the JSON error object on stdout.
+    exit::report(result, json)
 }

@@ -4,8 +4,6 @@
 
 use std::process::ExitCode;
 
-use clap::Parser;
-
 fn main() -> ExitCode {
-    sdi_cli::run(sdi_cli::Cli::parse())
+    sdi_cli::main_with_args(std::env::args_os())
 }

@@ -53,7 +53,12 @@ fn the_papers_operating_point_is_refused_with_the_range() {
         "10e6",
     ]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(stdout(&o).is_empty());
+    let err: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("json error");
+    assert_eq!(err["error"], "invalid");
+    assert_eq!(
+        format!("error: {}\n", err["message"].as_str().unwrap_or_default()),
+        golden("board_plan_paper.txt")
+    );
     assert_eq!(stderr(&o), golden("board_plan_paper.txt"));
 }
 
@@ -71,4 +76,55 @@ fn text_plan_lists_every_write_with_address_and_bits() {
         text.contains("write  pix_cnt_max              0x5882 [21: 0] = 400000"),
         "{text}"
     );
+}
+
+/// Issue 43 (8): under `--json` every refusal is the JSON error object on
+/// stdout, whether sdictl's own check or clap's argument parsing refuses:
+/// a bad number, an unknown or misspelt option, a missing value, and the
+/// same for other commands.
+#[test]
+fn every_refusal_under_json_is_the_json_error_object() {
+    let refused: &[&[&str]] = &[
+        &["board", "plan", "--frame-rate=nan"],
+        &["board", "plan", "--frame-rate=inf"],
+        &["board", "plan", "--frame-rate", "-30"],
+        &["board", "plan", "--exposure-us=0"],
+        &["board", "plan", "--modulation-hz=1e99"],
+        &["board", "plan", "--frame-rate=fast"],
+        &["board", "plan", "--frame-rate"],
+        &["board", "plan", "--no-such-option"],
+        &["board", "plan", "extra"],
+        &["board", "no-such-command"],
+        &["board"],
+        &["sim", "--frames", "x"],
+        &["report", "noise", "--bogus"],
+        &["set-mode"],
+        &["no-such-command"],
+    ];
+    for args in refused {
+        let mut all = vec!["--json"];
+        all.extend_from_slice(args);
+        let o = sdictl(&all);
+        assert_eq!(o.status.code(), Some(2), "{all:?}: {}", stderr(&o));
+        let out = stdout(&o);
+        let v: serde_json::Value = serde_json::from_str(&out)
+            .unwrap_or_else(|e| panic!("{all:?}: stdout {out:?} is not JSON ({e})"));
+        assert_eq!(v["error"], "invalid", "{all:?}: {v}");
+        assert!(
+            v["message"].as_str().is_some_and(|m| !m.is_empty()),
+            "{all:?}: {v}"
+        );
+        assert!(!stderr(&o).is_empty(), "{all:?}: the text stays on stderr");
+    }
+    // --json after the subcommand counts too (it is a global flag).
+    let o = sdictl(&["board", "plan", "--frame-rate=nan", "--json"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(serde_json::from_str::<serde_json::Value>(&stdout(&o)).is_ok());
+    // Without --json nothing goes to stdout; help still prints as text.
+    let o = sdictl(&["board", "plan", "--frame-rate=nan"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(stdout(&o).is_empty());
+    let o = sdictl(&["--json", "board", "plan", "--help"]);
+    assert!(o.status.success());
+    assert!(stdout(&o).contains("Usage"), "{}", stdout(&o));
 }

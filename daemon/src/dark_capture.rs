@@ -64,6 +64,10 @@ impl Job for DarkJob {
     fn restore(&self) -> Option<CaptureSettings> {
         None
     }
+
+    fn progress(&self) -> u32 {
+        self.acc.frames()
+    }
 }
 
 #[cfg(test)]

@@ -17,7 +17,7 @@ use crate::backend::pacer::Pacer;
 use crate::backend::{Backend, BackendError, CaptureSettings};
 use crate::cause_log::{repeats, CauseLog};
 use crate::dark_capture::{DarkCapture, DarkJob, NoUsablePixels};
-use crate::frame_stream::{FrameStreams, StreamError};
+use crate::frame_stream::{FrameStreams, StreamError, StreamTarget};
 use crate::job::{Running, Settling};
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
 use crate::phase_calibration::{PhaseFit, PhaseJob};
@@ -90,6 +90,17 @@ pub enum JobError {
     /// The job finished but its capture settings could not be put back.
     #[error("restoring the capture settings: {0}")]
     Restore(#[source] BackendError),
+    /// Ended by [`Command::CancelJob`]; its settings were put back.
+    #[error("cancelled")]
+    Cancelled,
+}
+
+/// How far the running job got: a number per job started (so a reader
+/// tells a new job's count from the last one's) and its frames so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct JobProgress {
+    pub job: u64,
+    pub frames: u32,
 }
 
 /// The first frame produced under a new setting: every published output with
@@ -138,8 +149,13 @@ pub enum Command {
     StartRecording(Box<RecordingWriter>, Reply<()>),
     /// Hands the recorder back; the caller finishes it (off this thread).
     StopRecording(Reply<Option<RecordingWriter>>),
-    /// Writes every output from now on into this pipe or socket.
-    StreamFrames(std::fs::File, Reply<Result<(), StreamError>>),
+    /// Writes every output from now on into this pipe or socket, for the
+    /// bus connection named (its unique name).
+    StreamFrames(StreamTarget, String, Reply<Result<(), StreamError>>),
+    /// The bus connection named left the bus: its streams end.
+    PeerLeft(String),
+    /// Ends the running job (its call gets [`JobError::Cancelled`]); none: nothing.
+    CancelJob,
     Shutdown,
 }
 
@@ -161,20 +177,34 @@ impl ActiveJob {
 
     /// The capture failed: puts the settings back and replies with `e`.
     fn fail(self, backend: &mut dyn Backend, e: BackendError) {
+        self.end_with(backend, e.into());
+    }
+
+    /// Puts the settings back and replies with `e` (a failure, a cancel).
+    fn end_with(self, backend: &mut dyn Backend, e: JobError) {
         match self {
             Self::Dark(run, reply) => {
                 let _ = run.end(backend);
-                let _ = reply.send(Err(e.into()));
+                let _ = reply.send(Err(e));
             }
             Self::PhotonTransfer(run, reply) => {
                 let _ = run.end(backend);
-                let _ = reply.send(Err(e.into()));
+                let _ = reply.send(Err(e));
             }
             Self::Phase(run, reply) => {
                 let _ = backend.measure_phase(false);
                 let _ = run.end(backend);
-                let _ = reply.send(Err(e.into()));
+                let _ = reply.send(Err(e));
             }
+        }
+    }
+
+    /// Frames the job has taken so far.
+    fn progress(&self) -> u32 {
+        match self {
+            Self::Dark(run, _) => run.progress(),
+            Self::PhotonTransfer(run, _) => run.progress(),
+            Self::Phase(run, _) => run.progress(),
         }
     }
 }
@@ -213,6 +243,8 @@ pub struct FrameLoop {
     sequence: u64,
     /// Setting changes waiting for their first published frame.
     pending_marks: Vec<PendingMark>,
+    /// The running (or last) job's number and the frames it has taken.
+    job_progress: watch::Sender<JobProgress>,
 }
 
 /// Whether the light sources must be on: someone watches the output (or
@@ -264,7 +296,13 @@ impl FrameLoop {
             lights: Settling::changed(),
             sequence: 0,
             pending_marks: Vec::new(),
+            job_progress: watch::Sender::new(JobProgress::default()),
         }
+    }
+
+    /// The running (or last) job's progress.
+    pub fn job_progress(&self) -> watch::Receiver<JobProgress> {
+        self.job_progress.subscribe()
     }
 
     /// Selects the separation mode's estimator (M3 by default).
@@ -433,6 +471,10 @@ impl FrameLoop {
         }
         if self.job.is_some() {
             self.job_step(frame);
+            if let Some(frames) = self.job.as_ref().map(ActiveJob::progress) {
+                self.job_progress
+                    .send_if_modified(|p| std::mem::replace(&mut p.frames, frames) != frames);
+            }
             self.answer_marks(u64::MAX);
         } else if let Some(out) = self.pipeline.process(frame) {
             let out = Arc::new(out.clone());
@@ -616,15 +658,24 @@ impl FrameLoop {
             Command::CaptureDark(_, reply) if self.job.is_some() => {
                 let _ = reply.send(Err(JobError::AlreadyRunning));
             }
-            Command::CaptureDark(frames, reply) => self.start_dark(frames, reply),
+            Command::CaptureDark(frames, reply) => {
+                self.next_job();
+                self.start_dark(frames, reply);
+            }
             Command::PhotonTransfer(_, reply) if self.job.is_some() => {
                 let _ = reply.send(Err(JobError::AlreadyRunning));
             }
-            Command::PhotonTransfer(frames, reply) => self.start_photon_transfer(frames, reply),
+            Command::PhotonTransfer(frames, reply) => {
+                self.next_job();
+                self.start_photon_transfer(frames, reply);
+            }
             Command::CalibratePhase(_, reply) if self.job.is_some() => {
                 let _ = reply.send(Err(JobError::AlreadyRunning));
             }
-            Command::CalibratePhase(frames, reply) => self.start_phase(frames, reply),
+            Command::CalibratePhase(frames, reply) => {
+                self.next_job();
+                self.start_phase(frames, reply);
+            }
             Command::Snapshot(reply) if !self.lights.is_settled() => {
                 // lights off (nobody watched) or just switched on
                 self.pending_snapshots.push(reply);
@@ -643,8 +694,14 @@ impl FrameLoop {
             Command::StopRecording(reply) => {
                 let _ = reply.send(self.recorder.take());
             }
-            Command::StreamFrames(file, reply) => {
-                let _ = reply.send(self.streams.open(file));
+            Command::StreamFrames(target, owner, reply) => {
+                let _ = reply.send(self.streams.open(target, &owner));
+            }
+            Command::PeerLeft(owner) => self.streams.close_owner(&owner),
+            Command::CancelJob => {
+                if let Some(job) = self.job.take() {
+                    job.end_with(&mut *self.backend, JobError::Cancelled);
+                }
             }
             Command::Shutdown => {}
         }
@@ -700,6 +757,14 @@ impl FrameLoop {
                 let _ = reply.send(Err(e.into()));
             }
         }
+    }
+
+    /// Numbers the job about to start; its progress counts from 0.
+    fn next_job(&mut self) {
+        self.job_progress.send_modify(|p| {
+            p.job += 1;
+            p.frames = 0;
+        });
     }
 
     /// Decodes with `axis` from now on (a stored or fitted phase axis).

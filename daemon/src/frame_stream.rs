@@ -2,27 +2,60 @@
 //! socket a client passed, in `sdi_api::frame_stream`'s format, each stream
 //! behind a two-slot queue on a thread of its own, so a slow or stalled
 //! reader loses frames and the frame loop never waits.
+//!
+//! A stream belongs to the bus connection that opened it: one connection
+//! holds at most [`MAX_STREAMS_PER_PEER`] of the [`MAX_STREAMS`], and its
+//! streams end when it leaves the bus ([`FrameStreams::close_owner`]). The
+//! threads never block in a write (sockets: `MSG_DONTWAIT` on each send;
+//! pipes: `O_NONBLOCK`), so a closed stream's thread ends within
+//! [`WRITE_POLL`].
 
 use std::fs::File;
-use std::io::Write;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::os::fd::{AsFd, AsRawFd, OwnedFd};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
 use std::sync::Arc;
+use std::time::Duration;
 
+use nix::errno::Errno;
+use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
+use nix::sys::socket::{send, MsgFlags};
 use sdi_api::frame_stream::{put_f32s, FrameHeader, WireError};
 use sdi_core::display::{DisplayMap, DisplayRange};
 use sdi_core::mode::{ModeId, ModeOutput};
 
 /// Streams open at once; one more is refused.
 pub const MAX_STREAMS: usize = 4;
+/// Streams one bus connection may hold: room is left for another client
+/// (`sdictl view` takes one).
+pub const MAX_STREAMS_PER_PEER: usize = 2;
+/// Longest a stream's thread waits for room in the reader's buffer before
+/// it looks whether the stream was closed, ms.
+const WRITE_POLL_MS: u16 = 100;
+/// [`WRITE_POLL_MS`] as a duration.
+pub const WRITE_POLL: Duration = Duration::from_millis(WRITE_POLL_MS as u64);
 
 /// Why a stream was not opened.
 #[derive(Debug, thiserror::Error)]
 pub enum StreamError {
     #[error("{MAX_STREAMS} frame streams are open already")]
     TooMany,
+    #[error(
+        "this connection holds {MAX_STREAMS_PER_PEER} frame streams already (the most one \
+         connection may hold; they end when it closes them or leaves the bus)"
+    )]
+    TooManyForPeer,
     #[error("starting the stream's thread: {0}")]
     Thread(#[source] std::io::Error),
+}
+
+/// Where a stream's frames go, as `client_fd::stream_target` accepted it.
+#[derive(Debug)]
+pub enum StreamTarget {
+    /// A pipe's or FIFO's writing end (opened write-only), made non-blocking.
+    Pipe(File),
+    /// A connected Unix stream socket, shut down for reading by sdid.
+    Socket(OwnedFd),
 }
 
 /// Why a stream ended (logged at debug level: a client closing is normal).
@@ -32,6 +65,8 @@ enum WriteError {
     Io(#[from] std::io::Error),
     #[error(transparent)]
     Wire(#[from] WireError),
+    #[error("closed by sdid (the caller left the bus)")]
+    Closed,
 }
 
 struct Packet {
@@ -43,6 +78,12 @@ struct Packet {
 struct Stream {
     tx: SyncSender<Packet>,
     dropped: Arc<AtomicU64>,
+    /// The unique bus name of the connection that opened it.
+    owner: String,
+    /// Set to end the stream's thread at its next wait.
+    closed: Arc<AtomicBool>,
+    /// Set by the thread when it ends (the reader went away).
+    ended: Arc<AtomicBool>,
 }
 
 /// The open streams, held by the frame loop.
@@ -52,24 +93,49 @@ pub struct FrameStreams {
 }
 
 impl FrameStreams {
-    /// Starts writing frames into `file`.
-    pub fn open(&mut self, file: File) -> Result<(), StreamError> {
+    /// Starts writing frames into `target` for the connection `owner`.
+    pub fn open(&mut self, target: StreamTarget, owner: &str) -> Result<(), StreamError> {
+        self.streams.retain(|s| !s.ended.load(Ordering::Relaxed));
+        if self.streams.iter().filter(|s| s.owner == owner).count() >= MAX_STREAMS_PER_PEER {
+            return Err(StreamError::TooManyForPeer);
+        }
         if self.streams.len() >= MAX_STREAMS {
             return Err(StreamError::TooMany);
         }
         let (tx, rx) = sync_channel(2);
         let dropped = Arc::new(AtomicU64::new(0));
-        let seen = dropped.clone();
+        let closed = Arc::new(AtomicBool::new(false));
+        let ended = Arc::new(AtomicBool::new(false));
+        let (seen, stop, done) = (dropped.clone(), closed.clone(), ended.clone());
         std::thread::Builder::new()
             .name("sdid-stream".into())
             .spawn(move || {
-                if let Err(e) = write_frames(file, &rx, &seen) {
+                if let Err(e) = write_frames(&target, &rx, &seen, &stop) {
                     tracing::debug!("frame stream ended: {e}");
                 }
+                done.store(true, Ordering::Relaxed);
             })
             .map_err(StreamError::Thread)?;
-        self.streams.push(Stream { tx, dropped });
+        self.streams.push(Stream {
+            tx,
+            dropped,
+            owner: owner.to_owned(),
+            closed,
+            ended,
+        });
         Ok(())
+    }
+
+    /// Ends the streams of `owner` (it left the bus): their slots are free
+    /// at once, their threads end within [`WRITE_POLL`].
+    pub fn close_owner(&mut self, owner: &str) {
+        self.streams.retain(|s| {
+            let theirs = s.owner == owner;
+            if theirs {
+                s.closed.store(true, Ordering::Relaxed);
+            }
+            !theirs
+        });
     }
 
     pub fn len(&self) -> usize {
@@ -101,11 +167,13 @@ impl FrameStreams {
     }
 }
 
-/// The stream's thread: encodes and writes until the reader goes away.
+/// The stream's thread: encodes and writes until the reader goes away or
+/// the stream is closed.
 fn write_frames(
-    mut file: File,
+    target: &StreamTarget,
     rx: &Receiver<Packet>,
     dropped: &AtomicU64,
+    closed: &AtomicBool,
 ) -> Result<(), WriteError> {
     let mut body = Vec::new();
     while let Ok(p) = rx.recv() {
@@ -135,7 +203,42 @@ fn write_frames(
             put_f32s(&mut body, &ch.i_plus_se_electrons.data);
             put_f32s(&mut body, &ch.i_minus_se_electrons.data);
         }
-        file.write_all(&body)?;
+        write_all(target, &body, closed)?;
+    }
+    Ok(())
+}
+
+/// Writes `buf` without ever blocking in the kernel: on a full buffer it
+/// waits up to [`WRITE_POLL`] for room, then looks at `closed` again.
+fn write_all(target: &StreamTarget, mut buf: &[u8], closed: &AtomicBool) -> Result<(), WriteError> {
+    let fd = match target {
+        StreamTarget::Pipe(f) => f.as_fd(),
+        StreamTarget::Socket(s) => s.as_fd(),
+    };
+    while !buf.is_empty() {
+        if closed.load(Ordering::Relaxed) {
+            return Err(WriteError::Closed);
+        }
+        let written = match target {
+            StreamTarget::Pipe(f) => nix::unistd::write(f, buf),
+            StreamTarget::Socket(s) => send(
+                s.as_raw_fd(),
+                buf,
+                MsgFlags::MSG_DONTWAIT | MsgFlags::MSG_NOSIGNAL,
+            ),
+        };
+        match written {
+            Ok(0) => return Err(std::io::Error::from(std::io::ErrorKind::WriteZero).into()),
+            Ok(n) => buf = &buf[n..],
+            Err(Errno::EAGAIN | Errno::EINTR) => {
+                let mut fds = [PollFd::new(fd, PollFlags::POLLOUT)];
+                match poll(&mut fds, PollTimeout::from(WRITE_POLL_MS)) {
+                    Ok(_) | Err(Errno::EINTR) => {}
+                    Err(e) => return Err(std::io::Error::from(e).into()),
+                }
+            }
+            Err(e) => return Err(std::io::Error::from(e).into()),
+        }
     }
     Ok(())
 }
@@ -148,11 +251,49 @@ mod tests {
     use std::os::unix::net::UnixStream;
 
     #[test]
+    fn a_peer_holds_two_slots_and_its_leaving_ends_its_streams() {
+        let mut streams = FrameStreams::default();
+        let mut readers = Vec::new();
+        let mut open = |streams: &mut FrameStreams, owner: &str| {
+            let (ours, theirs) = UnixStream::pair().unwrap();
+            readers.push(theirs);
+            streams.open(StreamTarget::Socket(ours.into()), owner)
+        };
+        open(&mut streams, ":1.1").unwrap();
+        open(&mut streams, ":1.1").unwrap();
+        assert!(matches!(
+            open(&mut streams, ":1.1"),
+            Err(StreamError::TooManyForPeer)
+        ));
+        open(&mut streams, ":1.2").unwrap();
+        open(&mut streams, ":1.2").unwrap();
+        assert!(matches!(
+            open(&mut streams, ":1.3"),
+            Err(StreamError::TooMany)
+        ));
+        // Frames fill the readers' buffers (nobody reads), then :1.1 leaves.
+        let out = Arc::new(ModeOutput::new(64, 64));
+        for _ in 0..64 {
+            streams.send(&out, DisplayMap::default(), ModeId::DirectOnly);
+        }
+        streams.close_owner(":1.1");
+        assert_eq!(streams.len(), 2);
+        open(&mut streams, ":1.3").unwrap();
+        // Its threads end (they never block in a write): its readers see the end.
+        for r in &mut readers[..2] {
+            r.set_read_timeout(Some(std::time::Duration::from_secs(5)))
+                .unwrap();
+            let mut buf = vec![0u8; 1 << 16];
+            while r.read(&mut buf).unwrap() > 0 {}
+        }
+    }
+
+    #[test]
     fn frames_arrive_in_the_wire_format_and_a_closed_reader_is_removed() {
         let (ours, mut theirs) = UnixStream::pair().unwrap();
         let mut streams = FrameStreams::default();
         streams
-            .open(File::from(std::os::fd::OwnedFd::from(ours)))
+            .open(StreamTarget::Socket(ours.into()), ":1.1")
             .unwrap();
         let mut out = ModeOutput::new(3, 2);
         out.signed_dn.data = vec![-1.0, 0.0, 1.0, 2.5, -7.0, 100.0];

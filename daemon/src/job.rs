@@ -31,6 +31,8 @@ pub trait Job {
     fn process(&mut self, frame: &Frame) -> Step<Self::Output>;
     /// Settings to put back when the job ends (`None`: it changed none).
     fn restore(&self) -> Option<CaptureSettings>;
+    /// Frames it has taken so far (the `Job` property's count).
+    fn progress(&self) -> u32;
 }
 
 /// A setting that takes effect one frame late: the board latches exposure
@@ -97,6 +99,11 @@ impl<J: Job> Running<J> {
 
     pub fn illumination(&self, carrier_hz: f64) -> Illumination {
         self.job.illumination(carrier_hz)
+    }
+
+    /// Frames the job has taken so far.
+    pub fn progress(&self) -> u32 {
+        self.job.progress()
     }
 
     /// The job, to hand it what a capture yields besides the frame.

@@ -105,6 +105,10 @@ impl Job for PhaseJob {
     fn restore(&self) -> Option<CaptureSettings> {
         None
     }
+
+    fn progress(&self) -> u32 {
+        self.frames
+    }
 }
 
 #[cfg(test)]

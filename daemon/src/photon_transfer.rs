@@ -121,4 +121,11 @@ impl Job for PtcJob {
     fn restore(&self) -> Option<CaptureSettings> {
         Some(self.base)
     }
+
+    /// Frames of the levels done and of this one.
+    fn progress(&self) -> u32 {
+        (self.level as u32)
+            .saturating_mul(self.frames_per_level)
+            .saturating_add(self.seen)
+    }
 }

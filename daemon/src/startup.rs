@@ -362,6 +362,7 @@ fn start_frame_loop(o: Opened, config: &Config) -> Result<(Camera, FrameLoopHand
             ),
         }
     }
+    let job_progress = frame_loop.job_progress();
     let thread = std::thread::Builder::new()
         .name("sdid-frames".into())
         .spawn(move || frame_loop.run(cmd_rx))
@@ -375,7 +376,8 @@ fn start_frame_loop(o: Opened, config: &Config) -> Result<(Camera, FrameLoopHand
         cmd_tx.clone(),
         stats_rx,
         cal_rx,
-    );
+    )
+    .with_job_progress(job_progress);
     let handle = FrameLoopHandle {
         commands: cmd_tx,
         thread,

@@ -1,11 +1,14 @@
 //! `sdictl dark-frame`, `calibrate` and `calibrate phase`: calls that take
-//! many frames, shown with a progress bar that advances at the camera's
-//! frame rate.
+//! many frames, shown with a progress bar that follows sdid's `Job`
+//! property. Ctrl-C cancels the job (`Cancel`) and waits for sdid to end
+//! it; a second Ctrl-C leaves at once (sdid then ends the job because its
+//! caller left the bus).
 
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use sdi_api::{Camera1Proxy, SdiError};
+use tokio::signal::unix::{signal, SignalKind};
 
 use super::wire_json;
 use crate::exit::CliError;
@@ -23,7 +26,7 @@ pub fn bar(len: u64, msg: &str, json: bool) -> ProgressBar {
     pb
 }
 
-/// Runs a long call while a progress bar advances at the camera's frame rate.
+/// Runs a long call while a progress bar shows sdid's count of its frames.
 async fn with_progress<T>(
     camera: &Camera1Proxy<'_>,
     frames: u32,
@@ -31,15 +34,35 @@ async fn with_progress<T>(
     json: bool,
     call: impl std::future::Future<Output = Result<T, SdiError>>,
 ) -> Result<T, CliError> {
-    let fps = camera.frame_rate().await.unwrap_or(30.0).max(0.1);
     let pb = bar(frames as u64, msg, json);
-    let start = Instant::now();
+    let mut interrupt =
+        signal(SignalKind::interrupt()).map_err(|e| CliError::Runtime(e.to_string()))?;
+    let mut cancelling = false;
     tokio::pin!(call);
-    let mut tick = tokio::time::interval(Duration::from_millis(100));
+    let mut tick = tokio::time::interval(Duration::from_millis(200));
     let r = loop {
         tokio::select! {
             r = &mut call => break r,
-            _ = tick.tick() => pb.set_position(((start.elapsed().as_secs_f64() * fps) as u64).min(frames as u64)),
+            _ = tick.tick() => {
+                if let Ok(job) = camera.job().await {
+                    if job.frames_total > 0 {
+                        pb.set_length(u64::from(job.frames_total));
+                        pb.set_position(u64::from(job.frames_done));
+                    }
+                }
+            }
+            _ = interrupt.recv() => {
+                if cancelling {
+                    pb.finish_and_clear();
+                    return Err(CliError::Runtime("interrupted".into()));
+                }
+                cancelling = true;
+                pb.set_message(format!("{msg}: cancelling"));
+                // A refusal (another user's job) leaves the call running.
+                if let Err(e) = camera.cancel().await {
+                    pb.println(format!("cancel: {e}"));
+                }
+            }
         }
     };
     pb.finish_and_clear();
@@ -57,16 +80,12 @@ pub async fn dark_frame(
 }
 
 pub async fn calibrate(camera: &Camera1Proxy<'_>, frames: u32, json: bool) -> Result<(), CliError> {
-    // Dark frames, then 5 photon-transfer levels of frames + 1 each.
-    let total = frames.saturating_mul(6).saturating_add(5);
+    // Dark frames, then 5 photon-transfer levels (sdid's Job says).
+    let total = frames.saturating_mul(6);
     let call = camera.calibrate(frames);
     let reply = with_progress(camera, total, "calibrating", json, call).await?;
     wire_json::print(&reply, json)
 }
-
-/// Frames the phase calibration leaves out while the light settles
-/// (sdid's `phase_calibration::FRAMES_IN_FLIGHT` and one to settle).
-const PHASE_SETTLE_FRAMES: u32 = 6;
 
 pub async fn calibrate_phase(
     camera: &Camera1Proxy<'_>,
@@ -79,9 +98,8 @@ pub async fn calibrate_phase(
              through [lights]; without a light rig, cover LS2 now)"
         );
     }
-    let total = frames.saturating_add(PHASE_SETTLE_FRAMES);
     let call = camera.calibrate_phase(frames);
-    let reply = with_progress(camera, total, "phase", json, call).await?;
+    let reply = with_progress(camera, frames, "phase", json, call).await?;
     if !json && reply.lights.is_empty() {
         eprintln!("sdid drives no lights: the axis assumes LS2 was covered");
     }

@@ -60,6 +60,15 @@ pub fn lines(p: &Properties) -> Vec<String> {
     if !p.recording.is_empty() {
         line("recording", p.recording.clone());
     }
+    if !p.job.name.is_empty() {
+        line(
+            "job",
+            format!(
+                "{}, frame {} of {}",
+                p.job.name, p.job.frames_done, p.job.frames_total
+            ),
+        );
+    }
     line("stats", stats(&p.stats));
     if p.backend == "opt8241" {
         line("limits", limits(p));
@@ -208,6 +217,7 @@ mod tests {
             range: 0.0,
             recording: String::new(),
             limits: HashMap::new(),
+            job: Default::default(),
             stats: Stats {
                 frames: 123,
                 fps: 60.001376238018075,
@@ -243,5 +253,17 @@ mod tests {
         assert!(text.contains("warning: light travel"), "{text}");
         p.scene = String::new();
         assert!(!lines(&p).join("\n").contains("light travel"));
+    }
+
+    #[test]
+    fn a_running_job_is_a_line_of_its_own() {
+        let mut p = raw_on_the_simulator();
+        p.job = sdi_api::JobProgress {
+            name: "calibration".into(),
+            frames_done: 12,
+            frames_total: 360,
+        };
+        let text = lines(&p).join("\n");
+        assert!(text.contains("job: calibration, frame 12 of 360"), "{text}");
     }
 }

@@ -212,7 +212,7 @@ pub struct CalibrateRequest {
 }
 
 /// Runs sdid's calibration (dark frame, then photon transfer); the page
-/// shows its progress while this call runs.
+/// shows its progress (sdid's `Job`, in `/api/status`) while this call runs.
 pub async fn calibrate(State(c): State<Arc<Controls>>, Json(r): Json<CalibrateRequest>) -> Reply {
     let reply = c
         .bus

@@ -4,7 +4,7 @@
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::sync::mpsc::Sender;
-use std::sync::{Arc, Mutex};
+use std::sync::Mutex;
 use std::time::Duration;
 
 use sdi_core::mode::ModeId;
@@ -17,13 +17,15 @@ use super::client_fd::{self, recording_label};
 use super::client_file;
 use super::errors::{
     calibration_failed, check_range, configure_refused, dark_failed, frame_loop_stopped,
-    invalid_mode, job_running, phase_failed, SdiError,
+    invalid_mode, phase_failed, SdiError,
 };
 use super::fairness::Fairness;
+use super::job_slot::{CancelCause, JobKind, JobSlot, JobTicket, MAX_JOB_SECONDS};
 use super::paths::OutputKind;
+use super::peers;
 use crate::backend::{CaptureSettings, Limits};
 use crate::calibration_store;
-use crate::frame_loop::{Command, DarkStats, FrameMark};
+use crate::frame_loop::{Command, DarkStats, FrameMark, JobError, JobProgress, Reply};
 use crate::recorder::{RecordingWriter, StopCause};
 use crate::sink::SinkInfo;
 use crate::stats::LoopStats;
@@ -82,10 +84,14 @@ pub struct Camera {
     calibration: watch::Receiver<Calibration>,
     /// Serializes mode and setting changes (zbus runs calls concurrently).
     change_lock: tokio::sync::Mutex<()>,
-    /// Held during dark frames and calibration.
-    long_op: Arc<tokio::sync::Mutex<()>>,
+    /// The job holding the camera (dark frame, calibration), taken once per job.
+    jobs: JobSlot,
+    /// The frame loop's count of the running job's frames.
+    job_progress: watch::Receiver<JobProgress>,
     /// Each caller's share of the method calls (one client's flood waits in its own queue).
     fairness: Fairness,
+    /// Connections whose departure is watched for their frame streams.
+    stream_owners: peers::Watched,
 }
 
 /// The reply of CaptureDarkFrame (core's statistics, the API's struct).
@@ -130,9 +136,17 @@ impl Camera {
             stats,
             calibration,
             change_lock: tokio::sync::Mutex::new(()),
-            long_op: Arc::new(tokio::sync::Mutex::new(())),
+            jobs: JobSlot::default(),
+            job_progress: watch::channel(JobProgress::default()).1,
             fairness: Fairness::default(),
+            stream_owners: peers::Watched::default(),
         }
+    }
+
+    /// Reads the running job's progress from the frame loop's `FrameLoop::job_progress`.
+    pub fn with_job_progress(mut self, job_progress: watch::Receiver<JobProgress>) -> Self {
+        self.job_progress = job_progress;
+        self
     }
 
     fn state(&self) -> State {
@@ -190,6 +204,11 @@ impl Camera {
     ) -> Result<(u64, u64), SdiError> {
         self.require_device()?;
         let guard = self.change_lock.lock().await;
+        // A job puts its settings back when it ends: a change now would
+        // be undone, so it is refused (the job took the change lock too).
+        if let Some(busy) = self.jobs.busy("changing capture settings is refused") {
+            return Err(busy);
+        }
         let mut capture = self.state().capture;
         f(&mut capture);
         let l = self.info.limits;
@@ -230,17 +249,197 @@ impl Camera {
         let _ = self.range_changed(emitter).await;
         Self::first_frame(rx).await
     }
+}
 
-    async fn dark(&self, frames: u32, min: u32) -> Result<DarkStats, SdiError> {
+/// A job in progress: the slot's ticket, the caller's departure, the deadline.
+struct RunningJob<'a> {
+    ticket: JobTicket<'a>,
+    caller_left: std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>>,
+    deadline: tokio::time::Instant,
+    bound: Duration,
+}
+
+/// How often a running job's progress is published (`Job`).
+const JOB_PROGRESS_PERIOD: Duration = Duration::from_millis(250);
+
+/// Jobs: one at a time, taken once for all their steps, ended by their
+/// caller's departure, `Cancel` or their deadline.
+impl Camera {
+    /// Checks `frames` against `[min, MAX_AVERAGE_FRAMES]`.
+    fn check_frames(frames: u32, min: u32) -> Result<(), SdiError> {
         if frames < min || frames > MAX_AVERAGE_FRAMES {
             return Err(SdiError::OutOfRange(format!(
                 "frames = {frames} is out of range: allowed [{min}, {MAX_AVERAGE_FRAMES}]"
             )));
         }
+        Ok(())
+    }
+
+    /// Takes the camera for a job of `total` frames (`captures`: with the
+    /// captures its settings need to settle): refused while another job or a
+    /// recording runs, or when it would take longer than [`MAX_JOB_SECONDS`]
+    /// at the current frame rate.
+    async fn begin_job(
+        &self,
+        kind: JobKind,
+        total: u32,
+        captures: u32,
+        hdr: &Header<'_>,
+        conn: &Connection,
+    ) -> Result<RunningJob<'_>, SdiError> {
         self.require_device()?;
-        let _guard = self.long_op.try_lock().map_err(job_running)?;
-        let r = self.ask(|tx| Command::CaptureDark(frames, tx)).await?;
-        r.map_err(dark_failed)
+        let rate_hz = self.state().capture.frame_rate_hz.max(1e-3);
+        let estimate_s = f64::from(captures) / rate_hz;
+        if estimate_s > MAX_JOB_SECONDS {
+            return Err(SdiError::OutOfRange(format!(
+                "the {} takes {captures} frames, {estimate_s:.0} s at {rate_hz} Hz: a job may take \
+                 at most {MAX_JOB_SECONDS:.0} s (fewer frames, or a higher frame rate)",
+                kind.name()
+            )));
+        }
+        let caller = peers::caller(hdr);
+        let owner = caller.as_ref().map_or_else(String::new, |c| c.to_string());
+        let uid = caller_uid(conn, hdr).await;
+        let now = *self.job_progress.borrow();
+        let ticket = self.jobs.begin(kind, total, &owner, uid, now)?;
+        {
+            // After any setting change or recording start under way; those
+            // that come later see the job.
+            let _changes = self.change_lock.lock().await;
+            if let Some(p) = self.state().recording {
+                return Err(SdiError::Busy(format!(
+                    "recording to {} runs: a {} would leave a gap in it; stop the recording first",
+                    p.display(),
+                    kind.name()
+                )));
+            }
+        }
+        let caller_left: std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> =
+            match caller {
+                Some(c) => Box::pin(peers::left_bus(conn.clone(), c)),
+                None => Box::pin(std::future::pending()),
+            };
+        // Twice the estimate and 10 s: room for a source slower than its rate.
+        let bound = Duration::from_secs_f64(2.0 * estimate_s + 10.0);
+        Ok(RunningJob {
+            ticket,
+            caller_left,
+            deadline: tokio::time::Instant::now() + bound,
+            bound,
+        })
+    }
+
+    /// Runs one step of `job` in the frame loop, publishing its progress;
+    /// cancels it (and answers `Cancelled`) when its caller leaves the bus,
+    /// someone calls `Cancel` or the deadline passes.
+    async fn job_step<T>(
+        &self,
+        job: &mut RunningJob<'_>,
+        emitter: &SignalEmitter<'_>,
+        make: impl FnOnce(Reply<Result<T, JobError>>) -> Command,
+    ) -> Result<Result<T, JobError>, SdiError> {
+        let kind = job.ticket.kind;
+        let cancelled =
+            |cause: CancelCause| SdiError::Cancelled(format!("the {} was {cause}", kind.name()));
+        if let Some(cause) = job.ticket.cancel_requested() {
+            return Err(cancelled(cause));
+        }
+        let (tx, mut rx) = oneshot::channel();
+        self.send(make(tx))?;
+        let mut tick = tokio::time::interval(JOB_PROGRESS_PERIOD);
+        let cause = loop {
+            tokio::select! {
+                r = &mut rx => return r.map_err(frame_loop_stopped),
+                c = job.ticket.cancelled() => break c,
+                () = &mut job.caller_left => break CancelCause::CallerLeft,
+                () = tokio::time::sleep_until(job.deadline) => break CancelCause::TimedOut(job.bound),
+                _ = tick.tick() => {
+                    job.ticket.progress.stage(*self.job_progress.borrow());
+                    let _ = self.job_changed(emitter).await;
+                }
+            }
+        };
+        tracing::info!(job = kind.name(), "{cause}");
+        self.send(Command::CancelJob)?;
+        match rx.await.map_err(frame_loop_stopped)? {
+            Err(JobError::Cancelled) => Err(cancelled(cause)),
+            // It finished before the cancel reached it.
+            done => Ok(done),
+        }
+    }
+
+    /// Ends a step: the next step's frames count on from its `frames`.
+    fn job_step_done(&self, job: &RunningJob<'_>, frames: u32) {
+        job.ticket
+            .progress
+            .next_stage(frames, *self.job_progress.borrow());
+    }
+
+    /// A dark-frame capture of `frames` as a job of its own.
+    async fn dark_frame_job(
+        &self,
+        frames: u32,
+        hdr: &Header<'_>,
+        conn: &Connection,
+        emitter: &SignalEmitter<'_>,
+    ) -> Result<DarkStats, SdiError> {
+        Self::check_frames(frames, 1)?;
+        let captures = frames.saturating_add(2);
+        let mut job = self
+            .begin_job(JobKind::DarkFrame, frames, captures, hdr, conn)
+            .await?;
+        let _ = self.job_changed(emitter).await;
+        self.job_step(&mut job, emitter, |tx| Command::CaptureDark(frames, tx))
+            .await?
+            .map_err(dark_failed)
+    }
+
+    /// The calibration: the dark frame, then photon transfer, one job.
+    async fn calibration_job(
+        &self,
+        frames: u32,
+        hdr: &Header<'_>,
+        conn: &Connection,
+        emitter: &SignalEmitter<'_>,
+    ) -> Result<(DarkStats, sdi_core::calibration::PhotonTransferFit), SdiError> {
+        Self::check_frames(frames, 2)?;
+        let levels = crate::photon_transfer::LEVELS.len() as u32;
+        let total = frames.saturating_mul(levels + 1);
+        // Two captures to settle at the start and at each level.
+        let captures = total.saturating_add(2 * (levels + 1));
+        let mut job = self
+            .begin_job(JobKind::Calibration, total, captures, hdr, conn)
+            .await?;
+        let _ = self.job_changed(emitter).await;
+        let dark = self
+            .job_step(&mut job, emitter, |tx| Command::CaptureDark(frames, tx))
+            .await?
+            .map_err(dark_failed)?;
+        self.job_step_done(&job, frames);
+        let fit = self
+            .job_step(&mut job, emitter, |tx| Command::PhotonTransfer(frames, tx))
+            .await?
+            .map_err(calibration_failed)?;
+        Ok((dark, fit))
+    }
+
+    /// The phase calibration of `frames` as a job.
+    async fn phase_job(
+        &self,
+        frames: u32,
+        hdr: &Header<'_>,
+        conn: &Connection,
+        emitter: &SignalEmitter<'_>,
+    ) -> Result<crate::phase_calibration::PhaseFit, SdiError> {
+        Self::check_frames(frames, 1)?;
+        let captures = frames.saturating_add(crate::phase_calibration::FRAMES_IN_FLIGHT + 2);
+        let mut job = self
+            .begin_job(JobKind::PhaseCalibration, frames, captures, hdr, conn)
+            .await?;
+        let _ = self.job_changed(emitter).await;
+        self.job_step(&mut job, emitter, |tx| Command::CalibratePhase(frames, tx))
+            .await?
+            .map_err(phase_failed)
     }
 }
 
@@ -313,6 +512,12 @@ impl Camera {
             + 'static,
     ) -> Result<(), SdiError> {
         let _guard = self.change_lock.lock().await;
+        if let Some(busy) = self
+            .jobs
+            .busy("a recording is refused (it would have a gap while the job takes the frames)")
+        {
+            return Err(busy);
+        }
         let st = self.state();
         if let Some(p) = &st.recording {
             return Err(SdiError::Busy(format!(
@@ -398,6 +603,13 @@ impl Camera {
     /// The latest processed frame, waiting up to 2 s for the first one.
     async fn latest_frame(&self) -> Result<crate::frame_loop::SnapshotData, SdiError> {
         self.require_device()?;
+        // The job takes the frames until it ends: answer now, not then.
+        if let Some(busy) = self
+            .jobs
+            .busy("a snapshot is refused (the frames go to the job)")
+        {
+            return Err(busy);
+        }
         for _ in 0..20 {
             if let Some(snap) = self.ask(Command::Snapshot).await? {
                 return Ok(snap);
@@ -527,10 +739,13 @@ impl Camera {
         &self,
         frames: u32,
         #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
     ) -> Result<DarkFrameReply, SdiError> {
         let _turn = self.fairness.turn(&hdr).await;
-        let s = self.dark(frames, 1).await?;
-        Ok(dark_frame_reply(&s))
+        let r = self.dark_frame_job(frames, &hdr, conn, &emitter).await;
+        let _ = self.job_changed(&emitter).await;
+        Ok(dark_frame_reply(&r?))
     }
 
     /// Calibration: the dark frame, read-noise variance (DN^2, eq. skellamvar
@@ -542,14 +757,13 @@ impl Camera {
         &self,
         frames: u32,
         #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
     ) -> Result<CalibrationReply, SdiError> {
         let _turn = self.fairness.turn(&hdr).await;
-        let s = self.dark(frames, 2).await?;
-        let _guard = self.long_op.try_lock().map_err(job_running)?;
-        let fit = self
-            .ask(|tx| Command::PhotonTransfer(frames, tx))
-            .await?
-            .map_err(calibration_failed)?;
+        let r = self.calibration_job(frames, &hdr, conn, &emitter).await;
+        let _ = self.job_changed(&emitter).await;
+        let (s, fit) = r?;
         let mut reply = CalibrationReply {
             frames: s.frames,
             mean_dn: s.mean_dn,
@@ -601,13 +815,11 @@ impl Camera {
         &self,
         frames: u32,
         #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+        #[zbus(signal_emitter)] emitter: SignalEmitter<'_>,
     ) -> Result<PhaseCalibrationReply, SdiError> {
         let _turn = self.fairness.turn(&hdr).await;
-        if !(1..=MAX_AVERAGE_FRAMES).contains(&frames) {
-            return Err(SdiError::OutOfRange(format!(
-                "frames = {frames} is out of range: allowed [1, {MAX_AVERAGE_FRAMES}]"
-            )));
-        }
+        Self::check_frames(frames, 1)?;
         if self.info.backend != crate::backend::BackendName::Opt8241 {
             return Err(SdiError::Failed(format!(
                 "phase calibration needs the OPT8241-CDK's raw quads; the backend is {} \
@@ -615,12 +827,9 @@ impl Camera {
                 self.info.backend
             )));
         }
-        self.require_device()?;
-        let _guard = self.long_op.try_lock().map_err(job_running)?;
-        let fit = self
-            .ask(|tx| Command::CalibratePhase(frames, tx))
-            .await?
-            .map_err(phase_failed)?;
+        let r = self.phase_job(frames, &hdr, conn, &emitter).await;
+        let _ = self.job_changed(&emitter).await;
+        let fit = r?;
         let mut reply = PhaseCalibrationReply {
             frames: fit.frames,
             angle_deg: fit.axis.angle_rad.to_degrees(),
@@ -809,15 +1018,67 @@ impl Camera {
         &self,
         fd: zbus::zvariant::OwnedFd,
         #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
     ) -> Result<(), SdiError> {
+        use crate::frame_stream::StreamError;
         let _turn = self.fairness.turn(&hdr).await;
-        let file = client_fd::stream_pipe(fd.into())?;
-        self.ask(|reply| Command::StreamFrames(file, reply))
+        let target = client_fd::stream_target(fd.into())?;
+        let caller = peers::caller(&hdr)
+            .ok_or_else(|| SdiError::Failed("the call names no sender".into()))?;
+        let owner = caller.to_string();
+        self.ask(|reply| Command::StreamFrames(target, owner.clone(), reply))
             .await?
             .map_err(|e| match e {
-                crate::frame_stream::StreamError::TooMany => SdiError::Busy(e.to_string()),
-                crate::frame_stream::StreamError::Thread(_) => SdiError::Failed(e.to_string()),
-            })
+                StreamError::TooMany | StreamError::TooManyForPeer => SdiError::Busy(e.to_string()),
+                StreamError::Thread(_) => SdiError::Failed(e.to_string()),
+            })?;
+        // The stream is the caller's: it ends when the caller leaves the
+        // bus. One watch per connection, however many streams it opens.
+        let commands = self.commands.lock().map(|tx| tx.clone());
+        if let (Ok(commands), true) = (commands, self.stream_owners.insert(&owner)) {
+            let conn = conn.clone();
+            let owners = self.stream_owners.clone();
+            tokio::spawn(async move {
+                peers::left_bus(conn, caller).await;
+                owners.remove(&owner);
+                let _ = commands.send(Command::PeerLeft(owner));
+            });
+        }
+        Ok(())
+    }
+
+    /// Cancels the running job (dark frame, calibration, phase calibration):
+    /// its call ends with `org.sdi.Error.Cancelled` and its settings are put
+    /// back. Its caller, a connection of the same user, or root may; returns
+    /// the job's name, "" when none runs.
+    async fn cancel(
+        &self,
+        #[zbus(header)] hdr: Header<'_>,
+        #[zbus(connection)] conn: &Connection,
+    ) -> Result<String, SdiError> {
+        let _turn = self.fairness.turn(&hdr).await;
+        let caller = peers::caller(&hdr).map_or_else(String::new, |c| c.to_string());
+        let uid = caller_uid(conn, &hdr).await;
+        let kind = self.jobs.cancel(&caller, uid)?;
+        if let Some(k) = kind {
+            tracing::info!(job = k.name(), by = caller, "cancel asked");
+        }
+        Ok(kind.map_or_else(String::new, |k| k.name().to_owned()))
+    }
+
+    /// The job holding the camera: {name ("" when none), frames_done,
+    /// frames_total}; emitted when one starts and ends and about four times
+    /// a second while it runs.
+    #[zbus(property)]
+    async fn job(&self) -> sdi_api::JobProgress {
+        match self.jobs.progress() {
+            Some((kind, frames_done, frames_total)) => sdi_api::JobProgress {
+                name: kind.name().to_owned(),
+                frames_done,
+                frames_total,
+            },
+            None => sdi_api::JobProgress::default(),
+        }
     }
 
     /// Current mode name.

@@ -10,6 +10,7 @@ use nix::fcntl::{fcntl, FcntlArg, OFlag};
 
 use super::errors::SdiError;
 use super::paths::OutputKind;
+use crate::frame_stream::StreamTarget;
 
 /// Longest label a client may give a recording (shown in `Recording`).
 pub const MAX_LABEL_BYTES: usize = 4096;
@@ -51,11 +52,17 @@ pub fn output_file(fd: OwnedFd) -> Result<File, SdiError> {
     Ok(file)
 }
 
-/// Accepts `fd` if it is a pipe or socket open for writing, the reading
-/// end held by the client (`StreamFrames`), and makes its writes blocking:
-/// the daemon writes from a thread of its own, so a stalled reader only
-/// stalls that thread.
-pub fn stream_pipe(fd: OwnedFd) -> Result<File, SdiError> {
+/// What `StreamFrames` takes, said once for every refusal.
+const STREAM_WANTED: &str = "pass the writing end of a pipe (or a FIFO opened write-only) \
+     or one end of a connected Unix stream socket, the other end kept by you";
+
+/// Accepts `fd` for `StreamFrames` if sdid cannot read from it itself: a
+/// pipe or FIFO opened write-only (one opened read-write would give sdid
+/// the read side), or a connected Unix stream socket, which sdid shuts
+/// down for reading (so both ends of one pair passed in end at the first
+/// write) and whose other end is not sdid's own. The writes are made
+/// non-blocking: the stream's thread must never wait in the kernel.
+pub fn stream_target(fd: OwnedFd) -> Result<StreamTarget, SdiError> {
     use std::os::unix::fs::FileTypeExt;
     let bad = |why: String| SdiError::InvalidFd(why);
     let file = File::from(fd);
@@ -63,27 +70,56 @@ pub fn stream_pipe(fd: OwnedFd) -> Result<File, SdiError> {
         .metadata()
         .map_err(|e| bad(format!("fstat on the descriptor failed: {e}")))?;
     let t = meta.file_type();
-    if !t.is_fifo() && !t.is_socket() {
-        let what = kind_name(&meta);
-        return Err(bad(format!(
-            "the descriptor is {what}: pass the writing end of a pipe or a socket"
-        )));
-    }
     let flags = fcntl(file.as_raw_fd(), FcntlArg::F_GETFL)
         .map_err(|e| bad(format!("fcntl(F_GETFL) on the descriptor failed: {e}")))?;
     let flags = OFlag::from_bits_truncate(flags);
-    let access = flags & OFlag::O_ACCMODE;
-    if access != OFlag::O_WRONLY && access != OFlag::O_RDWR {
-        return Err(bad(
-            "the descriptor is the reading end: pass the writing end".into(),
+    if t.is_fifo() {
+        if flags & OFlag::O_ACCMODE != OFlag::O_WRONLY {
+            return Err(bad(format!(
+                "the pipe is open for reading (sdid would hold a read side): {STREAM_WANTED}"
+            )));
+        }
+        fcntl(
+            file.as_raw_fd(),
+            FcntlArg::F_SETFL(flags | OFlag::O_NONBLOCK),
+        )
+        .map_err(|e| bad(format!("fcntl(F_SETFL) on the descriptor failed: {e}")))?;
+        return Ok(StreamTarget::Pipe(file));
+    }
+    if t.is_socket() {
+        return stream_socket(OwnedFd::from(file))
+            .map_err(|why| bad(format!("{why}: {STREAM_WANTED}")));
+    }
+    let what = kind_name(&meta);
+    Err(bad(format!("the descriptor is {what}: {STREAM_WANTED}")))
+}
+
+/// The socket checks of [`stream_target`]; the refusal's reason.
+fn stream_socket(fd: OwnedFd) -> Result<StreamTarget, String> {
+    use nix::sys::socket::{
+        getpeername, getsockname, getsockopt, shutdown, sockopt, AddressFamily, Shutdown, SockType,
+        SockaddrLike, SockaddrStorage,
+    };
+    let domain = getsockname::<SockaddrStorage>(fd.as_raw_fd())
+        .map_err(|e| format!("getsockname failed: {e}"))?
+        .family();
+    let kind = getsockopt(&fd, sockopt::SockType)
+        .map_err(|e| format!("getsockopt(SO_TYPE) failed: {e}"))?;
+    if domain != Some(AddressFamily::Unix) || kind != SockType::Stream {
+        return Err(format!(
+            "the socket is {domain:?} {kind:?}, not a Unix stream socket"
         ));
     }
-    fcntl(
-        file.as_raw_fd(),
-        FcntlArg::F_SETFL(flags - OFlag::O_NONBLOCK),
-    )
-    .map_err(|e| bad(format!("fcntl(F_SETFL) on the descriptor failed: {e}")))?;
-    Ok(file)
+    getpeername::<SockaddrStorage>(fd.as_raw_fd())
+        .map_err(|e| format!("the socket is not connected ({e})"))?;
+    let peer = getsockopt(&fd, sockopt::PeerCredentials)
+        .map_err(|e| format!("getsockopt(SO_PEERCRED) failed: {e}"))?;
+    if u32::try_from(peer.pid()).is_ok_and(|pid| pid == std::process::id()) {
+        return Err("the socket's other end is sdid's own".into());
+    }
+    shutdown(fd.as_raw_fd(), Shutdown::Read)
+        .map_err(|e| format!("shutting the socket down for reading failed: {e}"))?;
+    Ok(StreamTarget::Socket(fd))
 }
 
 /// Kernel interface file systems whose "files" act when written (and may
@@ -121,8 +157,10 @@ fn kind_name(meta: &std::fs::Metadata) -> &'static str {
         "a character device (tty, /dev/null, ...)"
     } else if t.is_block_device() {
         "a block device"
+    } else if t.is_file() {
+        "a regular file (or memfd)"
     } else {
-        "not a regular file"
+        "of an unknown type"
     }
 }
 
@@ -206,16 +244,46 @@ mod tests {
         assert!(rejected(comm.into()));
     }
 
+    fn refusal(fd: OwnedFd) -> String {
+        match stream_target(fd) {
+            Err(SdiError::InvalidFd(m)) => m,
+            other => panic!("accepted: {other:?}"),
+        }
+    }
+
     #[test]
-    fn streams_take_only_writable_pipes_and_sockets() {
+    fn streams_take_only_what_sdid_cannot_read_itself() {
+        // A pair made by this process: its other end is "sdid's own" (a
+        // client's pair is taken: tests/tests/integration/dbus_stream_slots.rs).
         let (a, _b) = UnixStream::pair().unwrap();
-        assert!(stream_pipe(a.into()).is_ok());
+        assert!(refusal(a.into()).contains("sdid's own"));
         let (r, w) = nix::unistd::pipe().unwrap();
-        assert!(stream_pipe(w).is_ok());
-        assert!(matches!(stream_pipe(r), Err(SdiError::InvalidFd(_))));
+        assert!(stream_target(w).is_ok());
+        assert!(refusal(r).contains("open for reading"));
         let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("fifo");
+        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).unwrap();
+        let rw = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .open(&fifo)
+            .unwrap();
+        assert!(refusal(rw.into()).contains("open for reading"));
         let f = File::create(dir.path().join("f")).unwrap();
-        assert!(matches!(stream_pipe(f.into()), Err(SdiError::InvalidFd(_))));
+        let m = refusal(f.into());
+        assert!(m.starts_with("the descriptor is a regular file"), "{m}");
+        assert!(m.contains("pipe") && m.contains("socket"), "{m}");
+        // A datagram socket, an unconnected one.
+        let (d, _e) = std::os::unix::net::UnixDatagram::pair().unwrap();
+        assert!(refusal(d.into()).contains("not a Unix stream socket"));
+        let lone = nix::sys::socket::socket(
+            nix::sys::socket::AddressFamily::Unix,
+            nix::sys::socket::SockType::Stream,
+            nix::sys::socket::SockFlag::empty(),
+            None,
+        )
+        .unwrap();
+        assert!(refusal(lone).contains("not connected"));
     }
 
     #[test]

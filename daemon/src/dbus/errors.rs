@@ -38,11 +38,6 @@ pub fn frame_loop_stopped<E>(_closed: E) -> SdiError {
     SdiError::DeviceUnavailable("the frame loop has stopped".into())
 }
 
-/// A second dark-frame capture or calibration while one runs.
-pub fn job_running<E>(_held: E) -> SdiError {
-    SdiError::Busy(JobError::AlreadyRunning.to_string())
-}
-
 /// Capture settings the backend refused.
 pub fn configure_refused(e: BackendError) -> SdiError {
     match e {

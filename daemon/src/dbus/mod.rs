@@ -5,6 +5,8 @@ pub mod client_fd;
 pub mod client_file;
 pub mod errors;
 pub mod fairness;
+pub mod job_slot;
 pub mod paths;
+pub mod peers;
 
 pub use sdi_api::{BUS_NAME, INTERFACE, OBJECT_PATH};

@@ -443,7 +443,8 @@ fn the_page_shows_controls_and_measures_what_sdid_publishes() {
 }
 
 /// `StreamFrames` takes only the writing end of a pipe or socket, at most
-/// four at once, and writes frames in `sdi_api::frame_stream`'s format.
+/// two per connection and four in all, and writes frames in
+/// `sdi_api::frame_stream`'s format.
 #[test]
 fn stream_frames_checks_its_descriptor_and_streams_frames() {
     use sdi_api::frame_stream::{FrameHeader, HEADER_BYTES};
@@ -459,6 +460,8 @@ fn stream_frames_checks_its_descriptor_and_streams_frames() {
     rt.block_on(async {
         let conn = bus.connect().await;
         let cam = sdi_api::Camera1Proxy::new(&conn).await.unwrap();
+        let other = bus.connect().await;
+        let cam2 = sdi_api::Camera1Proxy::new(&other).await.unwrap();
         let invalid =
             |r: Result<(), sdi_api::SdiError>| matches!(r, Err(sdi_api::SdiError::InvalidFd(_)));
         let file = std::fs::File::create(dir.path().join("f")).unwrap();
@@ -466,11 +469,13 @@ fn stream_frames_checks_its_descriptor_and_streams_frames() {
         let (pipe_r, _pipe_w) = nix::unistd::pipe().unwrap();
         assert!(invalid(cam.stream_frames(Fd::from(&pipe_r)).await));
         let mut ours = Vec::new();
-        for _ in 0..4 {
+        for c in [&cam, &cam, &cam2, &cam2] {
             let (a, b) = std::os::unix::net::UnixStream::pair().unwrap();
-            cam.stream_frames(Fd::from(&b)).await.unwrap();
+            c.stream_frames(Fd::from(&b)).await.unwrap();
             ours.push(a);
         }
+        let third = bus.connect().await;
+        let cam = sdi_api::Camera1Proxy::new(&third).await.unwrap();
         let (_a, b) = std::os::unix::net::UnixStream::pair().unwrap();
         assert!(matches!(
             cam.stream_frames(Fd::from(&b)).await,

@@ -211,10 +211,13 @@ $("record").onclick = async () => {
 $("calibrate").onclick = async () => {
   showError("cal_error", null);
   const frames = Number($("cal_frames").value);
-  // Dark frame and five exposure levels of `frames` frames each.
-  const expected_s = 6 * frames / Math.max(1, state.status.properties.FrameRate);
-  const t0 = performance.now();
-  const timer = setInterval(() => { $("cal_progress").value = Math.min(0.99, (performance.now() - t0) / 1000 / expected_s); }, 100);
+  // sdid's own count of the job's frames (its Job property).
+  const timer = setInterval(async () => {
+    let s;
+    try { s = await api("status"); } catch (e) { return; }
+    const job = s.properties.Job || {};
+    if (job.frames_total > 0) $("cal_progress").value = Math.min(0.99, job.frames_done / job.frames_total);
+  }, 250);
   $("cal_text").textContent = "calibrating...";
   try {
     const r = await api("calibrate", { frames });

@@ -1,0 +1,261 @@
+//! Long jobs (issue 43, defects 4 and 5): a setting change while a job
+//! holds the camera is refused with `Busy` naming the job, never answered
+//! ok and dropped; a job ends when its caller leaves the bus or anyone of
+//! its user calls `Cancel`; it is bounded in seconds; it reports its
+//! progress in the `Job` property; a snapshot during it answers at once;
+//! recordings and jobs exclude each other (a job would leave a gap in the
+//! recording).
+//!
+//! The calls new with issue 43 (`Cancel`, `Job`) go through an untyped
+//! proxy, so this file also builds (and fails) against sdid without them.
+
+use std::time::{Duration, Instant};
+
+use sdi_api::{Camera1Proxy, SdiError};
+use sdi_tests::dbus::{Bus, Daemon};
+use sdi_tests::require_dbus;
+use zbus::zvariant::{Fd, OwnedValue};
+
+/// Frames per step of the calibration these tests start: 300 dark frames
+/// and 5 x 300 photon-transfer frames, a minute at 30 Hz: it runs until
+/// the test ends it.
+const LONG: u32 = 300;
+
+fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+/// Sends `Calibrate(frames)` on `conn` without waiting for the reply;
+/// returns the call's serial number.
+async fn send_calibrate(conn: &zbus::Connection, frames: u32) -> zbus::Message {
+    let msg = zbus::Message::method_call("/org/sdi/Camera0", "Calibrate")
+        .unwrap()
+        .destination("org.sdi.Daemon")
+        .unwrap()
+        .interface("org.sdi.Camera1")
+        .unwrap()
+        .build(&(frames,))
+        .unwrap();
+    conn.send(&msg).await.unwrap();
+    msg
+}
+
+/// An untyped proxy of the camera that reads properties from sdid each time.
+async fn uncached(conn: &zbus::Connection) -> zbus::Proxy<'static> {
+    zbus::proxy::Builder::new(conn)
+        .destination("org.sdi.Daemon")
+        .unwrap()
+        .path("/org/sdi/Camera0")
+        .unwrap()
+        .interface("org.sdi.Camera1")
+        .unwrap()
+        .cache_properties(zbus::proxy::CacheProperties::No)
+        .build()
+        .await
+        .unwrap()
+}
+
+/// Waits until a job holds the camera (its `Job` property names it).
+async fn wait_for_job(cam: &Camera1Proxy<'_>) {
+    let raw = uncached(cam.inner().connection()).await;
+    let t0 = Instant::now();
+    loop {
+        let job: OwnedValue = raw
+            .get_property("Job")
+            .await
+            .unwrap_or_else(|e| panic!("the Job property: {e}"));
+        let d: std::collections::HashMap<String, OwnedValue> = job.try_into().unwrap();
+        if String::try_from(d["name"].try_clone().unwrap()).unwrap() != "" {
+            return;
+        }
+        assert!(t0.elapsed() < Duration::from_secs(20), "no job started");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// Waits until no job holds the camera (a 1-frame dark capture goes
+/// through); how long that took.
+async fn wait_for_no_job(cam: &Camera1Proxy<'_>, within: Duration) -> Result<Duration, String> {
+    let t0 = Instant::now();
+    loop {
+        match cam.capture_dark_frame(1).await {
+            Ok(_) => return Ok(t0.elapsed()),
+            Err(e) if t0.elapsed() > within => {
+                return Err(format!("still refused after {:?}: {e}", t0.elapsed()))
+            }
+            Err(_) => tokio::time::sleep(Duration::from_millis(20)).await,
+        }
+    }
+}
+
+#[test]
+fn a_setting_change_during_a_job_is_refused_naming_the_job() {
+    require_dbus!();
+    let bus = Bus::start();
+    let _d = Daemon::start(&bus, &[]);
+    runtime().block_on(async {
+        let a = bus.connect().await;
+        send_calibrate(&a, LONG).await;
+        let b = bus.connect().await;
+        let cam = Camera1Proxy::new(&b).await.unwrap();
+        wait_for_job(&cam).await;
+        let before = cam.exposure_us().await.unwrap();
+        let r = cam.set_exposure_us(1000.0).await;
+        match &r {
+            Err(SdiError::Busy(m)) => assert!(m.contains("calibration"), "{m}"),
+            other => panic!("SetExposureUs(1000) during Calibrate: {other:?}"),
+        }
+        assert_eq!(cam.exposure_us().await.unwrap(), before);
+        let r = cam.set_frame_rate(20.0).await;
+        assert!(matches!(r, Err(SdiError::Busy(_))), "SetFrameRate: {r:?}");
+        assert_eq!(cam.frame_rate().await.unwrap(), 30.0);
+        // Once the job is gone, the change is taken and kept.
+        a.close().await.unwrap();
+        wait_for_no_job(&cam, Duration::from_secs(10))
+            .await
+            .unwrap();
+        cam.set_exposure_us(1000.0).await.unwrap();
+        assert_eq!(cam.exposure_us().await.unwrap(), 1000.0);
+    });
+}
+
+#[test]
+fn a_job_ends_when_its_caller_leaves_the_bus() {
+    require_dbus!();
+    let bus = Bus::start();
+    let _d = Daemon::start(&bus, &[]);
+    runtime().block_on(async {
+        let a = bus.connect().await;
+        send_calibrate(&a, LONG).await;
+        let b = bus.connect().await;
+        let cam = Camera1Proxy::new(&b).await.unwrap();
+        wait_for_job(&cam).await;
+        a.close().await.unwrap();
+        // sdid cancels on NameOwnerChanged; a frame or two to put the
+        // settings back; the rest is room for a loaded machine.
+        let took = wait_for_no_job(&cam, Duration::from_secs(3))
+            .await
+            .unwrap_or_else(|e| panic!("the caller left, its calibration ran on: {e}"));
+        eprintln!("job ended {took:?} after its caller left");
+        assert_eq!(cam.exposure_us().await.unwrap(), 2000.0);
+    });
+}
+
+#[test]
+fn cancel_ends_a_job_and_progress_is_reported() {
+    require_dbus!();
+    let bus = Bus::start();
+    let _d = Daemon::start(&bus, &[]);
+    runtime().block_on(async {
+        let a = bus.connect().await;
+        let cam_a = Camera1Proxy::new(&a).await.unwrap();
+        let b = bus.connect().await;
+        let raw_b = uncached(&b).await;
+        let cam_b = Camera1Proxy::new(&b).await.unwrap();
+        let job = tokio::spawn(async move { cam_a.calibrate(LONG).await });
+        wait_for_job(&cam_b).await;
+
+        // Progress: the Job property names the job and counts its frames.
+        let progress = |v: OwnedValue| -> (String, u32, u32) {
+            let d: std::collections::HashMap<String, OwnedValue> = v.try_into().unwrap();
+            let s = |k: &str| String::try_from(d[k].try_clone().unwrap()).unwrap();
+            let u = |k: &str| u32::try_from(d[k].try_clone().unwrap()).unwrap();
+            (s("name"), u("frames_done"), u("frames_total"))
+        };
+        let read = || async {
+            let v: OwnedValue = raw_b
+                .get_property("Job")
+                .await
+                .unwrap_or_else(|e| panic!("the Job property: {e}"));
+            progress(v)
+        };
+        let (name, done0, total) = read().await;
+        assert_eq!(name, "calibration");
+        assert_eq!(total, LONG * 6, "dark frames and five levels");
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        let (_, done1, _) = read().await;
+        assert!(done1 > done0, "no progress: {done0} then {done1}");
+
+        // A snapshot during the job answers at once (Busy, naming the job).
+        let dir = tempfile::tempdir().unwrap();
+        let f = std::fs::File::create(dir.path().join("s.png")).unwrap();
+        let t0 = Instant::now();
+        let snap = tokio::time::timeout(
+            Duration::from_secs(3),
+            cam_b.snapshot_to_fd(Fd::from(&f), "png"),
+        )
+        .await;
+        assert!(
+            matches!(&snap, Ok(Err(SdiError::Busy(m))) if m.contains("calibration")),
+            "a snapshot during a job, after {:?}: {snap:?}",
+            t0.elapsed()
+        );
+        // A recording would have a gap: refused while the job runs.
+        let rec = std::fs::File::create(dir.path().join("r.sdirec")).unwrap();
+        let r = cam_b.start_recording_to_fd(Fd::from(&rec), "r").await;
+        assert!(matches!(r, Err(SdiError::Busy(_))), "recording: {r:?}");
+
+        // Cancel: the caller's call ends with Cancelled, the camera is free.
+        let reply = raw_b.call_method("Cancel", &()).await;
+        let cancelled: String = reply
+            .unwrap_or_else(|e| panic!("Cancel: {e}"))
+            .body()
+            .deserialize()
+            .unwrap();
+        assert_eq!(cancelled, "calibration");
+        let r = tokio::time::timeout(Duration::from_secs(3), job)
+            .await
+            .expect("the cancelled call returns")
+            .unwrap();
+        let err = r
+            .as_ref()
+            .err()
+            .map(ToString::to_string)
+            .unwrap_or_default();
+        assert!(
+            err.starts_with("org.sdi.Error.Cancelled"),
+            "the cancelled call: {r:?}"
+        );
+        let (name, _, _) = read().await;
+        assert_eq!(name, "", "no job after the cancel");
+        wait_for_no_job(&cam_b, Duration::from_secs(3))
+            .await
+            .unwrap();
+        // Nothing to cancel: "" (not an error).
+        let reply = raw_b.call_method("Cancel", &()).await.unwrap();
+        assert_eq!(reply.body().deserialize::<String>().unwrap(), "");
+    });
+}
+
+#[test]
+fn a_job_is_bounded_in_seconds_and_excludes_a_recording() {
+    require_dbus!();
+    let bus = Bus::start();
+    let _d = Daemon::start(&bus, &[]);
+    let dir = tempfile::tempdir().unwrap();
+    runtime().block_on(async {
+        let conn = bus.connect().await;
+        let cam = Camera1Proxy::new(&conn).await.unwrap();
+        // 60,000 frames at 30 Hz: over half an hour.
+        let r = tokio::time::timeout(Duration::from_secs(10), cam.calibrate(10_000)).await;
+        match &r {
+            Ok(Err(SdiError::OutOfRange(m))) => assert!(m.contains(" s"), "{m}"),
+            other => panic!("Calibrate(10000) at 30 Hz was not refused: {other:?}"),
+        }
+        // A job while recording is refused (the recording would have a gap).
+        let rec = std::fs::File::create(dir.path().join("r.sdirec")).unwrap();
+        cam.start_recording_to_fd(Fd::from(&rec), "r")
+            .await
+            .unwrap();
+        let r = tokio::time::timeout(Duration::from_secs(10), cam.capture_dark_frame(4)).await;
+        assert!(
+            matches!(&r, Ok(Err(SdiError::Busy(m))) if m.contains("recording")),
+            "a dark frame while recording: {r:?}"
+        );
+        cam.stop_recording().await.unwrap();
+        cam.capture_dark_frame(4).await.unwrap();
+    });
+}
