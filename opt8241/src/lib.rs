@@ -12,10 +12,14 @@ pub mod config;
 pub mod limits;
 pub mod plan;
 pub mod pll;
+pub mod range;
 pub mod registers;
+pub mod roi;
 pub mod saturation;
 
-pub use config::{BoardConfig, Roi};
-pub use limits::{BoardLimits, OutOfRange, Range};
+pub use config::BoardConfig;
+pub use limits::BoardLimits;
 pub use plan::{open_plan, Plan, Step};
 pub use pll::PllSettings;
+pub use range::{OutOfRange, Range};
+pub use roi::Roi;

@@ -15,8 +15,9 @@
 use serde::Serialize;
 
 use crate::config::BoardConfig;
-use crate::limits::{intg_duty_cycle_for, pix_cnt_max_for, OutOfRange};
+use crate::limits::{intg_duty_cycle_for, pix_cnt_max_for};
 use crate::pll::PllSettings;
+use crate::range::OutOfRange;
 use crate::registers::{field, safety, Field, CDK_TILLUM_SLAVE_ADDRESS};
 use crate::saturation;
 
