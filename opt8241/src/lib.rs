@@ -9,6 +9,7 @@
 #![forbid(unsafe_code)]
 
 pub mod config;
+pub mod descriptors;
 pub mod limits;
 pub mod plan;
 pub mod pll;
@@ -16,6 +17,7 @@ pub mod range;
 pub mod registers;
 pub mod roi;
 pub mod saturation;
+pub mod uvc_switch;
 
 pub use config::BoardConfig;
 pub use limits::BoardLimits;

@@ -11,7 +11,6 @@
 //! Sources of every register and request: `docs/hardware.md`.
 
 pub mod board;
-pub mod descriptors;
 pub mod frame;
 pub mod health;
 pub mod hotplug;
