@@ -9,14 +9,17 @@
 #![forbid(unsafe_code)]
 
 pub mod config;
+pub mod depth_frame;
 pub mod descriptors;
+pub mod frame_assembler;
 pub mod limits;
 pub mod plan;
 pub mod pll;
 pub mod range;
+pub mod raw_quads;
 pub mod registers;
 pub mod roi;
-pub mod saturation;
+pub mod saturation_probe;
 pub mod uvc_switch;
 
 pub use config::BoardConfig;

@@ -15,14 +15,17 @@ use rusb::Context;
 use sdi_core::modulation::Illumination;
 use sdi_core::Frame;
 
-use super::frame::{
-    Assembled, AssemblerStats, DecodeError, DropReason, FrameAssembler, QuadCombine, QuadDecoder,
+use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
+use sdi_opt8241::depth_frame::depth_frame_bytes;
+use sdi_opt8241::frame_assembler::{Assembled, AssemblerStats, DropReason, FrameAssembler};
+use sdi_opt8241::raw_quads::{DecodeError, QuadCombine, QuadDecoder};
+use sdi_opt8241::saturation_probe::{
+    DepthFrame, ProbeStats, ProbeWrite, SaturationProbe, PROBE_MAX_FAILURES,
 };
+
 use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
 use super::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
-use super::saturation::{depth_frame_bytes, DepthFrame, ProbeStats, ProbeWrite, SaturationProbe};
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
-use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
 
 /// Transfers queued at the host controller while streaming.
 pub const DEFAULT_TRANSFERS_IN_FLIGHT: usize = 4;
@@ -610,7 +613,7 @@ fn probe_write<T: Transport>(
         tracing::warn!(
             "saturation probe: the board sent no depth frame after output_mode = 0, {} times \
              in a row; pixels with both wells full are no longer flagged (only the 12-bit rails are)",
-            super::saturation::PROBE_MAX_FAILURES
+            PROBE_MAX_FAILURES
         );
     }
     let (field, value) = write.field_value();

@@ -12,7 +12,8 @@ use sdi_opt8241::plan::{open_plan, Step};
 pub use sdi_opt8241::pll::{MOD_N, MOD_PS_MAX, VCO_MAX_HZ, VCO_MIN_HZ};
 pub use sdi_opt8241::{BoardConfig, OutOfRange, PllSettings, Roi};
 
-use super::frame::QuadLayout;
+use sdi_opt8241::raw_quads::QuadLayout;
+
 use super::protocol::{FieldWrite, ProtocolError, RegisterBus, Transport};
 use super::registers::field;
 

@@ -11,14 +11,12 @@
 //! Sources of every register and request: `docs/hardware.md`.
 
 pub mod board;
-pub mod frame;
 pub mod health;
 pub mod hotplug;
 pub mod ids;
 pub mod init;
 pub mod protocol;
 pub use sdi_opt8241::registers;
-pub mod saturation;
 pub mod usb;
 
 pub use board::{BoardError, Opt8241};

@@ -8,7 +8,7 @@
 //! asks for `frame_bytes + 255` like the SDK (`BULK_XFER_EXTRA_SIZE`), so a
 //! frame ends at the device's short or zero-length packet. Completions are
 //! delivered in completion order; the frame-number check of
-//! [`super::frame::FrameAssembler`] catches the rare reordering.
+//! `FrameAssembler` (`sdi_opt8241::frame_assembler`) catches the rare reordering.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
