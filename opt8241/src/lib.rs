@@ -9,12 +9,15 @@
 #![forbid(unsafe_code)]
 
 pub mod config;
+pub mod configure;
 pub mod depth_frame;
 pub mod descriptors;
 pub mod frame_assembler;
+pub mod health;
 pub mod limits;
 pub mod plan;
 pub mod pll;
+pub mod protocol;
 pub mod range;
 pub mod raw_quads;
 pub mod registers;

@@ -16,15 +16,16 @@ use sdi_core::modulation::Illumination;
 use sdi_core::Frame;
 
 use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
+use sdi_opt8241::configure::{configure, layout_of, ConfigError, InitReport};
 use sdi_opt8241::depth_frame::depth_frame_bytes;
 use sdi_opt8241::frame_assembler::{Assembled, AssemblerStats, DropReason, FrameAssembler};
+use sdi_opt8241::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
 use sdi_opt8241::raw_quads::{DecodeError, QuadCombine, QuadDecoder};
 use sdi_opt8241::saturation_probe::{
     DepthFrame, ProbeStats, ProbeWrite, SaturationProbe, PROBE_MAX_FAILURES,
 };
+use sdi_opt8241::BoardConfig;
 
-use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
-use super::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
 
 /// Transfers queued at the host controller while streaming.
@@ -224,6 +225,15 @@ impl Connection {
             ConfigError::Protocol(p) => BoardError::from_protocol(p),
             other => BoardError::Config(other),
         })?;
+        for c in &report.clamps {
+            tracing::warn!(
+                field = c.field,
+                requested = c.requested,
+                actual = c.actual,
+                reason = c.reason,
+                "board clamp"
+            );
+        }
         let layout = layout_of(config);
         let frame_bytes = layout.frame_bytes();
         let stream = BulkStream::start(

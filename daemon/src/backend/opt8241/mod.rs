@@ -11,14 +11,9 @@
 //! Sources of every register and request: `docs/hardware.md`.
 
 pub mod board;
-pub mod health;
 pub mod hotplug;
 pub mod ids;
-pub mod init;
-pub mod protocol;
-pub use sdi_opt8241::registers;
 pub mod usb;
 
 pub use board::{BoardError, Opt8241};
-pub use init::BoardConfig;
 pub use usb::BoardSelector;

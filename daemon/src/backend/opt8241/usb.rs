@@ -21,8 +21,9 @@ use rusb::{Context, Device, DeviceHandle, Direction, TransferType, UsbContext};
 use sdi_opt8241::descriptors::{self, AltSettingFields, BulkEndpoint, EndpointFields};
 use sdi_opt8241::uvc_switch::{uvc_switch_request, ControlRequest};
 
+use sdi_opt8241::protocol::{Transport, TransportError};
+
 use super::ids;
-use super::protocol::{Transport, TransportError};
 
 /// Extra bytes asked for beyond one frame (SDK `BULK_XFER_EXTRA_SIZE`).
 pub const BULK_EXTRA_BYTES: usize = 255;
