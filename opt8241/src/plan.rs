@@ -1,5 +1,5 @@
 //! The exact register sequence that opens and configures the board, as
-//! data: sdid executes it (`sdi_daemon::backend::opt8241::init`) and
+//! data: sdid executes it ([`crate::configure`]) and
 //! `sdictl board plan` prints it, so what a user diffs against TI's SDK is
 //! what sdid does.
 //!

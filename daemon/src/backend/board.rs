@@ -24,7 +24,7 @@ use sdi_core::Frame;
 use sdi_opt8241::health;
 use sdi_opt8241::{BoardConfig, PllSettings, Roi};
 
-use super::opt8241::board::Connection;
+use super::opt8241::device::Connection;
 use super::opt8241::hotplug::HotplugWatch;
 use super::opt8241::usb::UsbError;
 use super::opt8241::{BoardError, BoardSelector, Opt8241};

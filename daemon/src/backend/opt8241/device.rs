@@ -1,4 +1,5 @@
-//! The OPT8241-CDK backend: open, configure, stream, decode, reconnect.
+//! The OPT8241-CDK device: open, configure, stream, decode, reconnect
+//! (driven by the backend, `backend/board.rs`).
 //!
 //! `next_frame` has the shape of the daemon's `Backend::capture`; on
 //! unplug it returns [`BoardError::DeviceUnavailable`] and the daemon keeps
