@@ -1,6 +1,6 @@
 //! Fuzz target: what sdid makes of the board's control-transfer replies
-//! (`RegisterBus`, `configure`, `read_status`;
-//! daemon/src/backend/opt8241/protocol.rs and init.rs).
+//! (`RegisterBus`, `configure`, `read_status`; opt8241/src/protocol.rs,
+//! configure.rs and health.rs).
 //!
 //! Input: the board's side of every control transfer in turn: a stall, a
 //! timeout, a disconnect, another error, or a reply of any length (short,
@@ -16,10 +16,12 @@
 use std::time::Duration;
 
 use libfuzzer_sys::fuzz_target;
-use sdi_daemon::backend::opt8241::init::{configure, read_status, BoardConfig};
-use sdi_daemon::backend::opt8241::protocol::{RegisterBus, Transport, TransportError};
-use sdi_daemon::backend::opt8241::registers::field;
 use sdi_fuzz::{arbitrary, Unstructured};
+use sdi_opt8241::configure::configure;
+use sdi_opt8241::health::read_status;
+use sdi_opt8241::protocol::{RegisterBus, Transport, TransportError};
+use sdi_opt8241::registers::field;
+use sdi_opt8241::BoardConfig;
 
 /// A board whose every reply comes from the fuzzer's bytes; out of bytes,
 /// it is unplugged.

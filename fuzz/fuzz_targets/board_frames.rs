@@ -1,7 +1,8 @@
 //! Fuzz target: the board's bulk stream, from transfers to difference frames
-//! (`FrameAssembler`, `QuadDecoder`; daemon/src/backend/opt8241/frame.rs),
-//! with the saturation probe's depth frames (`SaturationProbe`,
-//! daemon/src/backend/opt8241/saturation.rs) and the phase projection.
+//! (`FrameAssembler`, opt8241/src/frame_assembler.rs; `QuadDecoder`,
+//! opt8241/src/raw_quads.rs), with the saturation probe's depth frames
+//! (`SaturationProbe`, opt8241/src/saturation_probe.rs) and the phase
+//! projection.
 //!
 //! Input: a small frame geometry and quad combination (quad 0, q0 - q2, or
 //! any phase axis), then transfers of any size and content, each ending in
@@ -19,13 +20,11 @@
 use libfuzzer_sys::fuzz_target;
 use sdi_core::quad_phase::PhaseAxis;
 use sdi_core::Frame;
-use sdi_daemon::backend::opt8241::frame::{
-    Assembled, DecodeError, FrameAssembler, QuadCombine, QuadDecoder, QuadLayout,
-};
-use sdi_daemon::backend::opt8241::saturation::{
-    depth_frame_bytes, DepthFrame, ProbeWrite, SaturationProbe,
-};
 use sdi_fuzz::{arbitrary, bytes_up_to, Unstructured};
+use sdi_opt8241::depth_frame::depth_frame_bytes;
+use sdi_opt8241::frame_assembler::{Assembled, FrameAssembler};
+use sdi_opt8241::raw_quads::{DecodeError, QuadCombine, QuadDecoder, QuadLayout};
+use sdi_opt8241::saturation_probe::{DepthFrame, ProbeWrite, SaturationProbe};
 
 fn run(u: &mut Unstructured) -> arbitrary::Result<()> {
     let layout = QuadLayout {
@@ -60,10 +59,8 @@ fn run(u: &mut Unstructured) -> arbitrary::Result<()> {
         if u.ratio(1, 64)? {
             assembler.reset();
         }
-        if u.ratio(1, 16)? {
-            if probe.on_no_frame() == Some(ProbeWrite::End) {
-                probing = false;
-            }
+        if u.ratio(1, 16)? && probe.on_no_frame() == Some(ProbeWrite::End) {
+            probing = false;
         }
         let write = match assembler.push(transfer, short) {
             Assembled::Frame { bytes, .. } if bytes.len() == depth_bytes => {

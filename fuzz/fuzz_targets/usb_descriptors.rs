@@ -1,22 +1,22 @@
 //! Fuzz target: sdid's choices from a device's descriptors, the bulk IN
 //! endpoint and the UVC VideoControl interface
-//! (daemon/src/backend/opt8241/descriptors.rs), and the UVC switch request
-//! built from the latter.
+//! (opt8241/src/descriptors.rs), and the UVC switch request built from the
+//! latter (opt8241/src/uvc_switch.rs).
 //!
 //! Input: descriptor bytes as a device sends them (bLength,
 //! bDescriptorType, fields); interface (4) and endpoint (5) descriptors are
 //! read into the fields libusb hands sdid, others are skipped.
 //! Invariant: no panic or abort; the endpoint chosen is a bulk IN endpoint
 //! of the interface asked for, or none (a typed `NoBulkInEndpoint` in
-//! `usb.rs`); the switch request names the interface chosen; time and
+//! `daemon/src/backend/opt8241/usb.rs`); the switch request names the interface chosen; time and
 //! memory linear in the input.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use sdi_daemon::backend::opt8241::descriptors::{
+use sdi_opt8241::descriptors::{
     bulk_in_endpoint, video_control_interface, AltSettingFields, EndpointFields,
 };
-use sdi_daemon::backend::opt8241::usb::uvc_switch_request;
+use sdi_opt8241::uvc_switch::uvc_switch_request;
 
 /// Interface descriptors with their endpoints, from a descriptor stream.
 fn alt_settings(mut bytes: &[u8]) -> Vec<AltSettingFields> {

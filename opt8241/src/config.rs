@@ -1,30 +1,10 @@
 //! What sdid asks of the board: quads, sub frames, modulation, frame rate,
 //! integration, region of interest and output clock.
 
-use crate::limits::{self, OutOfRange};
+use crate::limits::{self, BoardLimits};
 use crate::pll::PllSettings;
-
-/// Region of interest: columns in steps of 16 (SDK `_allowedROI`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Roi {
-    pub x: u32,
-    pub y: u32,
-    pub width: u32,
-    pub height: u32,
-}
-
-impl Roi {
-    pub const FULL: Roi = Roi {
-        x: 0,
-        y: 0,
-        width: 320,
-        height: 240,
-    };
-
-    pub const fn pixels(&self) -> u64 {
-        self.width as u64 * self.height as u64
-    }
-}
+use crate::range::OutOfRange;
+use crate::roi::Roi;
 
 /// What sdid asks of the board.
 #[derive(Debug, Clone, PartialEq)]
@@ -80,8 +60,8 @@ impl BoardConfig {
 
     /// The ranges the chip allows with these quads, sub frames, ROI and
     /// output clock.
-    pub fn limits(&self) -> limits::BoardLimits {
-        limits::BoardLimits::for_config(self)
+    pub fn limits(&self) -> BoardLimits {
+        BoardLimits::new(self.quads, self.sub_frames, self.roi, self.op_clk_freq)
     }
 
     /// Integration time of one quad: intg_duty_cycle / 64 of the quad time
@@ -119,5 +99,42 @@ impl BoardConfig {
     /// Inverse of [`BoardConfig::exposure_us`].
     pub fn integration_percent_for(&self, exposure_us: f64) -> f64 {
         exposure_us / limits::quad_us(self.frame_rate_hz, self.quads, self.sub_frames) * 100.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn out_of_range_names_the_range_and_its_cause() {
+        let c = BoardConfig {
+            frame_rate_hz: 1.0,
+            ..BoardConfig::default()
+        };
+        let e = c.validate().unwrap_err();
+        assert_eq!(e.name, "frame_rate_hz");
+        let text = e.to_string();
+        assert!(
+            text.contains("2.86") && text.contains("31.25") && text.contains("22 bits"),
+            "{text}"
+        );
+        let c = BoardConfig {
+            frame_rate_hz: 60.0,
+            ..BoardConfig::default()
+        };
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("output port"));
+        for bad in [f64::NAN, f64::INFINITY, -1.0] {
+            let c = BoardConfig {
+                frame_rate_hz: bad,
+                ..BoardConfig::default()
+            };
+            assert!(c.validate().is_err());
+        }
+        assert!(BoardConfig::default().validate().is_ok());
     }
 }

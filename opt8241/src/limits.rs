@@ -7,12 +7,12 @@
 //! highest: a raw-quad frame is width * height * quads * 2 bytes, and the
 //! SDK keeps it under 0.8 * op_clk bytes per second
 //! (`TintinCDKCamera::_getMaximumFrameRate`, `_setStreamerFrameSize`).
+//! Modulation: the PLL's reach ([`crate::pll::modulation_range_hz`]).
 
-use sdi_core::number::Number;
-
-use crate::config::{BoardConfig, Roi};
-use crate::pll::{MOD_PS_MAX, VCO_MAX_HZ, VCO_MIN_HZ};
+use crate::pll::modulation_range_hz;
+use crate::range::{OutOfRange, Range};
 use crate::registers::{field, safety, SYSTEM_CLOCK_HZ};
+use crate::roi::Roi;
 
 /// Output data clock with op_clk_freq = 0 (0x5C39 [2:1]: 24 MHz >> op_clk_freq).
 pub const OP_CLK_MAX_HZ: f64 = 24e6;
@@ -20,58 +20,6 @@ pub const OP_CLK_MAX_HZ: f64 = 24e6;
 pub const OUTPUT_PORT_MARGIN: f64 = 0.8;
 /// Bytes per pixel and quad in raw-quad output (12-bit samples in 16 bits).
 pub const BYTES_PER_QUAD_SAMPLE: u64 = 2;
-
-/// A value the board cannot take, with the range it can.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error(
-    "{name} = {} {unit} is out of range for the board: allowed [{}, {}] {unit} ({why})",
-    Number(*.value), Number(*.min), Number(*.max)
-)]
-pub struct OutOfRange {
-    pub name: &'static str,
-    pub value: f64,
-    pub min: f64,
-    pub max: f64,
-    pub unit: &'static str,
-    /// What sets the range's ends.
-    pub why: String,
-}
-
-/// A closed range with what sets each end.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Range {
-    pub name: &'static str,
-    pub unit: &'static str,
-    pub min: f64,
-    pub max: f64,
-    pub min_set_by: &'static str,
-    pub max_set_by: &'static str,
-}
-
-impl Range {
-    /// `value` if finite and inside, else an [`OutOfRange`] naming the range.
-    pub fn check(&self, value: f64) -> Result<f64, OutOfRange> {
-        if value.is_finite() && value >= self.min && value <= self.max {
-            Ok(value)
-        } else {
-            Err(OutOfRange {
-                name: self.name,
-                value,
-                min: self.min,
-                max: self.max,
-                unit: self.unit,
-                why: format!(
-                    "low end: {}; high end: {}",
-                    self.min_set_by, self.max_set_by
-                ),
-            })
-        }
-    }
-
-    pub fn bounds(&self) -> (f64, f64) {
-        (self.min, self.max)
-    }
-}
 
 /// The three settable ranges for one configuration's quads, sub frames,
 /// ROI and output clock.
@@ -85,10 +33,11 @@ pub struct BoardLimits {
 }
 
 impl BoardLimits {
-    pub fn for_config(c: &BoardConfig) -> Self {
-        let frame_rate_hz = frame_rate_range_hz(c.quads, c.sub_frames, c.roi, c.op_clk_freq);
-        let shortest = exposure_range_us(frame_rate_hz.max, c.quads, c.sub_frames).min;
-        let quad_at_slowest = quad_us(frame_rate_hz.min, c.quads, c.sub_frames);
+    /// The ranges for these quads, sub frames, ROI and output clock.
+    pub fn new(quads: u32, sub_frames: u32, roi: Roi, op_clk_freq: u32) -> Self {
+        let frame_rate_hz = frame_rate_range_hz(quads, sub_frames, roi, op_clk_freq);
+        let shortest = exposure_range_us(frame_rate_hz.max, quads, sub_frames).min;
+        let quad_at_slowest = quad_us(frame_rate_hz.min, quads, sub_frames);
         let exposure_us = Range {
             name: "exposure_us",
             unit: "us",
@@ -100,7 +49,7 @@ impl BoardLimits {
         Self {
             frame_rate_hz,
             exposure_us,
-            modulation_hz: modulation_range_hz(c.quads),
+            modulation_hz: modulation_range_hz(quads),
         }
     }
 }
@@ -168,21 +117,6 @@ pub fn exposure_range_us(frame_rate_hz: f64, quads: u32, sub_frames: u32) -> Ran
         max: quad * f64::from(field::INTG_DUTY_CYCLE.max()) / 64.0,
         min_set_by: "intg_duty_cycle rounds to at least 1 (of 64)",
         max_set_by: "intg_duty_cycle is 6 bits: 63 of 64 of the quad",
-    }
-}
-
-/// The modulation frequencies the PLL reaches: VCO in [300, 600] MHz
-/// divided by quads * (1 + mod_ps), mod_ps <= 7.
-pub fn modulation_range_hz(quads: u32) -> Range {
-    let q = f64::from(quads.max(1));
-    Range {
-        name: "modulation_hz",
-        unit: "Hz",
-        min: VCO_MIN_HZ / (q * f64::from(MOD_PS_MAX + 1)),
-        max: VCO_MAX_HZ / q,
-        min_set_by:
-            "PLL: VCO >= 300 MHz, mod_ps <= 7 (lower needs an external generator wired to the LEDs)",
-        max_set_by: "PLL: VCO <= 600 MHz",
     }
 }
 
@@ -316,7 +250,7 @@ mod tests {
         assert!(close(r.min, 1e6 / 120.0 / 128.0));
         assert!(close(r.max, 1e6 / 120.0 * 63.0 / 64.0));
         assert!(r.check(8333.0).is_err());
-        let l = BoardConfig::default().limits();
+        let l = BoardLimits::new(4, 1, Roi::FULL, 0);
         // shortest at 31.25 Hz, longest 20/64 of the quad at 2.861 Hz
         assert!(close(l.exposure_us.min, 1e6 / 125.0 / 128.0));
         assert!(close(
@@ -326,43 +260,7 @@ mod tests {
     }
 
     #[test]
-    fn modulation_range_is_the_pll() {
-        let r = modulation_range_hz(4);
-        assert!(close(r.min, 9.375e6) && close(r.max, 150e6));
-        let r = modulation_range_hz(6);
-        assert!(close(r.min, 6.25e6) && close(r.max, 100e6));
-    }
-
-    #[test]
-    fn out_of_range_names_the_range_and_its_cause() {
-        let c = BoardConfig {
-            frame_rate_hz: 1.0,
-            ..BoardConfig::default()
-        };
-        let e = c.validate().unwrap_err();
-        assert_eq!(e.name, "frame_rate_hz");
-        let text = e.to_string();
-        assert!(
-            text.contains("2.86") && text.contains("31.25") && text.contains("22 bits"),
-            "{text}"
-        );
-        let c = BoardConfig {
-            frame_rate_hz: 60.0,
-            ..BoardConfig::default()
-        };
-        assert!(c
-            .validate()
-            .unwrap_err()
-            .to_string()
-            .contains("output port"));
-        for bad in [f64::NAN, f64::INFINITY, -1.0] {
-            let c = BoardConfig {
-                frame_rate_hz: bad,
-                ..BoardConfig::default()
-            };
-            assert!(c.validate().is_err());
-        }
-        assert!(BoardConfig::default().validate().is_ok());
+    fn discrete_settings_outside_their_values_are_refused() {
         assert!(
             check_quads(5).is_err()
                 && check_sub_frames(3).is_err()

@@ -1,5 +1,5 @@
 //! The exact register sequence that opens and configures the board, as
-//! data: sdid executes it (`sdi_daemon::backend::opt8241::init`) and
+//! data: sdid executes it ([`crate::configure`]) and
 //! `sdictl board plan` prints it, so what a user diffs against TI's SDK is
 //! what sdid does.
 //!
@@ -15,10 +15,11 @@
 use serde::Serialize;
 
 use crate::config::BoardConfig;
-use crate::limits::{intg_duty_cycle_for, pix_cnt_max_for, OutOfRange};
+use crate::depth_frame;
+use crate::limits::{intg_duty_cycle_for, pix_cnt_max_for};
 use crate::pll::PllSettings;
+use crate::range::OutOfRange;
 use crate::registers::{field, safety, Field, CDK_TILLUM_SLAVE_ADDRESS};
-use crate::saturation;
 
 /// Settle time after the PLL fields, before mod_pll_update goes back to 0
 /// (SDK `TintinVCOFrequency::set`).
@@ -226,17 +227,17 @@ pub fn open_plan(config: &BoardConfig) -> Result<Plan, OutOfRange> {
     );
     w(
         field::OUTPUT_MODE,
-        saturation::OUTPUT_MODE_RAW_QUADS,
+        depth_frame::OUTPUT_MODE_RAW_QUADS,
         "raw quads out",
     );
     w(
         field::PIXEL_DATA_SIZE,
-        saturation::PIXEL_DATA_SIZE_4_BYTES,
+        depth_frame::PIXEL_DATA_SIZE_4_BYTES,
         "saturation probe's depth frames: 4 bytes, with flags",
     );
     w(
         field::OP_DATA_ARRANGE_MODE,
-        saturation::OP_DATA_ARRANGE_CONTINUOUS,
+        depth_frame::OP_DATA_ARRANGE_CONTINUOUS,
         "saturation probe's depth frames: pixel by pixel",
     );
     w(

@@ -1,7 +1,7 @@
-//! The modulation PLL: which m, fraction and prescaler give a modulation
-//! frequency, as the SDK computes them.
+//! The modulation PLL: the modulation frequencies it reaches, and which m,
+//! fraction and prescaler give one, as the SDK computes them.
 
-use crate::limits::{self, OutOfRange};
+use crate::range::{OutOfRange, Range};
 use crate::registers::SYSTEM_CLOCK_HZ;
 
 /// VCO range of the modulation PLL (OPT9221.dml, mod_m1 description).
@@ -30,7 +30,7 @@ impl PllSettings {
     /// The SDK's choice: the largest prescaler keeping the VCO above its
     /// minimum, then m and its fraction.
     pub fn for_modulation(modulation_hz: f64, quads: u32) -> Result<Self, OutOfRange> {
-        limits::modulation_range_hz(quads).check(modulation_hz)?;
+        modulation_range_hz(quads).check(modulation_hz)?;
         let q = quads as f64;
         let ps = ((VCO_MIN_HZ / q / modulation_hz).floor() as u32).min(MOD_PS_MAX);
         let vco_hz = (ps + 1) as f64 * q * modulation_hz;
@@ -50,9 +50,28 @@ impl PllSettings {
     }
 }
 
+/// The modulation frequencies the PLL reaches: VCO in [300, 600] MHz
+/// divided by quads * (1 + mod_ps), mod_ps <= 7.
+pub fn modulation_range_hz(quads: u32) -> Range {
+    let q = f64::from(quads.max(1));
+    Range {
+        name: "modulation_hz",
+        unit: "Hz",
+        min: VCO_MIN_HZ / (q * f64::from(MOD_PS_MAX + 1)),
+        max: VCO_MAX_HZ / q,
+        min_set_by:
+            "PLL: VCO >= 300 MHz, mod_ps <= 7 (lower needs an external generator wired to the LEDs)",
+        max_set_by: "PLL: VCO <= 600 MHz",
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn close(a: f64, b: f64) -> bool {
+        (a - b).abs() <= 1e-9 * b.abs().max(1.0)
+    }
 
     #[test]
     fn pll_matches_sdk_formula() {
@@ -75,5 +94,13 @@ mod tests {
             assert!(e.to_string().contains("external generator"), "{e}");
         }
         assert!(PllSettings::for_modulation(9.375e6, 4).is_ok());
+    }
+
+    #[test]
+    fn modulation_range_is_the_pll() {
+        let r = modulation_range_hz(4);
+        assert!(close(r.min, 9.375e6) && close(r.max, 150e6));
+        let r = modulation_range_hz(6);
+        assert!(close(r.min, 6.25e6) && close(r.max, 100e6));
     }
 }

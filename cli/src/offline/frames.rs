@@ -12,11 +12,8 @@ use sdi_core::sensor::SensorParams;
 use sdi_core::{Frame, Image};
 use sdi_recording::{format::is_recording_magic, Record, RecordingReader};
 
-use super::npy_header::{self, Dtype, NpyHeader};
+use super::npy_header::{self, Dtype, NpyHeader, MAX_PIXELS};
 use crate::exit::CliError;
-
-/// Largest frame accepted from any input, pixels.
-pub const MAX_PIXELS: usize = 1 << 24;
 
 fn runtime(path: &Path, e: impl std::fmt::Display) -> CliError {
     CliError::Runtime(format!("'{}': {e}", path.display()))

@@ -9,7 +9,9 @@
 
 use std::io::Read;
 
-use super::frames::MAX_PIXELS;
+/// Largest frame accepted from any input, pixels: an `.npy` header's H x W
+/// here, a recording's in [`super::frames`].
+pub const MAX_PIXELS: usize = 1 << 24;
 
 /// Longest header dict accepted, bytes (numpy writes well under 1 KiB).
 pub const MAX_HEADER_BYTES: usize = 1 << 16;

@@ -21,13 +21,13 @@ use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
 use sdi_core::sensor::{SensorParams, SensorPreset};
 use sdi_core::Frame;
+use sdi_opt8241::health;
+use sdi_opt8241::{BoardConfig, PllSettings, Roi};
 
-use super::opt8241::board::Connection;
-use super::opt8241::health;
+use super::opt8241::device::Connection;
 use super::opt8241::hotplug::HotplugWatch;
-use super::opt8241::init::{PllSettings, Roi};
 use super::opt8241::usb::UsbError;
-use super::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
+use super::opt8241::{BoardError, BoardSelector, Opt8241};
 use super::sim::SimBackend;
 use super::status::{DeviceStatus, StatusHandle};
 use super::{Backend, BackendError, BackendName, CaptureSettings, Limits};

@@ -6,10 +6,10 @@ use std::sync::Arc;
 use sdi_config::{BackendKind, Config, SensorSpecError};
 use sdi_core::mode::ModeId;
 use sdi_core::sensor::ParamError;
+use sdi_opt8241::Roi;
 use tokio::sync::Notify;
 
 use super::board::{self as board_backend, BoardBackend, OnUnplug};
-use super::opt8241::init::Roi;
 use super::opt8241::BoardSelector;
 use super::replay::ReplayBackend;
 use super::sim::SimBackend;

@@ -4,13 +4,7 @@
 
 use std::sync::{Arc, Mutex};
 
-/// The board's temperatures and output overflows, polled while streaming.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct BoardHealth {
-    pub sensor_c: i8,
-    pub illumination_c: i8,
-    pub output_overflows: u64,
-}
+use sdi_opt8241::health::BoardHealth;
 
 /// A snapshot of the source's state.
 #[derive(Debug, Clone, PartialEq, Eq)]

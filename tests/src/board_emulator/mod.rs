@@ -688,7 +688,7 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
 mod tests {
     use super::*;
     use sdi_core::quad_phase::PhaseAxis;
-    use sdi_daemon::backend::opt8241::frame::{QuadCombine, QuadDecoder, QuadLayout};
+    use sdi_opt8241::raw_quads::{QuadCombine, QuadDecoder, QuadLayout};
 
     /// The emulator's delayed quads against the backend's decoder: quad 0
     /// alone loses the delayed part, the projection onto the delay's axis

@@ -9,12 +9,12 @@ use sdi_core::Frame;
 use sdi_daemon::backend::board::{
     board_config, BoardBackend, BoardBackendConfig, OnUnplug, ReconnectCounts,
 };
-use sdi_daemon::backend::opt8241::init::Roi;
-use sdi_daemon::backend::opt8241::protocol::RegisterBus;
-use sdi_daemon::backend::opt8241::registers::field;
 use sdi_daemon::backend::opt8241::usb::{open_board, UsbError, UsbTransport, UVC_SWITCH_TIMEOUT};
-use sdi_daemon::backend::opt8241::{BoardConfig, BoardError, BoardSelector, Opt8241};
+use sdi_daemon::backend::opt8241::{BoardError, BoardSelector, Opt8241};
 use sdi_daemon::backend::{Backend, BackendError};
+use sdi_opt8241::protocol::RegisterBus;
+use sdi_opt8241::registers::field;
+use sdi_opt8241::{BoardConfig, Roi};
 use sdi_tests::board_emulator::BoardEmulator;
 use sdi_tests::wait::wait_for;
 

@@ -1,27 +1,21 @@
-//! TI OPT8241-CDK over USB (vendor bulk mode, USB 0451:9105).
+//! TI OPT8241-CDK over USB (vendor bulk mode, USB 0451:9105): the I/O.
 //!
-//! Layers, each usable alone: [`registers`] (OPT9221 field map, with the
-//! limits and the open plan in `sdi_opt8241`, shared with sdictl) ->
-//! [`protocol`] (vendor control requests over a [`protocol::Transport`]) ->
-//! [`init`] (executes the open plan); [`frame`]
-//! (raw quads -> difference frame, alignment); [`saturation`] (the depth
-//! frame interleaved for the chip's saturation flags); [`usb`] (libusb transport,
-//! discovery, UVC -> bulk switch, bulk stream); [`hotplug`] (libusb hotplug
-//! events); [`board`] ties them into the backend.
+//! Everything without I/O is in `sdi_opt8241` (`opt8241/src/`), shared
+//! with sdictl and the fuzz targets: the register map, limits and open
+//! plan, the vendor protocol over a `Transport` (`protocol`), the
+//! execution of the plan (`configure`), health polling (`health`), frame
+//! assembly and decoding (`frame_assembler`, `raw_quads`), the saturation
+//! probe (`saturation_probe`, `depth_frame`) and the choices made from USB
+//! descriptors (`descriptors`, `uvc_switch`). Here: [`usb`] (libusb
+//! transport, discovery, the UVC -> bulk switch, the bulk stream threads),
+//! [`hotplug`] (libusb hotplug events), [`ids`] (the board's USB IDs), and
+//! [`device`], which ties them into the [`Opt8241`] the backend drives.
 //! Sources of every register and request: `docs/hardware.md`.
 
-pub mod board;
-pub mod descriptors;
-pub mod frame;
-pub mod health;
+pub mod device;
 pub mod hotplug;
 pub mod ids;
-pub mod init;
-pub mod protocol;
-pub use sdi_opt8241::registers;
-pub mod saturation;
 pub mod usb;
 
-pub use board::{BoardError, Opt8241};
-pub use init::BoardConfig;
+pub use device::{BoardError, Opt8241};
 pub use usb::BoardSelector;

@@ -8,7 +8,7 @@
 //! asks for `frame_bytes + 255` like the SDK (`BULK_XFER_EXTRA_SIZE`), so a
 //! frame ends at the device's short or zero-length packet. Completions are
 //! delivered in completion order; the frame-number check of
-//! [`super::frame::FrameAssembler`] catches the rare reordering.
+//! `FrameAssembler` (`sdi_opt8241::frame_assembler`) catches the rare reordering.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc;
@@ -18,9 +18,12 @@ use std::time::{Duration, Instant};
 
 use rusb::{Context, Device, DeviceHandle, Direction, TransferType, UsbContext};
 
-use super::descriptors::{self, AltSettingFields, EndpointFields};
+use sdi_opt8241::descriptors::{self, AltSettingFields, BulkEndpoint, EndpointFields};
+use sdi_opt8241::uvc_switch::{uvc_switch_request, ControlRequest};
+
+use sdi_opt8241::protocol::{Transport, TransportError};
+
 use super::ids;
-use super::protocol::{Transport, TransportError};
 
 /// Extra bytes asked for beyond one frame (SDK `BULK_XFER_EXTRA_SIZE`).
 pub const BULK_EXTRA_BYTES: usize = 255;
@@ -95,14 +98,6 @@ impl Default for BoardSelector {
             serial: None,
         }
     }
-}
-
-/// The bulk IN endpoint, as the descriptors give it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct BulkEndpoint {
-    pub interface: u8,
-    pub address: u8,
-    pub max_packet_bytes: u16,
 }
 
 /// First bulk IN endpoint of `interface` in the active configuration.
@@ -220,58 +215,11 @@ pub fn find_board(context: &Context, sel: &BoardSelector) -> Result<Found, UsbEr
     }
 }
 
-/// UVC extension unit of the board's FX2 firmware (SDK
-/// `TI3DToF/VoxelXUProgrammer.h`, `_XU_ID = 3`).
-pub const UVC_XU_ID: u8 = 3;
-/// Its control "reboot to firmware mode": the firmware re-enumerates as the
-/// bulk-mode device (SDK `CONTROL_REBOOT_FW_MODE = 6`; FW `uvc.c`, case 6,
-/// `RENUMERATE_UNCOND`).
-pub const XU_CONTROL_REBOOT_FW_MODE: u8 = 6;
-/// UVC class request SET_CUR (UVC 1.1, table A-8).
-pub const UVC_SET_CUR: u8 = 0x01;
 /// How long the board may take to come back in bulk mode after the switch
 /// (the SDK waits a fixed 10 s, `TintinEEPROMDownloader::_configureForDownload`).
 pub const UVC_SWITCH_TIMEOUT: Duration = Duration::from_secs(15);
 /// Interval of the bus scans while waiting for the bulk-mode board.
 const UVC_SWITCH_POLL: Duration = Duration::from_millis(100);
-
-/// One control request, as sent on the wire.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct ControlRequest {
-    pub request_type: u8,
-    pub request: u8,
-    pub value: u16,
-    pub index: u16,
-    pub data: Vec<u8>,
-}
-
-impl std::fmt::Display for ControlRequest {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "bmRequestType {:#04x} bRequest {:#04x} wValue {:#06x} wIndex {:#06x} data {:02x?}",
-            self.request_type, self.request, self.value, self.index, self.data
-        )
-    }
-}
-
-/// SET_CUR of extension unit 3, control 6, to the VideoControl interface:
-/// class request, recipient interface, wValue = control << 8, wIndex =
-/// unit << 8 | interface, one data byte (its value is ignored by the
-/// firmware; the SDK sends one byte, `VoxelXUProgrammer::reset`).
-pub fn uvc_switch_request(video_control_interface: u8) -> ControlRequest {
-    ControlRequest {
-        request_type: rusb::request_type(
-            Direction::Out,
-            rusb::RequestType::Class,
-            rusb::Recipient::Interface,
-        ),
-        request: UVC_SET_CUR,
-        value: u16::from(XU_CONTROL_REBOOT_FW_MODE) << 8,
-        index: (u16::from(UVC_XU_ID) << 8) | u16::from(video_control_interface),
-        data: vec![0],
-    }
-}
 
 /// The VideoControl interface of a UVC-mode board
 /// ([`descriptors::video_control_interface`]).
@@ -561,17 +509,15 @@ fn read_loop(
 
 #[cfg(test)]
 mod tests {
-    use super::*;
+    use sdi_opt8241::uvc_switch::REQUEST_TYPE_CLASS_INTERFACE_OUT;
 
     #[test]
-    fn uvc_switch_request_is_set_cur_of_xu3_control6() {
-        let r = uvc_switch_request(0);
-        // class, interface recipient, host to device
-        assert_eq!(r.request_type, 0x21);
-        assert_eq!(r.request, 0x01);
-        assert_eq!(r.value, 0x0600);
-        assert_eq!(r.index, 0x0300);
-        assert_eq!(r.data.len(), 1);
-        assert_eq!(uvc_switch_request(2).index, 0x0302);
+    fn the_uvc_switch_request_type_is_libusbs() {
+        let rt = rusb::request_type(
+            rusb::Direction::Out,
+            rusb::RequestType::Class,
+            rusb::Recipient::Interface,
+        );
+        assert_eq!(REQUEST_TYPE_CLASS_INTERFACE_OUT, rt);
     }
 }

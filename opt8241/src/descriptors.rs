@@ -2,12 +2,11 @@
 //! the UVC VideoControl interface.
 //!
 //! The descriptors come from whatever device claims the board's IDs, so
-//! they are hostile input: libusb parses the bytes, and these functions pick
-//! from the parsed values without I/O, so the fuzz target
-//! (`fuzz/fuzz_targets/usb_descriptors.rs`) runs the same choice as
-//! [`super::usb`].
-
-use super::usb::BulkEndpoint;
+//! they are hostile input: libusb parses the bytes, sdid's USB layer
+//! (`daemon/src/backend/opt8241/usb.rs`) copies the parsed values into
+//! [`AltSettingFields`], and these functions pick from them without I/O, so
+//! the fuzz target (`fuzz/fuzz_targets/usb_descriptors.rs`) runs the same
+//! choice as sdid.
 
 /// bEndpointAddress bit 7: device to host.
 const ENDPOINT_DIR_IN: u8 = 0x80;
@@ -17,6 +16,14 @@ const TRANSFER_TYPE_BULK: u8 = 0x02;
 const CLASS_VIDEO: u8 = 0x0E;
 /// bInterfaceSubClass of VideoControl.
 const SUBCLASS_VIDEO_CONTROL: u8 = 0x01;
+
+/// The bulk IN endpoint, as the descriptors give it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BulkEndpoint {
+    pub interface: u8,
+    pub address: u8,
+    pub max_packet_bytes: u16,
+}
 
 /// One endpoint descriptor's fields.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

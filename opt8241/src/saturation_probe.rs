@@ -1,32 +1,54 @@
-//! The saturation probe: when to switch the board to a depth frame and
-//! back, and the saturation mask its flags give (`sdi_opt8241::saturation`
-//! has the why, the format and the register values).
+//! The saturation probe: the depth frame sdid interleaves into the
+//! raw-quad stream to read the chip's per-pixel saturation flag, when to
+//! switch the board to it and back, and the mask its flags give.
 //!
-//! A state machine without I/O: [`Opt8241::next_frame`] feeds it every
-//! frame and performs the writes it asks for. Every
-//! [`PROBE_EVERY_FRAMES`] raw-quad frames it asks for `output_mode` =
-//! depth; the depth frame's flags become the mask ORed into the
-//! `saturated` plane of the raw-quad frames that follow, until the next
-//! probe. Depth frames that follow the one asked for, while the write
-//! back to raw quads is on its way (a few under load: three control
-//! transfers), are expected and cost nothing; any other depth frame (a
-//! switch back that did not take, or a device sending only those) asks
-//! for the raw quads again and is unusable to the caller. When
-//! [`PROBE_MAX_FAILURES`] probes in a row get no depth frame within
-//! [`PROBE_WAIT_FRAMES`] frames, it stops probing: saturation then comes
-//! from the 12-bit rails alone, and the caller says so once.
+//! Why a probe frame: a raw quad is A - B of one differential pixel
+//! (eq. pixeleff), so when ambient light fills both wells the quads fall
+//! towards 0 and the pixel looks dark, not clipped; the 12-bit rails only
+//! catch one well clipping. Raw-quad words carry nothing else (the SDK
+//! keeps bits 11:0, `ToFFrameGenerator::_generateToFRawIQFrame`). The
+//! depth output ([`crate::depth_frame`]) has a flags nibble whose bit 3 is
+//! set when a pixel's A or B node voltage falls below
+//! `saturation_threshold` (OPT9221.dml, 0x5C36 [23:12]; the SDK's
+//! `DenoiseFilter` and `HDRFilter` drop samples with `flags & 0x08`).
 //!
-//! [`Opt8241::next_frame`]: super::Opt8241::next_frame
+//! A state machine without I/O: sdid's device (`Opt8241::next_frame`,
+//! `daemon/src/backend/opt8241/device.rs`) feeds it every frame and
+//! performs the writes it asks for. Every [`PROBE_EVERY_FRAMES`] raw-quad
+//! frames it asks for `output_mode` = depth; the depth frame's flags
+//! become the mask ORed into the `saturated` plane of the raw-quad frames
+//! that follow, until the next probe. Depth frames that follow the one
+//! asked for, while the write back to raw quads is on its way (a few
+//! under load: three control transfers), are expected and cost nothing;
+//! any other depth frame (a switch back that did not take, or a device
+//! sending only those) asks for the raw quads again and is unusable to the
+//! caller. When [`PROBE_MAX_FAILURES`] probes in a row get no depth frame
+//! within [`PROBE_WAIT_FRAMES`] frames, it stops probing: saturation then
+//! comes from the 12-bit rails alone, and the caller says so once.
 
-use sdi_opt8241::registers::Field;
-pub use sdi_opt8241::saturation::{
-    depth_frame_bytes, DepthFrameLength, PROBE_EVERY_FRAMES, PROBE_MAX_FAILURES, PROBE_WAIT_FRAMES,
+use crate::depth_frame::{
+    saturated_from_depth, DepthFrameLength, OUTPUT_MODE_DEPTH, OUTPUT_MODE_RAW_QUADS,
 };
+use crate::registers::{field, Field};
+
+/// Frames between two probes: one frame in this many (plus one) is a
+/// depth frame, and a pixel's saturation is at most this many frames old.
+pub const PROBE_EVERY_FRAMES: u32 = 30;
+/// Raw-quad frames a probe waits for its depth frame before it gives up
+/// (the switch may take effect a frame late; a board that ignores it
+/// while streaming never sends one).
+pub const PROBE_WAIT_FRAMES: u32 = 3;
+/// Probes in a row that got no depth frame after which sdid stops probing.
+pub const PROBE_MAX_FAILURES: u32 = 3;
+
+/// The write that starts a probe.
+pub const PROBE_START: (Field, u32) = (field::OUTPUT_MODE, OUTPUT_MODE_DEPTH);
+/// The write that ends it.
+pub const PROBE_END: (Field, u32) = (field::OUTPUT_MODE, OUTPUT_MODE_RAW_QUADS);
 
 /// Depth frames expected after the write back to raw quads, before the
 /// next raw-quad frame: frames the board sent before the write landed.
 pub const DEPTH_FRAMES_AFTER_END: u32 = 16;
-use sdi_opt8241::saturation::{saturated_from_depth, PROBE_END, PROBE_START};
 
 /// A register write the probe asks for.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -296,6 +318,12 @@ mod tests {
         }
         assert_eq!(p.on_no_frame(), Some(ProbeWrite::End));
         assert_eq!(p.on_no_frame(), None, "nothing to wait for");
+    }
+
+    #[test]
+    fn a_probe_switches_output_mode_to_depth_and_back() {
+        assert_eq!(PROBE_START.0.name, "output_mode");
+        assert_eq!(PROBE_END.1, 15);
     }
 
     #[test]

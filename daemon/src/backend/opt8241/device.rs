@@ -1,4 +1,5 @@
-//! The OPT8241-CDK backend: open, configure, stream, decode, reconnect.
+//! The OPT8241-CDK device: open, configure, stream, decode, reconnect
+//! (driven by the backend, `backend/board.rs`).
 //!
 //! `next_frame` has the shape of the daemon's `Backend::capture`; on
 //! unplug it returns [`BoardError::DeviceUnavailable`] and the daemon keeps
@@ -15,14 +16,18 @@ use rusb::Context;
 use sdi_core::modulation::Illumination;
 use sdi_core::Frame;
 
-use super::frame::{
-    Assembled, AssemblerStats, DecodeError, DropReason, FrameAssembler, QuadCombine, QuadDecoder,
-};
-use super::init::{configure, layout_of, BoardConfig, ConfigError, InitReport};
-use super::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
-use super::saturation::{depth_frame_bytes, DepthFrame, ProbeStats, ProbeWrite, SaturationProbe};
-use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
 use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
+use sdi_opt8241::configure::{configure, layout_of, ConfigError, InitReport};
+use sdi_opt8241::depth_frame::depth_frame_bytes;
+use sdi_opt8241::frame_assembler::{Assembled, AssemblerStats, DropReason, FrameAssembler};
+use sdi_opt8241::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
+use sdi_opt8241::raw_quads::{DecodeError, QuadCombine, QuadDecoder};
+use sdi_opt8241::saturation_probe::{
+    DepthFrame, ProbeStats, ProbeWrite, SaturationProbe, PROBE_MAX_FAILURES,
+};
+use sdi_opt8241::BoardConfig;
+
+use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
 
 /// Transfers queued at the host controller while streaming.
 pub const DEFAULT_TRANSFERS_IN_FLIGHT: usize = 4;
@@ -221,6 +226,15 @@ impl Connection {
             ConfigError::Protocol(p) => BoardError::from_protocol(p),
             other => BoardError::Config(other),
         })?;
+        for c in &report.clamps {
+            tracing::warn!(
+                field = c.field,
+                requested = c.requested,
+                actual = c.actual,
+                reason = c.reason,
+                "board clamp"
+            );
+        }
         let layout = layout_of(config);
         let frame_bytes = layout.frame_bytes();
         let stream = BulkStream::start(
@@ -610,7 +624,7 @@ fn probe_write<T: Transport>(
         tracing::warn!(
             "saturation probe: the board sent no depth frame after output_mode = 0, {} times \
              in a row; pixels with both wells full are no longer flagged (only the 12-bit rails are)",
-            super::saturation::PROBE_MAX_FAILURES
+            PROBE_MAX_FAILURES
         );
     }
     let (field, value) = write.field_value();

@@ -1,25 +1,14 @@
-//! Saturation on the OPT8241: the depth ("phase, amplitude, ambient and
-//! flags") frame sdid interleaves into the raw-quad stream to read the
-//! chip's per-pixel saturation flag, as data.
-//!
-//! Why a probe frame: a raw quad is A - B of one differential pixel
-//! (eq. pixeleff), so when ambient light fills both wells the quads fall
-//! towards 0 and the pixel looks dark, not clipped; the 12-bit rails only
-//! catch one well clipping. Raw-quad words carry nothing else (the SDK
-//! keeps bits 11:0, `ToFFrameGenerator::_generateToFRawIQFrame`). The
-//! depth output has a flags nibble whose bit 3 is set when a pixel's A or
-//! B node voltage falls below `saturation_threshold` (OPT9221.dml,
-//! 0x5C36 [23:12]; the SDK's `DenoiseFilter` and `HDRFilter` drop samples
-//! with `flags & 0x08`). So every [`PROBE_EVERY_FRAMES`] frames sdid sets
-//! `output_mode` to depth for one frame, takes the flags and sets it back.
+//! The depth frame ("phase, amplitude, ambient and flags"), the output the
+//! saturation probe ([`crate::saturation_probe`]) switches to for one frame,
+//! as data: the `output_mode` values, its format and its saturation flags.
 //!
 //! Depth frame, `pixel_data_size` = 4 and `op_data_arrange_mode` = 0
 //! (both written at open, `plan.rs`): per pixel, in row order, two
 //! little-endian 16-bit words: amplitude [11:0] | ambient [15:12], then
 //! phase [11:0] | flags [15:12] (SDK `ToFFrameGenerator::_generateToFRawFrame`,
-//! `dataArrangeMode == 0`).
-
-use crate::registers::{field, Field};
+//! `dataArrangeMode == 0`). Bit 3 of the flags is set when a pixel's A or
+//! B node voltage falls below `saturation_threshold` (OPT9221.dml, 0x5C36
+//! [23:12]).
 
 /// `output_mode` (0x5C25 [11:8]) for raw quads, what sdid streams.
 pub const OUTPUT_MODE_RAW_QUADS: u32 = 15;
@@ -36,21 +25,6 @@ pub const DEPTH_BYTES_PER_PIXEL: usize = 4;
 /// The saturation bit of the flags nibble (SDK `DenoiseFilter.cpp`,
 /// `HDRFilter.cpp`: `#define SATURATED 0x08`).
 pub const FLAG_SATURATED: u8 = 0x08;
-
-/// Frames between two probes: one frame in this many (plus one) is a
-/// depth frame, and a pixel's saturation is at most this many frames old.
-pub const PROBE_EVERY_FRAMES: u32 = 30;
-/// Raw-quad frames a probe waits for its depth frame before it gives up
-/// (the switch may take effect a frame late; a board that ignores it
-/// while streaming never sends one).
-pub const PROBE_WAIT_FRAMES: u32 = 3;
-/// Probes in a row that got no depth frame after which sdid stops probing.
-pub const PROBE_MAX_FAILURES: u32 = 3;
-
-/// The write that starts a probe.
-pub const PROBE_START: (Field, u32) = (field::OUTPUT_MODE, OUTPUT_MODE_DEPTH);
-/// The write that ends it.
-pub const PROBE_END: (Field, u32) = (field::OUTPUT_MODE, OUTPUT_MODE_RAW_QUADS);
 
 /// Bytes of one depth frame of `width` x `height` pixels.
 pub const fn depth_frame_bytes(width: usize, height: usize) -> usize {
@@ -126,7 +100,5 @@ mod tests {
         for quads in [4usize, 6] {
             assert!(depth_frame_bytes(320, 240) < 320 * 240 * quads * 2);
         }
-        assert_eq!(PROBE_START.0.name, "output_mode");
-        assert_eq!(PROBE_END.1, 15);
     }
 }

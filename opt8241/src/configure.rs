@@ -1,5 +1,5 @@
-//! Board configuration: executes the open plan (`sdi_opt8241::plan`, the
-//! same sequence `sdictl board plan` prints) over a [`RegisterBus`].
+//! Board configuration: executes the open plan ([`crate::plan`], the same
+//! sequence `sdictl board plan` prints) over a [`RegisterBus`].
 //!
 //! Every write is read back; values the firmware clamped are reported in
 //! [`InitReport::clamps`], never worked around. A configuration the chip
@@ -7,14 +7,12 @@
 
 use std::time::Duration;
 
-pub use sdi_opt8241::limits::{intg_duty_cycle_for, pix_cnt_max_for};
-use sdi_opt8241::plan::{open_plan, Step};
-pub use sdi_opt8241::pll::{MOD_N, MOD_PS_MAX, VCO_MAX_HZ, VCO_MIN_HZ};
-pub use sdi_opt8241::{BoardConfig, OutOfRange, PllSettings, Roi};
-
-use super::frame::QuadLayout;
-use super::protocol::{FieldWrite, ProtocolError, RegisterBus, Transport};
-use super::registers::field;
+use crate::config::BoardConfig;
+use crate::plan::{open_plan, Step};
+use crate::pll::PllSettings;
+use crate::protocol::{FieldWrite, ProtocolError, RegisterBus, Transport};
+use crate::range::OutOfRange;
+use crate::raw_quads::QuadLayout;
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ConfigError {
@@ -72,7 +70,8 @@ pub fn layout_of(config: &BoardConfig) -> QuadLayout {
     }
 }
 
-/// Runs the open plan on an opened board.
+/// Runs the open plan on an opened board. Clamps are in the report, for
+/// the caller to log.
 pub fn configure<T: Transport>(
     bus: &mut RegisterBus<T>,
     config: &BoardConfig,
@@ -111,42 +110,15 @@ pub fn configure<T: Transport>(
     }
     report.pll = Some(plan.pll);
     report.layout = Some(layout_of(config));
-    for c in &report.clamps {
-        tracing::warn!(
-            field = c.field,
-            requested = c.requested,
-            actual = c.actual,
-            reason = c.reason,
-            "board clamp"
-        );
-    }
     Ok(report)
-}
-
-/// Board temperatures and status flags.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct BoardStatus {
-    pub sensor_celsius: i8,
-    pub illumination_celsius: i8,
-    pub master_pll_locked: bool,
-    pub output_overflow: bool,
-}
-
-pub fn read_status<T: Transport>(bus: &mut RegisterBus<T>) -> Result<BoardStatus, ProtocolError> {
-    let status = bus.read_register(field::MASTER_PLL_LOCK.address)?;
-    Ok(BoardStatus {
-        sensor_celsius: bus.read_field(field::TSENSOR)? as u8 as i8,
-        illumination_celsius: bus.read_field(field::TILLUM)? as u8 as i8,
-        master_pll_locked: field::MASTER_PLL_LOCK.extract(status) != 0,
-        output_overflow: field::OP_OVERFLOW.extract(status) != 0,
-    })
 }
 
 #[cfg(test)]
 mod tests {
-    use super::super::protocol::tests::FakeBoard;
-    use super::super::registers::Field;
     use super::*;
+    use crate::protocol::tests::FakeBoard;
+    use crate::registers::{field, Field};
+    use crate::roi::Roi;
 
     #[test]
     fn configure_writes_the_sdk_sequence_and_reads_back() {
@@ -174,7 +146,7 @@ mod tests {
             &["tg_dis", "mod_pll_update", "mod_pll_update"]
         );
         // every step of the plan was executed, in order
-        let plan = sdi_opt8241::open_plan(&BoardConfig::default()).unwrap();
+        let plan = open_plan(&BoardConfig::default()).unwrap();
         let planned: Vec<_> = plan
             .steps
             .iter()
@@ -247,18 +219,5 @@ mod tests {
             ));
         }
         assert!(bus.transport().log.is_empty());
-    }
-
-    #[test]
-    fn status_decodes_signed_temperatures() {
-        let mut bus = RegisterBus::new(FakeBoard::default());
-        bus.transport_mut().registers.insert(0x5C61, 0xF6); // -10 C
-        bus.transport_mut().registers.insert(0x5C62, 41);
-        bus.transport_mut().registers.insert(0x5C63, 1 << 4);
-        let s = read_status(&mut bus).unwrap();
-        assert_eq!(s.sensor_celsius, -10);
-        assert_eq!(s.illumination_celsius, 41);
-        assert!(s.master_pll_locked);
-        assert!(!s.output_overflow);
     }
 }

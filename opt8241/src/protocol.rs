@@ -9,7 +9,7 @@
 
 use std::time::Duration;
 
-use super::registers::{Field, FieldRangeError, REGISTER_MASK};
+use crate::registers::{Field, FieldRangeError, REGISTER_MASK};
 
 /// Vendor request codes (firmware `vendorcommand.c`).
 pub mod request {
@@ -340,7 +340,7 @@ impl<T: Transport> RegisterBus<T> {
         let next = field.insert(current, value)?;
         self.write_register(field.address, next)?;
         let actual = self.read_field(field)?;
-        // The caller reports clamps (`init::InitReport`) once per configuration.
+        // The caller reports clamps (`configure::InitReport`) once per configuration.
         if actual != value {
             tracing::debug!(
                 field = field.name,
@@ -391,8 +391,8 @@ impl<T: Transport> RegisterBus<T> {
 pub(crate) mod tests {
     use std::collections::HashMap;
 
-    use super::super::registers::{field, safety};
     use super::*;
+    use crate::registers::{field, safety};
 
     /// A fake board: a register file behind the vendor requests, with the
     /// firmware's laser-safety masks, a log of every SETUP and optional

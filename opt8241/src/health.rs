@@ -9,10 +9,8 @@
 use std::ops::RangeInclusive;
 use std::time::Duration;
 
-use super::init::{read_status, BoardStatus};
-use super::protocol::{ProtocolError, RegisterBus, Transport};
-use super::registers::field;
-use crate::backend::status::BoardHealth;
+use crate::protocol::{ProtocolError, RegisterBus, Transport};
+use crate::registers::field;
 
 /// How often the board is polled while streaming.
 pub const POLL_INTERVAL: Duration = Duration::from_secs(5);
@@ -20,6 +18,34 @@ pub const POLL_INTERVAL: Duration = Duration::from_secs(5);
 pub const SENSOR_VALID_C: RangeInclusive<i8> = 0..=50;
 /// tillum's valid range (SDK `observed_params`), degrees Celsius.
 pub const ILLUMINATION_VALID_C: RangeInclusive<i8> = 0..=40;
+
+/// Board temperatures and status flags.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BoardStatus {
+    pub sensor_celsius: i8,
+    pub illumination_celsius: i8,
+    pub master_pll_locked: bool,
+    pub output_overflow: bool,
+}
+
+/// Reads the temperatures and status flags.
+pub fn read_status<T: Transport>(bus: &mut RegisterBus<T>) -> Result<BoardStatus, ProtocolError> {
+    let status = bus.read_register(field::MASTER_PLL_LOCK.address)?;
+    Ok(BoardStatus {
+        sensor_celsius: bus.read_field(field::TSENSOR)? as u8 as i8,
+        illumination_celsius: bus.read_field(field::TILLUM)? as u8 as i8,
+        master_pll_locked: field::MASTER_PLL_LOCK.extract(status) != 0,
+        output_overflow: field::OP_OVERFLOW.extract(status) != 0,
+    })
+}
+
+/// The board's temperatures and output overflows, polled while streaming.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BoardHealth {
+    pub sensor_c: i8,
+    pub illumination_c: i8,
+    pub output_overflows: u64,
+}
 
 /// Reads the status and clears op_overflow when it was set.
 pub fn poll<T: Transport>(bus: &mut RegisterBus<T>) -> Result<BoardStatus, ProtocolError> {
@@ -84,6 +110,7 @@ fn was_in_range(was: Option<i8>, valid: &RangeInclusive<i8>) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::protocol::tests::FakeBoard;
 
     fn status(sensor: i8, illumination: i8, overflow: bool) -> BoardStatus {
         BoardStatus {
@@ -119,5 +146,18 @@ mod tests {
         let (h, _) = update(Some(h), &status(35, 30, false));
         let (h, _) = update(Some(h), &status(35, 30, true));
         assert_eq!(h.output_overflows, 2);
+    }
+
+    #[test]
+    fn status_decodes_signed_temperatures() {
+        let mut bus = RegisterBus::new(FakeBoard::default());
+        bus.transport_mut().registers.insert(0x5C61, 0xF6); // -10 C
+        bus.transport_mut().registers.insert(0x5C62, 41);
+        bus.transport_mut().registers.insert(0x5C63, 1 << 4);
+        let s = read_status(&mut bus).unwrap();
+        assert_eq!(s.sensor_celsius, -10);
+        assert_eq!(s.illumination_celsius, 41);
+        assert!(s.master_pll_locked);
+        assert!(!s.output_overflow);
     }
 }
