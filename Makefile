@@ -6,6 +6,7 @@
 #   make install [DESTDIR=...] [PREFIX=/usr/local]
 #   make uninstall [DESTDIR=...] [PREFIX=/usr/local]
 #   make deb                              # Debian packages in target/debian/
+#   make wheel                            # the Python module (python/) in target/wheels/
 #
 # With PREFIX=/usr the system-integration files go to the distribution's
 # directories (/usr/lib/..., /usr/share/...); with any other prefix they go
@@ -176,3 +177,12 @@ deb: build
 
 deb-package:
 	MAKE="$(MAKE)" packaging/debian/mkdeb.sh $(TARGETDIR) $(DEBDIR)
+
+# The Python module (python/, docs/python.md): one abi3 wheel, built by
+# maturin (from PyPI, in a venv: `pip install maturin`) from the workspace.
+MATURIN  ?= maturin
+WHEELDIR ?= $(abspath $(or $(CARGO_TARGET_DIR),target)/wheels)
+
+.PHONY: wheel
+wheel:
+	cd python && $(MATURIN) build --release -o $(WHEELDIR)

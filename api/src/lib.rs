@@ -16,6 +16,7 @@ pub mod frame_stream;
 pub mod proxy;
 pub mod setting;
 pub mod types;
+pub mod wire_json;
 
 pub use error::SdiError;
 pub use proxy::{Camera1Proxy, Properties};

@@ -24,6 +24,12 @@
 pub mod light_travel;
 pub mod poisson;
 pub mod readout;
+mod run;
+
+pub use run::{
+    run_config, SimRun, SimRunError, MAX_AMBIENT_ELECTRONS_PER_US, MAX_DARK_FRAMES,
+    MAX_EXPOSURE_US, MAX_FRAMES,
+};
 
 use rand::rngs::SmallRng;
 use rand::SeedableRng;

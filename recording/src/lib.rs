@@ -6,8 +6,10 @@
 
 pub mod file_writer;
 pub mod format;
+pub mod frames;
 pub mod reader;
 
 pub use file_writer::RecordingFile;
 pub use format::{Calibration, Header, HeaderError, Record};
+pub use frames::{DarkSubtracted, RecordedFrames, SizeChanged};
 pub use reader::{ReadError, RecordingReader};

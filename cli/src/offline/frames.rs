@@ -9,8 +9,8 @@ use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::Path;
 
 use sdi_core::sensor::SensorParams;
-use sdi_core::{Frame, Image};
-use sdi_recording::{format::is_recording_magic, Record, RecordingReader};
+use sdi_core::Frame;
+use sdi_recording::{format::is_recording_magic, RecordedFrames, RecordingReader};
 
 use super::npy_header::{self, Dtype, NpyHeader, MAX_PIXELS};
 use crate::exit::CliError;
@@ -77,11 +77,7 @@ impl NpyFrames {
 /// Frames from a file: `.sdirec` recordings or `.npy` stacks.
 pub enum FrameInput {
     Npy(NpyFrames),
-    Recording {
-        reader: Box<RecordingReader<BufReader<File>>>,
-        dark_dn: Option<Image<f32>>,
-        warned_mode: Option<String>,
-    },
+    Recording(Box<RecordedFrames<BufReader<File>>>),
 }
 
 /// What an input says about itself.
@@ -106,11 +102,7 @@ impl FrameInput {
             let reader = RecordingReader::open(path)
                 .map_err(|e| CliError::Usage(format!("'{}': {e}", path.display())))?;
             let header = reader.header().clone();
-            let input = FrameInput::Recording {
-                reader: Box::new(reader),
-                dark_dn: None,
-                warned_mode: None,
-            };
+            let input = FrameInput::Recording(Box::new(RecordedFrames::new(reader)));
             // Size from the first frame; the header's sensor gives it too.
             let info = InputInfo {
                 width: header.sensor.width,
@@ -166,53 +158,26 @@ impl FrameInput {
                 n.read += 1;
                 Ok(true)
             }
-            FrameInput::Recording {
-                reader,
-                dark_dn,
-                warned_mode,
-            } => loop {
-                match reader.next_record() {
-                    None => {
-                        if let Some(why) = reader.damaged_tail() {
-                            eprintln!(
-                                "warning: '{}' ends in a damaged record ({why}); the intact frames before it were used",
-                                path.display()
-                            );
-                        }
-                        return Ok(false);
+            FrameInput::Recording(frames) => match frames.next_frame() {
+                Err(e) => Err(runtime(path, e)),
+                Ok(None) => {
+                    if let Some(why) = frames.damaged_tail() {
+                        eprintln!(
+                            "warning: '{}' ends in a damaged record ({why}); the intact frames before it were used",
+                            path.display()
+                        );
                     }
-                    Some(Record::Dark { dn, .. }) => *dark_dn = Some(dn),
-                    Some(Record::End { .. }) => {}
-                    Some(Record::Frame { mode, frame: f }) => {
-                        if f.width() != frame.width() || f.height() != frame.height() {
-                            return Err(runtime(
-                                path,
-                                format!(
-                                    "frame {} is {}x{}, expected {}x{}",
-                                    f.sequence,
-                                    f.width(),
-                                    f.height(),
-                                    frame.width(),
-                                    frame.height()
-                                ),
-                            ));
-                        }
-                        match warned_mode {
-                            None => *warned_mode = Some(mode),
-                            Some(m) if *m != mode => {
-                                eprintln!("warning: the recording changes mode from {m} to {mode}; all frames are used");
-                                *warned_mode = Some(mode);
-                            }
-                            Some(_) => {}
-                        }
-                        *frame = f;
-                        if let Some(d) = dark_dn.as_ref().filter(|d| d.same_size(&frame.dn)) {
-                            for (v, &k) in frame.dn.data.iter_mut().zip(&d.data) {
-                                *v -= k;
-                            }
-                        }
-                        return Ok(true);
+                    Ok(false)
+                }
+                Ok(Some(f)) => {
+                    if let Some(m) = f.mode_changed_from {
+                        eprintln!(
+                            "warning: the recording changes mode from {m} to {}; all frames are used",
+                            f.mode
+                        );
                     }
+                    *frame = f.frame;
+                    Ok(true)
                 }
             },
         }
@@ -221,14 +186,14 @@ impl FrameInput {
     /// The mode the last frame read was recorded in (recordings only).
     pub fn last_mode(&self) -> Option<&str> {
         match self {
-            FrameInput::Recording { warned_mode, .. } => warned_mode.as_deref(),
+            FrameInput::Recording(frames) => frames.last_mode(),
             FrameInput::Npy(_) => None,
         }
     }
 
     /// True for a recording that has supplied no dark frame so far.
     pub fn lacks_dark(&self) -> bool {
-        matches!(self, FrameInput::Recording { dark_dn: None, .. })
+        matches!(self, FrameInput::Recording(f) if f.lacks_dark())
     }
 }
 

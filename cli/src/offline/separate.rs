@@ -27,11 +27,10 @@ use clap::{Args, ValueEnum};
 use sdi_core::calibration::CalibrationStore;
 use sdi_core::sensor::{mixing_with_adc, SensorDescription, SkellamMixing};
 use sdi_core::separation::{
-    auto_segment, bilateral_exact, noise_sigma, pool_moments, segment_moments, skellam_ml_pixel,
-    unmix_into, unmix_local_into, BilateralParams, PoolParams, SegmentParams, SeparableBilateral,
-    Separated, SlidingWelford, UnmixOptions, Welford, IGNORE_LABEL,
+    sanitize, BatchError, BatchMethod, BatchParams, BatchSeparator, Separated, UnmixOptions,
+    IGNORE_LABEL,
 };
-use sdi_core::{Frame, Image, PixelFlags};
+use sdi_core::{Frame, Image};
 
 use super::frames::{FrameInput, InputInfo, NpyOut};
 use super::sensor_arg::parse_sensor;
@@ -41,7 +40,7 @@ use crate::output_name::{refuse_same, OutputName};
 use crate::stdout::outln;
 
 /// Longest temporal window.
-pub const MAX_WINDOW: usize = 4096;
+pub const MAX_WINDOW: usize = sdi_core::separation::MAX_BATCH_WINDOW;
 
 /// Separation estimator.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -189,23 +188,6 @@ pub fn choose_mixing(
     })
 }
 
-/// Checks H before any work: g^2 must be normal and the read variance >= 0.
-fn check_mixing(h: &SkellamMixing) -> Result<(), CliError> {
-    let g = h.gain_dn_per_electron;
-    let r = h.read_variance_dn2;
-    if !(g.is_finite() && g > 0.0 && (g * g).is_normal() && (1.0 / (g * g)) < f32::MAX as f64) {
-        return Err(CliError::Usage(format!(
-            "gain rho*eta = {g} DN/electron cannot be inverted (H is singular)"
-        )));
-    }
-    if !(r.is_finite() && r >= 0.0) {
-        return Err(CliError::Usage(format!(
-            "read variance {r} DN^2 must be >= 0"
-        )));
-    }
-    Ok(())
-}
-
 /// The output files, kept until every one is written.
 struct Outputs {
     files: Vec<(AtomicFile, PathBuf)>,
@@ -276,27 +258,8 @@ impl Outputs {
     /// f32) become 0 and are flagged NONFINITE; standard errors are finite
     /// or +inf, never NaN.
     fn push(&mut self, s: &mut Separated) -> Result<(), CliError> {
-        const NONFINITE: u8 = PixelFlags::NONFINITE.bits();
+        self.nonfinite += sanitize(s);
         let n = s.flags.data.len();
-        for i in 0..n {
-            let (p, m) = (s.i_plus_electrons.data[i], s.i_minus_electrons.data[i]);
-            if !(p.is_finite() && m.is_finite()) {
-                s.i_plus_electrons.data[i] = 0.0;
-                s.i_minus_electrons.data[i] = 0.0;
-                s.i_plus_se_electrons.data[i] = f32::INFINITY;
-                s.i_minus_se_electrons.data[i] = f32::INFINITY;
-                s.flags.data[i] |= NONFINITE;
-                self.nonfinite += 1;
-            }
-            for se in [
-                &mut s.i_plus_se_electrons.data[i],
-                &mut s.i_minus_se_electrons.data[i],
-            ] {
-                if se.is_nan() {
-                    *se = f32::INFINITY;
-                }
-            }
-        }
         let bad = |e: std::io::Error| CliError::Runtime(format!("cannot write output: {e}"));
         self.plane[..n].copy_from_slice(&s.i_plus_electrons.data);
         self.plane[n..].copy_from_slice(&s.i_minus_electrons.data);
@@ -332,8 +295,25 @@ impl Outputs {
     }
 }
 
-fn sep_err(e: impl std::fmt::Display) -> CliError {
-    CliError::Usage(format!("separation: {e}"))
+/// The run's refusals in the words of this command's flags.
+fn batch_err(e: BatchError) -> CliError {
+    CliError::Usage(match e {
+        BatchError::LabelsNotM2 => "--segments applies to --method m2 only".into(),
+        BatchError::WindowNotM1OrMl => "--window applies to m1 and ml only".into(),
+        e => e.to_string(),
+    })
+}
+
+impl From<Method> for BatchMethod {
+    fn from(m: Method) -> Self {
+        match m {
+            Method::M1 => BatchMethod::M1,
+            Method::M1Pooled => BatchMethod::M1Pooled,
+            Method::M2 => BatchMethod::M2,
+            Method::M3 => BatchMethod::M3,
+            Method::Ml => BatchMethod::Ml,
+        }
+    }
 }
 
 /// Reads labels for M2 (H x W float32; negative or non-finite = no segment).
@@ -413,108 +393,40 @@ pub fn separate(args: &SeparateArgs) -> Result<SeparateSummary, CliError> {
     let t0 = Instant::now();
     let (mut input, info) = FrameInput::open(&args.input)?;
     let mix = choose_mixing(args.calibration.as_deref(), args.sensor.as_ref(), &info)?;
-    check_mixing(&mix.h)?;
-    eprintln!("H from {}", mix.from);
-    let h = mix.h;
     let (w, ht) = (info.width, info.height);
-    let options = UnmixOptions {
-        subtract_read_noise: !args.keep_read_noise,
-        nonnegative: args.nonnegative,
-    };
-    if args.segments.is_some() && args.method != Method::M2 {
-        return Err(CliError::Usage(
-            "--segments applies to --method m2 only".into(),
-        ));
-    }
-    let window = args.window.map(|w| w as usize);
-    if window.is_some() && !matches!(args.method, Method::M1 | Method::Ml) {
-        return Err(CliError::Usage("--window applies to m1 and ml only".into()));
-    }
     let labels = args
         .segments
         .as_deref()
         .map(|p| read_labels(p, w, ht))
         .transpose()?;
+    let params = BatchParams {
+        method: args.method.into(),
+        window: args.window.map(|w| w as usize),
+        labels,
+        sigma_domain_px: args.sigma_domain_px,
+        range_sigmas: args.range_sigmas,
+        options: UnmixOptions {
+            subtract_read_noise: !args.keep_read_noise,
+            nonnegative: args.nonnegative,
+        },
+    };
+    let mut separator = BatchSeparator::new(params, mix.h, w, ht).map_err(batch_err)?;
+    eprintln!("H from {}", mix.from);
+    let h = mix.h;
     let mut outs = Outputs::open(args, w, ht)?;
     let mut frame = Frame::new(w, ht);
     let mut sep = Separated::default();
-    let mut frames_in = 0usize;
-    let mut next = |input: &mut FrameInput, frame: &mut Frame| -> Result<bool, CliError> {
-        let got = input.next_frame(&args.input, frame)?;
-        if got && frames_in == 0 && input.lacks_dark() {
+    while input.next_frame(&args.input, &mut frame)? {
+        if separator.frames() == 0 && input.lacks_dark() {
             eprintln!("warning: the recording holds no dark frame; frames are used as recorded (offset and fixed pattern end up in I+ - I-)");
         }
-        frames_in += usize::from(got);
-        Ok(got)
-    };
-    let single =
-        matches!(args.method, Method::M1Pooled) || (args.method == Method::M1 && window.is_none());
-    match (args.method, window) {
-        (Method::M1 | Method::M1Pooled, None) => {
-            let mut acc = Welford::new(w, ht);
-            while next(&mut input, &mut frame)? {
-                acc.push(&frame).map_err(sep_err)?;
-            }
-            let m = acc
-                .moments()
-                .map_err(|e| CliError::Usage(format!("M1 needs at least 2 frames: {e}")))?;
-            let m = if args.method == Method::M1Pooled {
-                pool_moments(&m, PoolParams::default()).map_err(sep_err)?
-            } else {
-                m
-            };
-            unmix_into(&m, &h, options, &mut sep).map_err(sep_err)?;
+        if separator.push(&frame, &mut sep).map_err(batch_err)? {
             outs.push(&mut sep)?;
         }
-        (Method::M1 | Method::M1Pooled, Some(win)) => {
-            let mut acc = SlidingWelford::new(w, ht, win).map_err(sep_err)?;
-            while next(&mut input, &mut frame)? {
-                acc.push(&frame).map_err(sep_err)?;
-                if acc.len() < 2 {
-                    insufficient(&mut sep, w, ht);
-                } else {
-                    unmix_into(&acc.moments().map_err(sep_err)?, &h, options, &mut sep)
-                        .map_err(sep_err)?;
-                }
-                outs.push(&mut sep)?;
-            }
-        }
-        (Method::M2, _) => {
-            while next(&mut input, &mut frame)? {
-                let m = match &labels {
-                    Some(l) => segment_moments(&frame, l, None),
-                    None => auto_segment(&frame, SegmentParams::default())
-                        .and_then(|s| segment_moments(&frame, &s.labels, Some(&s.interior))),
-                }
-                .map_err(sep_err)?;
-                unmix_into(&m, &h, options, &mut sep).map_err(sep_err)?;
-                outs.push(&mut sep)?;
-            }
-        }
-        (Method::M3, _) => {
-            let mut separable = SeparableBilateral::new();
-            while next(&mut input, &mut frame)? {
-                let p = BilateralParams::new(
-                    args.sigma_domain_px,
-                    args.range_sigmas * noise_sigma(&frame),
-                );
-                if w * ht < 64 {
-                    // Tiny frames: the exact filter (no block set-up).
-                    let m = bilateral_exact(&frame, p).map_err(sep_err)?;
-                    unmix_into(&m, &h, options, &mut sep).map_err(sep_err)?;
-                } else {
-                    let m = separable.compute(&frame, p).map_err(sep_err)?;
-                    unmix_local_into(m, &h, options, &mut sep).map_err(sep_err)?;
-                }
-                outs.push(&mut sep)?;
-            }
-        }
-        (Method::Ml, win) => {
-            let win = win.unwrap_or(16);
-            ml_stream(
-                &mut input, &mut frame, &mut next, &h, win, &mut sep, &mut outs,
-            )?;
-        }
+    }
+    let frames_in = separator.frames();
+    if separator.finish(&mut sep).map_err(batch_err)? {
+        outs.push(&mut sep)?;
     }
     if frames_in == 0 {
         return Err(CliError::Usage(format!(
@@ -528,98 +440,11 @@ pub fn separate(args: &SeparateArgs) -> Result<SeparateSummary, CliError> {
             outs.nonfinite
         );
     }
-    let outputs = outs.finish(single)?;
+    let outputs = outs.finish(separator.single_output())?;
     Ok(SeparateSummary {
         frames_in,
         outputs,
         seconds: t0.elapsed().as_secs_f64(),
         h,
     })
-}
-
-/// Every pixel flagged INSUFFICIENT: 0 with infinite standard error.
-fn insufficient(sep: &mut Separated, w: usize, h: usize) {
-    const INSUFFICIENT: u8 = PixelFlags::INSUFFICIENT.bits();
-    if sep.flags.width != w || sep.flags.height != h {
-        *sep = Separated {
-            i_plus_electrons: Image::new(w, h),
-            i_minus_electrons: Image::new(w, h),
-            i_plus_se_electrons: Image::new(w, h),
-            i_minus_se_electrons: Image::new(w, h),
-            flags: Image::new(w, h),
-        };
-    }
-    sep.i_plus_electrons.data.fill(0.0);
-    sep.i_minus_electrons.data.fill(0.0);
-    sep.i_plus_se_electrons.data.fill(f32::INFINITY);
-    sep.i_minus_se_electrons.data.fill(f32::INFINITY);
-    sep.flags.data.fill(INSUFFICIENT);
-}
-
-/// Skellam ML per frame over the last `win` frames of each pixel; standard
-/// errors from the same window's moments (non-negative unmixing).
-fn ml_stream(
-    input: &mut FrameInput,
-    frame: &mut Frame,
-    next: &mut impl FnMut(&mut FrameInput, &mut Frame) -> Result<bool, CliError>,
-    h: &SkellamMixing,
-    win: usize,
-    sep: &mut Separated,
-    outs: &mut Outputs,
-) -> Result<(), CliError> {
-    const INSUFFICIENT: u8 = PixelFlags::INSUFFICIENT.bits();
-    const SATURATED: u8 = PixelFlags::SATURATED.bits();
-    let (w, ht) = (frame.width(), frame.height());
-    let npx = w * ht;
-    // Ring of the last `win` frames, NaN where a sample is unusable.
-    let mut ring = vec![f32::NAN; win * npx];
-    let mut filled = 0usize;
-    let mut head = 0usize;
-    let mut acc = SlidingWelford::new(w, ht, win).map_err(sep_err)?;
-    let nonneg = UnmixOptions {
-        subtract_read_noise: true,
-        nonnegative: true,
-    };
-    let mut samples = Vec::with_capacity(win);
-    while next(input, frame)? {
-        acc.push(frame).map_err(sep_err)?;
-        let slot = &mut ring[head * npx..(head + 1) * npx];
-        for (i, s) in slot.iter_mut().enumerate() {
-            *s = if frame.saturated.data[i] == 0 {
-                frame.dn.data[i]
-            } else {
-                f32::NAN
-            };
-        }
-        head = (head + 1) % win;
-        filled = (filled + 1).min(win);
-        if acc.len() < 2 {
-            insufficient(sep, w, ht);
-        } else {
-            unmix_into(&acc.moments().map_err(sep_err)?, h, nonneg, sep).map_err(sep_err)?;
-        }
-        for i in 0..npx {
-            samples.clear();
-            samples.extend((0..filled).map(|k| f64::from(ring[k * npx + i])));
-            match skellam_ml_pixel(&samples, h) {
-                Ok(fit) => {
-                    sep.i_plus_electrons.data[i] = fit.i_plus_electrons as f32;
-                    sep.i_minus_electrons.data[i] = fit.i_minus_electrons as f32;
-                    sep.flags.data[i] &= !INSUFFICIENT;
-                }
-                Err(_) => {
-                    sep.i_plus_electrons.data[i] = 0.0;
-                    sep.i_minus_electrons.data[i] = 0.0;
-                    sep.i_plus_se_electrons.data[i] = f32::INFINITY;
-                    sep.i_minus_se_electrons.data[i] = f32::INFINITY;
-                    sep.flags.data[i] |= INSUFFICIENT;
-                }
-            }
-            if frame.saturated.data[i] != 0 {
-                sep.flags.data[i] |= SATURATED;
-            }
-        }
-        outs.push(sep)?;
-    }
-    Ok(())
 }

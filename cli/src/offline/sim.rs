@@ -10,31 +10,22 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use sdi_core::dark_frame::DarkAccumulator;
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
-use sdi_core::mode::{build_pipeline, ModeId, ModeOutput, PipelineConfig};
-use sdi_core::modulation::Illumination;
+use sdi_core::mode::{ModeId, ModeOutput};
 use sdi_core::npy::NpyF32Writer;
 use sdi_core::scene::SceneId;
-use sdi_core::sensor::{mixing_with_adc, SensorDescription};
-use sdi_core::separation::LiveMethod;
-use sdi_core::separation::{LiveSeparatorConfig, DEFAULT_BILATERAL};
-use sdi_core::simulator::{SimConfig, Simulator};
-use sdi_core::{Frame, Image};
+use sdi_core::sensor::SensorDescription;
+use sdi_core::simulator::{run_config, SimRun, Simulator};
+use sdi_core::Image;
 
 use crate::atomic_file::AtomicFile;
 use crate::exit::CliError;
 use crate::output_name::{refuse_same, OutputName};
 use crate::stdout::outln;
 
-/// Most output frames one run may write.
-pub const MAX_FRAMES: usize = 10_000;
-/// Most dark frames one run may average.
-pub const MAX_DARK_FRAMES: u32 = 10_000;
-/// Longest exposure accepted, microseconds.
-pub const MAX_EXPOSURE_US: f64 = 1e6;
-/// Brightest uniform ambient light accepted, electrons per microsecond per pixel.
-pub const MAX_AMBIENT_ELECTRONS_PER_US: f64 = 1e6;
+pub use sdi_core::simulator::{
+    MAX_AMBIENT_ELECTRONS_PER_US, MAX_DARK_FRAMES, MAX_EXPOSURE_US, MAX_FRAMES,
+};
 
 #[derive(Debug, Args)]
 pub struct SimArgs {
@@ -154,7 +145,7 @@ fn check_outputs(args: &SimArgs) -> Result<(), CliError> {
 /// Runs `sdictl sim`.
 /// With `json`, the summary on stdout is one JSON object.
 pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
-    let mut sim = simulator(&args)?;
+    let sim = simulator(&args)?;
     let (w, h) = (sim.params().width, sim.params().height);
     if args.two_shot_frames.is_some() && args.mode != ModeId::TwoShot {
         return Err(CliError::Usage(
@@ -163,16 +154,17 @@ pub fn run(args: SimArgs, json: bool) -> Result<(), CliError> {
     }
     check_outputs(&args)?;
     let mut out = Outputs::create(&args, w, h)?;
-    let mut frame = Frame::new(w, h);
-    let dark = average_dark(&mut sim, args.dark_frames, &mut frame)?;
-    let last = simulate(&args, &mut sim, &mut out, &dark, &mut frame)?;
+    let static_scene = sim.scene_is_static();
+    let mut run = SimRun::new(sim, args.mode, args.dark_frames)
+        .map_err(|e| CliError::Runtime(e.to_string()))?;
+    let last = simulate(&args, &mut run, &mut out)?;
     let display = DisplayMap::new(args.colormap, args.range);
-    out.commit(&args, &display, &last, sim.scene_is_static())?;
+    out.commit(&args, &display, &last, static_scene)?;
     let summary = Summary {
-        scene: sim.config().scene.name(),
+        scene: run.simulator().config().scene.name(),
         width: w,
         height: h,
-        dark_frames: dark.frames(),
+        dark_frames: run.dark_frames(),
         png_max_abs_dn: args.png.as_ref().map(|_| display.max_abs_dn(&last)),
     };
     print_summary(&args, &summary, json)
@@ -185,17 +177,14 @@ fn simulator(args: &SimArgs) -> Result<Simulator, CliError> {
         .map_or_else(|| args.mode.default_scene(), SceneId::spec)
         .with_params(&args.scene_params)
         .map_err(|e| CliError::Usage(e.to_string()))?;
-    let mut sensor = args.sensor.params();
-    if let Some(exposure_us) = args.exposure_us {
-        sensor.exposure_us = exposure_us;
-    }
-    let carrier_hz = sensor.modulation_hz;
-    let mut config = SimConfig::new(sensor, scene);
-    // Dark current fills both wells regardless of f: like uncorrelated light
-    // of twice the per-well rate, split 50/50 by the square wave.
-    config.ambient_electrons_per_us =
-        args.ambient + 2.0 * args.sensor.dark_current_electrons_per_us;
-    config.seed = args.seed;
+    let config = run_config(
+        &args.sensor,
+        scene,
+        args.exposure_us,
+        args.ambient,
+        args.seed,
+    );
+    let carrier_hz = config.sensor.modulation_hz;
     if let Some(w) =
         sdi_core::simulator::light_travel::light_travel_warning(&config.scene, carrier_hz)
     {
@@ -299,89 +288,36 @@ impl Outputs {
     }
 }
 
-/// Averages `frames` captures with the sources off: the dark frame the
-/// pipeline subtracts (section 4, measurement procedure).
-fn average_dark(
-    sim: &mut Simulator,
-    frames: u32,
-    frame: &mut Frame,
-) -> Result<DarkAccumulator, CliError> {
-    let (w, h) = (sim.params().width, sim.params().height);
-    let mut dark = DarkAccumulator::new(w, h);
-    let dark_illumination = Illumination::dark(sim.params().modulation_hz);
-    for _ in 0..frames {
-        sim.capture(&dark_illumination, frame);
-        dark.push(frame)
-            .map_err(|e| CliError::Runtime(e.to_string()))?;
-    }
-    Ok(dark)
-}
-
-/// Captures and processes until `args.frames` outputs are written; the
-/// last output's signed difference, for the PNG.
-fn simulate(
-    args: &SimArgs,
-    sim: &mut Simulator,
-    out: &mut Outputs,
-    dark: &DarkAccumulator,
-    frame: &mut Frame,
-) -> Result<Image<f32>, CliError> {
-    let carrier_hz = sim.params().modulation_hz;
-    let dark_dn = dark.mean_dn();
-    let mut pipeline = build_pipeline(
-        args.mode,
-        PipelineConfig {
-            dark_frame_dn: dark_dn.clone(),
-            separation: LiveSeparatorConfig::new(
-                LiveMethod::Bilateral(DEFAULT_BILATERAL),
-                mixing_with_adc(sim.params()),
-            ),
-            ..PipelineConfig::default()
-        },
+/// Runs the simulator through the mode until `args.frames` outputs are
+/// written; the last output's signed difference, for the PNG.
+fn simulate(args: &SimArgs, run: &mut SimRun, out: &mut Outputs) -> Result<Image<f32>, CliError> {
+    let (w, h) = (
+        run.simulator().params().width,
+        run.simulator().params().height,
     );
-    let truth_illumination = Illumination::snapshot(carrier_hz);
-    let static_scene = sim.scene_is_static();
     let separated = args.mode == ModeId::Separation;
     let two_shot = args.mode == ModeId::TwoShot;
-    // Numbered on from the dark captures: the two-shot pipeline pairs by it.
-    let mut next_sequence = if args.dark_frames > 0 {
-        frame.sequence + 1
-    } else {
-        0
-    };
-    let mut last = Image::<f32>::new(frame.width(), frame.height());
-    let mut written = 0usize;
-    // Two-shot needs two captures per output; anything beyond that is a bug.
-    let max_captures = args.frames.saturating_mul(2).saturating_add(2);
-    let mut captures = 0usize;
-    while written < args.frames {
-        if captures >= max_captures {
-            return Err(CliError::Runtime(format!(
-                "mode {} produced only {written} frames from {captures} captures",
-                args.mode
-            )));
-        }
-        let t0_us = sim.time_us();
-        sim.capture(&args.mode.illumination(next_sequence, carrier_hz), frame);
-        captures += 1;
-        next_sequence = frame.sequence + 1;
-        out.extras.captured(frame, dark_dn.as_ref(), t0_us);
-        let Some(output) = pipeline.process(frame) else {
-            continue;
-        };
-        out.write(output, separated)?;
-        if !static_scene || written == 0 {
-            if two_shot {
-                sim.expect_wells(&truth_illumination, out.extras.first_t0_us());
-            }
-            out.extras.output(sim.last_expectation(), !two_shot)?;
-        } else {
-            out.extras.output_pair_only()?;
-        }
-        written += 1;
-        if written == args.frames {
-            last.data.copy_from_slice(&output.signed_dn.data);
-        }
+    let mut last = Image::<f32>::new(w, h);
+    let dark_dn = run.dark_dn().cloned();
+    for written in 1..=args.frames {
+        let result = run
+            .next_output(
+                out,
+                |out, frame| out.extras.captured(frame, dark_dn.as_ref()),
+                |out, output, truth| -> Result<(), CliError> {
+                    out.write(output, separated)?;
+                    match truth {
+                        Some(t) => out.extras.output(t, !two_shot)?,
+                        None => out.extras.output_pair_only()?,
+                    }
+                    if written == args.frames {
+                        last.data.copy_from_slice(&output.signed_dn.data);
+                    }
+                    Ok(())
+                },
+            )
+            .map_err(|e| CliError::Runtime(e.to_string()))?;
+        result?;
     }
     Ok(last)
 }

@@ -47,7 +47,6 @@ pub struct Extras {
     pairs: Option<Out>,
     /// Last dark-subtracted capture of each sequence parity (A even, B odd).
     last: [Vec<f32>; 2],
-    first_t0_us: Option<f64>,
     plane: Vec<f32>,
 }
 
@@ -62,14 +61,12 @@ impl Extras {
             truth: truth.map(|p| open(p, &[2, h, w])).transpose()?,
             pairs: pairs.map(|p| open(p, &[2, h, w])).transpose()?,
             last: [vec![0.0; w * h], vec![0.0; w * h]],
-            first_t0_us: None,
             plane: vec![0.0; 2 * w * h],
         })
     }
 
-    /// Notes a capture starting at `t0_us`.
-    pub fn captured(&mut self, frame: &Frame, dark: Option<&Image<f32>>, t0_us: f64) {
-        self.first_t0_us.get_or_insert(t0_us);
+    /// Notes a capture.
+    pub fn captured(&mut self, frame: &Frame, dark: Option<&Image<f32>>) {
         if self.pairs.is_none() {
             return;
         }
@@ -78,11 +75,6 @@ impl Extras {
         if let Some(d) = dark.filter(|d| d.same_size(&frame.dn)) {
             slot.iter_mut().zip(&d.data).for_each(|(v, k)| *v -= k);
         }
-    }
-
-    /// Start of the first exposure behind the current output.
-    pub fn first_t0_us(&self) -> f64 {
-        self.first_t0_us.unwrap_or(0.0)
     }
 
     /// An output was produced: writes its truth (and pair).
@@ -104,7 +96,6 @@ impl Extras {
             self.plane[n..].copy_from_slice(&self.last[1]);
             p.npy.push(&self.plane).map_err(write_err)?;
         }
-        self.first_t0_us = None;
         Ok(())
     }
 

@@ -15,10 +15,12 @@
 //!   the per-pixel moments.
 //! - Beyond the paper, [`skellam_ml_pixel`]: per-pixel Skellam maximum
 //!   likelihood (scaled Bessel functions), non-negative by construction.
-//! - [`LiveSeparator`]: per-frame separation for the daemon.
+//! - [`LiveSeparator`]: per-frame separation for the daemon; [`BatchSeparator`]:
+//!   a stack by any one estimator, for `sdictl separate` and Python.
 
 use crate::PixelFlags;
 
+mod batch;
 mod bessel;
 mod bilateral;
 mod bilateral_grid;
@@ -34,6 +36,10 @@ mod skellam_ml;
 mod unmix;
 mod welford;
 
+pub use batch::{
+    sanitize, BatchError, BatchMethod, BatchParams, BatchSeparator, DEFAULT_ML_WINDOW,
+    MAX_BATCH_WINDOW,
+};
 pub use bessel::ln_bessel_i_scaled;
 pub use bilateral::{bilateral_exact, BilateralParams};
 pub use bilateral_grid::{bilateral_grid, BilateralGrid, MAX_LEVELS};

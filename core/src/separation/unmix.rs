@@ -37,7 +37,7 @@ pub struct Separated {
 }
 
 impl Separated {
-    fn ensure_size(&mut self, width: usize, height: usize) {
+    pub(crate) fn ensure_size(&mut self, width: usize, height: usize) {
         if self.flags.width != width || self.flags.height != height {
             *self = Self {
                 i_plus_electrons: Image::new(width, height),

@@ -1,0 +1,136 @@
+"""sdi.Camera against a real sdid (simulator backend) on a private bus."""
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import sdi
+
+
+def test_settings_are_properties(camera):
+    camera.mode = "depth-edge"
+    assert camera.mode == "depth-edge"
+    lo, hi = camera.limits["ExposureUs"]
+    assert lo < 1500 < hi
+    camera.exposure_us = 1500
+    assert camera.exposure_us == 1500
+    seq, ts = camera.set("exposure-us", 2000)
+    assert seq > 0 and ts > 0
+    assert camera.status()["ExposureUs"] == 2000
+    assert "depth-edge" in camera.modes
+    assert camera.backend == "sim"
+
+
+def test_refused_setting_raises_the_typed_error_and_changes_nothing(camera):
+    before = camera.status()
+    with pytest.raises(sdi.OutOfRange) as e:
+        camera.exposure_us = 1e9
+    assert isinstance(e.value, sdi.Error)
+    assert "xposure" in str(e.value) or "range" in str(e.value), str(e.value)
+    with pytest.raises(sdi.InvalidMode) as e:
+        camera.mode = "no-such-mode"
+    assert "depth-edge" in str(e.value)  # sdid's message lists the modes
+    after = camera.status()
+    for key in ("Mode", "ExposureUs", "FrameRate", "ModulationHz"):
+        assert after[key] == before[key], key
+
+
+def test_every_sdid_error_is_an_sdi_error():
+    for name in ("InvalidMode", "OutOfRange", "DeviceUnavailable", "Busy", "InvalidPath",
+                 "InvalidFd", "NotRecording", "NoFrame", "RecordingStopped", "Failed",
+                 "BusError", "Timeout", "StreamError"):
+        assert issubclass(getattr(sdi, name), sdi.Error), name
+
+
+@pytest.mark.parametrize("mode", ["depth-edge", "separation"])
+def test_thirty_frames_match_sdictl_snapshot(camera, daemon, sdictl, tmp_path, mode):
+    camera.mode = mode
+    shape = (camera.height, camera.width)
+    with camera.frames() as frames:
+        got = [f for f, _ in zip(frames, range(30))]
+    assert len(got) == 30
+    seqs = [f.sequence for f in got]
+    assert seqs == sorted(set(seqs))
+    assert all(b.timestamp_us > a.timestamp_us for a, b in zip(got, got[1:]))
+    for f in got:
+        assert f.mode == mode
+        assert f.dn.dtype == np.float32 and f.dn.shape == shape
+        assert f.flags.dtype == np.uint8 and f.flags.shape == shape
+        if mode == "separation":
+            for plane in (f.i_plus, f.i_minus, f.i_plus_se, f.i_minus_se):
+                assert plane is not None and plane.shape == shape and plane.dtype == np.float32
+        else:
+            assert f.i_plus is None
+    daemon.ctl(sdictl, "snapshot", str(tmp_path / "snap.npy"))
+    snap = np.load(tmp_path / "snap.npy")
+    # The separation mode's snapshot is I+ and I- (electrons), the others' the signed DN.
+    if mode == "separation":
+        streamed = [np.stack([f.i_plus, f.i_minus]) for f in got]
+    else:
+        streamed = [f.dn for f in got]
+    assert snap.shape == streamed[0].shape and snap.dtype == np.float32
+    mean = np.mean(streamed, axis=0)
+    # The same scene: the snapshot follows the streamed frames' mean as
+    # closely as one streamed frame does.
+    one = np.std(streamed[-1] - mean)
+    assert np.std(snap - mean) < 1.5 * one + 1e-6
+    assert np.corrcoef(snap.ravel(), mean.ravel())[0, 1] > 0.5
+
+
+def test_frame_and_timeout_say_what_sdid_reports(camera):
+    f = camera.frame(timeout=5.0)
+    assert f.sequence > 0
+    lo, _ = camera.limits["FrameRate"]
+    camera.frame_rate = max(lo, 0.5)
+    try:
+        timeouts = []
+        for _ in range(3):
+            try:
+                camera.frame(timeout=0.01)
+            except sdi.Timeout as e:
+                timeouts.append(str(e))
+        assert timeouts, "no timeout in three tries at 0.5 fps"
+        assert "sdid (sim backend" in timeouts[0], timeouts[0]
+    finally:
+        camera.frame_rate = 30
+
+
+def test_the_gil_is_released_while_waiting(camera):
+    camera.frame_rate = 5
+    try:
+        done = threading.Event()
+        count = 0
+
+        def wait():
+            with camera.frames(timeout=5.0) as frames:
+                for _, _ in zip(frames, range(3)):
+                    pass
+            done.set()
+
+        t = threading.Thread(target=wait)
+        t.start()
+        while not done.is_set():
+            count += 1
+            time.sleep(0)
+        t.join()
+        assert count > 1000
+    finally:
+        camera.frame_rate = 30
+
+
+def test_a_recording_reads_back(camera, daemon, sdictl, tmp_path):
+    camera.mode = "depth-edge"
+    path = tmp_path / "r.sdirec"
+    daemon.ctl(sdictl, "record", "--seconds", "1", str(path))
+    rec = sdi.read_recording(path)
+    assert rec.header["mode"] == "depth-edge" and rec.mode == "depth-edge"
+    stack = rec.read()
+    assert stack.dtype == np.float32 and stack.shape[1:] == (rec.height, rec.width)
+    assert stack.shape[0] >= 10
+    frames = list(rec)
+    assert len(frames) == stack.shape[0]
+    np.testing.assert_array_equal(frames[3].dn, stack[3])
+    np.testing.assert_array_equal(rec.read(2, 5), stack[2:5])
+    assert all(f.mode == "depth-edge" for f in frames)
