@@ -8,12 +8,16 @@
 //! streams end when it leaves the bus ([`FrameStreams::close_owner`]). The
 //! threads never block in a write (sockets: `MSG_DONTWAIT` on each send;
 //! pipes: `O_NONBLOCK`), so a closed stream's thread ends within
-//! [`WRITE_POLL`].
+//! [`WRITE_POLL`]. A stream whose reader closed its end frees its slot
+//! without waiting for a frame: the next `open` sees the hang-up at once,
+//! and an idle stream's thread looks every [`WRITE_POLL`] (a client that
+//! opens a stream per frame at 0.5 fps would otherwise hold its slots for
+//! 2 s after each close).
 
 use std::fs::File;
 use std::os::fd::{AsFd, AsRawFd, OwnedFd};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::{sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -58,6 +62,29 @@ pub enum StreamTarget {
     Socket(OwnedFd),
 }
 
+impl StreamTarget {
+    fn fd(&self) -> std::os::fd::BorrowedFd<'_> {
+        match self {
+            StreamTarget::Pipe(f) => f.as_fd(),
+            StreamTarget::Socket(s) => s.as_fd(),
+        }
+    }
+
+    /// True once the reader closed its end: a pipe's writing end polls
+    /// POLLERR, a socket whose peer closed POLLHUP (both reported whatever
+    /// the events asked for). Never waits.
+    fn reader_gone(&self) -> bool {
+        let mut fds = [PollFd::new(self.fd(), PollFlags::empty())];
+        match poll(&mut fds, PollTimeout::ZERO) {
+            Ok(0) | Err(Errno::EINTR) => false,
+            Ok(_) => fds[0].revents().is_some_and(|r| {
+                r.intersects(PollFlags::POLLERR | PollFlags::POLLHUP | PollFlags::POLLNVAL)
+            }),
+            Err(_) => true,
+        }
+    }
+}
+
 /// Why a stream ended (logged at debug level: a client closing is normal).
 #[derive(Debug, thiserror::Error)]
 enum WriteError {
@@ -84,6 +111,20 @@ struct Stream {
     closed: Arc<AtomicBool>,
     /// Set by the thread when it ends (the reader went away).
     ended: Arc<AtomicBool>,
+    /// Shared with the thread: to see at `open` that the reader left.
+    target: Arc<StreamTarget>,
+}
+
+impl Stream {
+    /// False once the stream's thread ended or its reader closed its end;
+    /// then the thread is told to end.
+    fn live(&self) -> bool {
+        if self.ended.load(Ordering::Relaxed) || self.target.reader_gone() {
+            self.closed.store(true, Ordering::Relaxed);
+            return false;
+        }
+        true
+    }
 }
 
 /// The open streams, held by the frame loop.
@@ -95,7 +136,7 @@ pub struct FrameStreams {
 impl FrameStreams {
     /// Starts writing frames into `target` for the connection `owner`.
     pub fn open(&mut self, target: StreamTarget, owner: &str) -> Result<(), StreamError> {
-        self.streams.retain(|s| !s.ended.load(Ordering::Relaxed));
+        self.streams.retain(Stream::live);
         if self.streams.iter().filter(|s| s.owner == owner).count() >= MAX_STREAMS_PER_PEER {
             return Err(StreamError::TooManyForPeer);
         }
@@ -106,11 +147,13 @@ impl FrameStreams {
         let dropped = Arc::new(AtomicU64::new(0));
         let closed = Arc::new(AtomicBool::new(false));
         let ended = Arc::new(AtomicBool::new(false));
+        let target = Arc::new(target);
         let (seen, stop, done) = (dropped.clone(), closed.clone(), ended.clone());
+        let to = target.clone();
         std::thread::Builder::new()
             .name("sdid-stream".into())
             .spawn(move || {
-                if let Err(e) = write_frames(&target, &rx, &seen, &stop) {
+                if let Err(e) = write_frames(&to, &rx, &seen, &stop) {
                     tracing::debug!("frame stream ended: {e}");
                 }
                 done.store(true, Ordering::Relaxed);
@@ -122,6 +165,7 @@ impl FrameStreams {
             owner: owner.to_owned(),
             closed,
             ended,
+            target,
         });
         Ok(())
     }
@@ -168,7 +212,8 @@ impl FrameStreams {
 }
 
 /// The stream's thread: encodes and writes until the reader goes away or
-/// the stream is closed.
+/// the stream is closed; while no frame comes it looks for either every
+/// [`WRITE_POLL`].
 fn write_frames(
     target: &StreamTarget,
     rx: &Receiver<Packet>,
@@ -176,7 +221,18 @@ fn write_frames(
     closed: &AtomicBool,
 ) -> Result<(), WriteError> {
     let mut body = Vec::new();
-    while let Ok(p) = rx.recv() {
+    loop {
+        let p = match rx.recv_timeout(WRITE_POLL) {
+            Ok(p) => p,
+            Err(RecvTimeoutError::Disconnected) => return Ok(()),
+            Err(RecvTimeoutError::Timeout) if closed.load(Ordering::Relaxed) => {
+                return Err(WriteError::Closed)
+            }
+            Err(RecvTimeoutError::Timeout) if target.reader_gone() => {
+                return Err(std::io::Error::from(std::io::ErrorKind::BrokenPipe).into())
+            }
+            Err(RecvTimeoutError::Timeout) => continue,
+        };
         let out = &p.output;
         let img = &out.signed_dn;
         let header = FrameHeader {
@@ -205,16 +261,12 @@ fn write_frames(
         }
         write_all(target, &body, closed)?;
     }
-    Ok(())
 }
 
 /// Writes `buf` without ever blocking in the kernel: on a full buffer it
 /// waits up to [`WRITE_POLL`] for room, then looks at `closed` again.
 fn write_all(target: &StreamTarget, mut buf: &[u8], closed: &AtomicBool) -> Result<(), WriteError> {
-    let fd = match target {
-        StreamTarget::Pipe(f) => f.as_fd(),
-        StreamTarget::Socket(s) => s.as_fd(),
-    };
+    let fd = target.fd();
     while !buf.is_empty() {
         if closed.load(Ordering::Relaxed) {
             return Err(WriteError::Closed);
@@ -285,6 +337,49 @@ mod tests {
                 .unwrap();
             let mut buf = vec![0u8; 1 << 16];
             while r.read(&mut buf).unwrap() > 0 {}
+        }
+    }
+
+    /// A client that opens a stream per frame and closes it when it has
+    /// one (or gave up waiting) gets its slots back without a frame being
+    /// written: at the next `open` for sockets and pipes alike, and the
+    /// idle thread ends within a few `WRITE_POLL`s.
+    #[test]
+    fn a_reader_that_closed_frees_its_slot_before_any_frame() {
+        let mut streams = FrameStreams::default();
+        for _ in 0..5 {
+            let (ours, theirs) = UnixStream::pair().unwrap();
+            streams
+                .open(StreamTarget::Socket(ours.into()), ":1.1")
+                .unwrap();
+            drop(theirs);
+        }
+        for _ in 0..5 {
+            let (read, write) = nix::unistd::pipe().unwrap();
+            streams
+                .open(StreamTarget::Pipe(File::from(write)), ":1.1")
+                .unwrap();
+            drop(read);
+        }
+        let (ours, _reader) = UnixStream::pair().unwrap();
+        streams
+            .open(StreamTarget::Socket(ours.into()), ":1.1")
+            .unwrap();
+        assert_eq!(streams.len(), 1, "only the stream whose reader is there");
+        // Nobody opens again: the idle thread sees its reader leave.
+        let (ours, theirs) = UnixStream::pair().unwrap();
+        streams
+            .open(StreamTarget::Socket(ours.into()), ":1.2")
+            .unwrap();
+        drop(theirs);
+        let ended = streams.streams[1].ended.clone();
+        let t0 = std::time::Instant::now();
+        while !ended.load(Ordering::Relaxed) {
+            assert!(
+                t0.elapsed() < 50 * WRITE_POLL,
+                "the idle thread did not end"
+            );
+            std::thread::sleep(WRITE_POLL / 4);
         }
     }
 

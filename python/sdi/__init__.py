@@ -11,6 +11,7 @@ from ._sdi import __version__  # noqa: F401
 
 __all__ = [
     "Busy",
+    "Cancelled",
     "BusError",
     "Camera",
     "DeviceUnavailable",

@@ -50,6 +50,12 @@ create_exception!(
     Error,
     "Another long operation (dark frame, calibration, recording) is running."
 );
+create_exception!(
+    sdi,
+    Cancelled,
+    Error,
+    "The job (dark frame, calibration) was cancelled: Cancel, its caller left, or its deadline."
+);
 create_exception!(sdi, InvalidPath, Error, "A path sdid refuses.");
 create_exception!(
     sdi,
@@ -81,6 +87,7 @@ pub fn from_sdi(e: SdiError) -> PyErr {
         SdiError::OutOfRange(m) => OutOfRange::new_err(m),
         SdiError::DeviceUnavailable(m) => DeviceUnavailable::new_err(m),
         SdiError::Busy(m) => Busy::new_err(m),
+        SdiError::Cancelled(m) => Cancelled::new_err(m),
         SdiError::InvalidPath(m) => InvalidPath::new_err(m),
         SdiError::InvalidFd(m) => InvalidFd::new_err(m),
         SdiError::NotRecording(m) => NotRecording::new_err(m),
@@ -107,6 +114,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
         ("OutOfRange", py.get_type::<OutOfRange>()),
         ("DeviceUnavailable", py.get_type::<DeviceUnavailable>()),
         ("Busy", py.get_type::<Busy>()),
+        ("Cancelled", py.get_type::<Cancelled>()),
         ("InvalidPath", py.get_type::<InvalidPath>()),
         ("InvalidFd", py.get_type::<InvalidFd>()),
         ("NotRecording", py.get_type::<NotRecording>()),
