@@ -7,7 +7,7 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use sdi_core::sensor::mixing_with_adc;
 use sdi_core::separation::{
-    sanitize, BatchMethod, BatchParams, BatchSeparator, Separated, UnmixOptions, IGNORE_LABEL,
+    label_from_f32, sanitize, BatchMethod, BatchParams, BatchSeparator, Separated, UnmixOptions,
 };
 use sdi_core::{Frame, Image};
 
@@ -57,17 +57,7 @@ fn labels(l: &Bound<'_, PyAny>, w: usize, h: usize) -> PyResult<Image<u32>> {
             l.shape()
         )));
     }
-    let data = l
-        .as_slice()?
-        .iter()
-        .map(|&v| {
-            if v.is_finite() && v >= 0.0 && v < u32::MAX as f32 {
-                v as u32
-            } else {
-                IGNORE_LABEL
-            }
-        })
-        .collect();
+    let data = l.as_slice()?.iter().map(|&v| label_from_f32(v)).collect();
     Ok(Image {
         width: w,
         height: h,

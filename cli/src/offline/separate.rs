@@ -27,8 +27,8 @@ use clap::{Args, ValueEnum};
 use sdi_core::calibration::CalibrationStore;
 use sdi_core::sensor::{mixing_with_adc, SensorDescription, SkellamMixing};
 use sdi_core::separation::{
-    sanitize, BatchError, BatchMethod, BatchParams, BatchSeparator, Separated, UnmixOptions,
-    IGNORE_LABEL,
+    label_from_f32, sanitize, BatchError, BatchMethod, BatchParams, BatchSeparator, Separated,
+    UnmixOptions,
 };
 use sdi_core::{Frame, Image};
 
@@ -327,16 +327,7 @@ fn read_labels(path: &Path, w: usize, h: usize) -> Result<Image<u32>, CliError> 
             path.display()
         )));
     }
-    let labels = data
-        .iter()
-        .map(|&v| {
-            if v.is_finite() && v >= 0.0 && v < u32::MAX as f32 {
-                v as u32
-            } else {
-                IGNORE_LABEL
-            }
-        })
-        .collect();
+    let labels = data.iter().map(|&v| label_from_f32(v)).collect();
     Ok(Image {
         width: w,
         height: h,

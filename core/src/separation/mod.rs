@@ -52,7 +52,8 @@ pub use local_moments::LocalMoments;
 pub use moments::{MomentSource, Moments, PixelStats};
 pub use pooling::{pool_moments, PoolParams};
 pub use segments::{
-    auto_segment, noise_sigma, segment_moments, SegmentParams, Segmentation, IGNORE_LABEL,
+    auto_segment, label_from_f32, noise_sigma, segment_moments, SegmentParams, Segmentation,
+    IGNORE_LABEL,
 };
 pub use skellam_ml::{
     skellam_log_likelihood, skellam_ml_counts, skellam_ml_pixel, MlMethod, SkellamFit,

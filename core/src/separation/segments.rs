@@ -8,6 +8,17 @@ use crate::image::{Image, SizeMismatch};
 /// Label of pixels that belong to no segment (output flagged insufficient).
 pub const IGNORE_LABEL: u32 = u32::MAX;
 
+/// A segment label read from a float image (an `.npy` or numpy array):
+/// a finite, non-negative value below `u32::MAX` truncated to its integer,
+/// anything else (NaN, negative, huge) [`IGNORE_LABEL`].
+pub fn label_from_f32(v: f32) -> u32 {
+    if v.is_finite() && v >= 0.0 && v < u32::MAX as f32 {
+        v as u32
+    } else {
+        IGNORE_LABEL
+    }
+}
+
 /// A label image plus the pixels allowed into each segment's statistics.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Segmentation {
