@@ -70,6 +70,12 @@ macro_rules! require_pipewire {
     };
 }
 
+/// The node property WirePlumber (0.4 and 0.5) reads for how long a node
+/// may idle before it suspends it (0: never); SDI's camera sets it to 0.
+pub const SUSPEND_TIMEOUT_KEY: &str = "session.suspend-timeout-seconds";
+/// WirePlumber's default for it.
+pub const WIREPLUMBER_SUSPEND: Duration = Duration::from_secs(5);
+
 /// `pipewire` + `wireplumber` on a private bus in a temporary runtime
 /// directory; everything is killed on drop.
 pub struct Session {

@@ -12,7 +12,9 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use sdi_tests::dbus::sdictl;
-use sdi_tests::pipewire::{frame_crcs, FrameLog, Session};
+use sdi_tests::pipewire::{
+    frame_crcs, FrameLog, Session, SUSPEND_TIMEOUT_KEY, WIREPLUMBER_SUSPEND,
+};
 use sdi_tests::process::Reaped;
 use sdi_tests::require_pipewire;
 use sdi_tests::sdid_command::SdidCommand;
@@ -27,11 +29,6 @@ const VIEW_H: usize = 480;
 const SENSOR_W: usize = 320;
 const SENSOR_H: usize = 240;
 const FRAMES: u32 = 40;
-/// How long WirePlumber lets a node idle before it suspends it (its
-/// default `session.suspend-timeout-seconds`).
-const WIREPLUMBER_SUSPEND: Duration = Duration::from_secs(5);
-/// The node property WirePlumber reads for that time (0: never).
-const SUSPEND_TIMEOUT_KEY: &str = "session.suspend-timeout-seconds";
 
 struct Sdid {
     _child: Reaped,

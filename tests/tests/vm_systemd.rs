@@ -374,7 +374,7 @@ fn in_vm() {
     assert_eq!(node["media.role"], "Camera", "{node:?}");
     // Never suspended (see the camera's node properties): WirePlumber
     // 0.5's suspend landing on Chromium's reopened link failed it.
-    assert_eq!(node["session.suspend-timeout-seconds"], 0, "{node:?}");
+    assert_eq!(node[pipewire::SUSPEND_TIMEOUT_KEY], 0, "{node:?}");
     let cameras = user.sdi_cameras();
     assert_eq!(cameras.len(), 1, "one SDI camera: {cameras:?}");
     eprintln!(
