@@ -413,6 +413,42 @@ impl Clients {
             .collect()
     }
 
+    /// The video nodes, their formats and the links between them, from
+    /// `pw-dump`: what a failed read is explained with.
+    pub fn video_graph(&self) -> String {
+        let objects = self.objects();
+        let mut lines = Vec::new();
+        for o in &objects {
+            let info = &o["info"];
+            let props = &info["props"];
+            let class = props["media.class"].as_str().unwrap_or("");
+            if o["type"] == "PipeWire:Interface:Node" && class.contains("Video") {
+                lines.push(format!(
+                    "node {} {} of {} ({class}, {}): Format {} EnumFormat {}",
+                    o["id"],
+                    props["node.name"].as_str().unwrap_or("?"),
+                    props["application.name"].as_str().unwrap_or("?"),
+                    info["state"].as_str().unwrap_or("?"),
+                    info["params"]["Format"],
+                    info["params"]["EnumFormat"]
+                ));
+            } else if o["type"] == "PipeWire:Interface:Link" {
+                lines.push(format!(
+                    "link {}: node {} -> node {} ({}{})",
+                    o["id"],
+                    info["output-node-id"],
+                    info["input-node-id"],
+                    info["state"].as_str().unwrap_or("?"),
+                    info["error"]
+                        .as_str()
+                        .map(|e| format!(", error {e}"))
+                        .unwrap_or_default()
+                ));
+            }
+        }
+        lines.join("\n")
+    }
+
     /// The state of the node named `name` ("suspended", "idle", "running",
     /// "error"), once it exists.
     pub fn node_state(&self, name: &str) -> Option<String> {
@@ -433,14 +469,33 @@ impl Clients {
     /// Reads `frames` buffers of `caps` (e.g. "video/x-raw,format=RGB") from
     /// node `target` with `gst-launch-1.0 pipewiresrc`; returns the raw bytes.
     pub fn read_frames(&self, target: &str, caps: &str, frames: u32, timeout: Duration) -> Vec<u8> {
+        self.try_read_frames(target, caps, frames, timeout)
+            .unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// [`Clients::read_frames`], with a failed read as an error that says
+    /// how pipewiresrc negotiated and what the video graph is now.
+    pub fn try_read_frames(
+        &self,
+        target: &str,
+        caps: &str,
+        frames: u32,
+        timeout: Duration,
+    ) -> Result<Vec<u8>, String> {
         let out = self.scratch.join(format!("{target}.raw"));
         let _ = std::fs::remove_file(&out);
         let pipeline = format!(
             "pipewiresrc target-object={target} num-buffers={frames} ! {caps} ! filesink location={}",
             out.display()
         );
+        // pipewiresrc's own account of the negotiation, printed on failure.
+        let gst_log = self.scratch.join(format!("{target}.gst.log"));
+        let _ = std::fs::remove_file(&gst_log);
         let mut child = self
             .command("gst-launch-1.0")
+            .env("GST_DEBUG", "pipewiresrc:5")
+            .env("GST_DEBUG_NO_COLOR", "1")
+            .env("GST_DEBUG_FILE", &gst_log)
             .arg("-q")
             .args(pipeline.split(' '))
             .stdout(Stdio::null())
@@ -452,11 +507,26 @@ impl Clients {
         if let Some(mut e) = child.stderr.take() {
             let _ = e.read_to_string(&mut err);
         }
-        assert!(
-            status.is_some_and(|s| s.success()),
-            "gst-launch-1.0 {pipeline}: {status:?} (None = timeout after {timeout:?})\n{err}"
-        );
-        std::fs::read(&out).expect("read the frames gst-launch wrote")
+        if !status.is_some_and(|s| s.success()) {
+            let negotiation: Vec<String> = std::fs::read_to_string(&gst_log)
+                .unwrap_or_default()
+                .lines()
+                .filter(|l| {
+                    ["caps", "format", "target", "state", "error", "node"]
+                        .iter()
+                        .any(|w| l.contains(w))
+                })
+                .map(str::to_owned)
+                .collect();
+            return Err(format!(
+                "gst-launch-1.0 {pipeline}: {status:?} (None = timeout after {timeout:?})\n{err}\n\
+                 pipewiresrc's log (GST_DEBUG=pipewiresrc:5):\n{}\n\
+                 the video graph now:\n{}",
+                negotiation.join("\n"),
+                self.video_graph()
+            ));
+        }
+        std::fs::read(&out).map_err(|e| format!("read the frames gst-launch wrote: {e}"))
     }
 
     /// Starts a reader of node `target` that runs until dropped, hashing

@@ -502,6 +502,12 @@ fn loopback_node_without_the_camera_package(user: &Clients) {
         .args(["--user", "stop", "sdi-pipewire-camera.service"]));
     must(Command::new("dpkg").args(["--purge", "sdi-pipewire-camera"]));
     assert!(!Path::new("/usr/libexec/sdi/sdi-pipewire-camera").exists());
+    // WirePlumber's linking decisions in its journal, for a failed read.
+    run(user.command("systemctl").args([
+        "--user",
+        "set-environment",
+        "WIREPLUMBER_DEBUG=3,s-linking:4,s-node:4",
+    ]));
     run(user
         .command("systemctl")
         .args(["--user", "restart", "wireplumber.service"]));
@@ -538,12 +544,28 @@ fn loopback_node_without_the_camera_package(user: &Clients) {
     );
     let name = camera["node.name"].as_str().expect("node.name").to_owned();
     let frame_bytes = 640 * 480 * 2;
-    let yuyv = user.read_frames(
-        &name,
-        "video/x-raw,format=YUY2,width=640,height=480",
-        30,
-        Duration::from_secs(180),
-    );
+    let yuyv = user
+        .try_read_frames(
+            &name,
+            "video/x-raw,format=YUY2,width=640,height=480",
+            30,
+            Duration::from_secs(180),
+        )
+        .unwrap_or_else(|e| {
+            let tail = |unit: &str| {
+                let log = journal_of_user_unit(unit);
+                let lines: Vec<&str> = log.lines().collect();
+                lines[lines.len().saturating_sub(80)..].join("\n")
+            };
+            panic!(
+                "{e}\nthe node when found: id {}\nWirePlumber's log:\n{}\nPipeWire's log:\n{}",
+                camera
+                    .get("object.id")
+                    .map_or("?".into(), |v| v.to_string()),
+                tail("wireplumber.service"),
+                tail("pipewire.service")
+            )
+        });
     assert_eq!(yuyv.len(), 30 * frame_bytes, "30 whole frames of {name}");
     eprintln!(
         "MEASURED: without the camera package: PipeWire lists the loopback node {name} as the one \
