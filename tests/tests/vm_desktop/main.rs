@@ -1,11 +1,11 @@
-//! The VM tests that run browsers or install the Debian packages: one
-//! guest with [`vm::DESKTOP_MEM_MB`] of RAM (Chromium and Firefox need more
-//! than the plain guest's), booted once for this test binary; each test in
+//! The VM tests that run browsers on the loopback camera or install the
+//! Debian packages: one guest with [`vm::DESKTOP_MEM_MB`] of RAM (Chromium
+//! and Firefox need more than the harness's default), booted once for this
+//! test binary; each test in
 //! a sandbox of its own (`tests/vm/guest-run`). Map and budget:
 //! tests/README.md.
 
 mod browsers;
-mod chromium_pipewire;
 mod package;
 
 use sdi_tests::vm::{self, Guest};
@@ -15,10 +15,6 @@ use sdi_tests::vm::{self, Guest};
 static GUEST: Guest = Guest::new(&[
     ("browsers::vm_chromium_track_survives_board_unplug", 900),
     ("browsers::vm_browsers_see_the_sdi_camera", 1200),
-    (
-        "chromium_pipewire::vm_chromium_reads_the_pipewire_camera_through_the_portal",
-        900,
-    ),
     (
         "package::vm_apt_installs_activates_and_purges_the_package",
         1200,
