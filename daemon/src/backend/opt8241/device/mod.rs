@@ -20,7 +20,7 @@ use sdi_core::quad_phase::{PhaseAxis, PhaseSums};
 use sdi_opt8241::configure::{configure, layout_of, ConfigError, InitReport};
 use sdi_opt8241::depth_frame::depth_frame_bytes;
 use sdi_opt8241::frame_assembler::{Assembled, AssemblerStats, DropReason, FrameAssembler};
-use sdi_opt8241::protocol::{ProtocolError, RegisterBus, Transport, TransportError};
+use sdi_opt8241::protocol::{RegisterBus, Transport};
 use sdi_opt8241::raw_quads::{DecodeError, QuadCombine, QuadDecoder};
 use sdi_opt8241::saturation_probe::{
     DepthFrame, ProbeStats, ProbeWrite, SaturationProbe, PROBE_MAX_FAILURES,
@@ -28,6 +28,12 @@ use sdi_opt8241::saturation_probe::{
 use sdi_opt8241::BoardConfig;
 
 use super::usb::{open_board, BoardSelector, BulkStream, StreamEvent, UsbError, UsbTransport};
+
+mod error;
+mod frame_wait;
+
+pub use error::BoardError;
+use frame_wait::{FrameWait, WaitStep};
 
 /// Transfers queued at the host controller while streaming.
 pub const DEFAULT_TRANSFERS_IN_FLIGHT: usize = 4;
@@ -46,141 +52,6 @@ pub const READ_TIMEOUT: Duration = Duration::from_millis(200);
 /// otherwise hold the frame loop, and every D-Bus call waiting on it, for
 /// the whole wait on every capture.
 pub const MAX_UNUSABLE_TRANSFERS: u32 = 8;
-
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum BoardError {
-    #[error(transparent)]
-    Usb(#[from] UsbError),
-    #[error(transparent)]
-    Protocol(#[from] ProtocolError),
-    #[error(transparent)]
-    Config(#[from] ConfigError),
-    #[error(transparent)]
-    Decode(#[from] DecodeError),
-    /// The board was unplugged or reset; call `reconnect`.
-    #[error("board unavailable (unplugged?); waiting for it to come back")]
-    DeviceUnavailable,
-    #[error("no frame from the board within {waited_ms} ms ({detail})")]
-    NoFrame {
-        waited_ms: u128,
-        /// What came instead, in a few words (the key of its log line).
-        cause: &'static str,
-        detail: String,
-    },
-    /// No frame within [`FRAME_SLICE`], and [`FRAME_WAIT`] is not over:
-    /// call `next_frame` again (not a failure, never logged).
-    #[error("no frame yet")]
-    NotYet,
-}
-
-impl BoardError {
-    /// What went wrong, without the details that vary from one occurrence
-    /// to the next (addresses, byte counts, attempts): the key of
-    /// log-on-change ([`CauseLog`]).
-    pub fn cause(&self) -> &'static str {
-        match self {
-            BoardError::Usb(u) => match u {
-                UsbError::NotFound { .. } => "no board",
-                UsbError::Ambiguous { .. } | UsbError::AmbiguousUvc { .. } => "several boards",
-                UsbError::UvcSwitch { .. } => "UVC switch failed",
-                UsbError::UvcSwitchTimeout { .. } => "UVC switch timed out",
-                UsbError::Access => "permission denied",
-                UsbError::NoBulkInEndpoint { .. } => "no bulk IN endpoint",
-                UsbError::Busy => "busy",
-                UsbError::Disconnected => "disconnected",
-                UsbError::Usb { op, .. } => op,
-            },
-            BoardError::Protocol(p) => match p {
-                ProtocolError::Transport { source, .. } => match source {
-                    TransportError::Timeout => "control transfer timed out",
-                    TransportError::Stall => "control transfer stalled",
-                    TransportError::Disconnected => "disconnected",
-                    TransportError::Other(_) => "control transfer failed",
-                },
-                ProtocolError::Short { .. } => "short control reply",
-                ProtocolError::Range(_) | ProtocolError::ReadOnly(_) => "register access refused",
-                ProtocolError::BadSerial(_) => "serial number not text",
-            },
-            BoardError::Config(_) => "configuration refused",
-            BoardError::Decode(_) => "frame not decodable",
-            BoardError::DeviceUnavailable => "disconnected",
-            BoardError::NoFrame { cause, .. } => cause,
-            BoardError::NotYet => "no frame yet",
-        }
-    }
-
-    fn from_protocol(e: ProtocolError) -> Self {
-        if e.is_disconnect() {
-            BoardError::DeviceUnavailable
-        } else {
-            BoardError::Protocol(e)
-        }
-    }
-}
-
-/// The wait for one frame, spread over `next_frame` calls of at most
-/// [`FRAME_SLICE`] each: what came instead of a frame so far, and when the
-/// wait began.
-#[derive(Debug, Clone)]
-struct FrameWait {
-    since: Instant,
-    /// What came instead, in a few words (the key of its log line).
-    cause: &'static str,
-    detail: String,
-    /// Unusable transfers so far ([`MAX_UNUSABLE_TRANSFERS`]).
-    unusable: u32,
-}
-
-/// What `next_frame` does next while waiting ([`FrameWait::step`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum WaitStep {
-    /// Wait for the next stream event at most this long.
-    Wait(Duration),
-    /// The call's slice is over: [`BoardError::NotYet`].
-    Yield,
-    /// [`FRAME_WAIT`] is over, or too many transfers were unusable:
-    /// [`BoardError::NoFrame`].
-    GiveUp,
-}
-
-impl FrameWait {
-    fn new(since: Instant) -> Self {
-        Self {
-            since,
-            cause: "no data",
-            detail: "no data".into(),
-            unusable: 0,
-        }
-    }
-
-    /// At `now`, in a call whose slice ends at `slice_end`.
-    fn step(&self, slice_end: Instant, now: Instant) -> WaitStep {
-        let deadline = self.since + FRAME_WAIT;
-        if self.unusable >= MAX_UNUSABLE_TRANSFERS || now >= deadline {
-            WaitStep::GiveUp
-        } else if now >= slice_end {
-            WaitStep::Yield
-        } else {
-            WaitStep::Wait(slice_end.min(deadline) - now)
-        }
-    }
-
-    /// A transfer that cannot be part of a frame.
-    fn unusable(&mut self, cause: &'static str, detail: String) {
-        self.unusable += 1;
-        self.cause = cause;
-        self.detail = detail;
-    }
-
-    /// The error that ends the wait at `now`.
-    fn no_frame(self, now: Instant) -> BoardError {
-        BoardError::NoFrame {
-            waited_ms: now.saturating_duration_since(self.since).as_millis(),
-            cause: self.cause,
-            detail: self.detail,
-        }
-    }
-}
 
 /// Stream counters for the daemon's Stats property.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -638,85 +509,5 @@ fn probe_write<T: Transport>(
             );
             Ok(())
         }
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    /// A silent device: each call yields after its slice, and the wait
-    /// gives up once FRAME_WAIT is over, counted from the first call; a
-    /// stream of unusable transfers gives up sooner.
-    #[test]
-    fn the_frame_wait_is_decided_over_slices() {
-        let t0 = Instant::now();
-        let mut w = FrameWait::new(t0);
-        assert_eq!(w.step(t0 + FRAME_SLICE, t0), WaitStep::Wait(FRAME_SLICE));
-        assert_eq!(w.step(t0 + FRAME_SLICE, t0 + FRAME_SLICE), WaitStep::Yield);
-        // A call starting shortly before the deadline waits only up to it.
-        let late = t0 + FRAME_WAIT - FRAME_SLICE / 4;
-        assert_eq!(
-            w.step(late + FRAME_SLICE, late),
-            WaitStep::Wait(FRAME_SLICE / 4)
-        );
-        assert_eq!(
-            w.step(late + FRAME_SLICE, t0 + FRAME_WAIT),
-            WaitStep::GiveUp
-        );
-        let slices = FRAME_WAIT.as_millis() / FRAME_SLICE.as_millis();
-        assert!(slices >= 10, "{slices} slices in the frame wait");
-        for _ in 0..MAX_UNUSABLE_TRANSFERS {
-            assert_eq!(w.step(t0 + FRAME_SLICE, t0), WaitStep::Wait(FRAME_SLICE));
-            w.unusable("bulk endpoint halted", "halted".into());
-        }
-        assert_eq!(w.step(t0 + FRAME_SLICE, t0), WaitStep::GiveUp);
-        match w.no_frame(t0 + FRAME_WAIT) {
-            BoardError::NoFrame {
-                waited_ms, cause, ..
-            } => {
-                assert_eq!(waited_ms, FRAME_WAIT.as_millis());
-                assert_eq!(cause, "bulk endpoint halted");
-            }
-            other => panic!("{other:?}"),
-        }
-    }
-
-    #[test]
-    fn a_cause_does_not_vary_with_the_details() {
-        let short = |got, attempts| {
-            BoardError::Protocol(ProtocolError::Short {
-                request: 8,
-                address: 0x5880,
-                expected: 3,
-                got,
-                attempts,
-            })
-        };
-        assert_eq!(short(1, 3).cause(), short(2, 1).cause());
-        let stall = BoardError::Protocol(ProtocolError::Transport {
-            request: 8,
-            address: 0x5C4C,
-            attempts: 3,
-            source: TransportError::Stall,
-        });
-        assert_ne!(stall.cause(), short(1, 3).cause());
-        let no_frame = |cause, detail: &str| BoardError::NoFrame {
-            waited_ms: 2000,
-            cause,
-            detail: detail.into(),
-        };
-        assert_eq!(
-            no_frame("frames of the wrong length", "got 7").cause(),
-            no_frame("frames of the wrong length", "got 9").cause()
-        );
-        assert_ne!(
-            no_frame("frames of the wrong length", "").cause(),
-            no_frame("bulk endpoint halted", "").cause()
-        );
-        assert_eq!(
-            BoardError::Usb(UsbError::NoBulkInEndpoint { interface: 0 }).cause(),
-            "no bulk IN endpoint"
-        );
     }
 }
