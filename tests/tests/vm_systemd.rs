@@ -544,28 +544,53 @@ fn loopback_node_without_the_camera_package(user: &Clients) {
     );
     let name = camera["node.name"].as_str().expect("node.name").to_owned();
     let frame_bytes = 640 * 480 * 2;
-    let yuyv = user
-        .try_read_frames(
+    let read = || {
+        user.try_read_frames(
             &name,
             "video/x-raw,format=YUY2,width=640,height=480",
             30,
             Duration::from_secs(180),
         )
-        .unwrap_or_else(|e| {
-            let tail = |unit: &str| {
-                let log = journal_of_user_unit(unit);
-                let lines: Vec<&str> = log.lines().collect();
-                lines[lines.len().saturating_sub(80)..].join("\n")
-            };
-            panic!(
-                "{e}\nthe node when found: id {}\nWirePlumber's log:\n{}\nPipeWire's log:\n{}",
-                camera
-                    .get("object.id")
-                    .map_or("?".into(), |v| v.to_string()),
-                tail("wireplumber.service"),
-                tail("pipewire.service")
-            )
-        });
+    };
+    let tail = |unit: &str| {
+        let log = journal_of_user_unit(unit);
+        let lines: Vec<&str> = log.lines().collect();
+        lines[lines.len().saturating_sub(80)..].join("\n")
+    };
+    let fail = |e: String| -> ! {
+        panic!(
+            "{e}\nthe node when found: id {}\nWirePlumber's log:\n{}\nPipeWire's log:\n{}",
+            camera
+                .get("object.id")
+                .map_or("?".into(), |v| v.to_string()),
+            tail("wireplumber.service"),
+            tail("pipewire.service")
+        )
+    };
+    let yuyv = match read() {
+        Ok(frames) => frames,
+        // PipeWire 1.4.2 sometimes takes the first link of the freshly
+        // made v4l2 node back to idle and suspended within ~60 ms of
+        // streaming and negotiates it again (WirePlumber's log: running,
+        // idle, suspended; PipeWire's: the link "negotiating -> error");
+        // pipewiresrc 1.4.2 cannot take a second format (it drops its
+        // possible caps after the first, gstpipewiresrc.c) and fails with
+        // "unhandled format". Seen in 2 of 9 runs here, and in a plain
+        // guest without systemd. That is the reader's limit, not the node's:
+        // the node is read once more, and must then give 30 frames.
+        Err(e) if e.contains("unhandled format") => {
+            let pipewire = tail("pipewire.service");
+            if !pipewire.contains("Format negotiation failed") {
+                fail(e);
+            }
+            eprintln!(
+                "MEASURED: the first pipewiresrc on {name} ended in PipeWire's renegotiation \
+                 (pipewiresrc 1.4.2 takes one format only); reading again"
+            );
+            read().unwrap_or_else(|e| fail(e))
+        }
+        Err(e) => fail(e),
+    };
     assert_eq!(yuyv.len(), 30 * frame_bytes, "30 whole frames of {name}");
     eprintln!(
         "MEASURED: without the camera package: PipeWire lists the loopback node {name} as the one \
