@@ -20,7 +20,7 @@ pub mod wire_json;
 
 pub use error::SdiError;
 pub use proxy::{Camera1Proxy, Properties};
-pub use setting::{Change, Setting, SettingError};
+pub use setting::{Change, Setting, SettingError, SettingKind};
 pub use types::{
     CalibrationReply, DarkFrameReply, JobProgress, PhaseCalibrationReply, RecordingReply, Stats,
 };

@@ -23,6 +23,14 @@ pub enum Setting {
     Range,
 }
 
+/// What a setting's value is: a number, or a name sdid checks (a mode, a
+/// colormap).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SettingKind {
+    Number,
+    Name,
+}
+
 /// A name that is no setting, or a value that is not a number.
 #[derive(Debug, thiserror::Error)]
 pub enum SettingError {
@@ -49,9 +57,14 @@ pub enum Change {
 }
 
 impl Setting {
+    /// Every setting, in the table's order.
+    pub fn all() -> impl Iterator<Item = Setting> {
+        Setting::iter()
+    }
+
     /// Every setting's name, in the table's order.
     pub fn names() -> Vec<&'static str> {
-        Setting::iter().map(<&'static str>::from).collect()
+        Setting::all().map(<&'static str>::from).collect()
     }
 
     /// The setting a person names: `exposure-us`, `exposure_us` or
@@ -73,6 +86,30 @@ impl Setting {
             Setting::ModulationHz => "ModulationHz",
             Setting::Colormap => "Colormap",
             Setting::Range => "Range",
+        }
+    }
+
+    /// What a person reads beside the setting's control: what it is, with
+    /// its unit (`exposure (us)`).
+    pub fn label(self) -> &'static str {
+        match self {
+            Setting::Mode => "mode",
+            Setting::ExposureUs => "exposure (us)",
+            Setting::FrameRate => "frame rate (Hz)",
+            Setting::ModulationHz => "modulation (Hz)",
+            Setting::Colormap => "colormap",
+            Setting::Range => "range (DN, 0 auto)",
+        }
+    }
+
+    /// Whether the value is a number or a name ([`change`](Self::change)
+    /// parses it so).
+    pub fn kind(self) -> SettingKind {
+        match self {
+            Setting::Mode | Setting::Colormap => SettingKind::Name,
+            Setting::ExposureUs | Setting::FrameRate | Setting::ModulationHz | Setting::Range => {
+                SettingKind::Number
+            }
         }
     }
 
@@ -150,6 +187,23 @@ mod tests {
         );
         let e = Setting::ExposureUs.change("fast").unwrap_err().to_string();
         assert_eq!(e, "exposure-us: 'fast' is not a number");
+    }
+
+    /// `kind` says what `change` parses: a number setting refuses a word, a
+    /// name setting passes it on; every setting has a label.
+    #[test]
+    fn the_kind_is_what_change_parses() {
+        for s in Setting::iter() {
+            assert!(!s.label().is_empty(), "{s}");
+            let word = s.change("fast");
+            match s.kind() {
+                SettingKind::Number => {
+                    assert!(word.is_err(), "{s}");
+                    assert!(s.change("2.5").is_ok(), "{s}");
+                }
+                SettingKind::Name => assert!(word.is_ok(), "{s}"),
+            }
+        }
     }
 
     /// Each setting's property and `Set` method exist in the proxy.

@@ -14,8 +14,8 @@ use axum::extract::State;
 use axum::http::StatusCode;
 use axum::response::{IntoResponse, Response};
 use axum::Json;
-use sdi_api::{Camera1Proxy, Properties, Setting};
-use sdi_core::display::MAX_RANGE_DN;
+use sdi_api::{Camera1Proxy, Properties, Setting, SettingKind};
+use sdi_core::display::{Colormap, MAX_RANGE_DN};
 use sdi_core::mode::ModeId;
 use serde::Deserialize;
 use serde_json::{json, Map, Value as Json_};
@@ -62,7 +62,9 @@ type Reply = Result<Json<Json_>, PageError>;
 
 /// Every property (Stats with every key it has), each mode's physical setup
 /// (`ModeId::spec`, the table `sdictl status` reads through sdid), the
-/// valid ranges of the controls (`ranges`), and the recording's size.
+/// settings the page builds its controls from (`settings`, and the mode's
+/// name and property for its buttons), the valid ranges of the controls
+/// (`ranges`), and the recording's size.
 pub async fn status(State(c): State<Arc<Controls>>) -> Reply {
     let props = c
         .bus
@@ -84,33 +86,72 @@ pub async fn status(State(c): State<Arc<Controls>>) -> Reply {
     Ok(Json(json!({
         "properties": wire_json::object(&props)?,
         "modes": modes,
+        "mode_setting": {
+            "name": Setting::Mode.to_string(),
+            "property": Setting::Mode.property_name(),
+        },
+        "settings": settings(),
         "ranges": ranges(&props.limits),
         "recording_path": recording,
         "recording_bytes": recording_bytes,
     })))
 }
 
+/// The page's settings controls, built from [`Setting`]'s table in its
+/// order, every setting but the mode (the page's mode buttons, from
+/// "modes"): its name (the control's id and the name `/api/set` takes), its
+/// D-Bus property, its label, its kind ("number" or "choice") and a
+/// choice's names. The page names no setting itself.
+fn settings() -> Vec<Json_> {
+    Setting::all()
+        .filter(|&s| s != Setting::Mode)
+        .map(|s| {
+            let mut control = Map::new();
+            control.insert("name".into(), json!(s.to_string()));
+            control.insert("property".into(), json!(s.property_name()));
+            control.insert("label".into(), json!(s.label()));
+            match s.kind() {
+                SettingKind::Number => {
+                    control.insert("kind".into(), json!("number"));
+                }
+                SettingKind::Name => {
+                    control.insert("kind".into(), json!("choice"));
+                    control.insert("choices".into(), json!(choices(s)));
+                }
+            }
+            Json_::Object(control)
+        })
+        .collect()
+}
+
+/// The names a setting takes, from `sdi_core`'s tables (sdid checks them);
+/// none for a number.
+fn choices(s: Setting) -> &'static [&'static str] {
+    match s {
+        Setting::Mode => ModeId::NAMES,
+        Setting::Colormap => Colormap::NAMES,
+        Setting::ExposureUs | Setting::FrameRate | Setting::ModulationHz | Setting::Range => &[],
+    }
+}
+
 /// The numeric controls' valid ranges, `[min, max]` by setting name (the
-/// page's input ids): the capture settings' from sdid's `Limits`, the
-/// backend's own (a board's narrower than the simulator's), null for one
-/// sdid does not name; the display range's from `sdi_core`, as sdid
-/// reports no limit for it.
+/// page's input ids), every number setting of [`Setting`]'s table: the
+/// capture settings' from sdid's `Limits`, the backend's own (a board's
+/// narrower than the simulator's), null for one sdid does not name; the
+/// display range's from `sdi_core`, as sdid reports no limit for it.
 fn ranges(limits: &HashMap<String, (f64, f64)>) -> Map<String, Json_> {
-    let mut out: Map<String, Json_> = [
-        Setting::ExposureUs,
-        Setting::FrameRate,
-        Setting::ModulationHz,
-    ]
-    .into_iter()
-    .map(|s| {
-        let range = limits
-            .get(s.property_name())
-            .map_or(Json_::Null, |(min, max)| json!([min, max]));
-        (s.to_string(), range)
-    })
-    .collect();
-    out.insert(Setting::Range.to_string(), json!([0.0, MAX_RANGE_DN]));
-    out
+    Setting::all()
+        .filter(|s| s.kind() == SettingKind::Number)
+        .map(|s| {
+            let range = match s {
+                Setting::Range => json!([0.0, MAX_RANGE_DN]),
+                _ => limits
+                    .get(s.property_name())
+                    .map_or(Json_::Null, |(min, max)| json!([min, max])),
+            };
+            (s.to_string(), range)
+        })
+        .collect()
 }
 
 #[derive(Deserialize)]
@@ -245,6 +286,72 @@ mod tests {
         assert_eq!(r["frame-rate"], json!([2.861, 31.25]));
         assert_eq!(r["modulation-hz"], Json_::Null);
         assert_eq!(r["range"], json!([0.0, MAX_RANGE_DN]));
+    }
+
+    /// (a) Every setting but the mode is one control, once, with its
+    /// property, a label and a kind; a choice lists names.
+    #[test]
+    fn every_setting_but_the_mode_is_one_control() {
+        let controls = settings();
+        for s in Setting::all() {
+            let name = s.to_string();
+            let found: Vec<&Json_> = controls.iter().filter(|c| c["name"] == name).collect();
+            if s == Setting::Mode {
+                assert!(found.is_empty(), "the mode is its buttons: {found:?}");
+                continue;
+            }
+            assert_eq!(found.len(), 1, "{name} in {controls:?}");
+            let c = found[0];
+            assert_eq!(c["property"], s.property_name(), "{c}");
+            assert!(c["label"].as_str().is_some_and(|l| !l.is_empty()), "{c}");
+            match s.kind() {
+                SettingKind::Number => assert_eq!(c["kind"], "number", "{c}"),
+                SettingKind::Name => {
+                    assert_eq!(c["kind"], "choice", "{c}");
+                    let n = c["choices"].as_array().map_or(0, Vec::len);
+                    assert!(n > 0, "{c}");
+                }
+            }
+        }
+        assert_eq!(controls.len(), Setting::all().count() - 1, "{controls:?}");
+    }
+
+    /// (b) The page names no setting and no property: it builds its
+    /// controls from `settings`, so nobody adds a list of its own.
+    #[test]
+    fn the_page_names_no_setting() {
+        let page = [
+            ("index.html", include_str!("assets/index.html")),
+            ("app.js", include_str!("assets/app.js")),
+        ];
+        for s in Setting::all() {
+            let name = s.to_string();
+            let property = s.property_name();
+            for (file, text) in page {
+                for q in ['"', '\'', '`'] {
+                    for literal in [format!("{q}{name}{q}"), format!("{q}{property}{q}")] {
+                        assert!(!text.contains(&literal), "{file} names {literal}");
+                    }
+                }
+                let member = format!(".{property}");
+                assert!(!text.contains(&member), "{file} reads {member}");
+            }
+        }
+    }
+
+    /// (c) The colormap's choices are `sdi_core`'s colormaps, each by the
+    /// name it parses from and shows as.
+    #[test]
+    fn the_colormap_choices_are_sdi_cores() {
+        let controls = settings();
+        let colormap = Setting::Colormap.to_string();
+        let c = controls.iter().find(|c| c["name"] == colormap);
+        let choices = c.map(|c| c["choices"].clone());
+        assert_eq!(choices, Some(json!(Colormap::NAMES)), "{controls:?}");
+        for name in Colormap::NAMES {
+            let parsed = name.parse::<Colormap>().map(Colormap::name);
+            assert_eq!(parsed, Ok(*name));
+        }
     }
 
     #[test]

@@ -382,6 +382,20 @@ fn the_page_shows_controls_and_measures_what_sdid_publishes() {
     });
     page.wait_for("sdiView.meta.mode === 'depth-edge'", long);
 
+    // The controls are the settings sdictl serves (sdi_api's table), each
+    // under its name with its error line, a choice with its names.
+    let controls = page.eval(
+        "sdiView.status.settings.map((s) => { const e = document.getElementById(s.name); \
+         return [s.name, !!e && !!document.getElementById(s.name + '_error') && \
+         (s.kind !== 'choice' || [...e.options].map((o) => o.value).join() === s.choices.join())]; })",
+    );
+    let controls = controls.as_array().cloned().unwrap_or_default();
+    let settings = sdi_api::Setting::all().filter(|&s| s != sdi_api::Setting::Mode);
+    assert_eq!(controls.len(), settings.count(), "{controls:?}");
+    for c in &controls {
+        assert_eq!(c[1], true, "the page's control for {}", c[0]);
+    }
+
     // The numeric inputs carry sdid's Limits as min and max, shown under
     // each; a control sets the property; a value outside still goes to sdid
     // and shows its typed error in place.

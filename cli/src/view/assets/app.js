@@ -137,15 +137,12 @@ $("view").addEventListener("mouseup", (ev) => {
 });
 
 // ---- status, modes, controls ----
-const numeric = ["exposure-us", "frame-rate", "modulation-hz", "range"];
-const property = { "exposure-us": "ExposureUs", "frame-rate": "FrameRate", "modulation-hz": "ModulationHz", "range": "Range", "colormap": "Colormap" };
-
 async function setSetting(setting, value, errorId) {
   showError(errorId, null);
   try { await api("set", { setting, value: String(value) }); await refresh(); } catch (e) { showError(errorId, e); }
 }
 
-function buildModes(modes) {
+function buildModes(modes, setting) {
   const box = $("modes");
   box.textContent = "";
   for (const m of modes) {
@@ -154,17 +151,54 @@ function buildModes(modes) {
     b.innerHTML = `<b></b><div class="setup"></div>`;
     b.firstChild.textContent = m.name;
     b.lastChild.textContent = `LS1 ${m.ls1}; LS2 ${m.ls2}; optics ${m.optics}`;
-    b.onclick = () => setSetting("mode", m.name, "mode_error");
+    b.onclick = () => setSetting(setting.name, m.name, "mode_error");
     box.appendChild(b);
+  }
+}
+
+// The settings' controls, from the table sdictl serves (status's
+// "settings", sdi_api's Setting): the page names no setting itself. Each is
+// a number input or a choice with the setting's name as its id, then (a
+// number) its valid range and its error.
+function buildSettings(settings) {
+  const box = $("settings");
+  box.textContent = "";
+  for (const s of settings) {
+    const label = document.createElement("label");
+    label.textContent = s.label;
+    let input;
+    if (s.kind === "choice") {
+      input = document.createElement("select");
+      for (const c of s.choices) {
+        const o = document.createElement("option");
+        o.textContent = c;
+        input.appendChild(o);
+      }
+    } else {
+      input = document.createElement("input");
+      input.type = "number";
+      input.step = "any";
+    }
+    input.id = s.name;
+    input.onchange = () => setSetting(s.name, input.value, s.name + "_error");
+    label.appendChild(input);
+    box.appendChild(label);
+    for (const kind of s.kind === "number" ? ["valid", "error"] : ["error"]) {
+      const d = document.createElement("div");
+      d.className = kind;
+      d.id = s.name + "_" + kind;
+      box.appendChild(d);
+    }
   }
 }
 
 // The valid range of each numeric control, as sdid reports it (its Limits,
 // constant while sdid runs): bounds on the input and shown under it. A value
 // outside still goes to sdid, whose typed error shows in place.
-function showRanges(ranges) {
+function showRanges(settings, ranges) {
   const num = (v) => String(Number(v.toPrecision(6)));
-  for (const id of numeric) {
+  for (const { name: id, kind } of settings) {
+    if (kind !== "number") continue;
     const r = ranges[id];
     if (r) { $(id).min = r[0]; $(id).max = r[1]; } else { $(id).removeAttribute("min"); $(id).removeAttribute("max"); }
     $(id + "_valid").textContent = r ? `valid ${num(r[0])} to ${num(r[1])}` : "";
@@ -178,14 +212,14 @@ async function refresh() {
   state.status = s;
   const p = s.properties;
   if (!built) {
-    buildModes(s.modes);
-    for (const id of numeric) $(id).onchange = () => setSetting(id, $(id).value, id + "_error");
-    $("colormap").onchange = () => setSetting("colormap", $("colormap").value, "colormap_error");
+    buildModes(s.modes, s.mode_setting);
+    buildSettings(s.settings);
     built = true;
   }
-  showRanges(s.ranges);
-  for (const b of document.querySelectorAll(".modes button")) b.classList.toggle("current", b.id === "mode-" + p.Mode);
-  for (const id of Object.keys(property)) if (document.activeElement !== $(id)) $(id).value = p[property[id]];
+  showRanges(s.settings, s.ranges);
+  const mode = p[s.mode_setting.property];
+  for (const b of document.querySelectorAll(".modes button")) b.classList.toggle("current", b.id === "mode-" + mode);
+  for (const { name, property } of s.settings) if (document.activeElement !== $(name)) $(name).value = p[property];
   // Stats: every key sdid sends, so fields added to Stats show up here.
   const t = $("stats");
   t.textContent = "";
