@@ -191,13 +191,8 @@ impl FrameAssembler {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::raw_quads::{encode_quads, QuadLayout};
-
-    const SMALL: QuadLayout = QuadLayout {
-        width: 4,
-        height: 3,
-        quads: 4,
-    };
+    use crate::raw_quads::encode_quads;
+    use crate::raw_quads::tests::SMALL;
 
     fn frame(n: u8) -> Vec<u8> {
         encode_quads(SMALL, &[1.0; 12], Some(n))

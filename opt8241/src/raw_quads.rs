@@ -214,10 +214,11 @@ pub fn encode_quads(layout: QuadLayout, dn: &[f32], frame_number: Option<u8>) ->
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
-    const SMALL: QuadLayout = QuadLayout {
+    /// A 4 x 3 frame of four quads, for tests here and in the assembler's.
+    pub(crate) const SMALL: QuadLayout = QuadLayout {
         width: 4,
         height: 3,
         quads: 4,

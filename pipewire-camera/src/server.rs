@@ -184,6 +184,29 @@ struct Feed {
     reported_at: Instant,
 }
 
+/// Whether `quit` is set (logged).
+fn asked_to_quit(quit: &AtomicBool) -> bool {
+    let asked = quit.load(Ordering::Acquire);
+    if asked {
+        tracing::info!("PipeWire camera: asked to quit");
+    }
+    asked
+}
+
+/// Takes a feed whose sdid went away and joins its reader: whether one did.
+fn reap_ended(feed: &mut Option<Feed>) -> bool {
+    if !feed
+        .as_ref()
+        .is_some_and(|f| f.done.load(Ordering::Acquire))
+    {
+        return false;
+    }
+    if let Some(f) = feed.take() {
+        let _ = f.reader.join();
+    }
+    true
+}
+
 fn serve(listener: &UnixListener, nodes: &Arc<Nodes>) -> Result<(), ServeError> {
     let quit = Arc::new(AtomicBool::new(false));
     let mut feed: Option<Feed> = None;
@@ -204,17 +227,10 @@ fn serve(listener: &UnixListener, nodes: &Arc<Nodes>) -> Result<(), ServeError> 
         if nodes.broken() {
             return Err(ServeError::ConnectionLost);
         }
-        if quit.load(Ordering::Acquire) {
-            tracing::info!("PipeWire camera: asked to quit");
+        if asked_to_quit(&quit) {
             return Ok(());
         }
-        if feed
-            .as_ref()
-            .is_some_and(|f| f.done.load(Ordering::Acquire))
-        {
-            if let Some(f) = feed.take() {
-                let _ = f.reader.join();
-            }
+        if reap_ended(&mut feed) {
             away_since = Instant::now();
             tracing::info!("sdid went away: showing the no-signal card");
         }
@@ -490,17 +506,10 @@ fn run_fed(path: &Path) -> Result<(), ServeError> {
         if nodes.as_ref().is_some_and(|n| n.broken()) {
             return Err(ServeError::ConnectionLost);
         }
-        if quit.load(Ordering::Acquire) {
-            tracing::info!("PipeWire camera: asked to quit");
+        if asked_to_quit(&quit) {
             return Ok(());
         }
-        if feed
-            .as_ref()
-            .is_some_and(|f| f.done.load(Ordering::Acquire))
-        {
-            if let Some(f) = feed.take() {
-                let _ = f.reader.join();
-            }
+        if reap_ended(&mut feed) {
             tracing::info!("the system sdid went away: showing the no-signal card");
         }
         if feed.is_none() && Instant::now() >= dial_at {

@@ -6,35 +6,10 @@ the same code as ``sdictl``. Everything is implemented in Rust (``sdi._sdi``)
 on the workspace's own crates; see docs/python.md.
 """
 
+from . import _sdi
 from ._sdi import *  # noqa: F401,F403
 from ._sdi import __version__  # noqa: F401
 
-__all__ = [
-    "Busy",
-    "Cancelled",
-    "BusError",
-    "Camera",
-    "DeviceUnavailable",
-    "Error",
-    "Failed",
-    "Frame",
-    "FrameStream",
-    "InvalidFd",
-    "InvalidMode",
-    "InvalidPath",
-    "NoFrame",
-    "NotRecording",
-    "OutOfRange",
-    "RecordedFrame",
-    "Recording",
-    "RecordingFrames",
-    "RecordingStopped",
-    "Separation",
-    "StreamError",
-    "Timeout",
-    "modes",
-    "read_recording",
-    "scenes",
-    "separate",
-    "simulate",
-]
+# The extension's own list (PyO3 adds each name it registers), less the
+# version; the stub (`__init__.pyi`) spells it out for type checkers.
+__all__ = [name for name in _sdi.__all__ if name != "__version__"]

@@ -17,6 +17,18 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
+/// Chromium's flags for a headless test run, after `--headless`: no
+/// sandbox or GPU, and nothing fetched or synced behind the test's back.
+pub const CHROMIUM_QUIET: [&str; 7] = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+];
+
 /// The page: everything it learns goes to `/report`.
 pub const PAGE: &str = r#"<!doctype html><html><body><script>
 const t0 = performance.now();
@@ -448,27 +460,21 @@ impl Browser {
     fn chromium_args(mut cmd: Command, url: &str, dir: &Path) -> Command {
         let profile = dir.join("chromium-profile");
         let _ = std::fs::remove_dir_all(&profile);
-        cmd.args([
-            "--headless=new",
-            "--no-sandbox",
-            "--disable-gpu",
-            "--disable-quic",
-            "--no-first-run",
-            "--disable-background-networking",
-            "--disable-component-update",
-            "--disable-sync",
-            "--use-fake-ui-for-media-stream",
-            "--autoplay-policy=no-user-gesture-required",
-            // A child process that has not heard from the browser in 15 s
-            // quits, and under TCG with sdid busy beside it the network
-            // service did ("Terminating current process after 15 seconds
-            // with no connection"): the page never loaded. Chromium's own
-            // browser tests raise this timeout for loaded machines too.
-            "--ipc-connection-timeout=120",
-        ])
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .arg(url)
-        .env("HOME", dir);
+        cmd.arg("--headless=new")
+            .args(CHROMIUM_QUIET)
+            .args([
+                "--use-fake-ui-for-media-stream",
+                "--autoplay-policy=no-user-gesture-required",
+                // A child process that has not heard from the browser in 15 s
+                // quits, and under TCG with sdid busy beside it the network
+                // service did ("Terminating current process after 15 seconds
+                // with no connection"): the page never loaded. Chromium's own
+                // browser tests raise this timeout for loaded machines too.
+                "--ipc-connection-timeout=120",
+            ])
+            .arg(format!("--user-data-dir={}", profile.display()))
+            .arg(url)
+            .env("HOME", dir);
         cmd
     }
 

@@ -41,19 +41,9 @@ impl Chromium {
             .arg("sh")
             .arg(&to_path)
             .arg(&from_path)
-            .args([
-                "chromium",
-                "--headless",
-                "--no-sandbox",
-                "--disable-gpu",
-                "--disable-quic",
-                "--no-first-run",
-                "--disable-background-networking",
-                "--disable-component-update",
-                "--disable-sync",
-                "--remote-debugging-pipe",
-                "--window-size=1280,1500",
-            ])
+            .args(["chromium", "--headless"])
+            .args(crate::browser::CHROMIUM_QUIET)
+            .args(["--remote-debugging-pipe", "--window-size=1280,1500"])
             .arg(format!(
                 "--user-data-dir={}",
                 profile.path().join("profile").display()

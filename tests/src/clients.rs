@@ -69,12 +69,18 @@ pub struct Sdid {
     log: Option<PathBuf>,
 }
 
+/// `--backend sim --sensor NAME`.
+fn sim_backend(sensor: Sensor) -> Vec<String> {
+    ["--backend", "sim", "--sensor", sensor.name]
+        .map(str::to_owned)
+        .to_vec()
+}
+
 impl Sdid {
     /// Starts sdid (simulator, `sensor`, `fps`) and waits until it serves
     /// D-Bus and both nodes are capture devices.
     pub fn start(view_nr: u32, data_nr: u32, sensor: Sensor, fps: u32) -> Self {
-        let backend = ["--backend", "sim", "--sensor", sensor.name].map(str::to_owned);
-        Self::start_with(view_nr, data_nr, sensor, fps, "", backend.to_vec())
+        Self::new(view_nr, data_nr, sensor, fps, "", sim_backend(sensor)).started()
     }
 
     /// Starts sdid on the board of serial `serial` (the USB board emulator,
@@ -92,10 +98,39 @@ impl Sdid {
             sensor.width, sensor.height
         );
         let backend = ["--backend", "opt8241"].map(str::to_owned);
-        Self::start_with(view_nr, data_nr, sensor, fps, &board, backend.to_vec())
+        Self::new(view_nr, data_nr, sensor, fps, &board, backend.to_vec()).started()
     }
 
-    fn start_with(
+    /// Starts sdid on the simulator with `--sink auto` in a user session
+    /// (`env`: its `XDG_RUNTIME_DIR`, ...): the loopback nodes and, where
+    /// that session's PipeWire runs, the PipeWire camera beside them. Its
+    /// stderr, with every published PipeWire buffer's CRC-32
+    /// (`sdid::pipewire::frames=trace`), and the camera process's, which
+    /// inherits it, are appended to `log`.
+    pub fn start_auto(
+        view_nr: u32,
+        data_nr: u32,
+        sensor: Sensor,
+        fps: u32,
+        env: Vec<(String, String)>,
+        log: &Path,
+    ) -> Self {
+        let mut s = Self::new(view_nr, data_nr, sensor, fps, "", sim_backend(sensor));
+        s.sink = "auto";
+        s.env = env;
+        s.log = Some(log.to_owned());
+        s.started()
+    }
+
+    /// [`Self::spawn`]ed.
+    fn started(mut self) -> Self {
+        self.spawn();
+        self
+    }
+
+    /// Writes `sdid.toml` (the node labels, then `extra_config`) and a new
+    /// bus; sdid is not started yet (loopback sink, inherited stderr).
+    fn new(
         view_nr: u32,
         data_nr: u32,
         sensor: Sensor,
@@ -113,7 +148,7 @@ impl Sdid {
             ),
         )
         .expect("write sdid.toml");
-        let mut s = Self {
+        Self {
             bus: Bus::start(),
             child: None,
             view: PathBuf::from(format!("/dev/video{view_nr}")),
@@ -125,50 +160,7 @@ impl Sdid {
             sink: "loopback",
             env: Vec::new(),
             log: None,
-        };
-        s.spawn();
-        s
-    }
-
-    /// Starts sdid on the simulator with `--sink auto` in a user session
-    /// (`env`: its `XDG_RUNTIME_DIR`, ...): the loopback nodes and, where
-    /// that session's PipeWire runs, the PipeWire camera beside them. Its
-    /// stderr, with every published PipeWire buffer's CRC-32
-    /// (`sdid::pipewire::frames=trace`), and the camera process's, which
-    /// inherits it, are appended to `log`.
-    pub fn start_auto(
-        view_nr: u32,
-        data_nr: u32,
-        sensor: Sensor,
-        fps: u32,
-        env: Vec<(String, String)>,
-        log: &Path,
-    ) -> Self {
-        let dir = Path::new("/tmp/sdi-clients");
-        std::fs::create_dir_all(dir).expect("mkdir /tmp/sdi-clients");
-        let config = dir.join("sdid.toml");
-        std::fs::write(
-            &config,
-            format!("[output]\nlabel = \"{VIEW_LABEL}\"\ndata_label = \"{DATA_LABEL}\"\n"),
-        )
-        .expect("write sdid.toml");
-        let mut s = Self {
-            bus: Bus::start(),
-            child: None,
-            view: PathBuf::from(format!("/dev/video{view_nr}")),
-            data: PathBuf::from(format!("/dev/video{data_nr}")),
-            config,
-            fps: fps.to_string(),
-            sensor,
-            backend: ["--backend", "sim", "--sensor", sensor.name]
-                .map(str::to_owned)
-                .to_vec(),
-            sink: "auto",
-            env,
-            log: Some(log.to_owned()),
-        };
-        s.spawn();
-        s
+        }
     }
 
     fn spawn(&mut self) {

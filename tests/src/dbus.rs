@@ -231,6 +231,14 @@ impl Daemon {
         Self::start_wrapped(bus, &[], extra)
     }
 
+    /// [`Daemon::start`] on a new [`Bus`]; bind both, the bus first, so
+    /// that sdid is stopped before its bus.
+    pub fn start_on_new_bus(extra: &[&str]) -> (Bus, Self) {
+        let bus = Bus::start();
+        let daemon = Self::start(&bus, extra);
+        (bus, daemon)
+    }
+
     /// Like [`Daemon::start`], with sdid run by `wrapper` (a program and its
     /// arguments, which must exec sdid in the same process, e.g. `unshare`).
     pub fn start_wrapped(bus: &Bus, wrapper: &[&str], extra: &[&str]) -> Self {
@@ -369,4 +377,46 @@ pub fn record_sim(rec: &Path, seconds: f64) {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+}
+
+/// A current-thread tokio runtime for a test's D-Bus calls.
+pub fn runtime() -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("tokio runtime")
+}
+
+/// Calls `attempt` every 20 ms until it succeeds; its value and how long
+/// that took, or its last error once `within` has passed.
+pub async fn until_ok<T, E, F, Fut>(
+    within: Duration,
+    mut attempt: F,
+) -> Result<(T, Duration), String>
+where
+    E: std::fmt::Display,
+    F: FnMut() -> Fut,
+    Fut: std::future::Future<Output = Result<T, E>>,
+{
+    let t0 = std::time::Instant::now();
+    loop {
+        match attempt().await {
+            Ok(v) => return Ok((v, t0.elapsed())),
+            Err(e) if t0.elapsed() > within => {
+                return Err(format!("still refused after {:?}: {e}", t0.elapsed()))
+            }
+            Err(_) => tokio::time::sleep(Duration::from_millis(20)).await,
+        }
+    }
+}
+
+/// The FIFO `path`, made and opened read-write: a descriptor whose reading
+/// side its holder has too.
+pub fn read_write_fifo(path: &Path) -> std::fs::File {
+    nix::unistd::mkfifo(path, nix::sys::stat::Mode::S_IRWXU).expect("mkfifo");
+    std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(path)
+        .expect("open the FIFO read-write")
 }

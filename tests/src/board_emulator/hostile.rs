@@ -9,9 +9,8 @@
 //! board's serial number: a copy costs the attacker nothing, and it makes
 //! `[board] serial` no defence.
 
-use std::fs::{File, OpenOptions};
+use std::fs::File;
 use std::io::{Read, Write};
-use std::os::unix::fs::OpenOptionsExt;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU32, Ordering};
 use std::sync::{Arc, Mutex};
@@ -19,7 +18,9 @@ use std::time::Duration;
 
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 
-use super::{descriptors, field, handle_setup, new_gadget, next_setups, BoardState, Inner};
+use super::{
+    descriptors, field, handle_setup, new_gadget, next_setups, open_endpoint, BoardState, Inner,
+};
 
 /// One way a device on the board's IDs misbehaves.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -402,19 +403,7 @@ fn bulk_side(mode: HostileMode, ep1: &Path, inner: &Inner, transfers: &AtomicU32
             std::thread::sleep(Duration::from_millis(10));
             continue;
         };
-        if file.is_none() {
-            // Non-blocking: a write while the host has the function disabled
-            // (unplugged) fails at once instead of waiting for the next bind,
-            // so the thread sees `stop`. Transfers still wait to complete.
-            file = OpenOptions::new()
-                .read(true)
-                .write(true)
-                .custom_flags(nix::fcntl::OFlag::O_NONBLOCK.bits())
-                .open(ep1)
-                .ok();
-        }
-        let Some(f) = file.as_mut() else {
-            std::thread::sleep(Duration::from_millis(20));
+        let Some(f) = open_endpoint(&mut file, ep1, true) else {
             continue;
         };
         number = number.wrapping_add(1);

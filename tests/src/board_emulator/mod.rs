@@ -590,6 +590,26 @@ fn handle_setup(
     }
 }
 
+/// `file`, opened on `ep1` (and for reading too with `read`) unless it is
+/// open; `None`, after a pause, while it cannot be. Non-blocking: a write
+/// while the gadget is unbound or the function disabled fails at once
+/// instead of waiting for the next bind, so the stream thread sees its
+/// stop flag and can be joined (transfers still wait to complete).
+fn open_endpoint<'a>(file: &'a mut Option<File>, ep1: &Path, read: bool) -> Option<&'a mut File> {
+    if file.is_none() {
+        *file = OpenOptions::new()
+            .read(read)
+            .write(true)
+            .custom_flags(nix::fcntl::OFlag::O_NONBLOCK.bits())
+            .open(ep1)
+            .ok();
+    }
+    if file.is_none() {
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    file.as_mut()
+}
+
 fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: &AtomicU32) {
     // ep1 exists once the descriptors are written; open it when the host
     // has enabled the function (writes fail before that).
@@ -650,18 +670,7 @@ fn stream_loop(ep1: &Path, state: &Mutex<BoardState>, stop: &AtomicBool, shift: 
             bytes[0] = number;
         }
         let drop_bytes = shift.swap(0, Ordering::SeqCst) as usize;
-        if file.is_none() {
-            // Non-blocking: a write after the gadget is unbound fails at
-            // once instead of waiting for the next bind, so `Drop` can join
-            // this thread (transfers still wait to complete).
-            file = OpenOptions::new()
-                .write(true)
-                .custom_flags(nix::fcntl::OFlag::O_NONBLOCK.bits())
-                .open(ep1)
-                .ok();
-        }
-        let Some(f) = file.as_mut() else {
-            std::thread::sleep(Duration::from_millis(20));
+        let Some(f) = open_endpoint(&mut file, ep1, false) else {
             continue;
         };
         if !kept.is_empty() {

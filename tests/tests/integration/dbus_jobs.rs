@@ -12,21 +12,16 @@
 use std::time::{Duration, Instant};
 
 use sdi_api::{Camera1Proxy, SdiError};
-use sdi_tests::dbus::{Bus, Daemon};
+use sdi_tests::dbus::{runtime, until_ok, Bus, Daemon};
 use sdi_tests::require_dbus;
 use zbus::zvariant::{Fd, OwnedValue};
+
+use crate::support::camera;
 
 /// Frames per step of the calibration these tests start: 300 dark frames
 /// and 5 x 300 photon-transfer frames, a minute at 30 Hz: it runs until
 /// the test ends it.
 const LONG: u32 = 300;
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-}
 
 /// Sends `Calibrate(frames)` on `conn` without waiting for the reply;
 /// returns the call's serial number.
@@ -79,29 +74,26 @@ async fn wait_for_job(cam: &Camera1Proxy<'_>) {
 /// Waits until no job holds the camera (a 1-frame dark capture goes
 /// through); how long that took.
 async fn wait_for_no_job(cam: &Camera1Proxy<'_>, within: Duration) -> Result<Duration, String> {
-    let t0 = Instant::now();
-    loop {
-        match cam.capture_dark_frame(1).await {
-            Ok(_) => return Ok(t0.elapsed()),
-            Err(e) if t0.elapsed() > within => {
-                return Err(format!("still refused after {:?}: {e}", t0.elapsed()))
-            }
-            Err(_) => tokio::time::sleep(Duration::from_millis(20)).await,
-        }
-    }
+    let (_, took) = until_ok(within, || cam.capture_dark_frame(1)).await?;
+    Ok(took)
+}
+
+/// Starts a long calibration on a connection of its own and waits until
+/// it holds the camera; that connection, and the camera on another.
+async fn job_of_another(bus: &Bus) -> (zbus::Connection, Camera1Proxy<'static>) {
+    let a = bus.connect().await;
+    send_calibrate(&a, LONG).await;
+    let (_, cam) = camera(bus).await;
+    wait_for_job(&cam).await;
+    (a, cam)
 }
 
 #[test]
 fn a_setting_change_during_a_job_is_refused_naming_the_job() {
     require_dbus!();
-    let bus = Bus::start();
-    let _d = Daemon::start(&bus, &[]);
+    let (bus, _d) = Daemon::start_on_new_bus(&[]);
     runtime().block_on(async {
-        let a = bus.connect().await;
-        send_calibrate(&a, LONG).await;
-        let b = bus.connect().await;
-        let cam = Camera1Proxy::new(&b).await.unwrap();
-        wait_for_job(&cam).await;
+        let (a, cam) = job_of_another(&bus).await;
         let before = cam.exposure_us().await.unwrap();
         let r = cam.set_exposure_us(1000.0).await;
         match &r {
@@ -125,14 +117,9 @@ fn a_setting_change_during_a_job_is_refused_naming_the_job() {
 #[test]
 fn a_job_ends_when_its_caller_leaves_the_bus() {
     require_dbus!();
-    let bus = Bus::start();
-    let _d = Daemon::start(&bus, &[]);
+    let (bus, _d) = Daemon::start_on_new_bus(&[]);
     runtime().block_on(async {
-        let a = bus.connect().await;
-        send_calibrate(&a, LONG).await;
-        let b = bus.connect().await;
-        let cam = Camera1Proxy::new(&b).await.unwrap();
-        wait_for_job(&cam).await;
+        let (a, cam) = job_of_another(&bus).await;
         a.close().await.unwrap();
         // sdid cancels on NameOwnerChanged; a frame or two to put the
         // settings back; the rest is room for a loaded machine.
@@ -147,14 +134,11 @@ fn a_job_ends_when_its_caller_leaves_the_bus() {
 #[test]
 fn cancel_ends_a_job_and_progress_is_reported() {
     require_dbus!();
-    let bus = Bus::start();
-    let _d = Daemon::start(&bus, &[]);
+    let (bus, _d) = Daemon::start_on_new_bus(&[]);
     runtime().block_on(async {
-        let a = bus.connect().await;
-        let cam_a = Camera1Proxy::new(&a).await.unwrap();
-        let b = bus.connect().await;
+        let (_a, cam_a) = camera(&bus).await;
+        let (b, cam_b) = camera(&bus).await;
         let raw_b = uncached(&b).await;
-        let cam_b = Camera1Proxy::new(&b).await.unwrap();
         let job = tokio::spawn(async move { cam_a.calibrate(LONG).await });
         wait_for_job(&cam_b).await;
 
@@ -233,12 +217,10 @@ fn cancel_ends_a_job_and_progress_is_reported() {
 #[test]
 fn a_job_is_bounded_in_seconds_and_excludes_a_recording() {
     require_dbus!();
-    let bus = Bus::start();
-    let _d = Daemon::start(&bus, &[]);
+    let (bus, _d) = Daemon::start_on_new_bus(&[]);
     let dir = tempfile::tempdir().unwrap();
     runtime().block_on(async {
-        let conn = bus.connect().await;
-        let cam = Camera1Proxy::new(&conn).await.unwrap();
+        let (_conn, cam) = camera(&bus).await;
         // 60,000 frames at 30 Hz: over half an hour.
         let r = tokio::time::timeout(Duration::from_secs(10), cam.calibrate(10_000)).await;
         match &r {

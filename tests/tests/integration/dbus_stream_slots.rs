@@ -6,23 +6,18 @@
 
 use std::os::fd::{AsFd, OwnedFd};
 use std::os::unix::net::UnixStream;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use sdi_api::{Camera1Proxy, SdiError};
-use sdi_tests::dbus::{Bus, Daemon};
+use sdi_tests::dbus::{read_write_fifo, runtime, until_ok, Daemon};
 use sdi_tests::require_dbus;
 use zbus::zvariant::Fd;
+
+use crate::support::camera;
 
 /// How long a peer's slots may stay taken after it left the bus: sdid frees
 /// them on `NameOwnerChanged` (at once); the rest is room for a loaded machine.
 const FREED_WITHIN: Duration = Duration::from_secs(2);
-
-fn runtime() -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-}
 
 /// Passes the writing end of a new socket pair; returns the reading end
 /// (held, never read: the stream cannot end by itself).
@@ -33,16 +28,8 @@ async fn open_stream(cam: &Camera1Proxy<'_>) -> Result<UnixStream, SdiError> {
 
 /// Tries to open a stream until it is accepted or `within` has passed.
 async fn opens_within(cam: &Camera1Proxy<'_>, within: Duration) -> Result<UnixStream, String> {
-    let t0 = Instant::now();
-    loop {
-        match open_stream(cam).await {
-            Ok(s) => return Ok(s),
-            Err(e) if t0.elapsed() > within => {
-                return Err(format!("still refused after {:?}: {e}", t0.elapsed()))
-            }
-            Err(_) => tokio::time::sleep(Duration::from_millis(20)).await,
-        }
-    }
+    let (stream, _) = until_ok(within, || open_stream(cam)).await?;
+    Ok(stream)
 }
 
 fn busy(r: &Result<UnixStream, SdiError>) -> bool {
@@ -52,11 +39,9 @@ fn busy(r: &Result<UnixStream, SdiError>) -> bool {
 #[test]
 fn a_peer_holds_at_most_two_slots_and_frees_them_when_it_leaves() {
     require_dbus!();
-    let bus = Bus::start();
-    let _d = Daemon::start(&bus, &[]);
+    let (bus, _d) = Daemon::start_on_new_bus(&[]);
     runtime().block_on(async {
-        let a = bus.connect().await;
-        let cam_a = Camera1Proxy::new(&a).await.unwrap();
+        let (a, cam_a) = camera(&bus).await;
         let mut held_a = vec![
             open_stream(&cam_a).await.unwrap(),
             open_stream(&cam_a).await.unwrap(),
@@ -64,14 +49,12 @@ fn a_peer_holds_at_most_two_slots_and_frees_them_when_it_leaves() {
         let third = open_stream(&cam_a).await;
         assert!(busy(&third), "a third stream of one peer: {third:?}");
 
-        let b = bus.connect().await;
-        let cam_b = Camera1Proxy::new(&b).await.unwrap();
+        let (_, cam_b) = camera(&bus).await;
         let _held_b = [
             open_stream(&cam_b).await.unwrap(),
             open_stream(&cam_b).await.unwrap(),
         ];
-        let c = bus.connect().await;
-        let cam_c = Camera1Proxy::new(&c).await.unwrap();
+        let (_, cam_c) = camera(&bus).await;
         let full = open_stream(&cam_c).await;
         assert!(busy(&full), "a fifth stream: {full:?}");
 
@@ -100,20 +83,12 @@ fn a_peer_holds_at_most_two_slots_and_frees_them_when_it_leaves() {
 #[test]
 fn a_descriptor_sdid_could_read_itself_holds_no_slot() {
     require_dbus!();
-    let bus = Bus::start();
-    let _d = Daemon::start(&bus, &[]);
+    let (bus, _d) = Daemon::start_on_new_bus(&[]);
     let dir = tempfile::tempdir().unwrap();
     runtime().block_on(async {
-        let a = bus.connect().await;
-        let cam_a = Camera1Proxy::new(&a).await.unwrap();
+        let (a, cam_a) = camera(&bus).await;
         // A FIFO opened read-write: sdid would hold its read side.
-        let fifo = dir.path().join("fifo");
-        nix::unistd::mkfifo(&fifo, nix::sys::stat::Mode::S_IRWXU).unwrap();
-        let rw = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .open(&fifo)
-            .unwrap();
+        let rw = read_write_fifo(&dir.path().join("fifo"));
         let r = cam_a.stream_frames(Fd::from(&rw)).await;
         assert!(
             matches!(r, Err(SdiError::InvalidFd(_))),
@@ -127,14 +102,12 @@ fn a_descriptor_sdid_could_read_itself_holds_no_slot() {
         }
         drop((x, y));
         // A stays connected; B takes two slots, C must still find one.
-        let b = bus.connect().await;
-        let cam_b = Camera1Proxy::new(&b).await.unwrap();
+        let (_, cam_b) = camera(&bus).await;
         let _held_b = [
             open_stream(&cam_b).await.unwrap(),
             open_stream(&cam_b).await.unwrap(),
         ];
-        let c = bus.connect().await;
-        let cam_c = Camera1Proxy::new(&c).await.unwrap();
+        let (_, cam_c) = camera(&bus).await;
         let _c = opens_within(&cam_c, FREED_WITHIN)
             .await
             .unwrap_or_else(|e| panic!("streams sdid feeds itself hold slots: {e}"));
@@ -147,12 +120,10 @@ fn a_descriptor_sdid_could_read_itself_holds_no_slot() {
 #[test]
 fn a_refused_stream_descriptor_is_named_for_what_it_is() {
     require_dbus!();
-    let bus = Bus::start();
-    let _d = Daemon::start(&bus, &[]);
+    let (bus, _d) = Daemon::start_on_new_bus(&[]);
     let dir = tempfile::tempdir().unwrap();
     runtime().block_on(async {
-        let conn = bus.connect().await;
-        let cam = Camera1Proxy::new(&conn).await.unwrap();
+        let (_conn, cam) = camera(&bus).await;
         let file = std::fs::File::create(dir.path().join("f")).unwrap();
         let memfd: OwnedFd =
             nix::sys::memfd::memfd_create(c"sdi-test", nix::sys::memfd::MemFdCreateFlag::empty())

@@ -24,5 +24,7 @@ mod dbus_stream_slots;
 mod dbus_wrong_input;
 mod npy_numpy;
 mod science_recording;
+/// Helpers of the D-Bus test modules.
+mod support;
 mod view_connections;
 mod view_page;

@@ -86,18 +86,12 @@ impl View {
 
     /// Sends a raw HTTP/1.1 request; returns the status code.
     pub(crate) fn status_of(&self, request: &str) -> u16 {
-        let mut s = TcpStream::connect(("127.0.0.1", self.port)).unwrap();
-        s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
-        s.write_all(request.as_bytes()).unwrap();
-        let mut head = [0u8; 12];
-        s.read_exact(&mut head).unwrap();
-        let text = String::from_utf8_lossy(&head);
-        text[9..12].parse().expect(&text)
+        self.send(request).1
     }
 
-    /// Sends a raw HTTP/1.1 request with `Connection: close`; returns the
-    /// status code and the body.
-    pub(crate) fn response_to(&self, request: &str) -> (u16, String) {
+    /// Sends a raw HTTP/1.1 request; returns the connection, read up to
+    /// the status code, and the status code.
+    fn send(&self, request: &str) -> (TcpStream, u16) {
         let mut s = TcpStream::connect(("127.0.0.1", self.port)).unwrap();
         s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
         s.write_all(request.as_bytes()).unwrap();
@@ -105,6 +99,13 @@ impl View {
         s.read_exact(&mut head).unwrap();
         let text = String::from_utf8_lossy(&head);
         let status = text[9..12].parse().expect(&text);
+        (s, status)
+    }
+
+    /// Sends a raw HTTP/1.1 request with `Connection: close`; returns the
+    /// status code and the body.
+    pub(crate) fn response_to(&self, request: &str) -> (u16, String) {
+        let (mut s, status) = self.send(request);
         let mut rest = Vec::new();
         let _ = s.read_to_end(&mut rest);
         let rest = String::from_utf8_lossy(&rest).into_owned();

@@ -77,11 +77,7 @@ fn probe_loop(
     commands: Commands,
     stop: Arc<AtomicBool>,
 ) {
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .expect("runtime");
-    rt.block_on(async move {
+    sdi_tests::dbus::runtime().block_on(async move {
         let proxy = |conn: zbus::Connection| async move {
             Camera1Proxy::builder(&conn)
                 .cache_properties(zbus::proxy::CacheProperties::No)
@@ -101,9 +97,7 @@ fn probe_loop(
         let commander = proxy(commander_conn).await;
         let reads = async {
             while !stop.load(Ordering::SeqCst) {
-                let t = Instant::now();
-                let _ = tokio::time::timeout(Duration::from_secs(10), bus.get_id()).await;
-                let bus_took = t.elapsed();
+                let bus_took = get_id_took(&bus).await;
                 let at = Instant::now();
                 let stats = tokio::time::timeout(Duration::from_secs(10), reader.stats())
                     .await
@@ -120,9 +114,7 @@ fn probe_loop(
         };
         let calls = async {
             while !stop.load(Ordering::SeqCst) {
-                let t = Instant::now();
-                let _ = tokio::time::timeout(Duration::from_secs(10), commander_bus.get_id()).await;
-                let bus_took = t.elapsed();
+                let bus_took = get_id_took(&commander_bus).await;
                 let at = Instant::now();
                 let ok = tokio::time::timeout(
                     Duration::from_secs(30),
@@ -141,6 +133,13 @@ fn probe_loop(
         };
         tokio::join!(reads, calls);
     });
+}
+
+/// How long the bus daemon took to answer `GetId` (10 s at the most).
+async fn get_id_took(bus: &zbus::fdo::DBusProxy<'_>) -> Duration {
+    let t = Instant::now();
+    let _ = tokio::time::timeout(Duration::from_secs(10), bus.get_id()).await;
+    t.elapsed()
 }
 
 /// What one mode's attack measured, asserted once every mode ran.
