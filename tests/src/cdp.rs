@@ -98,6 +98,17 @@ impl Chromium {
 
     /// Sends one command and returns its result (events are skipped).
     fn call(&mut self, session: Option<&str>, method: &str, params: Value) -> Value {
+        self.try_call(session, method, params)
+            .unwrap_or_else(|e| panic!("{method}: {e}"))
+    }
+
+    /// [`Self::call`], with Chromium's error reply as an error.
+    fn try_call(
+        &mut self,
+        session: Option<&str>,
+        method: &str,
+        params: Value,
+    ) -> Result<Value, Value> {
         self.next_id += 1;
         let id = self.next_id;
         let mut msg = json!({"id": id, "method": method, "params": params});
@@ -114,32 +125,49 @@ impl Chromium {
             buf.pop();
             let reply: Value = serde_json::from_slice(&buf).unwrap();
             if reply["id"] == id {
-                assert!(reply["error"].is_null(), "{method}: {}", reply["error"]);
-                return reply["result"].clone();
+                return match reply["error"].is_null() {
+                    true => Ok(reply["result"].clone()),
+                    false => Err(reply["error"].clone()),
+                };
             }
         }
     }
 
     /// Evaluates `expression` in the page (awaiting a promise) and returns its value.
     pub fn eval(&mut self, expression: &str) -> Value {
+        self.try_eval(expression)
+            .unwrap_or_else(|e| panic!("Runtime.evaluate: {e}"))
+    }
+
+    /// [`Self::eval`], with Chromium's error reply (the page navigated
+    /// while it ran, say) as an error.
+    fn try_eval(&mut self, expression: &str) -> Result<Value, Value> {
         let session = self.session.clone();
-        let r = self.call(
+        let r = self.try_call(
             Some(&session),
             "Runtime.evaluate",
             json!({"expression": expression, "returnByValue": true, "awaitPromise": true}),
-        );
+        )?;
         assert!(
             r["exceptionDetails"].is_null(),
             "{expression}: {}",
             r["exceptionDetails"]
         );
-        r["result"]["value"].clone()
+        Ok(r["result"]["value"].clone())
     }
 
-    /// Evaluates `expression` until it is true, at most `timeout`.
+    /// Evaluates `expression` until it is true, at most `timeout`. An
+    /// evaluation the page's own navigation cut off (a page that moves on,
+    /// as the viewer's file does to its server) counts as not yet.
     pub fn wait_for(&mut self, expression: &str, timeout: Duration) {
         let deadline = Instant::now() + timeout;
-        while self.eval(expression) != json!(true) {
+        loop {
+            match self.try_eval(expression) {
+                Ok(Value::Bool(true)) => return,
+                Ok(_) => {}
+                Err(e) if e["message"] == "Inspected target navigated or closed" => {}
+                Err(e) => panic!("Runtime.evaluate {expression}: {e}"),
+            }
             assert!(
                 Instant::now() < deadline,
                 "timed out waiting for {expression}"
