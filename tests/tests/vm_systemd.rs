@@ -163,15 +163,13 @@ fn chromium_through_the_portal(user: &Clients, scratch: &Path, camera_log: &Fram
             .filter(|l| pipewire::parse_published(l).is_none())
             .map(str::to_owned)
             .collect();
-        let wireplumber = journal_of_user_unit("wireplumber.service");
-        let wireplumber: Vec<&str> = wireplumber.lines().collect();
         format!(
             "{}\n{}\n{}\nportal:\n{}\nWirePlumber:\n{}\nthe camera's log:\n{}",
             browser.fatal_errors(),
             browser.log_lines("video_capture"),
             browser.log_tail(),
             portal_log(),
-            wireplumber[wireplumber.len().saturating_sub(20)..].join("\n"),
+            journal_tail_of_user_unit("wireplumber.service", 20),
             camera[camera.len().saturating_sub(40)..].join("\n")
         )
     });
@@ -215,6 +213,13 @@ fn chromium_through_the_portal(user: &Clients, scratch: &Path, camera_log: &Fram
         t_switch.elapsed().as_secs_f64(),
         stats_rgb(&v, "mean")
     );
+}
+
+/// The last `lines` lines of [`journal_of_user_unit`].
+fn journal_tail_of_user_unit(unit: &str, lines: usize) -> String {
+    let log = journal_of_user_unit(unit);
+    let all: Vec<&str> = log.lines().collect();
+    all[all.len().saturating_sub(lines)..].join("\n")
 }
 
 /// The journal of `unit`, a unit of a user's manager.
@@ -552,11 +557,7 @@ fn loopback_node_without_the_camera_package(user: &Clients) {
             Duration::from_secs(180),
         )
     };
-    let tail = |unit: &str| {
-        let log = journal_of_user_unit(unit);
-        let lines: Vec<&str> = log.lines().collect();
-        lines[lines.len().saturating_sub(80)..].join("\n")
-    };
+    let tail = |unit: &str| journal_tail_of_user_unit(unit, 80);
     let fail = |e: String| -> ! {
         panic!(
             "{e}\nthe node when found: id {}\nWirePlumber's log:\n{}\nPipeWire's log:\n{}",
@@ -575,7 +576,7 @@ fn loopback_node_without_the_camera_package(user: &Clients) {
         // idle, suspended; PipeWire's: the link "negotiating -> error");
         // pipewiresrc 1.4.2 cannot take a second format (it drops its
         // possible caps after the first, gstpipewiresrc.c) and fails with
-        // "unhandled format". Seen in 2 of 9 runs here, and in a plain
+        // "unhandled format". Seen in 3 of 12 runs here, and in a plain
         // guest without systemd. That is the reader's limit, not the node's:
         // the node is read once more, and must then give 30 frames.
         Err(e) if e.contains("unhandled format") => {

@@ -232,10 +232,7 @@ fn bad_descriptors_get_typed_errors() {
     let dir = tempfile::tempdir().unwrap();
     let bus = Bus::start();
     let d = Daemon::start(&bus, &[]);
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
+    let rt = sdi_tests::dbus::runtime();
     rt.block_on(async {
         let conn = zbus::connection::Builder::address(bus.address.as_str())
             .unwrap()

@@ -28,11 +28,7 @@ async fn call(address: &str, method: &str, path: &str) -> Option<(String, String
 }
 
 fn block_on<T>(f: impl std::future::Future<Output = T>) -> T {
-    tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap()
-        .block_on(f)
+    sdi_tests::dbus::runtime().block_on(f)
 }
 
 #[test]

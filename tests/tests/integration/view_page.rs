@@ -468,10 +468,7 @@ fn stream_frames_checks_its_descriptor_and_streams_frames() {
     let bus = Bus::start();
     let _d = Daemon::start(&bus, &[]);
     let dir = tempfile::tempdir().unwrap();
-    let rt = tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-        .unwrap();
+    let rt = sdi_tests::dbus::runtime();
     rt.block_on(async {
         let conn = bus.connect().await;
         let cam = sdi_api::Camera1Proxy::new(&conn).await.unwrap();
