@@ -289,6 +289,7 @@ mod raw {
     nix::ioctl_write_ptr!(streamon, b'V', 18, libc::c_int);
     nix::ioctl_write_ptr!(streamoff, b'V', 19, libc::c_int);
     nix::ioctl_readwrite!(s_parm, b'V', 22, v4l2_streamparm);
+    nix::ioctl_readwrite!(g_ctrl, b'V', 27, v4l2_control);
     nix::ioctl_readwrite!(s_ctrl, b'V', 28, v4l2_control);
     nix::ioctl_read!(dqevent, b'V', 89, v4l2_event);
     nix::ioctl_write_ptr!(subscribe_event, b'V', 90, v4l2_event_subscription);
@@ -334,6 +335,7 @@ safe_ioctl!(dqbuf, raw::dqbuf, mut v4l2_buffer);
 safe_ioctl!(streamon, raw::streamon, const libc::c_int);
 safe_ioctl!(streamoff, raw::streamoff, const libc::c_int);
 safe_ioctl!(s_parm, raw::s_parm, mut v4l2_streamparm);
+safe_ioctl!(g_ctrl, raw::g_ctrl, mut v4l2_control);
 safe_ioctl!(s_ctrl, raw::s_ctrl, mut v4l2_control);
 safe_ioctl!(dqevent, raw::dqevent, mut v4l2_event);
 safe_ioctl!(subscribe_event, raw::subscribe_event, const v4l2_event_subscription);

@@ -144,6 +144,26 @@ impl LoopbackWriter {
         config
             .validate()
             .map_err(|detail| GlueError::InvalidArgument { op: "open", detail })?;
+        let mut writer = Self::open_node(path, config)?;
+        let mut writer = match writer.negotiate() {
+            Err(GlueError::FormatLocked { .. })
+                if writer.control(sys::CID_KEEP_FORMAT) == Some(1) =>
+            {
+                writer.unpinned()?
+            }
+            r => r.map(|()| writer)?,
+        };
+        // After S_FMT: v4l2loopback 0.15 answers S_FMT with the node's
+        // current format while keep_format is set (`vidioc_try_fmt_vid`).
+        writer.features.keep_format = writer.set_control(sys::CID_KEEP_FORMAT, 1);
+        writer.subscribe_client_usage();
+        writer.write_first_card()?;
+        Ok(writer)
+    }
+
+    /// The node opened and checked to be a loopback device; nothing
+    /// negotiated yet, the driver's frame repeat off.
+    fn open_node(path: PathBuf, config: LoopbackFormat) -> Result<Self, GlueError> {
         let file = File::options()
             .read(true)
             .write(true)
@@ -183,12 +203,26 @@ impl LoopbackWriter {
         // re-hands a reader the buffer it dequeued last, which it may still
         // hold (`sustain_framerate` on DriverFeatures).
         writer.set_sustain_framerate(false);
-        writer.negotiate()?;
-        // After S_FMT: v4l2loopback 0.15 answers S_FMT with the node's
-        // current format while keep_format is set (`vidioc_try_fmt_vid`).
-        writer.features.keep_format = writer.set_control(sys::CID_KEEP_FORMAT, 1);
-        writer.subscribe_client_usage();
-        writer.write_first_card()?;
+        Ok(writer)
+    }
+
+    /// The node still has an earlier producer's format, pinned by the
+    /// `keep_format` every producer sets (so that readers survive its
+    /// restarts): a new geometry (another sensor, ROI or mode size) would
+    /// need the module reloaded. Unpinned and opened again: once nobody
+    /// has the node open the module forgets the old format (0.12.7's
+    /// `try_free_buffers`), and the new one is negotiated. If it is still
+    /// locked, readers hold the node: the pin goes back for them and the
+    /// error stands.
+    fn unpinned(self) -> Result<Self, GlueError> {
+        self.set_control(sys::CID_KEEP_FORMAT, 0);
+        let (path, config) = (self.path.clone(), self.config);
+        drop(self);
+        let mut writer = Self::open_node(path, config)?;
+        if let Err(e) = writer.negotiate() {
+            writer.set_control(sys::CID_KEEP_FORMAT, 1);
+            return Err(e);
+        }
         Ok(writer)
     }
 
@@ -205,6 +239,13 @@ impl LoopbackWriter {
     fn set_control(&self, id: u32, value: i32) -> bool {
         let mut ctrl = sys::v4l2_control { id, value };
         sys::s_ctrl(self.file.as_fd(), &mut ctrl).is_ok()
+    }
+
+    /// A control's value; `None` when the module has no such control.
+    fn control(&self, id: u32) -> Option<i32> {
+        let mut ctrl = sys::v4l2_control { id, value: 0 };
+        sys::g_ctrl(self.file.as_fd(), &mut ctrl).ok()?;
+        Some(ctrl.value)
     }
 
     /// S_FMT + check, S_PARM, buffers, STREAMON, no-signal card.

@@ -270,6 +270,73 @@ fn check_small_reader_ring(nr: u32) {
     eprintln!("ok: 2-buffer reader: 60 frames in order, at most {max_lag} behind the writer");
 }
 
+/// sdid restarted with another geometry on a node (another sensor or ROI:
+/// the data node's size): the earlier producer's `keep_format` must not
+/// pin the node once nobody holds it (before, the new producer got
+/// FormatLocked until the module was reloaded). While a reader holds the
+/// node, the new geometry is refused and the node keeps the reader's
+/// format, still pinned. Node `nr` last had Grey at the simulator's size,
+/// written over mmap as sdid writes (`check_small_reader_ring`), its
+/// producer gone. (After a producer that used write(), 0.12.7 never
+/// announces output again, whatever the format: its close marks only mmap
+/// writers as gone.)
+fn check_new_geometry(nr: u32) {
+    let (_, fps) = ring_and_fps();
+    let small = LoopbackFormat {
+        width: 64,
+        height: 48,
+        format: PixelFormat::Y16,
+        fps,
+        io: IoMethod::Mmap,
+    };
+    let writer = LoopbackWriter::open(dev(nr), small)
+        .unwrap_or_else(|e| panic!("video{nr}: a new geometry once its producer left: {e}"));
+    assert_eq!(writer.config(), small);
+    let bg = BackgroundWriter::start(writer, vec![vec![7u8; small.frame_bytes()]]);
+    let mut reader = CaptureReader::open(&dev(nr), 4).expect("a capture reader");
+    let n = reader
+        .next(Duration::from_secs(10))
+        .expect("a frame")
+        .bytes
+        .len();
+    assert_eq!(
+        n,
+        small.frame_bytes(),
+        "video{nr}: the new geometry's frame"
+    );
+    bg.stop().expect("the writer");
+    // The reader still streams: the producer's old geometry stays for it.
+    let big = LoopbackFormat {
+        width: W,
+        height: H,
+        ..small
+    };
+    match LoopbackWriter::open(dev(nr), big) {
+        Err(GlueError::FormatLocked { .. } | GlueError::Busy { .. }) => {}
+        other => panic!(
+            "video{nr}: another geometry under a streaming reader: {:?}",
+            other.map(|w| w.config())
+        ),
+    }
+    let o = Command::new("v4l2-ctl")
+        .args(["-d", &dev(nr).display().to_string(), "-C", "keep_format"])
+        .output()
+        .expect("run v4l2-ctl");
+    let pinned = String::from_utf8_lossy(&o.stdout).trim().to_owned();
+    assert_eq!(
+        pinned, "keep_format: 1",
+        "video{nr}: not pinned again for the reader"
+    );
+    let again = LoopbackWriter::open(dev(nr), small)
+        .unwrap_or_else(|e| panic!("video{nr}: the reader's geometry again: {e}"));
+    drop(again);
+    drop(reader);
+    eprintln!(
+        "ok: video{nr}: a new geometry once its producer left; refused under a streaming \
+         reader, which keeps its format (keep_format pinned again)"
+    );
+}
+
 /// ffmpeg reading `node` until killed, frames discarded.
 fn ffmpeg_reader(node: &str) -> Vec<&str> {
     vec![
@@ -444,6 +511,7 @@ fn module_checks(build: ModuleBuild, sim: &SimFrames, tmp: &Path) {
         check_round_trip(sim, format, nr, IoMethod::Write, 1, tmp);
     }
     check_small_reader_ring(20);
+    check_new_geometry(20);
 
     // the view profile, streaming, for the remaining clients
     let mut writer = LoopbackWriter::open(&view.path, LoopbackFormat::view(30)).unwrap();
