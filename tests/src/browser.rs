@@ -291,11 +291,11 @@ impl PageServer {
             loaded.saturating_duration_since(t0).as_secs_f64()
         );
         loop {
-            if let Some(v) = self.of_kind("frame").into_iter().find(|v| {
-                v["name"] == "view"
-                    && v["frames"].as_u64().unwrap_or(0) > 0
-                    && !v["stats"].is_null()
-            }) {
+            if let Some(v) = self
+                .of_kind("frame")
+                .into_iter()
+                .find(|v| v["name"] == "view" && frames_of(v) > 0 && !v["stats"].is_null())
+            {
                 return v;
             }
             if let Some(e) = self.of_kind("error").first() {
@@ -355,7 +355,7 @@ impl PageServer {
             let line = if v["kind"] == "frame" {
                 let key = format!(
                     "frames>0={} stats={} state={} muted={}",
-                    v["frames"].as_u64().unwrap_or(0) > 0,
+                    frames_of(v) > 0,
                     !v["stats"].is_null(),
                     v["state"],
                     v["muted"]
@@ -566,11 +566,20 @@ pub fn stats_rgb(v: &Value, key: &str) -> Option<[f64; 3]> {
     ])
 }
 
+/// A frame report of the page's view track.
+pub fn is_view_frame(v: &Value) -> bool {
+    v["kind"] == "frame" && v["name"] == "view"
+}
+
+/// How many frames a frame report says its track has shown.
+pub fn frames_of(v: &Value) -> u64 {
+    v["frames"].as_u64().unwrap_or(0)
+}
+
 /// A live view frame report whose mean colour is within `tolerance` codes
 /// (per channel) of `expected`.
 pub fn view_frame_like(v: &Value, expected: [f64; 3], tolerance: f64) -> bool {
-    v["kind"] == "frame"
-        && v["name"] == "view"
+    is_view_frame(v)
         && v["state"] == "live"
         && stats_rgb(v, "mean").is_some_and(|m| crate::clients::off_by(m, expected) < tolerance)
 }

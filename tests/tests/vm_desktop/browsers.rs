@@ -17,7 +17,9 @@ use std::time::{Duration, Instant};
 use serde_json::Value;
 
 use sdi_tests::board_emulator::BoardEmulator;
-use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
+use sdi_tests::browser::{
+    frames_of, is_view_frame, stats_rgb, view_frame_like, Browser, PageServer,
+};
 use sdi_tests::clients::{self, off_by, Sdid, Sensor, PMD};
 
 const VIEW_NR: u32 = 40;
@@ -110,7 +112,7 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
     );
 
     // sdid restarts: the page keeps (or gets back) a live track with new frames.
-    let frames_before = v["frames"].as_u64().unwrap_or(0);
+    let frames_before = frames_of(&v);
     let opened_before = v["opened"].as_u64().unwrap_or(0);
     let t_restart = Instant::now();
     sdid.restart();
@@ -122,7 +124,7 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
         Duration::from_secs(120),
         |v| {
             frame_like(v, expected3)
-                && (v["frames"].as_u64().unwrap_or(0) > frames_before
+                && (frames_of(v) > frames_before
                     || v["opened"].as_u64().unwrap_or(0) > opened_before)
         },
     );
@@ -147,9 +149,7 @@ fn run_browser(name: &str, sdid: &mut Sdid, server: &PageServer, dir: &Path) {
         let hit = r.iter().skip(n).find(|(_, v)| {
             v["name"] == "data"
                 && (v["kind"] == "error"
-                    || (v["kind"] == "frame"
-                        && v["frames"].as_u64().unwrap_or(0) > 0
-                        && !v["stats"].is_null()))
+                    || (v["kind"] == "frame" && frames_of(v) > 0 && !v["stats"].is_null()))
         });
         if let Some((_, v)) = hit {
             let opened = r
@@ -224,22 +224,20 @@ fn board_unplug_checks(sdid: &mut Sdid, server: &PageServer, browser: &Browser) 
     *sdid = Sdid::start_on_board(VIEW_NR, DATA_NR, BOARD, 15, SERIAL);
     let t_board = Instant::now();
     let from = server.len();
-    let frames_at = |v: &Value| v["frames"].as_u64().unwrap_or(0);
     let frames_then = server
         .of_kind("frame")
         .into_iter()
         .rfind(|v| v["name"] == "view")
-        .map_or(0, |v| frames_at(&v));
+        .map_or(0, |v| frames_of(&v));
     let first = server
         .wait_for(
             "chromium: the board's frames on the same track",
             from,
             Duration::from_secs(120),
             |v| {
-                v["kind"] == "frame"
-                    && v["name"] == "view"
+                is_view_frame(v)
                     && v["state"] == "live"
-                    && frames_at(v) > frames_then
+                    && frames_of(v) > frames_then
                     && stats_rgb(v, "mean").is_some_and(|m| !is_grey(m))
             },
         )
@@ -259,25 +257,24 @@ fn board_unplug_checks(sdid: &mut Sdid, server: &PageServer, browser: &Browser) 
     // (CI once got none for 15 s of host time after the unplug), so the
     // board stays away until the page itself has watched the no-signal
     // card for UNPLUG of its time.
-    let view_frame = |v: &Value| v["kind"] == "frame" && v["name"] == "view";
     let (i_card, card) = server.wait_for(
         "chromium: the no-signal card after the unplug",
         from,
         UNPLUG_LIMIT,
-        |v| view_frame(v) && stats_rgb(v, "mean").is_some_and(is_grey),
+        |v| is_view_frame(v) && stats_rgb(v, "mean").is_some_and(is_grey),
     );
     let mark_ms = page_ms(&card);
     let (i_10s, at_10s) = server.wait_for(
         "chromium: a report 10 s (page time) into the no-signal card",
         i_card,
         UNPLUG_LIMIT,
-        |v| view_frame(v) && page_ms(v) >= mark_ms + 10_000,
+        |v| is_view_frame(v) && page_ms(v) >= mark_ms + 10_000,
     );
     let (_, end) = server.wait_for(
         "chromium: a report at the end of the unplug (page time)",
         i_10s,
         UNPLUG_LIMIT,
-        |v| view_frame(v) && page_ms(v) >= mark_ms + UNPLUG.as_millis() as u64,
+        |v| is_view_frame(v) && page_ms(v) >= mark_ms + UNPLUG.as_millis() as u64,
     );
     if let Some(e) = server
         .of_kind("error")
@@ -308,7 +305,7 @@ fn board_unplug_checks(sdid: &mut Sdid, server: &PageServer, browser: &Browser) 
         "the page reopened the camera: {end}"
     );
     assert!(
-        end["frames"].as_u64().unwrap_or(0) > at_10s["frames"].as_u64().unwrap_or(0),
+        frames_of(&end) > frames_of(&at_10s),
         "no frames reached the page after 10 s of unplug: {at_10s} then {end}"
     );
     // Still the grey no-signal card at the end.
@@ -322,16 +319,15 @@ fn board_unplug_checks(sdid: &mut Sdid, server: &PageServer, browser: &Browser) 
     // Replugged: the same track gets the board's frames again.
     let t_plug = Instant::now();
     emu.plug().expect("replug the board");
-    let frames_end = end["frames"].as_u64().unwrap_or(0);
+    let frames_end = frames_of(&end);
     let (_, back) = server.wait_for(
         "chromium: frames after the board came back",
         from,
         Duration::from_secs(90),
         |v| {
-            v["kind"] == "frame"
-                && v["name"] == "view"
+            is_view_frame(v)
                 && v["state"] == "live"
-                && v["frames"].as_u64().unwrap_or(0) > frames_end + 15
+                && frames_of(v) > frames_end + 15
                 && stats_rgb(v, "mean").is_some_and(|m| off_by(m, mean) > 1.0)
         },
     );
@@ -350,18 +346,13 @@ fn board_unplug_checks(sdid: &mut Sdid, server: &PageServer, browser: &Browser) 
     *sdid = Sdid::start(VIEW_NR, DATA_NR, PMD, 15);
     sdid.set_mode("raw");
     let expected = sdid.expected_view_mean();
-    let frames_back = frames_at(&back);
+    let frames_back = frames_of(&back);
     let from = server.len();
     server.wait_for(
         "chromium: the simulator's frames again after the board",
         from,
         Duration::from_secs(120),
-        |v| {
-            v["kind"] == "frame"
-                && v["name"] == "view"
-                && frames_at(v) > frames_back
-                && frame_like(v, expected)
-        },
+        |v| frames_of(v) > frames_back && frame_like(v, expected),
     );
 }
 

@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::Value;
 
-use sdi_tests::browser::{stats_rgb, view_frame_like, Browser, PageServer};
+use sdi_tests::browser::{frames_of, stats_rgb, view_frame_like, Browser, PageServer};
 use sdi_tests::capture;
 use sdi_tests::clients::{self, off_by, DATA_LABEL, PMD, VIEW_LABEL};
 use sdi_tests::loopback;
@@ -178,7 +178,7 @@ fn in_vm_checks() {
 
     // sdid restarts: the camera process keeps the node, so the page's track
     // survives (no `ended`, no reopening) and shows the new sdid's frames.
-    let frames_before = v["frames"].as_u64().unwrap_or(0);
+    let frames_before = frames_of(&v);
     let opened_before = v["opened"].as_u64().unwrap_or(0);
     let t_restart = Instant::now();
     drop(sdid);
@@ -188,7 +188,7 @@ fn in_vm_checks() {
         &format!("chromium: raw frames near {expected3:.1?} after sdid restarted"),
         i + 1,
         Duration::from_secs(120),
-        |v| frame_like(v, expected3) && v["frames"].as_u64().unwrap_or(0) > frames_before,
+        |v| frame_like(v, expected3) && frames_of(v) > frames_before,
     );
     let ended = server.of_kind("ended").len();
     eprintln!(
@@ -207,7 +207,7 @@ fn in_vm_checks() {
     // Issue 32: with the module loaded, sdid (--sink auto) feeds the
     // loopback nodes and this camera from the same frames: the page keeps
     // reading, ffmpeg reads the loopback node, a mode switch reaches both.
-    let frames_before = v["frames"].as_u64().unwrap_or(0);
+    let frames_before = frames_of(&v);
     drop(sdid);
     clients::load_module(VIEW_NR, DATA_NR);
     let t_auto = Instant::now();
@@ -222,7 +222,7 @@ fn in_vm_checks() {
         &format!("chromium: depth-edge frames near {expected4:.1?} with the module loaded"),
         i + 1,
         Duration::from_secs(120),
-        |v| frame_like(v, expected4) && v["frames"].as_u64().unwrap_or(0) > frames_before,
+        |v| frame_like(v, expected4) && frames_of(v) > frames_before,
     );
     eprintln!(
         "chromium, module loaded: depth-edge frame {:.1} s after sdid --sink auto started: mean {:.1?} (expected {expected4:.1?})",
