@@ -13,10 +13,6 @@ mod output_name;
 mod stdout;
 mod view;
 
-/// The `.npy` stack header parser of the offline commands, public for its
-/// fuzz target.
-pub use offline::npy_header;
-
 use std::process::ExitCode;
 
 use clap::{CommandFactory, Parser, Subcommand};

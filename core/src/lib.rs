@@ -15,6 +15,7 @@ pub mod mode;
 pub mod modulation;
 pub mod named;
 pub mod npy;
+pub mod npy_header;
 pub mod number;
 pub mod pixel_flags;
 pub mod quad_phase;

@@ -1,5 +1,5 @@
 //! Fuzz target: the `.npy` stacks sdictl's offline commands read
-//! (`sdi_cli::npy_header::read`, cli/src/offline/npy_header.rs, and the
+//! (`sdi_core::npy_header::read`, core/src/npy_header.rs, and the
 //! element decoding of cli/src/offline/frames.rs).
 //!
 //! Input: the file. Invariant: no panic or abort; a bad header is a typed
@@ -12,7 +12,7 @@
 use std::io::{Cursor, Read};
 
 use libfuzzer_sys::fuzz_target;
-use sdi_cli::npy_header;
+use sdi_core::npy_header;
 
 fuzz_target!(|data: &[u8]| {
     let mut input = Cursor::new(data);

@@ -8,11 +8,11 @@ use std::fs::File;
 use std::io::{BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::Path;
 
+use sdi_core::npy_header::{self, Dtype, NpyHeader, MAX_PIXELS};
 use sdi_core::sensor::SensorParams;
 use sdi_core::Frame;
 use sdi_recording::{format::is_recording_magic, RecordedFrames, RecordingReader};
 
-use super::npy_header::{self, Dtype, NpyHeader, MAX_PIXELS};
 use crate::exit::CliError;
 
 fn runtime(path: &Path, e: impl std::fmt::Display) -> CliError {

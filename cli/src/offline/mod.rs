@@ -3,7 +3,6 @@
 pub mod board_plan;
 pub mod frames;
 pub mod noise_report;
-pub mod npy_header;
 pub mod report_files;
 pub mod sensor_arg;
 pub mod separate;

@@ -2,15 +2,16 @@
 //! before any frame: element type, byte order and N x H x W (or H x W: one
 //! frame), each dimension checked.
 //!
-//! Separate from `sdi_core::npy` (float32 only, the files sdid and sdictl
+//! Separate from [`crate::npy`] (float32 only, the files sdid and sdictl
 //! write) because sdictl accepts the integer and float64 stacks other tools
-//! write; pure, so the fuzz target (`fuzz/fuzz_targets/npy_stack.rs`) runs
-//! the parser [`super::frames::NpyFrames`] uses.
+//! write; here, beside it and without I/O of its own, so the fuzz target
+//! (`fuzz/fuzz_targets/npy_stack.rs`) runs the parser sdictl's offline
+//! commands use (`cli/src/offline/frames.rs`) on the pure crates only.
 
 use std::io::Read;
 
 /// Largest frame accepted from any input, pixels: an `.npy` header's H x W
-/// here, a recording's in [`super::frames`].
+/// here, a recording's in sdictl's offline frame reader.
 pub const MAX_PIXELS: usize = 1 << 24;
 
 /// Longest header dict accepted, bytes (numpy writes well under 1 KiB).
