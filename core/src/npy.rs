@@ -197,6 +197,30 @@ fn read_exact_or<R: Read>(
 }
 
 /// Value text following `'key':` in the header dict.
+/// Why a header's `shape` value is no tuple of dimensions.
+pub(crate) enum ShapeError {
+    NotTuple,
+    BadDimension(String),
+}
+
+/// The dimensions of a header's `shape` value, `(N, H, W)` (a trailing
+/// comma allowed): this reader's and `npy_header`'s.
+pub(crate) fn shape_tuple(value: &str) -> Result<Vec<usize>, ShapeError> {
+    let inner = value
+        .strip_prefix('(')
+        .and_then(|s| s.split(')').next())
+        .ok_or(ShapeError::NotTuple)?;
+    inner
+        .split(',')
+        .map(str::trim)
+        .filter(|s| !s.is_empty())
+        .map(|s| {
+            s.parse::<usize>()
+                .map_err(|_| ShapeError::BadDimension(s.into()))
+        })
+        .collect()
+}
+
 fn field<'a>(header: &'a str, key: &str) -> Result<&'a str, NpyError> {
     let pat = format!("'{key}'");
     let at = header
@@ -226,20 +250,10 @@ fn parse_header(header: &str) -> Result<(bool, Vec<usize>), NpyError> {
     } else if !fortran.starts_with("False") {
         return Err(NpyError::BadHeader("fortran_order is not a bool".into()));
     }
-    let shape = field(header, "shape")?;
-    let inner = shape
-        .strip_prefix('(')
-        .and_then(|s| s.split(')').next())
-        .ok_or_else(|| NpyError::BadHeader("shape is not a tuple".into()))?;
-    let shape = inner
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<usize>()
-                .map_err(|_| NpyError::BadHeader(format!("bad dimension '{s}'")))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let shape = shape_tuple(field(header, "shape")?).map_err(|e| match e {
+        ShapeError::NotTuple => NpyError::BadHeader("shape is not a tuple".into()),
+        ShapeError::BadDimension(s) => NpyError::BadHeader(format!("bad dimension '{s}'")),
+    })?;
     Ok((big_endian, shape))
 }
 

@@ -10,6 +10,8 @@
 
 use std::io::Read;
 
+use crate::npy::{shape_tuple, ShapeError};
+
 /// Largest frame accepted from any input, pixels: an `.npy` header's H x W
 /// here, a recording's in sdictl's offline frame reader.
 pub const MAX_PIXELS: usize = 1 << 24;
@@ -150,19 +152,10 @@ fn parse_dict(header: &str) -> Result<(Dtype, bool, Vec<usize>), NpyHeaderError>
     if header_field(header, "fortran_order")?.starts_with("True") {
         return Err(NpyHeaderError::FortranOrder);
     }
-    let inner = header_field(header, "shape")?
-        .strip_prefix('(')
-        .and_then(|s| s.split(')').next())
-        .ok_or(NpyHeaderError::BadValue("shape"))?;
-    let dims = inner
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| {
-            s.parse::<usize>()
-                .map_err(|_| NpyHeaderError::BadDimension(s.into()))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
+    let dims = shape_tuple(header_field(header, "shape")?).map_err(|e| match e {
+        ShapeError::NotTuple => NpyHeaderError::BadValue("shape"),
+        ShapeError::BadDimension(s) => NpyHeaderError::BadDimension(s),
+    })?;
     Ok((dtype, big, dims))
 }
 
