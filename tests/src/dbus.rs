@@ -167,6 +167,11 @@ impl Bus {
         Self::start_config(&config)
     }
 
+    /// The process id of this bus's dbus-daemon.
+    pub fn pid(&self) -> u32 {
+        self._child.0.id()
+    }
+
     /// A client connection to this bus.
     pub async fn connect(&self) -> zbus::Connection {
         connect(&self.address).await
@@ -193,10 +198,17 @@ impl Bus {
     }
 }
 
-/// A client connection to the bus at `address`.
+/// Longest a test's D-Bus call may wait for its reply: far beyond any
+/// call the tests make (their jobs take seconds), so a daemon that stopped
+/// answering fails the test with an error instead of hanging the run.
+pub const METHOD_TIMEOUT: Duration = Duration::from_secs(180);
+
+/// A client connection to the bus at `address` (calls time out after
+/// [`METHOD_TIMEOUT`]).
 pub async fn connect(address: &str) -> zbus::Connection {
     zbus::connection::Builder::address(address)
         .expect("bus address")
+        .method_timeout(METHOD_TIMEOUT)
         .build()
         .await
         .expect("connect to the bus")

@@ -47,6 +47,55 @@ pub async fn left_bus(conn: Connection, name: OwnedUniqueName) {
     }
 }
 
+/// [`left_bus`] in a task of its own, aborted when this is dropped.
+///
+/// Polling it drives no bus I/O, so it may sit beside other futures in a
+/// `select!` whose branch bodies send. `left_bus` itself must not: it
+/// sends (AddMatch, NameHasOwner), and zbus hands its connection-wide
+/// write lock out in turn; a `left_bus` that queued for the lock and is
+/// then left unpolled (while a branch body awaits a send of its own,
+/// queued behind it) is granted the lock and never releases it: every
+/// send of sdid waits forever, method replies and `Peer.Ping` included.
+/// That stalled running jobs (`job_step` publishing progress) under load.
+pub struct Departure {
+    watch: tokio::task::JoinHandle<()>,
+    /// The name has left (stays ready: a finished task is not polled again).
+    left: bool,
+}
+
+impl Departure {
+    /// Starts watching `name` on `conn`.
+    pub fn watch(conn: Connection, name: OwnedUniqueName) -> Self {
+        Self {
+            watch: tokio::spawn(left_bus(conn, name)),
+            left: false,
+        }
+    }
+}
+
+impl std::future::Future for Departure {
+    type Output = ();
+
+    /// Ready once the name has left (or the watch failed: counted as gone,
+    /// as in [`left_bus`]).
+    fn poll(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<()> {
+        if !self.left {
+            std::task::ready!(std::pin::Pin::new(&mut self.watch).poll(cx)).ok();
+            self.left = true;
+        }
+        std::task::Poll::Ready(())
+    }
+}
+
+impl Drop for Departure {
+    fn drop(&mut self) {
+        self.watch.abort();
+    }
+}
+
 /// Unique names whose departure is being watched (one watch each).
 #[derive(Debug, Clone, Default)]
 pub struct Watched(Arc<Mutex<HashSet<String>>>);

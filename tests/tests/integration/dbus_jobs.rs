@@ -241,3 +241,61 @@ fn a_job_is_bounded_in_seconds_and_excludes_a_recording() {
         cam.capture_dark_frame(4).await.unwrap();
     });
 }
+
+/// The stall of stop 50: a job's watch of its caller's departure sent on
+/// the connection from inside `job_step`'s `select!`; polled once, it
+/// queued for zbus's write lock, and the progress signal the branch body
+/// then sent queued behind it. The lock went to the watch, which was never
+/// polled again: every later send of sdid waited forever (no reply, not
+/// even to `Peer.Ping`). Here the bus is stopped so that a large signal
+/// holds the write lock, the watch is polled once, and a send awaited
+/// beside it must go through once the bus runs again.
+#[test]
+fn a_departure_watch_left_unpolled_holds_up_no_send() {
+    use nix::sys::signal::Signal;
+    use sdi_daemon::dbus::peers::Departure;
+    require_dbus!();
+    let bus = Bus::start();
+    runtime().block_on(async {
+        let conn = bus.connect().await;
+        let caller = bus.connect().await;
+        let name = caller.unique_name().unwrap().to_owned();
+        let emit = |c: zbus::Connection, body: Vec<u8>| async move {
+            c.emit_signal(None::<()>, "/", "org.sdi.Test", "Sent", &body)
+                .await
+        };
+        // A stopped bus reads nothing: the large signal fills the socket
+        // and its send holds the write lock.
+        sdi_tests::process::signal(bus.pid(), Signal::SIGSTOP);
+        let big = tokio::spawn(emit(conn.clone(), vec![0; 8 << 20]));
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let mut departure = Departure::watch(conn.clone(), name);
+        // Polled once, as `select!` polls its branches ...
+        tokio::select! {
+            biased;
+            () = &mut departure => panic!("the caller has not left"),
+            () = tokio::time::sleep(Duration::from_millis(200)) => {}
+        }
+        let pid = bus.pid();
+        std::thread::spawn(move || {
+            std::thread::sleep(Duration::from_millis(300));
+            sdi_tests::process::signal(pid, Signal::SIGCONT);
+        });
+        // ... then a branch body sends while the watch sits unpolled.
+        let t0 = Instant::now();
+        tokio::time::timeout(Duration::from_secs(20), emit(conn.clone(), vec![1]))
+            .await
+            .unwrap_or_else(|_| panic!("a send stalled behind the departure watch"))
+            .unwrap();
+        eprintln!(
+            "the send went through {:?} after the bus was stopped",
+            t0.elapsed()
+        );
+        big.await.unwrap().unwrap();
+        // And the watch still sees the caller leave.
+        caller.close().await.unwrap();
+        tokio::time::timeout(Duration::from_secs(10), departure)
+            .await
+            .expect("the caller's departure was missed");
+    });
+}

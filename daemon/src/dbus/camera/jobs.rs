@@ -12,18 +12,27 @@ use super::caller::caller_uid;
 use super::Camera;
 use crate::dbus::errors::{frame_loop_stopped, SdiError};
 use crate::dbus::job_slot::{CancelCause, JobKind, JobTicket, MAX_JOB_SECONDS};
-use crate::dbus::peers;
+use crate::dbus::peers::{self, Departure};
 use crate::frame_loop::{Command, JobError, Reply};
 
 /// Largest number of frames one dark-frame or calibration call may average.
 pub const MAX_AVERAGE_FRAMES: u32 = 10_000;
 
-/// A job in progress: the slot's ticket, the caller's departure, the deadline.
+/// A job in progress: the slot's ticket, the caller's departure (None:
+/// the call names no sender), the deadline.
 pub(super) struct RunningJob<'a> {
     ticket: JobTicket<'a>,
-    caller_left: std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>>,
+    caller_left: Option<Departure>,
     deadline: tokio::time::Instant,
     bound: Duration,
+}
+
+/// Resolves when the job's caller has left the bus; never without a caller.
+async fn caller_left(departure: &mut Option<Departure>) {
+    match departure {
+        Some(d) => d.await,
+        None => std::future::pending().await,
+    }
 }
 
 /// How often a running job's progress is published (`Job`).
@@ -81,11 +90,9 @@ impl Camera {
                 )));
             }
         }
-        let caller_left: std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>> =
-            match caller {
-                Some(c) => Box::pin(peers::left_bus(conn.clone(), c)),
-                None => Box::pin(std::future::pending()),
-            };
+        // Watched in a task of its own: `job_step` awaits sends in its
+        // select's branch bodies (see `Departure`).
+        let caller_left = caller.map(|c| Departure::watch(conn.clone(), c));
         // Twice the estimate and 10 s: room for a source slower than its rate.
         let bound = Duration::from_secs_f64(2.0 * estimate_s + 10.0);
         Ok(RunningJob {
@@ -118,7 +125,7 @@ impl Camera {
             tokio::select! {
                 r = &mut rx => return r.map_err(frame_loop_stopped),
                 c = job.ticket.cancelled() => break c,
-                () = &mut job.caller_left => break CancelCause::CallerLeft,
+                () = caller_left(&mut job.caller_left) => break CancelCause::CallerLeft,
                 () = tokio::time::sleep_until(job.deadline) => break CancelCause::TimedOut(job.bound),
                 _ = tick.tick() => {
                     job.ticket.progress.stage(*self.job_progress.borrow());
