@@ -219,6 +219,21 @@ fn uvc_switch_that_never_comes_back_is_a_typed_timeout() {
     assert!(s.switched_to_bulk.is_none());
 }
 
+/// The backend's next frame as the frame loop gets it: `capture` returns
+/// [`BackendError::NotYet`] after each 100 ms slice of the board's wait.
+fn capture(
+    backend: &mut BoardBackend,
+    ill: &Illumination,
+    frame: &mut Frame,
+) -> Result<(), BackendError> {
+    loop {
+        match backend.capture(ill, frame) {
+            Err(BackendError::NotYet) => continue,
+            r => return r,
+        }
+    }
+}
+
 /// Unplugs and replugs the emulator under a running `BoardBackend` (with or
 /// without its libusb hotplug watch); returns how the backend found the
 /// board again, the hotplug events libusb delivered, and the time from
@@ -259,9 +274,7 @@ fn backend_replug(
     let ill = Illumination::snapshot(12e6);
     let mut frame = Frame::new(1, 1);
     for i in 0..3 {
-        backend
-            .capture(&ill, &mut frame)
-            .unwrap_or_else(|e| panic!("frame {i}: {e}"));
+        capture(&mut backend, &ill, &mut frame).unwrap_or_else(|e| panic!("frame {i}: {e}"));
     }
     emu.unplug().unwrap();
     wait_for("Unavailable", Duration::from_secs(20), || {

@@ -59,6 +59,30 @@ fn expected_failures(build: ModuleBuild) -> Option<u32> {
     }
 }
 
+/// v4l2-compliance's buffer test, which 0.15 fails by a race of the module.
+const QUERYBUF_TEST: &str = "test VIDIOC_REQBUFS/CREATE_BUFS/QUERYBUF: FAIL";
+/// Its check that an unqueued buffer has sequence 0: the one that races.
+const SEQUENCE_CHECK: &str = "v4l2-test-buffers.cpp(452): g_sequence()";
+
+/// `c` without the failure v4l2loopback 0.15 gives any live writer now and
+/// then: the capture side's QUERYBUF shows the sequence the writer gave a
+/// buffer, so an unqueued buffer's `g_sequence()` is not 0 when the writer
+/// filled that buffer just before the query. Seen with ffmpeg as the writer
+/// and with ours (CI of d52b2ea: ours 2 failures, ffmpeg's 1, the extra one
+/// this check), never on 0.12.7. Only that test is taken out, and only
+/// when that check is among the reasons v4l2-compliance gives.
+fn without_sequence_race(build: ModuleBuild, mut c: Compliance) -> Compliance {
+    let raced = build == ModuleBuild::V0150
+        && c.failing_tests.iter().any(|t| t == QUERYBUF_TEST)
+        && c.fail_reasons.iter().any(|r| r.ends_with(SEQUENCE_CHECK));
+    if raced {
+        c.failing_tests.retain(|t| t != QUERYBUF_TEST);
+        c.failed -= 1;
+        eprintln!("note: {build}: QUERYBUF failed on the module's sequence race ({SEQUENCE_CHECK}); not counted");
+    }
+    c
+}
+
 fn dev(nr: u32) -> PathBuf {
     PathBuf::from(format!("/dev/video{nr}"))
 }
@@ -564,14 +588,20 @@ fn module_checks(build: ModuleBuild, sim: &SimFrames, tmp: &Path) {
               \x20   assert ok, 'read failed'\n\
               \x20   shapes.add(f.shape)\n\
               print(sorted(shapes))\n";
+    // The limit only catches a hang: importing cv2 alone takes tens of
+    // seconds in a TCG guest beside a busy host.
     let o = Command::new("timeout")
-        .args(["60", "/usr/bin/python3", "-c", py, "/dev/video24"])
+        .args(["300", "/usr/bin/python3", "-c", py, "/dev/video24"])
         .output()
         .unwrap();
     // OpenCV indexes a fixed array of 10 buffers: the writer's ring must
     // not be larger (it aborted on a 32-buffer ring on 0.15).
     let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "OpenCV failed: {stderr}");
+    assert!(
+        o.status.success(),
+        "OpenCV failed ({}; 124 = killed at the limit): {stderr}",
+        o.status
+    );
     assert_eq!(
         String::from_utf8_lossy(&o.stdout).trim(),
         "[(480, 640, 3)]",
@@ -603,12 +633,11 @@ fn module_checks(build: ModuleBuild, sim: &SimFrames, tmp: &Path) {
             &reference.output,
         );
     }
-    // ffmpeg's count is the reference, not pinned: on 0.15 its writer
-    // sometimes adds "VIDIOC_REQBUFS/CREATE_BUFS/QUERYBUF" (an unqueued
-    // buffer's g_sequence() not 0: the module shows the capture side the
-    // sequence the writer gave that buffer, when the writer filled it
-    // before the query; 2 failures instead of 1 in one fresh-check). Ours
-    // is pinned: a new failure of our writer must show.
+    // The module's sequence race is no writer's failure: it is taken out
+    // of both counts. Everything else of ours is pinned: a new failure of
+    // our writer must show.
+    let ours = without_sequence_race(build, ours);
+    let reference = without_sequence_race(build, reference);
     assert!(
         ours.total > 0 && ours.failed <= reference.failed,
         "SDI writer fails more than ffmpeg's"
