@@ -27,22 +27,36 @@ pub fn bar(len: u64, msg: &str, json: bool) -> ProgressBar {
 }
 
 /// Runs a long call while a progress bar shows sdid's count of its frames.
-async fn with_progress<T>(
-    camera: &Camera1Proxy<'_>,
+///
+/// The call runs in a task of its own: its first poll sends the method
+/// call, and a future queued for zbus's write lock must not sit unpolled
+/// beside a `select!` body that sends (here the progress tick's `Job`
+/// read): the lock, handed out in turn, would go to it, and every send
+/// would wait for good (the stall sdid's jobs had; `peers::Departure` in
+/// the daemon).
+async fn with_progress<T, F, Fut>(
+    camera: &Camera1Proxy<'static>,
     frames: u32,
     msg: &str,
     json: bool,
-    call: impl std::future::Future<Output = Result<T, SdiError>>,
-) -> Result<T, CliError> {
+    call: F,
+) -> Result<T, CliError>
+where
+    F: FnOnce(Camera1Proxy<'static>) -> Fut,
+    Fut: std::future::Future<Output = Result<T, SdiError>> + Send + 'static,
+    T: Send + 'static,
+{
     let pb = bar(frames as u64, msg, json);
     let mut interrupt =
         signal(SignalKind::interrupt()).map_err(|e| CliError::Runtime(e.to_string()))?;
     let mut cancelling = false;
-    tokio::pin!(call);
+    let mut call = tokio::spawn(call(camera.clone()));
+    // Leaving early (a second Ctrl-C) drops the call with the task.
+    let _abort = AbortOnDrop(call.abort_handle());
     let mut tick = tokio::time::interval(Duration::from_millis(200));
     let r = loop {
         tokio::select! {
-            r = &mut call => break r,
+            r = &mut call => break r.map_err(|e| CliError::Runtime(format!("the call's task: {e}")))?,
             _ = tick.tick() => {
                 if let Ok(job) = camera.job().await {
                     if job.frames_total > 0 {
@@ -70,25 +84,29 @@ async fn with_progress<T>(
 }
 
 pub async fn dark_frame(
-    camera: &Camera1Proxy<'_>,
+    camera: &Camera1Proxy<'static>,
     frames: u32,
     json: bool,
 ) -> Result<(), CliError> {
-    let call = camera.capture_dark_frame(frames);
+    let call = move |c: Camera1Proxy<'static>| async move { c.capture_dark_frame(frames).await };
     let reply = with_progress(camera, frames, "dark frame", json, call).await?;
     wire_json::print(&reply, json)
 }
 
-pub async fn calibrate(camera: &Camera1Proxy<'_>, frames: u32, json: bool) -> Result<(), CliError> {
+pub async fn calibrate(
+    camera: &Camera1Proxy<'static>,
+    frames: u32,
+    json: bool,
+) -> Result<(), CliError> {
     // Dark frames, then 5 photon-transfer levels (sdid's Job says).
     let total = frames.saturating_mul(6);
-    let call = camera.calibrate(frames);
+    let call = move |c: Camera1Proxy<'static>| async move { c.calibrate(frames).await };
     let reply = with_progress(camera, total, "calibrating", json, call).await?;
     wire_json::print(&reply, json)
 }
 
 pub async fn calibrate_phase(
-    camera: &Camera1Proxy<'_>,
+    camera: &Camera1Proxy<'static>,
     frames: u32,
     json: bool,
 ) -> Result<(), CliError> {
@@ -98,10 +116,19 @@ pub async fn calibrate_phase(
              through [lights]; without a light rig, cover LS2 now)"
         );
     }
-    let call = camera.calibrate_phase(frames);
+    let call = move |c: Camera1Proxy<'static>| async move { c.calibrate_phase(frames).await };
     let reply = with_progress(camera, frames, "phase", json, call).await?;
     if !json && reply.lights.is_empty() {
         eprintln!("sdid drives no lights: the axis assumes LS2 was covered");
     }
     wire_json::print(&reply, json)
+}
+
+/// Aborts a task when dropped.
+struct AbortOnDrop(tokio::task::AbortHandle);
+
+impl Drop for AbortOnDrop {
+    fn drop(&mut self) {
+        self.0.abort();
+    }
 }
