@@ -324,9 +324,13 @@ impl Drop for Daemon {
     }
 }
 
-/// Runs the built `sdictl` against the bus at `address`.
+/// Runs the built `sdictl` against the bus at `address`, killed after
+/// [`METHOD_TIMEOUT`] (exit 124) so that a daemon that stopped answering
+/// fails the test instead of hanging the run.
 pub fn sdictl(address: &str, args: &[&str]) -> Output {
-    Command::new(bin("sdictl"))
+    Command::new("timeout")
+        .args(["-k", "5", &METHOD_TIMEOUT.as_secs().to_string()])
+        .arg(bin("sdictl"))
         .args(["--bus-address", address])
         .args(args)
         .output()
