@@ -4,7 +4,8 @@
 //! back, and sdid must stream it again. During each attack another client
 //! reads the `Stats` property every 100 ms and sets the colormap every
 //! 500 ms, a call answered through the frame loop (each answered within
-//! 1 s, however long the device keeps the frame back), sdid's
+//! 1 s more than the bus daemon's own reply just before it, however long
+//! the device keeps the frame back), sdid's
 //! VmRSS stays within [`RSS_GROWTH_BOUND_KIB`] of its size before the first
 //! attack, and its log has at most [`MAX_LOG_LINES`] lines for the mode (one
 //! line per cause, never one per frame or per attempt).
@@ -30,7 +31,10 @@ const SERIAL: &str = "EMU0031";
 const ATTACK: Duration = Duration::from_millis(2500);
 /// The longest wait for sdid to reach the misbehaviour.
 const ENGAGE_TIMEOUT: Duration = Duration::from_secs(20);
-/// A reply slower than this counts as sdid not answering.
+/// A reply slower than this, beyond the bus daemon's reply to `GetId`
+/// just before it (the host's load: 0.37 s seen in a TCG guest beside a
+/// busy host), counts as sdid not answering. A call held behind the
+/// device's frame wait (2 s) or a stuck frame loop stays beyond it.
 const MAX_REPLY: Duration = Duration::from_secs(1);
 /// sdid's VmRSS may grow at most this much over its size before the first
 /// attack: the stream's buffers are a few frames of the configured size
@@ -387,12 +391,12 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
     } in &report
     {
         assert!(
-            *slowest < MAX_REPLY,
+            *slowest < MAX_REPLY + *bus_then,
             "{}: a Stats read took {slowest:?} (the bus daemon's GetId just before: {bus_then:?})",
             mode.name()
         );
         assert!(
-            *slowest_command < MAX_REPLY,
+            *slowest_command < MAX_REPLY + *bus_then_command,
             "{}: a SetColormap call took {slowest_command:?} (the bus daemon's GetId just \
              before: {bus_then_command:?})",
             mode.name()

@@ -73,13 +73,27 @@ impl Sdid {
             .stderr(log)
             .spawn()
             .expect("spawn sdid");
-        let d = Self {
+        let mut d = Self {
             _child: Reaped(child),
             address: session.bus.address.clone(),
         };
-        sdi_tests::wait::wait_for("sdid serving D-Bus", Duration::from_secs(60), || {
-            d.ctl(&["get", "mode"]).status.success().then_some(())
-        });
+        // The limit only catches a hang (a TCG guest beside a busy host is
+        // slow); sdid's log says why it did not serve.
+        let log_path = session.dir.path().join("sdid.log");
+        sdi_tests::wait::wait_for_or(
+            "sdid serving D-Bus",
+            Duration::from_secs(180),
+            || {
+                if let Ok(Some(status)) = d._child.0.try_wait() {
+                    panic!(
+                        "sdid exited ({status}) before serving D-Bus; its log:\n{}",
+                        std::fs::read_to_string(&log_path).unwrap_or_default()
+                    );
+                }
+                d.ctl(&["get", "mode"]).status.success().then_some(())
+            },
+            || std::fs::read_to_string(&log_path).unwrap_or_default(),
+        );
         sdi_tests::wait::wait_for("the sdi-camera node", Duration::from_secs(60), || {
             session.node("sdi-camera")
         });
