@@ -25,20 +25,31 @@ fn matches_sent(emu: &BoardEmulator, frame: &Frame) -> bool {
         .any(|(_, dn)| dn.len() == frame.dn.data.len() && dn[1..] == frame.dn.data[1..])
 }
 
-/// The board's next frame as the frame loop gets it: `next_frame` returns
-/// [`BoardError::NotYet`] after each 100 ms slice of the wait, and the frame
-/// loop calls again (the 2 s no-frame rule runs across the calls).
+/// Calls `attempt` until its result is other than "no frame yet", as the
+/// frame loop does: the board and the backend both yield that after each
+/// 100 ms slice of their wait (the 2 s no-frame rule runs across calls).
+fn past_not_yet<E>(
+    mut attempt: impl FnMut() -> Result<(), E>,
+    not_yet: impl Fn(&E) -> bool,
+) -> Result<(), E> {
+    loop {
+        match attempt() {
+            Err(e) if not_yet(&e) => continue,
+            r => return r,
+        }
+    }
+}
+
+/// The board's next frame as the frame loop gets it.
 fn next_frame(
     board: &mut Opt8241,
     ill: &Illumination,
     frame: &mut Frame,
 ) -> Result<(), BoardError> {
-    loop {
-        match board.next_frame(ill, frame) {
-            Err(BoardError::NotYet) => continue,
-            r => return r,
-        }
-    }
+    past_not_yet(
+        || board.next_frame(ill, frame),
+        |e| matches!(e, BoardError::NotYet),
+    )
 }
 
 #[test]
@@ -219,19 +230,16 @@ fn uvc_switch_that_never_comes_back_is_a_typed_timeout() {
     assert!(s.switched_to_bulk.is_none());
 }
 
-/// The backend's next frame as the frame loop gets it: `capture` returns
-/// [`BackendError::NotYet`] after each 100 ms slice of the board's wait.
+/// The backend's next frame as the frame loop gets it.
 fn capture(
     backend: &mut BoardBackend,
     ill: &Illumination,
     frame: &mut Frame,
 ) -> Result<(), BackendError> {
-    loop {
-        match backend.capture(ill, frame) {
-            Err(BackendError::NotYet) => continue,
-            r => return r,
-        }
-    }
+    past_not_yet(
+        || backend.capture(ill, frame),
+        |e| matches!(e, BackendError::NotYet),
+    )
 }
 
 /// Unplugs and replugs the emulator under a running `BoardBackend` (with or
