@@ -5,7 +5,8 @@
 //! reads the `Stats` property every 100 ms and sets the colormap every
 //! 500 ms, a call answered through the frame loop (each answered within
 //! 1 s more than the bus daemon's own reply just before it, however long
-//! the device keeps the frame back), sdid's
+//! the device keeps the frame back; one late reply per kind and mode is
+//! the guest's scheduling, not sdid, if it is not a stall), sdid's
 //! VmRSS stays within [`RSS_GROWTH_BOUND_KIB`] of its size before the first
 //! attack, and its log has at most [`MAX_LOG_LINES`] lines for the mode (one
 //! line per cause, never one per frame or per attempt).
@@ -32,10 +33,15 @@ const ATTACK: Duration = Duration::from_millis(2500);
 /// The longest wait for sdid to reach the misbehaviour.
 const ENGAGE_TIMEOUT: Duration = Duration::from_secs(20);
 /// A reply slower than this, beyond the bus daemon's reply to `GetId`
-/// just before it (the host's load: 0.37 s seen in a TCG guest beside a
-/// busy host), counts as sdid not answering. A call held behind the
-/// device's frame wait (2 s) or a stuck frame loop stays beyond it.
+/// just before it (the host's load), is late. sdid held behind the device
+/// (its 2 s frame wait, a NAKing request) makes every call of the hold
+/// late: several per mode at these cadences. A TCG guest beside a busy
+/// host delays one now and then (quiet: slowest 0.9 s; beside two other
+/// builds: one SetColormap of 1.33 s with GetId 0.09 s), so one late
+/// reply per kind and mode is allowed if it is shorter than [`STALLED`].
 const MAX_REPLY: Duration = Duration::from_secs(1);
+/// A reply this much slower than the GetId before it is a stall, even alone.
+const STALLED: Duration = Duration::from_millis(2500);
 /// sdid's VmRSS may grow at most this much over its size before the first
 /// attack: the stream's buffers are a few frames of the configured size
 /// (24 KiB here), so holding even half of one 16 MiB hostile frame fails.
@@ -155,6 +161,8 @@ struct Report {
     /// The slowest SetColormap call, and the GetId just before it.
     slowest_command: Duration,
     bus_then_command: Duration,
+    /// Late replies ([`MAX_REPLY`] beyond their GetId): reads, calls.
+    late: (usize, usize),
     rss_max_kib: u64,
     lines: Vec<String>,
 }
@@ -319,7 +327,7 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
             .filter(|(t, _)| *t >= t0)
             .map(|(t, l)| format!("{:6.2} s  {l}", (*t - t0).as_secs_f64()))
             .collect();
-        let (n_probes, slowest, bus_then) = {
+        let (n_probes, slowest, bus_then, late_reads) = {
             let p = probes.lock().unwrap();
             let window: Vec<&Probe> = p.iter().filter(|p| p.at >= t0 && p.at < t_plug).collect();
             let worst = window.iter().max_by_key(|p| p.took);
@@ -327,9 +335,13 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
                 window.len(),
                 worst.map(|p| p.took).unwrap_or_default(),
                 worst.map(|p| p.bus_took).unwrap_or_default(),
+                window
+                    .iter()
+                    .filter(|p| p.took > MAX_REPLY + p.bus_took)
+                    .count(),
             )
         };
-        let (n_calls, failed_calls, slowest_command, bus_then_command, slowest_at) = {
+        let (n_calls, failed_calls, slowest_command, bus_then_command, slowest_at, late_calls) = {
             let c = commands.lock().unwrap();
             let window: Vec<&Call> = c.iter().filter(|c| c.at >= t0 && c.at < t_plug).collect();
             let worst = window.iter().max_by_key(|c| c.took);
@@ -339,6 +351,10 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
                 worst.map(|c| c.took).unwrap_or_default(),
                 worst.map(|c| c.bus_took).unwrap_or_default(),
                 worst.map(|c| c.at - t0).unwrap_or_default(),
+                window
+                    .iter()
+                    .filter(|c| c.took > MAX_REPLY + c.bus_took)
+                    .count(),
             )
         };
         let cpu_percent = cpu_ticks_attack as f64 / attack.as_secs_f64();
@@ -347,7 +363,7 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
              (the bus daemon's GetId just before: {bus_then:?}) \
              ({n_calls} SetColormap calls through the frame loop, {failed_calls} failed: slowest \
              {slowest_command:?} from {slowest_at:.2?} into the attack, GetId just before \
-             {bus_then_command:?}); VmRSS max {rss_max_kib} KiB \
+             {bus_then_command:?}); late replies: {late_reads} reads, {late_calls} calls; VmRSS max {rss_max_kib} KiB \
              (+{} KiB); CPU {cpu_percent:.0} %; {} log lines; {transfers} hostile transfers \
              (engaged after {engaged_after:.2?}, the device left after {left_after:.2?}); \
              streaming again {recovery:?} after the genuine board came back",
@@ -364,6 +380,7 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
             bus_then,
             slowest_command,
             bus_then_command,
+            late: (late_reads, late_calls),
             rss_max_kib,
             lines,
         });
@@ -386,19 +403,21 @@ fn sdid_survives_hostile_boards_and_streams_the_genuine_one_again() {
         bus_then,
         slowest_command,
         bus_then_command,
+        late: (late_reads, late_calls),
         rss_max_kib,
         lines,
     } in &report
     {
         assert!(
-            *slowest < MAX_REPLY + *bus_then,
-            "{}: a Stats read took {slowest:?} (the bus daemon's GetId just before: {bus_then:?})",
+            *late_reads <= 1 && *slowest < STALLED + *bus_then,
+            "{}: {late_reads} late Stats reads, the slowest {slowest:?} (the bus daemon's \
+             GetId just before: {bus_then:?})",
             mode.name()
         );
         assert!(
-            *slowest_command < MAX_REPLY + *bus_then_command,
-            "{}: a SetColormap call took {slowest_command:?} (the bus daemon's GetId just \
-             before: {bus_then_command:?})",
+            *late_calls <= 1 && *slowest_command < STALLED + *bus_then_command,
+            "{}: {late_calls} late SetColormap calls, the slowest {slowest_command:?} (the bus \
+             daemon's GetId just before: {bus_then_command:?})",
             mode.name()
         );
         assert!(
