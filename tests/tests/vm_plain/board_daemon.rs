@@ -687,17 +687,29 @@ fn saturated_wells_are_flagged_and_kept_out_of_separation(
             .is_some_and(|f| flagged.iter().any(|g| g.sequence == f.sequence)),
         "the last frame is not flagged"
     );
-    {
+    // The probe goes on while sdid streams: one in flight when the
+    // recording ended has switched to depth output and switches back after
+    // its one frame, so the last write is the raw output within a few
+    // frames, and every switch to depth output is followed by one back.
+    let output_modes = || -> Vec<u32> {
         let s = emu.state.lock().unwrap();
-        let modes: Vec<u32> = s
-            .writes
+        s.writes
             .iter()
             .filter(|w| w.address == 0x5C25)
             .map(|w| (w.kept >> 8) & 0xF)
-            .collect();
-        assert!(modes.contains(&0), "no depth frame asked for: {modes:?}");
-        assert_eq!(modes.last(), Some(&15), "left in depth output: {modes:?}");
-    }
+            .collect()
+    };
+    wait_until(
+        "the board back in raw output after the probe in flight",
+        Duration::from_secs(5),
+        || output_modes().last() == Some(&15),
+    );
+    let modes = output_modes();
+    assert!(modes.contains(&0), "no depth frame asked for: {modes:?}");
+    assert!(
+        !modes.windows(2).any(|w| w == [0, 0]),
+        "two probes without the raw output between: {modes:?}"
+    );
     let mut welford = Welford::new(W, H);
     for f in &flagged {
         welford.push(f).expect("push");
