@@ -29,6 +29,12 @@ const SIM_FRAMES: usize = 12;
 /// 0.67 s of slack). OpenCV copes with at most 10.
 const MAX_BUFFERS: u32 = 10;
 const ROUND_TRIP_FPS: u32 = 15;
+/// Frames each reader of a round trip takes: more than the writer's ring
+/// (4 buffers on 0.12.x, 10 on 0.15), so buffers are refilled under the
+/// reader, and than the 12 distinct simulator frames. It was 30: at
+/// 0.12.x's 5 fps the 20 reads of its round trips then waited about two
+/// minutes of CI's longest VM lane.
+const ROUND_FRAMES: usize = 15;
 
 /// The writer's ring on the loaded module, and the round-trip rate that
 /// gives readers the same 0.6 s of slack: 0.12.x gets a ring of 4 (see
@@ -87,7 +93,7 @@ fn dev(nr: u32) -> PathBuf {
     PathBuf::from(format!("/dev/video{nr}"))
 }
 
-/// ffmpeg reads 30 frames per round; every frame must be byte for byte one
+/// ffmpeg reads [`ROUND_FRAMES`] frames per round; every frame must be byte for byte one
 /// of the simulator frames written (by checksum) or the "no signal" card,
 /// several distinct simulator frames must arrive, and the last frame is a
 /// simulator frame. Changing frames catch torn or stale buffers.
@@ -127,8 +133,8 @@ fn check_round_trip(
     let check = |data: &[u8], reader: &str, round: u32| {
         assert_eq!(
             data.len(),
-            30 * n,
-            "{format}: 30 frames ({reader}, round {round})"
+            ROUND_FRAMES * n,
+            "{format}: {ROUND_FRAMES} frames ({reader}, round {round})"
         );
         let mut seen = BTreeSet::new();
         let mut cards = 0;
@@ -150,7 +156,7 @@ fn check_round_trip(
             "{format}, {reader}: only simulator frames {seen:?} arrived"
         );
         assert!(
-            index.contains_key(&checksum(&data[29 * n..])),
+            index.contains_key(&checksum(&data[(ROUND_FRAMES - 1) * n..])),
             "{format}, {reader}: last frame is not a simulator frame"
         );
         (seen, cards)
@@ -158,10 +164,10 @@ fn check_round_trip(
     // readers coming and going: the writer must not notice
     for round in 0..reads {
         let t0 = std::time::Instant::now();
-        let data = loopback::ffmpeg_read(&dev(nr), &cfg, 30, &out).unwrap();
+        let data = loopback::ffmpeg_read(&dev(nr), &cfg, ROUND_FRAMES as u32, &out).unwrap();
         let (seen, cards) = check(&data, "ffmpeg", round);
         eprintln!(
-            "ok: {format} via {io:?}: 30 frames in {:.1} s, byte-exact; {} distinct simulator \
+            "ok: {format} via {io:?}: {ROUND_FRAMES} frames in {:.1} s, byte-exact; {} distinct simulator \
              frames {seen:?}, {cards} no-signal cards",
             t0.elapsed().as_secs_f64(),
             seen.len()
@@ -169,10 +175,10 @@ fn check_round_trip(
     }
     // and a Rust client (the glue's CaptureReader), mmap streaming
     let t0 = std::time::Instant::now();
-    let data = v4l_read(&dev(nr), &cfg, 30);
+    let data = v4l_read(&dev(nr), &cfg, ROUND_FRAMES);
     let (seen, cards) = check(&data, "v4l", 0);
     eprintln!(
-        "ok: {format} via {io:?}: v4l client, 30 frames in {:.1} s, byte-exact; {} distinct \
+        "ok: {format} via {io:?}: v4l client, {ROUND_FRAMES} frames in {:.1} s, byte-exact; {} distinct \
          simulator frames, {cards} no-signal cards",
         t0.elapsed().as_secs_f64(),
         seen.len()
