@@ -50,11 +50,42 @@ pub enum Userland {
     Debian13,
 }
 
+/// Names the file that a build of the Debian 13 root under way writes its
+/// exit status to when it ends: CI builds the root beside its first
+/// guests (`.ci/run`), and a guest on that root waits for it.
+pub const DEBIAN13_ROOT_PENDING_ENV: &str = "SDI_DEBIAN13_ROOT_PENDING";
+/// A hang guard for that build: 2 minutes alone, longer beside guests.
+const DEBIAN13_ROOT_PENDING_LIMIT: Duration = Duration::from_secs(1200);
+
+/// Waits for the build of the Debian 13 root named by
+/// [`DEBIAN13_ROOT_PENDING_ENV`], if one is under way. The build moves the
+/// finished root into place before it writes its status, so the root is
+/// whole or absent.
+fn wait_for_pending_debian13_root() {
+    let Some(status_file) = std::env::var_os(DEBIAN13_ROOT_PENDING_ENV).map(PathBuf::from) else {
+        return;
+    };
+    let t0 = Instant::now();
+    let status = crate::wait::wait_for(
+        "the build of the Debian 13 root under way",
+        DEBIAN13_ROOT_PENDING_LIMIT,
+        || std::fs::read_to_string(&status_file).ok(),
+    );
+    eprintln!(
+        "the Debian 13 root's build ended (exit status, seconds: {}); waited {:.0} s for it",
+        status.trim(),
+        t0.elapsed().as_secs_f64()
+    );
+}
+
 impl Userland {
     /// Why a guest of this userland cannot boot here, if it cannot.
     fn unavailable_reason(self) -> Option<String> {
         if let Some(reason) = unavailable_reason() {
             return Some(reason);
+        }
+        if self == Self::Debian13 {
+            wait_for_pending_debian13_root();
         }
         let root = debian13_root();
         (self == Self::Debian13 && !root.join("usr").is_dir()).then(|| {
