@@ -21,7 +21,7 @@
 //! other.
 
 use std::io::{BufRead, BufReader, Write};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::OnceLock;
 use std::time::{Duration, Instant};
@@ -57,25 +57,39 @@ pub const DEBIAN13_ROOT_PENDING_ENV: &str = "SDI_DEBIAN13_ROOT_PENDING";
 /// A hang guard for that build: 2 minutes alone, longer beside guests.
 const DEBIAN13_ROOT_PENDING_LIMIT: Duration = Duration::from_secs(1200);
 
-/// Waits for the build of the Debian 13 root named by
-/// [`DEBIAN13_ROOT_PENDING_ENV`], if one is under way. The build moves the
-/// finished root into place before it writes its status, so the root is
-/// whole or absent.
-fn wait_for_pending_debian13_root() {
-    let Some(status_file) = std::env::var_os(DEBIAN13_ROOT_PENDING_ENV).map(PathBuf::from) else {
-        return;
-    };
-    let t0 = Instant::now();
-    let status = crate::wait::wait_for(
-        "the build of the Debian 13 root under way",
-        DEBIAN13_ROOT_PENDING_LIMIT,
-        || std::fs::read_to_string(&status_file).ok(),
-    );
-    eprintln!(
-        "the Debian 13 root's build ended (exit status, seconds: {}); waited {:.0} s for it",
-        status.trim(),
-        t0.elapsed().as_secs_f64()
-    );
+/// [`debian13_root`], once the build of it under way (if one is: see
+/// [`DEBIAN13_ROOT_PENDING_ENV`]) has ended. The build moves the finished
+/// root into place before it writes its status, so the root is whole or
+/// absent. Every test that uses the root calls this, not `.ci/run`.
+pub fn debian13_root_when_built() -> PathBuf {
+    if let Some(status_file) = std::env::var_os(DEBIAN13_ROOT_PENDING_ENV).map(PathBuf::from) {
+        // Tests run in their package's directory, not where `.ci/run`
+        // started: a relative name would be looked for in the wrong place
+        // until the guard ran out (CI's run of 0347d4b, 1200 s).
+        assert!(
+            status_file.is_absolute() && status_file.parent().is_some_and(Path::is_dir),
+            "{DEBIAN13_ROOT_PENDING_ENV}={} must name a file in an existing directory, by an absolute path",
+            status_file.display()
+        );
+        let t0 = Instant::now();
+        let status = crate::wait::wait_for(
+            "the build of the Debian 13 root under way",
+            DEBIAN13_ROOT_PENDING_LIMIT,
+            || std::fs::read_to_string(&status_file).ok(),
+        );
+        eprintln!(
+            "the Debian 13 root's build ended (exit status, seconds: {}); waited {:.0} s for it",
+            status.trim(),
+            t0.elapsed().as_secs_f64()
+        );
+        assert!(
+            status.split_whitespace().next() == Some("0"),
+            "the build of the Debian 13 root failed (exit status, seconds: {}); its log is beside {}",
+            status.trim(),
+            status_file.display()
+        );
+    }
+    debian13_root()
 }
 
 impl Userland {
@@ -84,11 +98,11 @@ impl Userland {
         if let Some(reason) = unavailable_reason() {
             return Some(reason);
         }
-        if self == Self::Debian13 {
-            wait_for_pending_debian13_root();
+        if self != Self::Debian13 {
+            return None;
         }
-        let root = debian13_root();
-        (self == Self::Debian13 && !root.join("usr").is_dir()).then(|| {
+        let root = debian13_root_when_built();
+        (!root.join("usr").is_dir()).then(|| {
             format!(
                 "no Debian 13 guest root at {} (run: sudo tests/vm/debian13-root.sh)",
                 root.display()

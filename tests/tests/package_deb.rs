@@ -224,7 +224,7 @@ fn lintian_reports_no_errors() {
 #[test]
 fn debian13_lintian_reports_no_errors() {
     let Some(debs) = debs() else { return };
-    let root = sdi_tests::vm::debian13_root();
+    let root = sdi_tests::vm::debian13_root_when_built();
     if !root.join("usr/bin/lintian").exists() {
         sdi_tests::skip::unavailable(
             "SDI_REQUIRE_PACKAGING",

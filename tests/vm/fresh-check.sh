@@ -4,7 +4,9 @@
 #   - /var/lib/sdi-test (the built v4l2loopback 0.15) and the vmrun cache
 #     (initramfs, uncompressed kernel) under empty tmpfs mounts, in a private
 #     mount namespace (the VM's 9p root is served from that namespace too);
-#   - a new CARGO_TARGET_DIR and CARGO_HOME (no build, no crate cache);
+#   - a new CARGO_HOME (no crate cache); the build in the clone's own
+#     target/, with CARGO_TARGET_DIR unset, as on CI (a relative path in
+#     .ci/run once worked here and failed there);
 #   - CI=true, no standard input.
 # What it cannot hide: Debian packages already installed on this machine
 # (setup-host.sh installs them when missing).
@@ -36,7 +38,7 @@ for i in $(seq 1 "$runs"); do
     unshare -m --propagation private env -i \
         PATH="$PATH" HOME="$HOME" USER="${USER:-root}" LANG=C.UTF-8 \
         RUSTUP_HOME="${RUSTUP_HOME:-$HOME/.rustup}" \
-        CARGO_HOME="$work/cargo-home" CARGO_TARGET_DIR="$work/target" \
+        CARGO_HOME="$work/cargo-home" \
         XDG_CACHE_HOME="$HOME/.cache" CI=true \
         bash -c 'set -e
             mount -t tmpfs sdi-test-empty /var/lib/sdi-test
