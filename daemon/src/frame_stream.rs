@@ -1,7 +1,8 @@
 //! Frame streams (`StreamFrames`): every mode output written into a pipe or
-//! socket a client passed, in `sdi_api::frame_stream`'s format, each stream
-//! behind a two-slot queue on a thread of its own, so a slow or stalled
-//! reader loses frames and the frame loop never waits.
+//! socket a client passed, in `sdi_api::frame_stream`'s format (its body
+//! encoded once per frame for every stream: [`OutFrame::stream_body`]),
+//! each stream behind a two-slot [`Bounded`] queue on a thread of its own,
+//! so a slow or stalled reader loses frames and the frame loop never waits.
 //!
 //! A stream belongs to the bus connection that opened it: one connection
 //! holds at most [`MAX_STREAMS_PER_PEER`] of the [`MAX_STREAMS`], and its
@@ -17,16 +18,18 @@
 use std::fs::File;
 use std::os::fd::{AsFd, AsRawFd, OwnedFd};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::{sync_channel, Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::Duration;
 
 use nix::errno::Errno;
 use nix::poll::{poll, PollFd, PollFlags, PollTimeout};
 use nix::sys::socket::{send, MsgFlags};
-use sdi_api::frame_stream::{put_f32s, FrameHeader, WireError};
-use sdi_core::display::{DisplayMap, DisplayRange};
-use sdi_core::mode::{ModeId, ModeOutput};
+use sdi_api::frame_stream::{FrameHeader, WireError};
+use sdi_core::display::DisplayRange;
+
+use crate::out_frame::OutFrame;
+use crate::queue::{Bounded, Offer};
 
 /// Streams open at once; one more is refused.
 pub const MAX_STREAMS: usize = 4;
@@ -38,6 +41,8 @@ pub const MAX_STREAMS_PER_PEER: usize = 2;
 const WRITE_POLL_MS: u16 = 100;
 /// [`WRITE_POLL_MS`] as a duration.
 pub const WRITE_POLL: Duration = Duration::from_millis(WRITE_POLL_MS as u64);
+/// Frames queued per stream: one being written, one waiting.
+const QUEUE_FRAMES: usize = 2;
 
 /// Why a stream was not opened.
 #[derive(Debug, thiserror::Error)]
@@ -96,15 +101,8 @@ enum WriteError {
     Closed,
 }
 
-struct Packet {
-    output: Arc<ModeOutput>,
-    display: DisplayMap,
-    mode: ModeId,
-}
-
 struct Stream {
-    tx: SyncSender<Packet>,
-    dropped: Arc<AtomicU64>,
+    queue: Bounded<Arc<OutFrame>>,
     /// The unique bus name of the connection that opened it.
     owner: String,
     /// Set to end the stream's thread at its next wait.
@@ -143,25 +141,21 @@ impl FrameStreams {
         if self.streams.len() >= MAX_STREAMS {
             return Err(StreamError::TooMany);
         }
-        let (tx, rx) = sync_channel(2);
         let dropped = Arc::new(AtomicU64::new(0));
         let closed = Arc::new(AtomicBool::new(false));
         let ended = Arc::new(AtomicBool::new(false));
         let target = Arc::new(target);
         let (seen, stop, done) = (dropped.clone(), closed.clone(), ended.clone());
         let to = target.clone();
-        std::thread::Builder::new()
-            .name("sdid-stream".into())
-            .spawn(move || {
-                if let Err(e) = write_frames(&to, &rx, &seen, &stop) {
-                    tracing::debug!("frame stream ended: {e}");
-                }
-                done.store(true, Ordering::Relaxed);
-            })
-            .map_err(StreamError::Thread)?;
+        let queue = Bounded::spawn_counting("sdid-stream", QUEUE_FRAMES, dropped, move |rx| {
+            if let Err(e) = write_frames(&to, &rx, &seen, &stop) {
+                tracing::debug!("frame stream ended: {e}");
+            }
+            done.store(true, Ordering::Relaxed);
+        })
+        .map_err(StreamError::Thread)?;
         self.streams.push(Stream {
-            tx,
-            dropped,
+            queue,
             owner: owner.to_owned(),
             closed,
             ended,
@@ -190,24 +184,11 @@ impl FrameStreams {
         self.streams.is_empty()
     }
 
-    /// Queues `output` on every stream; never blocks. A full queue drops the
+    /// Queues `frame` on every stream; never blocks. A full queue drops the
     /// frame (counted in the stream's headers), a closed stream is removed.
-    pub fn send(&mut self, output: &Arc<ModeOutput>, display: DisplayMap, mode: ModeId) {
-        self.streams.retain(|s| {
-            let packet = Packet {
-                output: output.clone(),
-                display,
-                mode,
-            };
-            match s.tx.try_send(packet) {
-                Ok(()) => true,
-                Err(TrySendError::Full(_)) => {
-                    s.dropped.fetch_add(1, Ordering::Relaxed);
-                    true
-                }
-                Err(TrySendError::Disconnected(_)) => false,
-            }
-        });
+    pub fn send(&mut self, frame: &Arc<OutFrame>) {
+        self.streams
+            .retain(|s| s.queue.offer(frame.clone()) != Offer::Gone);
     }
 }
 
@@ -216,13 +197,12 @@ impl FrameStreams {
 /// [`WRITE_POLL`].
 fn write_frames(
     target: &StreamTarget,
-    rx: &Receiver<Packet>,
+    rx: &Receiver<Arc<OutFrame>>,
     dropped: &AtomicU64,
     closed: &AtomicBool,
 ) -> Result<(), WriteError> {
-    let mut body = Vec::new();
     loop {
-        let p = match rx.recv_timeout(WRITE_POLL) {
+        let frame = match rx.recv_timeout(WRITE_POLL) {
             Ok(p) => p,
             Err(RecvTimeoutError::Disconnected) => return Ok(()),
             Err(RecvTimeoutError::Timeout) if closed.load(Ordering::Relaxed) => {
@@ -233,33 +213,24 @@ fn write_frames(
             }
             Err(RecvTimeoutError::Timeout) => continue,
         };
-        let out = &p.output;
+        let out = &frame.output;
         let img = &out.signed_dn;
         let header = FrameHeader {
             sequence: out.sequence,
             timestamp_us: out.timestamp_us,
             width: img.width as u32,
             height: img.height as u32,
-            max_abs_dn: match p.display.range {
+            max_abs_dn: match frame.display.range {
                 DisplayRange::SymmetricAuto => 0.0,
                 DisplayRange::Fixed { max_abs_dn } => max_abs_dn,
             },
             dropped: dropped.load(Ordering::Relaxed),
-            mode: p.mode.name().to_owned(),
-            colormap: p.display.colormap.name().to_owned(),
+            mode: frame.mode.name().to_owned(),
+            colormap: frame.display.colormap.name().to_owned(),
             has_channels: out.channels.is_some(),
         };
-        body.clear();
-        body.extend_from_slice(&header.encode()?);
-        put_f32s(&mut body, &img.data);
-        body.extend_from_slice(&out.flags.data);
-        if let Some(ch) = &out.channels {
-            put_f32s(&mut body, &ch.i_plus_electrons.data);
-            put_f32s(&mut body, &ch.i_minus_electrons.data);
-            put_f32s(&mut body, &ch.i_plus_se_electrons.data);
-            put_f32s(&mut body, &ch.i_minus_se_electrons.data);
-        }
-        write_all(target, &body, closed)?;
+        write_all(target, &header.encode()?, closed)?;
+        write_all(target, &frame.stream_body(), closed)?;
     }
 }
 
@@ -299,8 +270,18 @@ fn write_all(target: &StreamTarget, mut buf: &[u8], closed: &AtomicBool) -> Resu
 mod tests {
     use super::*;
     use sdi_api::frame_stream::{get_f32s, HEADER_BYTES};
+    use sdi_core::display::DisplayMap;
+    use sdi_core::mode::{ModeId, ModeOutput};
     use std::io::Read;
     use std::os::unix::net::UnixStream;
+
+    fn out_frame(out: ModeOutput) -> Arc<OutFrame> {
+        Arc::new(OutFrame::new(
+            out,
+            ModeId::DirectOnly,
+            DisplayMap::default(),
+        ))
+    }
 
     #[test]
     fn a_peer_holds_two_slots_and_its_leaving_ends_its_streams() {
@@ -324,9 +305,9 @@ mod tests {
             Err(StreamError::TooMany)
         ));
         // Frames fill the readers' buffers (nobody reads), then :1.1 leaves.
-        let out = Arc::new(ModeOutput::new(64, 64));
+        let out = out_frame(ModeOutput::new(64, 64));
         for _ in 0..64 {
-            streams.send(&out, DisplayMap::default(), ModeId::DirectOnly);
+            streams.send(&out);
         }
         streams.close_owner(":1.1");
         assert_eq!(streams.len(), 2);
@@ -393,8 +374,8 @@ mod tests {
         let mut out = ModeOutput::new(3, 2);
         out.signed_dn.data = vec![-1.0, 0.0, 1.0, 2.5, -7.0, 100.0];
         out.sequence = 9;
-        let out = Arc::new(out);
-        streams.send(&out, DisplayMap::default(), ModeId::DirectOnly);
+        let out = out_frame(out);
+        streams.send(&out);
         let mut head = [0u8; HEADER_BYTES];
         theirs.read_exact(&mut head).unwrap();
         let h = FrameHeader::decode(&head).unwrap();
@@ -403,12 +384,12 @@ mod tests {
         theirs.read_exact(&mut body).unwrap();
         let mut dn = [0f32; 6];
         get_f32s(&body, &mut dn);
-        assert_eq!(dn.to_vec(), out.signed_dn.data);
+        assert_eq!(dn.to_vec(), out.output.signed_dn.data);
         drop(theirs);
         // The thread sees the closed reader at its next write, then the
         // frame loop at its next send.
         for _ in 0..200 {
-            streams.send(&out, DisplayMap::default(), ModeId::DirectOnly);
+            streams.send(&out);
             if streams.is_empty() {
                 return;
             }

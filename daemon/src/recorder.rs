@@ -1,5 +1,5 @@
 //! sdid's recorder: a thread appending records ([`RecordingFile`]) behind a
-//! bounded queue. The frame loop never waits on the disk: frames that do
+//! [`Bounded`] queue. The frame loop never waits on the disk: frames that do
 //! not fit the queue are counted as dropped, and finishing (draining the
 //! queue, end record, fsync) happens on the recorder thread while the
 //! caller waits at most a given time. The recorder stops by itself, with an
@@ -10,7 +10,7 @@ use std::fs::File;
 use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::mpsc::{self, sync_channel, Receiver, SyncSender, TrySendError};
+use std::sync::mpsc::{self, Receiver};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -19,6 +19,8 @@ use sdi_recording::{Header, RecordingFile};
 use tokio::sync::oneshot;
 
 use sdi_config::RecordingSection;
+
+use crate::queue::{Bounded, Offer};
 
 /// Frames queued between the frame loop and the disk.
 pub const QUEUE_FRAMES: usize = 64;
@@ -35,7 +37,8 @@ enum Msg {
 #[derive(Debug, Default)]
 pub struct Counters {
     pub written: AtomicU64,
-    pub dropped: AtomicU64,
+    /// Shared with the queue, which counts what did not fit.
+    pub dropped: Arc<AtomicU64>,
     /// Bytes in the file (whole records).
     pub bytes: AtomicU64,
     /// Set when the recorder stopped by itself ([`StopCause`]).
@@ -90,7 +93,7 @@ pub enum FinishError {
 /// Handle to a recording in progress.
 pub struct RecordingWriter {
     path: PathBuf,
-    tx: Option<SyncSender<Msg>>,
+    queue: Bounded<Msg>,
     counters: Arc<Counters>,
     /// The thread's result once it has written the end record and synced.
     done: Receiver<io::Result<()>>,
@@ -119,7 +122,6 @@ impl RecordingWriter {
     }
 
     fn start(file: RecordingFile, label: &Path, limits: RecordingSection) -> io::Result<Self> {
-        let (tx, rx) = sync_channel(QUEUE_FRAMES);
         let (done_tx, done) = mpsc::channel();
         let (ended_tx, ended) = oneshot::channel();
         let counters = Arc::new(Counters::default());
@@ -128,15 +130,14 @@ impl RecordingWriter {
             .store(file.bytes_written(), Ordering::Relaxed);
         let queued = Arc::new(AtomicU64::new(0));
         let (c, q) = (counters.clone(), queued.clone());
-        std::thread::Builder::new()
-            .name("sdid-recorder".into())
-            .spawn(move || {
-                let r = run(file, rx, &c, &q, limits, ended_tx);
-                let _ = done_tx.send(r);
-            })?;
+        let dropped = counters.dropped.clone();
+        let queue = Bounded::spawn_counting("sdid-recorder", QUEUE_FRAMES, dropped, move |rx| {
+            let r = run(file, rx, &c, &q, limits, ended_tx);
+            let _ = done_tx.send(r);
+        })?;
         Ok(Self {
             path: label.to_owned(),
-            tx: Some(tx),
+            queue,
             counters,
             done,
             ended: Some(ended),
@@ -182,14 +183,17 @@ impl RecordingWriter {
         if self.ended() {
             return false;
         }
-        let Some(tx) = &self.tx else { return false };
-        match tx.try_send(msg) {
-            Ok(()) => {
-                self.queued.fetch_add(1, Ordering::Relaxed);
-                true
+        // Counted before the offer: the thread takes it off at once.
+        self.queued.fetch_add(1, Ordering::Relaxed);
+        match self.queue.offer(msg) {
+            Offer::Queued => true,
+            Offer::Dropped => {
+                self.queued.fetch_sub(1, Ordering::Relaxed);
+                false
             }
-            Err(TrySendError::Full(_)) | Err(TrySendError::Disconnected(_)) => {
-                self.counters.dropped.fetch_add(1, Ordering::Relaxed);
+            Offer::Gone => {
+                self.queued.fetch_sub(1, Ordering::Relaxed);
+                self.queue.count_drop();
                 false
             }
         }
@@ -207,7 +211,7 @@ impl RecordingWriter {
     /// to write what is queued and the end record and to sync. On time-out
     /// the thread goes on alone (the file is closed when it is done).
     pub fn finish_within(mut self, timeout: Duration) -> Result<Summary, FinishError> {
-        self.tx = None;
+        self.queue.close();
         match self.done.recv_timeout(timeout) {
             Ok(r) => r.map(|()| self.summary()).map_err(FinishError::Io),
             Err(mpsc::RecvTimeoutError::Timeout) => Err(FinishError::TimedOut {
@@ -219,13 +223,8 @@ impl RecordingWriter {
     }
 }
 
-/// Dropping a writer closes its queue; the thread finishes the file on its
-/// own (never on the dropping thread).
-impl Drop for RecordingWriter {
-    fn drop(&mut self) {
-        self.tx = None;
-    }
-}
+// Dropping a writer closes its queue ([`Bounded`]); the thread finishes
+// the file on its own (never on the dropping thread).
 
 /// Checks the limits for a record of `len` bytes about to be written.
 fn check_limits(

@@ -289,8 +289,7 @@ fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
         mode,
     )?;
     let reasons = chosen.reasons();
-    let mut output = Output::spawn_set(chosen.sinks).map_err(StartError::OutputThread)?;
-    output.set_mode(mode);
+    let output = Output::spawn_set(chosen.sinks).map_err(StartError::OutputThread)?;
     let mut sink_info = output.info().clone();
     let first_screen = first_screen(
         &backend.device(),

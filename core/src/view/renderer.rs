@@ -47,6 +47,16 @@ impl ViewRenderer {
         self.packer.format()
     }
 
+    /// The rendered frame's width, pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// The rendered frame's height, pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
     /// Bytes of one packed frame.
     pub fn frame_bytes(&self) -> usize {
         self.packer.frame_bytes()

@@ -59,7 +59,6 @@ impl FrameLoop {
                     self.mode = mode;
                     self.rebuild_pipeline();
                     self.backend.set_mode(mode);
-                    self.output.set_mode(mode);
                 }
                 self.await_first_frame(reply);
             }
@@ -115,9 +114,9 @@ impl FrameLoop {
                 let _ = reply.send(self.recorder.take());
             }
             Command::StreamFrames(target, owner, reply) => {
-                let _ = reply.send(self.streams.open(target, &owner));
+                let _ = reply.send(self.fanout.streams().open(target, &owner));
             }
-            Command::PeerLeft(owner) => self.streams.close_owner(&owner),
+            Command::PeerLeft(owner) => self.fanout.streams().close_owner(&owner),
             Command::CancelJob => {
                 if let Some(job) = self.job.take() {
                     job.end_with(&mut *self.backend, JobError::Cancelled);

@@ -18,9 +18,7 @@ impl FrameLoop {
     pub(super) fn lights_wanted(&mut self) -> bool {
         self.job.is_none()
             && lights_needed(
-                self.output
-                    .watchers()
-                    .map(|n| n.saturating_add(self.streams.len() as u32)),
+                self.fanout.watchers(),
                 self.recorder.is_some(),
                 !self.pending_snapshots.is_empty(),
             )

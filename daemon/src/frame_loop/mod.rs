@@ -1,7 +1,8 @@
 //! The frame loop: a dedicated thread that captures, processes and hands
 //! frames on. It never waits on D-Bus, logging or disk: commands arrive on a
 //! channel polled between frames, replies go out on one-shot channels, and
-//! outputs and recordings sit behind bounded non-blocking queues.
+//! outputs (through the [`Fanout`]) and recordings sit behind bounded
+//! non-blocking queues.
 //!
 //! Here the loop itself (capture, stamp, process, publish); by concern:
 //! `commands` (what callers ask), `marks` (setting changes answered with
@@ -17,7 +18,6 @@ mod snapshot;
 mod tests;
 
 use std::sync::mpsc::{Receiver, RecvTimeoutError, TryRecvError};
-use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use sdi_core::mode::ModeId;
@@ -28,9 +28,10 @@ use tokio::sync::watch;
 use crate::backend::pacer::Pacer;
 use crate::backend::{Backend, BackendError};
 use crate::cause_log::{repeats, CauseLog};
-use crate::frame_stream::FrameStreams;
+use crate::fanout::Fanout;
 use crate::job::Settling;
 use crate::monotonic::{monotonic_now_us, MonotonicClock};
+use crate::out_frame::OutFrame;
 use crate::publish_clock::PublishClock;
 use crate::recorder::RecordingWriter;
 use crate::sink::output::Output;
@@ -38,7 +39,7 @@ use crate::stats::{LoopStats, StatsWindow};
 use jobs::ActiveJob;
 use marks::PendingMark;
 use sdi_core::display::DisplayMap;
-use sdi_core::mode::{build_pipeline, ModeOutput, Pipeline, PipelineConfig};
+use sdi_core::mode::{build_pipeline, Pipeline, PipelineConfig};
 use sdi_recording::Calibration;
 
 pub use commands::{Command, Reply};
@@ -77,15 +78,14 @@ pub struct FrameLoop {
     pipeline: Box<dyn Pipeline>,
     mode: ModeId,
     display: DisplayMap,
-    output: Output,
-    /// Clients' frame streams (`StreamFrames`).
-    streams: FrameStreams,
+    /// The sinks, clients' frame streams (`StreamFrames`) and the latest
+    /// frame.
+    fanout: Fanout,
     recorder: Option<RecordingWriter>,
     dark: Option<(u32, Image<f32>)>,
     calibration: Calibration,
     /// Dark capture or calibration running instead of the pipeline.
     job: Option<ActiveJob>,
-    last: Option<Arc<ModeOutput>>,
     stats: StatsWindow,
     stats_tx: watch::Sender<LoopStats>,
     calibration_tx: watch::Sender<Calibration>,
@@ -135,13 +135,11 @@ impl FrameLoop {
             pipeline,
             mode,
             display,
-            output,
-            streams: FrameStreams::default(),
+            fanout: Fanout::new(output),
             recorder: None,
             dark: None,
             calibration: Calibration::default(),
             job: None,
-            last: None,
             stats: StatsWindow::new(),
             stats_tx,
             calibration_tx,
@@ -259,7 +257,7 @@ impl FrameLoop {
         // after it (it would carry a stamp older than the card's).
         self.pipeline.reset();
         let card_us = self.stamps.no_signal(monotonic_now_us());
-        self.output.send_no_signal(card_us);
+        self.fanout.no_signal(card_us);
         self.stats_tx.send_replace(self.stats.current.clone());
     }
 
@@ -306,11 +304,8 @@ impl FrameLoop {
             }
             self.answer_marks(u64::MAX);
         } else if let Some(out) = self.pipeline.process(frame) {
-            let out = Arc::new(out.clone());
-            self.output.send(out.clone(), self.display);
-            self.streams.send(&out, self.display, self.mode);
-            let published = out.sequence;
-            self.last = Some(out);
+            let out = OutFrame::new(out.clone(), self.mode, self.display);
+            let published = self.fanout.publish(out).output.sequence;
             self.answer_marks(published);
             if self.lights.is_settled() {
                 self.answer_pending_snapshots();
@@ -321,7 +316,7 @@ impl FrameLoop {
     /// Sends Stats with the drop counters of the output and the recorder.
     fn publish_stats(&mut self) {
         let mut s = self.stats.current.clone();
-        s.counters.dropped_view = self.output.dropped();
+        s.counters.dropped_view = self.fanout.dropped_view();
         s.counters.dropped_recording = self.recorder.as_ref().map_or(0, |r| {
             r.counters()
                 .dropped

@@ -3,26 +3,17 @@
 
 use std::sync::Arc;
 
-use sdi_core::display::DisplayMap;
-use sdi_core::mode::{ModeId, ModeOutput};
-
 use super::FrameLoop;
+use crate::out_frame::OutFrame;
 
-/// The latest processed frame, for snapshots.
-pub struct SnapshotData {
-    pub mode: ModeId,
-    pub output: Arc<ModeOutput>,
-    pub display: DisplayMap,
-}
+/// The latest processed frame, for snapshots: the mode and display it
+/// was made with travel with it.
+pub type SnapshotData = Arc<OutFrame>;
 
 impl FrameLoop {
-    /// The latest output, with the mode and display it was made for.
+    /// The latest output.
     pub(super) fn snapshot(&self) -> Option<SnapshotData> {
-        self.last.clone().map(|output| SnapshotData {
-            mode: self.mode,
-            output,
-            display: self.display,
-        })
+        self.fanout.latest().cloned()
     }
 
     /// Answers every snapshot waiting for lit frames with the latest output.

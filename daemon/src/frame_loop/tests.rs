@@ -5,10 +5,11 @@ use super::{Command, FrameLoop, FrameMark};
 use crate::backend::sim::SimBackend;
 use crate::backend::{Backend, BackendError, CaptureSettings};
 use crate::monotonic::monotonic_now_us;
+use crate::out_frame::OutFrame;
 use crate::sink::output::Output;
 use crate::sink::{Sink, SinkError, SinkInfo};
 use sdi_core::display::DisplayMap;
-use sdi_core::mode::{ModeId, ModeOutput};
+use sdi_core::mode::ModeId;
 use sdi_core::modulation::Illumination;
 use sdi_core::sensor::{SensorParams, SensorPreset};
 use sdi_core::Frame;
@@ -77,12 +78,12 @@ impl Sink for Seen {
             height: 0,
         }
     }
-    fn write(&mut self, out: &ModeOutput, _: &DisplayMap) -> Result<(), SinkError> {
+    fn write(&mut self, frame: &OutFrame) -> Result<(), SinkError> {
         let now_us = monotonic_now_us();
         self.0
             .lock()
             .unwrap()
-            .push((false, out.timestamp_us, now_us));
+            .push((false, frame.output.timestamp_us, now_us));
         Ok(())
     }
     fn write_no_signal(&mut self, timestamp_us: u64) -> Result<(), SinkError> {
@@ -215,4 +216,47 @@ fn no_signal_and_frames_share_one_clock_never_in_the_future() {
         let w = published(mode, fails.clone(), 12);
         assert_one_clock(&w);
     }
+}
+
+/// The mode travels with the frame: a snapshot taken right after a mode
+/// change, before the new mode's first output, is the old mode's frame
+/// and says so (it was labelled with the mode asked for at the time of
+/// the snapshot). Either order of the two calls is checked by the
+/// sequence numbers: frames before the change's mark are the old mode's.
+#[test]
+fn a_snapshot_carries_the_mode_of_its_frame() {
+    let backend = Scripted {
+        sim: sim(ModeId::Raw),
+        fails: Vec::new(),
+        attempt: 0,
+        first_capture: None,
+        silent: false,
+    };
+    let (tx, t, written) = spawn_loop(backend, ModeId::Raw);
+    let t0 = Instant::now();
+    while written.lock().unwrap().len() < 3 && t0.elapsed() < Duration::from_secs(60) {
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    for mode in [ModeId::DepthEdge, ModeId::Raw, ModeId::DepthEdge] {
+        let (reply, mark) = tokio::sync::oneshot::channel();
+        tx.send(Command::SetMode(mode, reply)).unwrap();
+        let (reply, snapshot) = tokio::sync::oneshot::channel();
+        tx.send(Command::Snapshot(reply)).unwrap();
+        let mark = mark.blocking_recv().expect("the mode change is answered");
+        let snap = snapshot
+            .blocking_recv()
+            .expect("answered")
+            .expect("a frame");
+        let before = snap.output.sequence < mark.sequence;
+        assert_eq!(
+            snap.mode == mode,
+            !before,
+            "snapshot of frame {} in {:?}; the change to {mode:?} took effect at frame {}",
+            snap.output.sequence,
+            snap.mode,
+            mark.sequence
+        );
+    }
+    tx.send(Command::Shutdown).unwrap();
+    t.join().unwrap();
 }

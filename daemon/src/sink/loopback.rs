@@ -6,8 +6,7 @@ use sdi_core::view::ViewRenderer;
 use v4l2loopback_glue::{find_device, LoopbackFormat, LoopbackWriter, PixelFormat};
 
 use super::{Sink, SinkError, SinkInfo, SinkKindName};
-use sdi_core::display::DisplayMap;
-use sdi_core::mode::ModeOutput;
+use crate::out_frame::OutFrame;
 
 pub struct LoopbackSink {
     view: LoopbackWriter,
@@ -64,14 +63,15 @@ impl Sink for LoopbackSink {
         }
     }
 
-    fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError> {
-        let view = self.view_frames.render(output, display)?;
-        self.view.write(view, output.timestamp_us)?;
+    fn write(&mut self, frame: &OutFrame) -> Result<(), SinkError> {
+        let stamp_us = frame.output.timestamp_us;
+        let view = frame.view(&mut self.view_frames)?;
+        self.view.write(&view, stamp_us)?;
         if let Some(d) = &mut self.data {
-            let (dc, img) = (d.config(), &output.signed_dn);
+            let (dc, img) = (d.config(), &frame.output.signed_dn);
             if dc.width as usize == img.width && dc.height as usize == img.height {
-                let data = self.data_frames.render_signed_dn(img)?;
-                d.write(data, output.timestamp_us)?;
+                let data = frame.signed_dn(&mut self.data_frames)?;
+                d.write(&data, stamp_us)?;
             }
         }
         Ok(())

@@ -1,6 +1,7 @@
 //! Where processed frames go: a v4l2loopback device, PipeWire nodes, or the
-//! y4m fallback. Each sink renders through [`sdi_core::view::ViewRenderer`]
-//! and only publishes the bytes.
+//! y4m fallback. Each sink takes its pictures from the [`OutFrame`] (each
+//! rendered once, through [`sdi_core::view::ViewRenderer`], whichever sink
+//! asks first) and only publishes the bytes.
 //! Each sink runs on its own thread ([`output`]) so a slow reader never
 //! stalls the frame loop or another sink.
 
@@ -12,8 +13,7 @@ pub mod select;
 pub mod system_feed;
 pub mod y4m;
 
-use sdi_core::display::DisplayMap;
-use sdi_core::mode::{ModeId, ModeOutput};
+use crate::out_frame::OutFrame;
 
 /// Which sink publishes; its name (strum's Display) is the one sdid shows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, strum::Display, strum::IntoStaticStr)]
@@ -69,9 +69,10 @@ pub struct SinkSet {
 /// A consumer of processed frames.
 pub trait Sink: Send {
     fn info(&self) -> SinkInfo;
-    /// Renders and publishes one processed frame, stamped
-    /// `output.timestamp_us` where the sink has timestamps.
-    fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError>;
+    /// Publishes one processed frame, stamped `frame.output.timestamp_us`
+    /// where the sink has timestamps; a sink that shows the mode (a node's
+    /// description) follows `frame.mode`.
+    fn write(&mut self, frame: &OutFrame) -> Result<(), SinkError>;
     /// Publishes a "no signal" frame (sensor paused or unplugged), stamped
     /// `timestamp_us` (CLOCK_MONOTONIC, chosen by the frame loop on the
     /// frames' clock: `crate::publish_clock`) where the sink has timestamps.
@@ -81,8 +82,6 @@ pub trait Sink: Send {
     fn watchers(&mut self) -> Option<u32> {
         None
     }
-    /// The mode of the frames that follow (e.g. for a node description).
-    fn set_mode(&mut self, _mode: ModeId) {}
 }
 
 #[cfg(test)]

@@ -2,42 +2,41 @@
 //! from its own two-slot queue and dropping (and counting) frames when its
 //! reader is slower than the sensor.
 
-use std::sync::atomic::{AtomicU32, AtomicU64, Ordering};
-use std::sync::mpsc::{sync_channel, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::Arc;
-use std::thread::JoinHandle;
 use std::time::Duration;
 
 use super::{Sink, SinkInfo, SinkSet};
 use crate::monotonic::monotonic_now_us;
-use sdi_core::display::DisplayMap;
-use sdi_core::mode::{ModeId, ModeOutput};
+use crate::out_frame::OutFrame;
+use crate::queue::Bounded;
 
 #[derive(Clone)]
 enum Msg {
-    Frame(Arc<ModeOutput>, DisplayMap, Option<ModeId>),
+    Frame(Arc<OutFrame>),
     /// The card, with the timestamp the frame loop chose for it.
     NoSignal(u64),
 }
+
+/// Frames queued per sink: one being written, one waiting.
+const QUEUE_FRAMES: usize = 2;
 
 /// One sink on its own thread behind its own queue, so a sink that stalls
 /// (a reader holding the loopback ring, a full camera socket) delays
 /// neither the frame loop nor the other sinks.
 struct Lane {
-    tx: Option<SyncSender<Msg>>,
-    dropped: Arc<AtomicU64>,
+    queue: Bounded<Msg>,
     watchers: Arc<AtomicU32>,
-    thread: Option<JoinHandle<()>>,
 }
 
 /// Sending side, held by the frame loop: every sink of the set gets every
-/// frame (the same `ModeOutput`), each at its own pace.
+/// frame (the same [`OutFrame`], its pictures rendered once), each at its
+/// own pace.
 pub struct Output {
     lanes: Vec<Lane>,
     info: SinkInfo,
     also: Vec<SinkInfo>,
-    /// Mode of the frames sent from now on ([`Output::set_mode`]).
-    mode: Option<ModeId>,
 }
 
 /// Trace target of one line per frame written: the mode and the time from
@@ -51,76 +50,52 @@ const WATCHERS_UNKNOWN: u32 = u32::MAX;
 const WATCHERS_POLL: Duration = Duration::from_millis(100);
 
 impl Lane {
-    fn spawn(mut sink: Box<dyn Sink>) -> std::io::Result<Self> {
-        let (tx, rx) = sync_channel::<Msg>(2);
+    fn spawn(sink: Box<dyn Sink>) -> std::io::Result<Self> {
         let watchers = Arc::new(AtomicU32::new(WATCHERS_UNKNOWN));
         let seen = watchers.clone();
         let name = format!("sdid-output-{}", sink.info().kind);
-        let thread = std::thread::Builder::new().name(name).spawn(move || {
-            let mut failing = false;
-            loop {
-                let msg = rx.recv_timeout(WATCHERS_POLL);
-                let count = sink.watchers().unwrap_or(WATCHERS_UNKNOWN);
-                seen.store(count, Ordering::Relaxed);
-                let msg = match msg {
-                    Ok(msg) => msg,
-                    Err(RecvTimeoutError::Timeout) => continue,
-                    Err(RecvTimeoutError::Disconnected) => break,
-                };
-                let r = match msg {
-                    Msg::Frame(out, display, mode) => {
-                        if let Some(m) = mode {
-                            sink.set_mode(m);
-                        }
-                        let r = sink.write(&out, &display);
-                        if r.is_ok() && tracing::enabled!(target: AGE_LOG, tracing::Level::TRACE) {
-                            let age_us = monotonic_now_us().saturating_sub(out.timestamp_us);
-                            tracing::trace!(
-                                target: AGE_LOG,
-                                mode = %mode.map_or("", ModeId::name),
-                                capture_to_write_us = age_us,
-                                "written"
-                            );
-                        }
-                        r
-                    }
-                    Msg::NoSignal(timestamp_us) => sink.write_no_signal(timestamp_us),
-                };
-                match r {
-                    Ok(()) => failing = false,
-                    Err(e) if !failing => {
-                        tracing::warn!("output sink: {e}");
-                        failing = true;
-                    }
-                    Err(_) => {}
-                }
-            }
-        })?;
-        Ok(Self {
-            tx: Some(tx),
-            dropped: Arc::new(AtomicU64::new(0)),
-            watchers,
-            thread: Some(thread),
-        })
-    }
-
-    fn try_send(&self, msg: Msg) {
-        if let Some(tx) = &self.tx {
-            if let Err(TrySendError::Full(_)) = tx.try_send(msg) {
-                self.dropped.fetch_add(1, Ordering::Relaxed);
-            }
-        }
+        let queue = Bounded::spawn(&name, QUEUE_FRAMES, move |rx| write_all(sink, &rx, &seen))?;
+        Ok(Self { queue, watchers })
     }
 }
 
-impl Drop for Lane {
-    fn drop(&mut self) {
-        self.tx = None;
-        // The thread may be blocked in a write to a stalled reader; do not wait forever.
-        if let Some(t) = self.thread.take() {
-            if t.is_finished() {
-                let _ = t.join();
+/// The output thread: writes what comes until the queue closes,
+/// refreshing the watcher count at least every [`WATCHERS_POLL`]; a
+/// failing sink is logged once per run of failures.
+fn write_all(mut sink: Box<dyn Sink>, rx: &Receiver<Msg>, seen: &AtomicU32) {
+    let mut failing = false;
+    loop {
+        let msg = rx.recv_timeout(WATCHERS_POLL);
+        let count = sink.watchers().unwrap_or(WATCHERS_UNKNOWN);
+        seen.store(count, Ordering::Relaxed);
+        let msg = match msg {
+            Ok(msg) => msg,
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => return,
+        };
+        let r = match msg {
+            Msg::Frame(frame) => {
+                let r = sink.write(&frame);
+                if r.is_ok() && tracing::enabled!(target: AGE_LOG, tracing::Level::TRACE) {
+                    let age_us = monotonic_now_us().saturating_sub(frame.output.timestamp_us);
+                    tracing::trace!(
+                        target: AGE_LOG,
+                        mode = %frame.mode.name(),
+                        capture_to_write_us = age_us,
+                        "written"
+                    );
+                }
+                r
             }
+            Msg::NoSignal(timestamp_us) => sink.write_no_signal(timestamp_us),
+        };
+        match r {
+            Ok(()) => failing = false,
+            Err(e) if !failing => {
+                tracing::warn!("output sink: {e}");
+                failing = true;
+            }
+            Err(_) => {}
         }
     }
 }
@@ -141,12 +116,7 @@ impl Output {
             .chain(set.also)
             .map(Lane::spawn)
             .collect::<std::io::Result<_>>()?;
-        Ok(Self {
-            lanes,
-            info,
-            also,
-            mode: None,
-        })
+        Ok(Self { lanes, info, also })
     }
 
     /// The primary sink's description (the D-Bus sink properties).
@@ -164,7 +134,7 @@ impl Output {
     pub fn dropped(&self) -> u64 {
         self.lanes
             .iter()
-            .map(|l| l.dropped.load(Ordering::Relaxed))
+            .map(|l| l.queue.dropped())
             .max()
             .unwrap_or(0)
     }
@@ -181,14 +151,9 @@ impl Output {
             })
     }
 
-    /// Tags the frames sent from now on with `mode`.
-    pub fn set_mode(&mut self, mode: ModeId) {
-        self.mode = Some(mode);
-    }
-
     /// Queues a frame for every sink; never blocks.
-    pub fn send(&self, out: Arc<ModeOutput>, display: DisplayMap) {
-        self.send_all(Msg::Frame(out, display, self.mode));
+    pub fn send(&self, frame: &Arc<OutFrame>) {
+        self.send_all(Msg::Frame(frame.clone()));
     }
 
     /// Queues the "no signal" card stamped `timestamp_us`; never blocks.
@@ -198,7 +163,7 @@ impl Output {
 
     fn send_all(&self, msg: Msg) {
         for l in &self.lanes {
-            l.try_send(msg.clone());
+            l.queue.offer(msg.clone());
         }
     }
 }
@@ -206,6 +171,7 @@ impl Output {
 #[cfg(test)]
 mod tests {
     use super::Output;
+    use crate::out_frame::OutFrame;
     use crate::sink::{Sink, SinkError, SinkInfo, SinkKindName, SinkSet};
     use sdi_core::display::DisplayMap;
     use sdi_core::mode::{ModeId, ModeOutput};
@@ -213,14 +179,13 @@ mod tests {
     use std::time::{Duration, Instant};
 
     /// (sequence, mode) of each frame a sink wrote.
-    type Seen = Arc<Mutex<Vec<(u64, Option<ModeId>)>>>;
+    type Seen = Arc<Mutex<Vec<(u64, ModeId)>>>;
 
     /// A sink that records the sequence numbers and modes it was given,
     /// and can be held up (a stalled reader).
     struct Recording {
         kind: SinkKindName,
         seen: Seen,
-        mode: Option<ModeId>,
         stall: Option<Arc<Mutex<()>>>,
         watchers: Option<u32>,
     }
@@ -235,11 +200,14 @@ mod tests {
                 height: 0,
             }
         }
-        fn write(&mut self, out: &ModeOutput, _: &DisplayMap) -> Result<(), SinkError> {
+        fn write(&mut self, frame: &OutFrame) -> Result<(), SinkError> {
             if let Some(s) = &self.stall {
                 drop(s.lock().unwrap());
             }
-            self.seen.lock().unwrap().push((out.sequence, self.mode));
+            self.seen
+                .lock()
+                .unwrap()
+                .push((frame.output.sequence, frame.mode));
             Ok(())
         }
         fn write_no_signal(&mut self, _: u64) -> Result<(), SinkError> {
@@ -247,9 +215,6 @@ mod tests {
         }
         fn watchers(&mut self) -> Option<u32> {
             self.watchers
-        }
-        fn set_mode(&mut self, mode: ModeId) {
-            self.mode = Some(mode);
         }
     }
 
@@ -262,20 +227,19 @@ mod tests {
         let s = Recording {
             kind,
             seen: seen.clone(),
-            mode: None,
             stall,
             watchers,
         };
         (Box::new(s), seen)
     }
 
-    fn frame(sequence: u64) -> Arc<ModeOutput> {
+    fn frame(sequence: u64, mode: ModeId) -> Arc<OutFrame> {
         let mut o = ModeOutput::new(4, 2);
         o.sequence = sequence;
-        Arc::new(o)
+        Arc::new(OutFrame::new(o, mode, DisplayMap::default()))
     }
 
-    fn wait_for(seen: &Seen, n: usize) -> Vec<(u64, Option<ModeId>)> {
+    fn wait_for(seen: &Seen, n: usize) -> Vec<(u64, ModeId)> {
         let t0 = Instant::now();
         while seen.lock().unwrap().len() < n && t0.elapsed() < Duration::from_secs(20) {
             std::thread::sleep(Duration::from_millis(2));
@@ -292,23 +256,22 @@ mod tests {
         let held = stall.lock().unwrap();
         let (loopback, _) = sink(SinkKindName::Loopback, Some(stall.clone()), Some(1));
         let (camera, camera_seen) = sink(SinkKindName::Pipewire, None, Some(2));
-        let mut out = Output::spawn_set(SinkSet {
+        let out = Output::spawn_set(SinkSet {
             primary: loopback,
             also: vec![camera],
         })
         .unwrap();
         assert_eq!(out.info().kind, SinkKindName::Loopback);
         assert_eq!(out.also().len(), 1);
-        out.set_mode(ModeId::DepthEdge);
         let t0 = Instant::now();
         for seq in 1..=20 {
-            out.send(frame(seq), DisplayMap::default());
+            out.send(&frame(seq, ModeId::DepthEdge));
             // Let the free sink take each frame before the next.
             let _ = wait_for(&camera_seen, seq as usize);
         }
         assert!(t0.elapsed() < Duration::from_secs(10), "the sender waited");
         let got = wait_for(&camera_seen, 20);
-        let want: Vec<_> = (1..=20).map(|s| (s, Some(ModeId::DepthEdge))).collect();
+        let want: Vec<_> = (1..=20).map(|s| (s, ModeId::DepthEdge)).collect();
         assert_eq!(got, want, "the free sink missed frames");
         assert!(out.dropped() >= 16, "dropped {}", out.dropped());
         drop(held);

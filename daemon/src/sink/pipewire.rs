@@ -18,13 +18,12 @@ use v4l2loopback_glue::LoopbackFormat;
 
 use super::pipewire_launch as launch;
 use super::{Sink, SinkError, SinkInfo, SinkKindName};
+use crate::out_frame::OutFrame;
 use sdi_camera_link::{self as link, Message, Port, Spec, State, Wire};
 pub use sdi_camera_link::{
     view_description, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, SYSTEM_FEED_FLAG,
     SYSTEM_FEED_NAME, VIEW_NODE,
 };
-use sdi_core::display::DisplayMap;
-use sdi_core::mode::ModeOutput;
 
 /// Between attempts to reach a camera process that went away.
 const RETRY: Duration = Duration::from_secs(2);
@@ -288,23 +287,29 @@ impl Sink for PipewireSink {
         }
     }
 
-    fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError> {
+    fn write(&mut self, frame: &OutFrame) -> Result<(), SinkError> {
+        if self.camera.spec.mode != frame.mode {
+            // The camera names its view node after the mode; a camera
+            // reached later is greeted with it.
+            self.camera.spec.mode = frame.mode;
+            let _ = self.camera.message(&Message::Mode(frame.mode));
+        }
         let state = self.camera.link()?.state();
-        let img = &output.signed_dn;
-        let stamp_us = output.timestamp_us;
+        let img = &frame.output.signed_dn;
+        let stamp_us = frame.output.timestamp_us;
         if let Some(wire) = state.view {
             let view = match wire {
                 Wire::Rgb => &mut self.rgb24,
                 _ => &mut self.yuyv,
             };
-            let bytes = view.render(output, display)?;
-            self.camera.send(Port::View, wire, stamp_us, bytes)?;
+            let bytes = frame.view(view)?;
+            self.camera.send(Port::View, wire, stamp_us, &bytes)?;
         }
         let spec = &self.camera.spec;
         let (dw, dh) = (spec.data_width as usize, spec.data_height as usize);
         if state.data == Some(Wire::Y16) && img.width == dw && img.height == dh {
-            let bytes = self.y16.render_signed_dn(img)?;
-            self.camera.send(Port::Data, Wire::Y16, stamp_us, bytes)?;
+            let bytes = frame.signed_dn(&mut self.y16)?;
+            self.camera.send(Port::Data, Wire::Y16, stamp_us, &bytes)?;
         }
         Ok(())
     }
@@ -317,12 +322,5 @@ impl Sink for PipewireSink {
     fn watchers(&mut self) -> Option<u32> {
         let s = self.camera.state();
         Some(u32::from(s.view.is_some()) + u32::from(s.data.is_some()))
-    }
-
-    fn set_mode(&mut self, mode: ModeId) {
-        if self.camera.spec.mode != mode {
-            self.camera.spec.mode = mode;
-            let _ = self.camera.message(&Message::Mode(mode));
-        }
     }
 }

@@ -20,12 +20,12 @@ use std::sync::{Arc, Mutex};
 use nix::sys::socket::{getsockopt, sockopt::PeerCredentials};
 
 use sdi_camera_link::{Spec, SYSTEM_FEED_NAME};
-use sdi_core::display::DisplayMap;
-use sdi_core::mode::{ModeId, ModeOutput};
+use sdi_core::mode::ModeId;
 
 use super::pipewire::{PipewireSink, VIEW_NODE};
 use super::pipewire_launch as launch;
 use super::{Sink, SinkError, SinkInfo, SinkKindName};
+use crate::out_frame::OutFrame;
 
 /// The feed socket could not be set up.
 #[derive(Debug, thiserror::Error)]
@@ -36,7 +36,8 @@ pub struct ListenError {
     pub source: std::io::Error,
 }
 
-/// The cameras of users' sessions, fed from one render each.
+/// The cameras of users' sessions, fed the same pictures (each rendered
+/// once per frame: [`OutFrame`]).
 pub struct SystemFeed {
     path: PathBuf,
     arrived: Receiver<PipewireSink>,
@@ -118,10 +119,8 @@ impl SystemFeed {
 
     /// Cameras connected since the last frame join the set.
     fn take_arrivals(&mut self) {
-        while let Ok(mut c) = self.arrived.try_recv() {
-            c.set_mode(self.spec.mode);
-            self.cameras.push(c);
-        }
+        // A camera greeted with an older mode follows the next frame's.
+        self.cameras.extend(self.arrived.try_iter());
     }
 
     /// Feeds every camera with `f`, dropping those whose link is gone.
@@ -169,8 +168,12 @@ impl Sink for SystemFeed {
         }
     }
 
-    fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError> {
-        self.each(|c| c.write(output, display));
+    fn write(&mut self, frame: &OutFrame) -> Result<(), SinkError> {
+        if self.spec.mode != frame.mode {
+            self.spec.mode = frame.mode;
+            *self.mode.lock().unwrap_or_else(|e| e.into_inner()) = frame.mode;
+        }
+        self.each(|c| c.write(frame));
         Ok(())
     }
 
@@ -183,14 +186,5 @@ impl Sink for SystemFeed {
     fn watchers(&mut self) -> Option<u32> {
         self.take_arrivals();
         Some(self.cameras.iter_mut().filter_map(|c| c.watchers()).sum())
-    }
-
-    fn set_mode(&mut self, mode: ModeId) {
-        self.spec.mode = mode;
-        *self.mode.lock().unwrap_or_else(|e| e.into_inner()) = mode;
-        self.each(|c| {
-            c.set_mode(mode);
-            Ok(())
-        });
     }
 }

@@ -20,8 +20,7 @@ use std::path::{Path, PathBuf};
 use sdi_core::view::{no_signal_stripes_rgb8, rgb8_to_yuv444_planes, PixelFormat, ViewRenderer};
 
 use super::{Sink, SinkError, SinkInfo, SinkKindName};
-use sdi_core::display::DisplayMap;
-use sdi_core::mode::ModeOutput;
+use crate::out_frame::OutFrame;
 
 enum Target {
     Stdout {
@@ -301,12 +300,13 @@ impl Sink for Y4mSink {
         }
     }
 
-    fn write(&mut self, output: &ModeOutput, display: &DisplayMap) -> Result<(), SinkError> {
-        if output.signed_dn.width != self.width || output.signed_dn.height != self.height {
+    fn write(&mut self, frame: &OutFrame) -> Result<(), SinkError> {
+        let img = &frame.output.signed_dn;
+        if img.width != self.width || img.height != self.height {
             return Ok(());
         }
-        let rgb = self.view.render(output, display)?;
-        Self::pack_frame(&mut self.out, rgb);
+        let rgb = frame.view(&mut self.view)?;
+        Self::pack_frame(&mut self.out, &rgb);
         self.send()
     }
 

@@ -9,7 +9,9 @@
 //! (the writing thread; for PipeWire plus the camera process it feeds,
 //! `sdi-pipewire-camera`, a child of this one) divided by the frames the sink
 //! published. The readers' CPU (reaped children) is printed
-//! beside it.
+//! beside it. Each write gets a fresh [`OutFrame`] (its pictures are
+//! rendered once per frame and kept): one copy of the 640x480 output per
+//! frame, the same for every sink, is counted with it.
 //!
 //! `cargo run --release -p sdi-tests --bin sink_bench -- [FRAMES] [RATE_HZ]`
 
@@ -20,8 +22,9 @@ use std::time::{Duration, Instant};
 
 use nix::sys::resource::{getrusage, UsageWho};
 use sdi_core::display::{Colormap, DisplayMap, DisplayRange};
-use sdi_core::mode::ModeOutput;
+use sdi_core::mode::{ModeId, ModeOutput};
 use sdi_core::view::{PixelFormat, ViewRenderer};
+use sdi_daemon::out_frame::OutFrame;
 use sdi_daemon::sink::loopback::LoopbackSink;
 use sdi_daemon::sink::pipewire::{PipewireSink, VIEW_NODE};
 use sdi_daemon::sink::y4m::Y4mSink;
@@ -120,12 +123,8 @@ impl Sink for RenderOnly {
         }
     }
 
-    fn write(
-        &mut self,
-        output: &ModeOutput,
-        display: &DisplayMap,
-    ) -> Result<(), sdi_daemon::sink::SinkError> {
-        self.view.render(output, display)?;
+    fn write(&mut self, frame: &OutFrame) -> Result<(), sdi_daemon::sink::SinkError> {
+        frame.view(&mut self.view)?;
         Ok(())
     }
 
@@ -166,7 +165,12 @@ fn drive(sink: &mut dyn Sink, frames: usize, rate_hz: f64) -> (f64, f64) {
     let period = Duration::from_secs_f64(1.0 / rate_hz);
     let (c0, t0) = (cpu_s(UsageWho::RUSAGE_SELF), Instant::now());
     for k in 0..frames {
-        if let Err(e) = sink.write(&outputs[k % outputs.len()], &display) {
+        let frame = OutFrame::new(
+            outputs[k % outputs.len()].clone(),
+            ModeId::DepthEdge,
+            display,
+        );
+        if let Err(e) = sink.write(&frame) {
             eprintln!("sink_bench: write: {e}");
         }
         let next = t0 + period * (k as u32 + 1);
@@ -290,7 +294,7 @@ fn bench_loopback(frames: usize, rate_hz: f64) -> Option<Run> {
     };
     let mut first = ModeOutput::new(WIDTH, HEIGHT);
     fill(&mut first, 0);
-    let _ = sink.write(&first, &display);
+    let _ = sink.write(&OutFrame::new(first, ModeId::DepthEdge, display));
     let reader = Reaped(
         Command::new("gst-launch-1.0")
             .arg("-q")
