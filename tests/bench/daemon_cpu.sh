@@ -20,8 +20,12 @@ cd "$(dirname "$0")/../.."
 
 sink=${SDI_BENCH_SINK:-y4m}
 # Inside the VM the target directory is read-only: the wrapper builds first.
-[ -n "${SDI_BENCH_PREBUILT:-}" ] ||
-    cargo build -q --release -p sdi-daemon -p sdi-cli -p sdi-tests --bin loopback_tool
+if [ -z "${SDI_BENCH_PREBUILT:-}" ]; then
+    # Two builds: `--bin` selects from every `-p` package, so one build
+    # with all three made loopback_tool alone, and no sdid.
+    cargo build -q --release -p sdi-daemon -p sdi-cli
+    cargo build -q --release -p sdi-tests --bin loopback_tool
+fi
 . tests/bench/replay_common.sh
 peer_dev=/dev/video52
 

@@ -12,7 +12,10 @@ set -eEuo pipefail
 trap 'rc=$?; echo "daemon_cpu_vm.sh: failed at line $LINENO (exit $rc): $BASH_COMMAND" >&2; exit $rc' ERR
 window_s=${1:-10}
 cd "$(dirname "$0")/../.."
-cargo build -q --release -p sdi-daemon -p sdi-cli -p sdi-tests --bin loopback_tool
+# Two builds: `--bin` selects from every `-p` package, so one build
+# with all three made loopback_tool alone, and no sdid.
+cargo build -q --release -p sdi-daemon -p sdi-cli
+cargo build -q --release -p sdi-tests --bin loopback_tool
 # One VM at a time, as the VM tests do.
 exec flock "${TMPDIR:-/tmp}/sdi-vm.lock" tests/vm/vmrun -t 1800 -m 2048 -- bash -c "
   modprobe v4l2loopback devices=3 video_nr=50,51,52 \

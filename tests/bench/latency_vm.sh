@@ -24,7 +24,10 @@ host=${SDI_LATENCY_HOST:-}
 if [ -n "$host" ]; then
     cargo build -q --release -p sdi-daemon -p sdi-cli
 elif [ -z "${SDI_LATENCY_IN_VM:-}" ]; then
-    cargo build -q --release -p sdi-daemon -p sdi-cli -p sdi-tests --bin loopback_tool
+    # Two builds: `--bin` selects from every `-p` package, so one build
+    # with all three made loopback_tool alone, and no sdid.
+    cargo build -q --release -p sdi-daemon -p sdi-cli
+    cargo build -q --release -p sdi-tests --bin loopback_tool
     # One VM at a time, as the VM tests do.
     exec flock "${TMPDIR:-/tmp}/sdi-vm.lock" tests/vm/vmrun -t 1800 -m 2048 -- bash -c "
       modprobe v4l2loopback devices=2 video_nr=50,51 \
