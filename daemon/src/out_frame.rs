@@ -118,9 +118,9 @@ impl OutFrame {
             .clone()
     }
 
-    /// How many distinct pictures have been rendered of this frame (for
-    /// the tests and the benchmarks).
-    pub fn pictures(&self) -> usize {
+    /// How many distinct pictures have been rendered of this frame.
+    #[cfg(test)]
+    fn pictures(&self) -> usize {
         self.renders
             .lock()
             .unwrap_or_else(PoisonError::into_inner)

@@ -54,7 +54,7 @@ impl Lane {
         let watchers = Arc::new(AtomicU32::new(WATCHERS_UNKNOWN));
         let seen = watchers.clone();
         let name = format!("sdid-output-{}", sink.info().kind);
-        let queue = Bounded::spawn(&name, QUEUE_FRAMES, move |rx| write_all(sink, &rx, &seen))?;
+        let queue = Bounded::spawn(&name, QUEUE_FRAMES, move |rx| feed(sink, &rx, &seen))?;
         Ok(Self { queue, watchers })
     }
 }
@@ -62,7 +62,7 @@ impl Lane {
 /// The output thread: writes what comes until the queue closes,
 /// refreshing the watcher count at least every [`WATCHERS_POLL`]; a
 /// failing sink is logged once per run of failures.
-fn write_all(mut sink: Box<dyn Sink>, rx: &Receiver<Msg>, seen: &AtomicU32) {
+fn feed(mut sink: Box<dyn Sink>, rx: &Receiver<Msg>, seen: &AtomicU32) {
     let mut failing = false;
     loop {
         let msg = rx.recv_timeout(WATCHERS_POLL);
