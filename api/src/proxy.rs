@@ -148,6 +148,9 @@ camera1! {
         fn setup(&self) -> HashMap<String, String>;
         /// The backend delivering frames: "sim", "replay", "opt8241".
         fn backend(&self) -> String;
+        /// The camera's name among several: the board's USB serial, `sim-N`
+        /// for the simulator.
+        fn serial(&self) -> String;
         /// The simulator's scene; "" when the frames come from elsewhere.
         fn scene(&self) -> String;
         /// "sensor -> output".

@@ -10,6 +10,7 @@ use sdi_core::mode::ModeId;
 use sdi_core::scene::SceneId;
 use serde::{Deserialize, Serialize};
 
+use crate::camera::CameraSections;
 use crate::choice::{BackendKind, LightDriver, OnUnplug, SeparationMethod, SinkKind};
 use crate::sensor_spec::SensorSpec;
 
@@ -28,8 +29,10 @@ pub struct Config {
     pub exposure_us: Option<f64>,
     pub frame_rate_hz: Option<f64>,
     pub modulation_hz: Option<f64>,
-    /// Simulator seed.
+    /// Simulator seed (camera N of several uses seed + N).
     pub seed: u64,
+    /// How many cameras the simulator shows (serials `sim-0` ...).
+    pub cameras: u32,
     /// The simulator's scene for every mode (`None`: each mode's own).
     pub scene: Option<SceneId>,
     pub display: DisplaySection,
@@ -39,6 +42,8 @@ pub struct Config {
     pub board: BoardSection,
     pub lights: LightsSection,
     pub recording: RecordingSection,
+    /// Settings of one camera, by serial.
+    pub camera: CameraSections,
 }
 
 impl Default for Config {
@@ -51,6 +56,7 @@ impl Default for Config {
             frame_rate_hz: None,
             modulation_hz: None,
             seed: 1,
+            cameras: 1,
             scene: None,
             display: DisplaySection::default(),
             output: OutputSection::default(),
@@ -59,6 +65,7 @@ impl Default for Config {
             board: BoardSection::default(),
             lights: LightsSection::default(),
             recording: RecordingSection::default(),
+            camera: CameraSections::new(),
         }
     }
 }

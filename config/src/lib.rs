@@ -6,6 +6,7 @@
 //! the same types ([`cli`]).
 #![forbid(unsafe_code)]
 
+pub mod camera;
 pub mod choice;
 pub mod cli;
 mod file;
@@ -14,6 +15,7 @@ mod validate;
 
 use std::path::{Path, PathBuf};
 
+pub use camera::{sim_serial, CameraSection, CameraSections, MAX_CAMERAS};
 pub use choice::{BackendKind, LightDriver, OnUnplug, SeparationMethod, SinkKind, UnknownName};
 pub use file::{
     BoardSection, Config, DisplaySection, LightsSection, OutputSection, RecordingSection,

@@ -343,3 +343,48 @@ fn out_of_range_values_are_printed_as_written() {
     let e = check("-1e300").unwrap_err();
     assert!(e.starts_with("exposure_us = -1e300 us"), "{e}");
 }
+
+#[test]
+fn camera_sections_lay_over_the_file_for_their_camera_alone() {
+    let text = "backend = \"sim\"\ncameras = 2\nmode = \"raw\"\nframe_rate_hz = 30\n\
+                [camera.\"sim-1\"]\nmode = \"depth-edge\"\nexposure_us = 1000\ncolormap = \"grey\"\n";
+    let (c, _) = validated(text).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(c.sim_serials(), ["sim-0", "sim-1"]);
+    let first = c.for_camera("sim-0");
+    assert_eq!((first.mode, first.exposure_us), (ModeId::Raw, None));
+    let second = c.for_camera("sim-1");
+    assert_eq!(second.mode, ModeId::DepthEdge);
+    assert_eq!(second.exposure_us, Some(1000.0));
+    assert_eq!(second.frame_rate_hz, Some(30.0));
+    assert_eq!(second.display.colormap, Colormap::Grey);
+    assert!(second.camera.is_empty());
+}
+
+#[test]
+fn camera_sections_and_counts_are_checked() {
+    // A section's own value, against the file's frame rate.
+    let e = validated("frame_rate_hz = 100\n[camera.\"sim-0\"]\nexposure_us = 20000\n")
+        .err()
+        .unwrap_or_else(|| panic!("accepted"));
+    assert_eq!(e.key, "camera");
+    assert!(e.reason.contains("[camera.\"sim-0\"] exposure_us"), "{e}");
+    assert!(toml::from_str::<Config>("[camera.x]\nnope = 1").is_err());
+    assert_eq!(invalid_key("backend = \"sim\"\ncameras = 0"), "cameras");
+    assert_eq!(invalid_key("backend = \"sim\"\ncameras = 9"), "cameras");
+    assert_eq!(invalid_key("cameras = 2"), "cameras");
+    assert_eq!(
+        invalid_key("backend = \"sim\"\ncameras = 2\n[output]\ny4m_path = \"-\""),
+        "output.y4m_path"
+    );
+    assert_eq!(
+        invalid_key("backend = \"sim\"\ncameras = 2\n[output]\nsink = \"pipewire\""),
+        "output.sink"
+    );
+    // An adjusted value in a section says which.
+    let (_, adjusted) = validated("[camera.\"sim-0\"]\nrange_max_abs_dn = 1e12\n")
+        .unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        adjusted.iter().any(|a| a.given.contains("sim-0")),
+        "{adjusted:?}"
+    );
+}

@@ -10,7 +10,8 @@ use sdi_core::sensor::capture_range::{self, CaptureRange};
 use sdi_core::sensor::ParamError;
 use sdi_core::separation::{BilateralParams, LiveMethod, SeparationError};
 
-use crate::choice::{BackendKind, LightDriver, SeparationMethod};
+use crate::camera::{in_section, MAX_CAMERAS};
+use crate::choice::{BackendKind, LightDriver, SeparationMethod, SinkKind};
 use crate::file::{Config, SeparationSection};
 
 /// The TCP port of SCPI instruments (IEC 61158 "SCPI-RAW"), added to an
@@ -106,6 +107,7 @@ impl Config {
                 ));
             }
         }
+        self.check_cameras()?;
         if self.backend == BackendKind::Replay && self.replay.path.is_none() {
             return Err(invalid(
                 "replay.path",
@@ -216,6 +218,56 @@ impl Config {
                 }
             }
         }
+        for serial in self.camera.keys() {
+            let mut own = self.for_camera(serial);
+            let own_adjusted = own.validate().map_err(|e| in_section(serial, e))?;
+            for a in own_adjusted {
+                section_adjustment(&mut adjusted, serial, a);
+            }
+        }
         Ok(adjusted)
     }
+
+    /// `cameras`: the simulator's, within [1, MAX_CAMERAS], each with its
+    /// own output (stdout carries one stream).
+    fn check_cameras(&self) -> Result<(), Invalid> {
+        if self.cameras == 0 || self.cameras > MAX_CAMERAS {
+            return Err(invalid(
+                "cameras",
+                format!("{} is not within [1, {MAX_CAMERAS}]", self.cameras),
+            ));
+        }
+        if self.cameras == 1 {
+            return Ok(());
+        }
+        if self.backend != BackendKind::Sim {
+            return Err(invalid(
+                "cameras",
+                "several cameras come from the simulator (backend = \"sim\"); boards are one camera each",
+            ));
+        }
+        if self.output.y4m_path == "-" {
+            return Err(invalid(
+                "output.y4m_path",
+                "stdout carries one camera's stream; with several cameras leave it out (one FIFO per camera)",
+            ));
+        }
+        if self.output.sink == SinkKind::Pipewire {
+            return Err(invalid(
+                "output.sink",
+                "the PipeWire camera carries one camera today; with several use loopback or y4m",
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// A camera section's adjustment, named by its section.
+fn section_adjustment(adjusted: &mut Vec<Adjustment>, serial: &str, a: Adjustment) {
+    adjusted.push(Adjustment {
+        key: "camera",
+        given: format!("[camera.{serial:?}] {} = {}", a.key, a.given),
+        used: a.used,
+        why: a.why,
+    });
 }

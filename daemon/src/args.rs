@@ -37,6 +37,10 @@ pub struct Args {
     /// Mode at start.
     #[arg(long, value_parser = cli::choice::<ModeId>())]
     mode: Option<ModeId>,
+    /// Simulated cameras, each its own D-Bus object and outputs (serials
+    /// sim-0, sim-1, ...; with --backend sim) [default: 1].
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=sdi_config::MAX_CAMERAS as i64))]
+    cameras: Option<u32>,
     /// Simulator sensor: preset (ti, pmd) or a sensor description file (TOML).
     #[arg(long)]
     sensor: Option<SensorSpec>,
@@ -106,6 +110,9 @@ impl Args {
         }
         if let Some(m) = self.mode {
             c.mode = m;
+        }
+        if let Some(n) = self.cameras {
+            c.cameras = n;
         }
         if let Some(s) = &self.sensor {
             c.sensor = s.clone();

@@ -9,6 +9,7 @@ pub mod args;
 pub mod backend;
 pub mod bus;
 pub mod calibration_store;
+pub mod camera_plan;
 pub mod cause_log;
 pub mod dark_capture;
 pub mod dbus;

@@ -1,5 +1,7 @@
-//! Start-up as a library function: opens the backend and the sink from a
-//! validated configuration, starts the frame loop, serves the D-Bus API and
+//! Start-up as a library function: opens each camera's backend and sinks
+//! from a validated configuration ([`camera_plan`]), starts its frame loop,
+//! serves it on the D-Bus API (`/org/sdi/CameraN`, listed by the object
+//! manager at `/org/sdi`) and
 //! shuts down in order on SIGTERM/SIGINT/SIGHUP (or when the board is unplugged
 //! with `on_unplug = "exit"`). `sdid`'s `main` only parses the command line
 //! ([`crate::args`]), installs logging and calls [`run`].
@@ -23,8 +25,9 @@ use crate::backend::select::{self as backend_select, OpenError};
 use crate::backend::{Backend, BackendName, CaptureSettings};
 use crate::bus::{self, BusChoice, ConnectError, PrivateBus};
 use crate::calibration_store;
+use crate::camera_plan::{self, CameraPlan};
 use crate::dbus::camera::{Camera, CameraInfo};
-use crate::dbus::{BUS_NAME, OBJECT_PATH};
+use crate::dbus::{camera_path, BUS_NAME, CAMERAS_PATH};
 use crate::frame_loop::{Command, FrameLoop};
 use crate::recorder::RecordingWriter;
 use crate::sink::output::Output;
@@ -136,6 +139,7 @@ fn first_screen(
     sink: &SinkInfo,
     also: &[SinkInfo],
     reasons: Option<&str>,
+    camera: Option<&str>,
 ) -> String {
     let published = match sink.kind {
         SinkKindName::Y4m => "a y4m stream",
@@ -159,9 +163,10 @@ fn first_screen(
             sink_select::how_to_watch(a.kind, &a.device)
         ));
     }
-    lines.push(
-        "  control: sdictl set-mode depth-edge   (sdictl modes: every mode; sdictl status)".into(),
-    );
+    let named = camera.map(|s| format!("--camera {s} ")).unwrap_or_default();
+    lines.push(format!(
+        "  control: sdictl {named}set-mode depth-edge   (sdictl modes: every mode; sdictl status)"
+    ));
     lines.join("\n")
 }
 
@@ -219,24 +224,49 @@ pub async fn serve(
     // take its board. (The name itself is requested once the object is
     // served, so a client that sees it can call at once.)
     let (conn, private_bus) = connect_unowned(&options.bus).await?;
-    let opened = open_camera(&options)?;
-    let exit = opened.exit.clone();
-    let first_screen = opened.first_screen.clone();
-    let (camera, frames) = start_frame_loop(opened, &options.config)?;
-    serve_bus(&conn, camera).await?;
-    tracing::info!(name = BUS_NAME, path = OBJECT_PATH, "serving D-Bus API");
+    conn.object_server()
+        .at(CAMERAS_PATH, zbus::fdo::ObjectManager)
+        .await
+        .map_err(StartError::Serve)?;
+    let mut running = Vec::new();
+    let mut screens = Vec::new();
+    let mut exits = Vec::new();
+    for (index, plan) in camera_plan::plans(&options.config).into_iter().enumerate() {
+        let opened = open_camera(&options, plan)?;
+        exits.extend(opened.exit.clone());
+        screens.push(opened.first_screen.clone());
+        let config = opened.config.clone();
+        let (camera, frames) = start_frame_loop(opened, &config)?;
+        let path = camera_path(index);
+        conn.object_server()
+            .at(path.as_str(), camera)
+            .await
+            .map_err(StartError::Serve)?;
+        tracing::info!(name = BUS_NAME, path, "serving D-Bus API");
+        running.push(Running { path, frames });
+    }
+    request_name(&conn).await?;
     // Shown where info is (the default; the tests run sdid at warn).
     if tracing::enabled!(tracing::Level::INFO) {
-        eprintln!("{first_screen}");
+        eprintln!("{}", screens.join("\n"));
     }
-    let stats_task = tokio::spawn(emit_stats(conn.clone()));
-    let why = wait_for_stop(stop, exit).await;
+    let stats_tasks: Vec<_> = running
+        .iter()
+        .map(|r| tokio::spawn(emit_stats(conn.clone(), r.path.clone())))
+        .collect();
+    let why = wait_for_stop(stop, exits).await;
     tracing::info!("{why}: shutting down");
-    stats_task.abort();
-    shut_down(&conn, frames).await?;
+    stats_tasks.iter().for_each(|t| t.abort());
+    shut_down(&conn, running).await?;
     drop(conn);
     drop(private_bus);
     Ok(())
+}
+
+/// A served camera: its object path and frame loop.
+struct Running {
+    path: String,
+    frames: FrameLoopHandle,
 }
 
 /// Connects to the bus and checks that no one owns sdid's name yet.
@@ -258,6 +288,8 @@ async fn connect_unowned(
 
 /// The backend and the output, opened, with what the bus serves about them.
 struct Opened {
+    /// The camera's own configuration (its section laid over the file's).
+    config: Config,
     backend: Box<dyn Backend>,
     /// Notified when the board is unplugged with `on_unplug = "exit"`.
     exit: Option<Arc<Notify>>,
@@ -269,10 +301,20 @@ struct Opened {
     first_screen: String,
 }
 
-/// Opens the backend and the sink the configuration asks for.
-fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
-    let config = &options.config;
+/// Opens the backend and the sink of one camera.
+fn open_camera(options: &StartOptions, plan: CameraPlan) -> Result<Opened, StartError> {
+    let config = &plan.config;
     let (backend, extras) = backend_select::open(config, config.mode)?;
+    let serial = plan
+        .serial
+        .or_else(|| backend.serial())
+        .unwrap_or_else(|| backend.kind().to_string());
+    // Several simulated cameras are one model: the serial keeps their
+    // calibrations apart.
+    let device = match options.config.cameras > 1 {
+        true => format!("{}, camera {serial}", backend.device()),
+        false => backend.device(),
+    };
     let mut mode = config.mode;
     if backend.kind() == BackendName::Replay && !options.mode_given {
         if let Some(m) = recorded_mode(config) {
@@ -292,11 +334,12 @@ fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
     let output = Output::spawn_set(chosen.sinks).map_err(StartError::OutputThread)?;
     let mut sink_info = output.info().clone();
     let first_screen = first_screen(
-        &backend.device(),
+        &device,
         mode,
         &sink_info,
         output.also(),
         reasons.as_deref(),
+        (options.config.cameras > 1).then_some(serial.as_str()),
     );
     for also in output.also() {
         sink_info.device = format!("{} + {}", sink_info.device, also.device);
@@ -305,8 +348,9 @@ fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
         sink_info.device = format!("{} [auto: {reasons}]", sink_info.device);
     }
     let info = CameraInfo {
+        serial,
         backend: backend.kind(),
-        device: backend.device(),
+        device,
         scene: config.scene,
         sink: sink_info,
         limits: backend.limits(),
@@ -317,6 +361,7 @@ fn open_camera(options: &StartOptions) -> Result<Opened, StartError> {
         lights: backend.lights().map(|l| l.rig),
     };
     Ok(Opened {
+        config: plan.config.clone(),
         backend,
         exit: extras.exit,
         mode,
@@ -421,14 +466,10 @@ fn stored_phase_axis(info: &CameraInfo) -> Option<PhaseAxis> {
         .ok()
 }
 
-/// Serves `camera` and then requests the name: a client that sees the
+/// Requests the name once every camera is served: a client that sees the
 /// name can call it at once.
-async fn serve_bus(conn: &zbus::Connection, camera: Camera) -> Result<(), StartError> {
+async fn request_name(conn: &zbus::Connection) -> Result<(), StartError> {
     use zbus::fdo::{RequestNameFlags, RequestNameReply};
-    conn.object_server()
-        .at(OBJECT_PATH, camera)
-        .await
-        .map_err(StartError::Serve)?;
     match conn
         .request_name_with_flags(BUS_NAME, RequestNameFlags::DoNotQueue.into())
         .await
@@ -445,10 +486,10 @@ async fn serve_bus(conn: &zbus::Connection, camera: Camera) -> Result<(), StartE
 /// Emits the Stats change signal about once a second while they change
 /// (the frame rate decays to 0 when frames stop, without a new frame to
 /// say so).
-async fn emit_stats(conn: zbus::Connection) {
+async fn emit_stats(conn: zbus::Connection, path: String) {
     let Ok(iface) = conn
         .object_server()
-        .interface::<_, Camera>(OBJECT_PATH)
+        .interface::<_, Camera>(path.as_str())
         .await
     else {
         return;
@@ -465,44 +506,58 @@ async fn emit_stats(conn: zbus::Connection) {
     }
 }
 
-/// Waits for `stop` or, with `on_unplug = "exit"`, the board's unplugging;
+/// Waits for `stop` or, with `on_unplug = "exit"`, a board's unplugging;
 /// the reason, for the log.
 async fn wait_for_stop(
     stop: impl std::future::Future<Output = &'static str>,
-    exit: Option<Arc<Notify>>,
+    exits: Vec<Arc<Notify>>,
 ) -> &'static str {
-    match exit {
-        Some(exit) => tokio::select! {
-            why = stop => why,
-            _ = exit.notified() => "board unplugged and [board] on_unplug = \"exit\"",
-        },
-        None => stop.await,
+    if exits.is_empty() {
+        return stop.await;
+    }
+    // Any board's: each one's notice wakes one waiter (a stored permit).
+    let any = Arc::new(Notify::new());
+    for exit in exits {
+        let any = any.clone();
+        tokio::spawn(async move {
+            exit.notified().await;
+            any.notify_one();
+        });
+    }
+    tokio::select! {
+        why = stop => why,
+        _ = any.notified() => "board unplugged and [board] on_unplug = \"exit\"",
     }
 }
 
-/// Releases the name, stops the frame loop and finishes a running
-/// recording, each within its timeout.
-async fn shut_down(conn: &zbus::Connection, frames: FrameLoopHandle) -> Result<(), StartError> {
-    let recording = recording_label(conn).await;
+/// Releases the name, then stops each camera's frame loop and finishes
+/// its running recording, each within its timeout.
+async fn shut_down(conn: &zbus::Connection, running: Vec<Running>) -> Result<(), StartError> {
+    let mut recordings = Vec::new();
+    for r in &running {
+        recordings.push(recording_label(conn, &r.path).await);
+    }
     if tokio::time::timeout(NAME_RELEASE_TIMEOUT, conn.release_name(BUS_NAME))
         .await
         .is_err()
     {
         tracing::warn!("releasing {BUS_NAME} took over {NAME_RELEASE_TIMEOUT:?}; going on");
     }
-    if let Some(recorder) = stop_frame_loop(frames, &recording).await? {
-        finish_recording(recorder).await;
+    // Every loop is told first, so the cameras stop together.
+    for r in &running {
+        let _ = r.frames.commands.send(Command::Shutdown);
+    }
+    for (r, recording) in running.into_iter().zip(recordings) {
+        if let Some(recorder) = stop_frame_loop(r.frames, &recording).await? {
+            finish_recording(recorder).await;
+        }
     }
     Ok(())
 }
 
 /// The file being recorded to, "" when none.
-async fn recording_label(conn: &zbus::Connection) -> String {
-    match conn
-        .object_server()
-        .interface::<_, Camera>(OBJECT_PATH)
-        .await
-    {
+async fn recording_label(conn: &zbus::Connection, path: &str) -> String {
+    match conn.object_server().interface::<_, Camera>(path).await {
         Ok(iface) => iface
             .get()
             .await

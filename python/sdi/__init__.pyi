@@ -32,6 +32,7 @@ __all__ = [
     "Separation",
     "StreamError",
     "Timeout",
+    "cameras",
     "modes",
     "read_recording",
     "scenes",
@@ -110,13 +111,20 @@ class FrameStream:
 class Camera:
     """sdid's camera on the system bus (default) or the session bus."""
 
-    def __new__(cls, bus: Literal["system", "session"] = "system", address: Optional[str] = None) -> Camera: ...
+    def __new__(
+        cls,
+        bus: Literal["system", "session"] = "system",
+        address: Optional[str] = None,
+        serial: Optional[str] = None,
+    ) -> Camera: ...
     mode: str
     exposure_us: float
     frame_rate: float
     modulation_hz: float
     colormap: str
     range: float
+    @property
+    def serial(self) -> str: ...
     @property
     def modes(self) -> list[str]: ...
     @property
@@ -200,6 +208,7 @@ class Separation:
 
 _Method = Literal["m1", "m1-pooled", "m2", "m3", "ml"]
 
+def cameras(bus: Literal["system", "session"] = "system", address: Optional[str] = None) -> list[str]: ...
 def read_recording(path: Union[str, PathLike[str]]) -> Recording: ...
 def modes() -> list[str]: ...
 def scenes() -> list[str]: ...

@@ -9,6 +9,7 @@ use std::time::{Duration, Instant};
 
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use sdi_api::cameras::{self as served, ChooseError};
 use sdi_api::{Camera1Proxy, Change, Properties, Setting};
 use zbus::proxy::CacheProperties;
 use zbus::zvariant::Fd;
@@ -152,6 +153,57 @@ fn as_dict<'py, T: serde::Serialize + zbus::zvariant::Type>(
     py.import("json")?.call_method1("loads", (json,))
 }
 
+/// Why a camera could not be opened.
+enum Opening {
+    Bus(zbus::Error),
+    Choose(ChooseError),
+}
+
+impl From<zbus::Error> for Opening {
+    fn from(e: zbus::Error) -> Self {
+        Opening::Bus(e)
+    }
+}
+
+fn runtime() -> PyResult<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(1)
+        .enable_all()
+        .build()
+        .map_err(|e| PyRuntimeError::new_err(e.to_string()))
+}
+
+/// The bus at `address`, else the system bus, within [`CONNECT_TIMEOUT`].
+async fn connect(address: Option<&str>) -> zbus::Result<zbus::Connection> {
+    let builder = match address {
+        Some(a) => zbus::connection::Builder::address(a)?,
+        None => zbus::connection::Builder::system()?,
+    };
+    tokio::time::timeout(CONNECT_TIMEOUT, builder.build())
+        .await
+        .map_err(|_| zbus::Error::Failure("timed out connecting to the bus".into()))?
+}
+
+/// The serials of the cameras sdid serves, in the order it opened them
+/// (`bus` and `address` as for `Camera`).
+#[pyfunction]
+#[pyo3(signature = (bus = "system", address = None))]
+pub fn cameras(py: Python<'_>, bus: &str, address: Option<String>) -> PyResult<Vec<String>> {
+    let address = bus_address(bus, address)?;
+    let rt = runtime()?;
+    let listed = py.detach(|| {
+        rt.block_on(async {
+            let conn = connect(address.as_deref()).await?;
+            served::list(&conn).await
+        })
+    });
+    Ok(listed
+        .map_err(errors::bus)?
+        .into_iter()
+        .map(|c| c.serial)
+        .collect())
+}
+
 fn bus_address(bus: &str, address: Option<String>) -> PyResult<Option<String>> {
     if address.is_some() {
         return Ok(address);
@@ -173,40 +225,46 @@ fn bus_address(bus: &str, address: Option<String>) -> PyResult<Option<String>> {
 impl Camera {
     /// Connects to sdid: `bus` is "system" (default) or "session" (the
     /// session bus, else the private bus `sdid --session` started);
-    /// `address` (a D-Bus address) overrides both.
+    /// `address` (a D-Bus address) overrides both. `serial` names the
+    /// camera among several (`sdi.cameras()`); the only one by default.
     #[new]
-    #[pyo3(signature = (bus = "system", address = None))]
-    fn new(py: Python<'_>, bus: &str, address: Option<String>) -> PyResult<Self> {
+    #[pyo3(signature = (bus = "system", address = None, serial = None))]
+    fn new(
+        py: Python<'_>,
+        bus: &str,
+        address: Option<String>,
+        serial: Option<String>,
+    ) -> PyResult<Self> {
         let address = bus_address(bus, address)?;
         // One worker: the connection's reader runs between calls too.
-        let rt = tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(1)
-            .enable_all()
-            .build()
-            .map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        let rt = runtime()?;
         let proxy = py.detach(|| {
             rt.block_on(async {
-                let builder = match &address {
-                    Some(a) => zbus::connection::Builder::address(a.as_str())?,
-                    None => zbus::connection::Builder::system()?,
-                };
-                let conn = tokio::time::timeout(CONNECT_TIMEOUT, builder.build())
-                    .await
-                    .map_err(|_| {
-                        zbus::Error::Failure("timed out connecting to the bus".into())
-                    })??;
+                let conn = connect(address.as_deref()).await?;
+                let listed = served::list(&conn).await?;
+                let path = served::choose(&listed, serial.as_deref())
+                    .map_err(Opening::Choose)?
+                    .path
+                    .clone();
                 // No cache: a property read right after a change sees it.
-                Camera1Proxy::builder(&conn)
-                    .cache_properties(CacheProperties::No)
-                    .build()
-                    .await
+                Ok(served::proxy(&conn, path, CacheProperties::No).await?)
             })
         });
-        let proxy = proxy.map_err(errors::bus)?;
+        let proxy = proxy.map_err(|e| match e {
+            Opening::Bus(e) => errors::bus(e),
+            Opening::Choose(e @ ChooseError::NoCamera) => BusError::new_err(e.to_string()),
+            Opening::Choose(e) => PyValueError::new_err(e.to_string()),
+        })?;
         let camera = Self { rt, proxy };
         // Fails here, not at the first use, when sdid is not on the bus.
         camera.property(py, |p| async move { p.mode().await })?;
         Ok(camera)
+    }
+
+    /// The camera's serial: the board's USB serial, `sim-N` for the simulator.
+    #[getter]
+    fn serial(&self, py: Python<'_>) -> PyResult<String> {
+        self.property(py, |p| async move { p.serial().await })
     }
 
     /// The current mode's name; setting it switches the mode.

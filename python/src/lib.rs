@@ -25,6 +25,7 @@ fn _sdi(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<recording::RecordedFrame>()?;
     m.add_class::<recording::RecordingFrames>()?;
     m.add_class::<separate::Separation>()?;
+    m.add_function(wrap_pyfunction!(camera::cameras, m)?)?;
     m.add_function(wrap_pyfunction!(recording::read_recording, m)?)?;
     m.add_function(wrap_pyfunction!(simulate::simulate, m)?)?;
     m.add_function(wrap_pyfunction!(separate::separate, m)?)?;

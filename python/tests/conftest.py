@@ -39,7 +39,7 @@ def sdictl():
 class Daemon:
     """sdid --session --backend sim on a private bus, stopped at the end."""
 
-    def __init__(self, tmp, extra=()):
+    def __init__(self, tmp, extra=(), ready_serial=None, y4m="-"):
         if shutil.which("dbus-daemon") is None:
             missing("dbus-daemon is not installed (apt-get install dbus)")
         sdid = program("sdid")
@@ -55,7 +55,7 @@ class Daemon:
         state = tmp / "state"
         state.mkdir(exist_ok=True)
         self.sdid = subprocess.Popen(
-            [sdid, "--session", "--backend", "sim", "--sink", "y4m", "--y4m-path", "-",
+            [sdid, "--session", "--backend", "sim", "--sink", "y4m", "--y4m-path", y4m,
              "--frame-rate-hz", "30", "--exposure-us", "2000", "--state-dir", str(state),
              *extra],
             stdout=subprocess.DEVNULL,
@@ -64,7 +64,7 @@ class Daemon:
         deadline = time.monotonic() + 30
         while True:
             try:
-                sdi.Camera(address=self.address)
+                sdi.Camera(address=self.address, serial=ready_serial)
                 break
             except sdi.BusError:
                 if time.monotonic() > deadline or self.sdid.poll() is not None:

@@ -156,3 +156,26 @@ def test_a_recording_reads_back(camera, daemon, sdictl, tmp_path):
     np.testing.assert_array_equal(frames[3].dn, stack[3])
     np.testing.assert_array_equal(rec.read(2, 5), stack[2:5])
     assert all(f.mode == "depth-edge" for f in frames)
+
+
+def test_several_cameras_are_chosen_by_serial(tmp_path, sdictl):
+    """`sdid --cameras 2`: sdi.cameras() lists both; Camera(serial=...)
+    opens one; without a serial, a ValueError that names them."""
+    from conftest import Daemon
+
+    d = Daemon(tmp_path, extra=("--cameras", "2"), ready_serial="sim-1",
+               y4m=str(tmp_path / "view.y4m"))
+    try:
+        assert sdi.cameras(address=d.address) == ["sim-0", "sim-1"]
+        with pytest.raises(ValueError, match="sim-0, sim-1"):
+            sdi.Camera(address=d.address)
+        with pytest.raises(ValueError, match="sim-7"):
+            sdi.Camera(address=d.address, serial="sim-7")
+        second = sdi.Camera(address=d.address, serial="sim-1")
+        assert second.serial == "sim-1"
+        second.mode = "depth-edge"
+        assert sdi.Camera(address=d.address, serial="sim-0").mode == "raw"
+        assert second.mode == "depth-edge"
+        assert second.frame().mode == "depth-edge"
+    finally:
+        d.stop()

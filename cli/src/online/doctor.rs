@@ -143,8 +143,8 @@ fn output(program: &str, args: &[&str], limit: Duration) -> Option<String> {
     status.filter(|s| s.success()).map(|_| text)
 }
 
-/// Which bus the daemon answered on (first that does), and its properties.
-async fn daemon(bus: &BusArgs) -> (Check, Option<sdi_api::Properties>) {
+/// Which bus the daemon answered on (first that does), and a line per camera.
+async fn daemon(bus: &BusArgs) -> Vec<Check> {
     let mut tries: Vec<(String, BusArgs)> = Vec::new();
     if let Some(a) = &bus.bus_address {
         tries.push((format!("the bus at {a}"), bus.clone()));
@@ -168,31 +168,55 @@ async fn daemon(bus: &BusArgs) -> (Check, Option<sdi_api::Properties>) {
     }
     let mut errors = Vec::new();
     for (name, args) in tries {
-        let props = async {
-            let cam = super::connect(&args).await?;
-            Ok::<_, crate::exit::CliError>(sdi_api::Properties::read(&cam).await?)
+        let listed = async {
+            let conn = super::connect_bus(&args).await?;
+            Ok::<_, crate::exit::CliError>(sdi_api::cameras::list(&conn).await?)
         };
-        match tokio::time::timeout(Duration::from_secs(10), props).await {
-            Ok(Ok(p)) => {
-                let (device, backend) = (&p.device, &p.backend);
-                return (
-                    Check::new(
-                        "daemon",
-                        Status::Ok,
-                        format!("sdid answers on {name}: backend {backend}, {device}"),
-                    ),
-                    Some(p),
-                );
-            }
+        match tokio::time::timeout(Duration::from_secs(10), listed).await {
+            Ok(Ok(cameras)) => return camera_checks(&name, &cameras, bus.camera.as_deref()),
             Ok(Err(e)) => errors.push(format!("{name}: {e}")),
             Err(_) => errors.push(format!("{name}: no answer in 10 s")),
         }
     }
-    (
+    vec![
         Check::new("daemon", Status::Fail, format!("sdid is not reachable ({})", errors.join("; ")))
             .fix("sudo systemctl enable --now sdid (see `journalctl -u sdid` if it does not stay up); for a per-user daemon: sdid --session, then sdictl --session ..."),
-        None,
-    )
+    ]
+}
+
+/// One line per camera sdid serves on `bus_name` (only `wanted`, if named).
+fn camera_checks(
+    bus_name: &str,
+    cameras: &[sdi_api::cameras::Listed],
+    wanted: Option<&str>,
+) -> Vec<Check> {
+    let chosen: Vec<_> = match wanted {
+        Some(w) => match sdi_api::cameras::choose(cameras, Some(w)) {
+            Ok(c) => vec![c],
+            Err(e) => return vec![Check::new("daemon", Status::Fail, e.to_string())],
+        },
+        None => cameras.iter().collect(),
+    };
+    if chosen.is_empty() {
+        return vec![Check::new(
+            "daemon",
+            Status::Fail,
+            format!("sdid answers on {bus_name} but serves no camera"),
+        )];
+    }
+    chosen
+        .into_iter()
+        .map(|c| {
+            Check::new(
+                "daemon",
+                Status::Ok,
+                format!(
+                    "sdid answers on {bus_name}: camera {}, backend {}, {}",
+                    c.serial, c.backend, c.device
+                ),
+            )
+        })
+        .collect()
 }
 
 /// Runs every check; exit status 0 only when none fails.
@@ -254,10 +278,14 @@ pub fn run(bus: &BusArgs, sysroot: &Path) -> ExitCode {
         .enable_all()
         .build()
     {
-        Ok(rt) => rt.block_on(daemon(bus)).0,
-        Err(e) => Check::new("daemon", Status::Fail, format!("no async runtime: {e}")),
+        Ok(rt) => rt.block_on(daemon(bus)),
+        Err(e) => vec![Check::new(
+            "daemon",
+            Status::Fail,
+            format!("no async runtime: {e}"),
+        )],
     };
-    checks.push(daemon);
+    checks.extend(daemon);
     checks.push(board_verdict(&boards(&sys)));
     checks.push(pipewire::camera());
     checks.extend(pipewire::checks(&labels));

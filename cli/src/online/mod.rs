@@ -1,6 +1,7 @@
 //! Online subcommands: talk to `sdid` over D-Bus (`org.sdi.Camera1`)
 //! through the typed proxy of `sdi_api`, one module per group of commands.
 
+mod cameras;
 mod doctor;
 mod export;
 mod files;
@@ -33,11 +34,16 @@ pub struct BusArgs {
     /// Machine-readable JSON on stdout.
     #[arg(long, global = true)]
     pub json: bool,
+    /// The camera to control, by serial (`sdictl list`) [default: the only one].
+    #[arg(long, global = true, value_name = "SERIAL")]
+    pub camera: Option<String>,
 }
 
 /// Subcommands that control a running daemon.
 #[derive(Debug, Subcommand)]
 pub enum OnlineCommand {
+    /// List the cameras sdid serves: serial, backend, mode, device and nodes.
+    List,
     /// Show mode, setup, device, settings and statistics.
     Status,
     /// List the modes.
@@ -149,6 +155,9 @@ pub fn run(cmd: OnlineCommand, bus: BusArgs) -> ExitCode {
 /// One call per subcommand that talks to sdid.
 async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), CliError> {
     let json = bus.json;
+    if let OnlineCommand::List = cmd {
+        return cameras::run(&connect_bus(bus).await?, json).await;
+    }
     let cam = connect(bus).await?;
     match cmd {
         OnlineCommand::Status => status::run(&cam, json).await,
@@ -184,8 +193,8 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), CliError> {
             });
             crate::view::run(cam, connect, args).await
         }
-        // Handled by `run` before a bus is needed.
-        OnlineCommand::Export { .. } | OnlineCommand::Doctor { .. } => Ok(()),
+        // Handled by `run` before a bus is needed, or above.
+        OnlineCommand::Export { .. } | OnlineCommand::Doctor { .. } | OnlineCommand::List => Ok(()),
     }
 }
 
@@ -202,7 +211,14 @@ fn bus_address(bus: &BusArgs) -> Option<String> {
 /// Longest sdictl waits for the bus to accept the connection.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
 
+/// The camera `--camera` names (or the only one), on the bus of `bus`.
 async fn connect(bus: &BusArgs) -> Result<Camera1Proxy<'static>, CliError> {
+    let conn = connect_bus(bus).await?;
+    cameras::chosen(&conn, bus.camera.as_deref()).await
+}
+
+/// The bus `bus` names.
+pub(crate) async fn connect_bus(bus: &BusArgs) -> Result<zbus::Connection, CliError> {
     let builder = match bus_address(bus) {
         Some(a) => zbus::connection::Builder::address(a.as_str()),
         None if bus.session => {
@@ -213,9 +229,8 @@ async fn connect(bus: &BusArgs) -> Result<Camera1Proxy<'static>, CliError> {
         None => zbus::connection::Builder::system(),
     }
     .map_err(|e| CliError::Unreachable(e.to_string()))?;
-    let conn = tokio::time::timeout(CONNECT_TIMEOUT, builder.build())
+    tokio::time::timeout(CONNECT_TIMEOUT, builder.build())
         .await
         .map_err(|_| CliError::Unreachable("timed out connecting to the bus".into()))?
-        .map_err(CliError::Connect)?;
-    Ok(Camera1Proxy::new(&conn).await?)
+        .map_err(CliError::Connect)
 }

@@ -32,6 +32,7 @@ pub fn lines(p: &Properties) -> Vec<String> {
         source(p)
     )];
     let mut line = |label: &str, text: String| lines.push(format!("{label:>11}: {text}"));
+    line("camera", p.serial.clone());
     line("sensor", sensor.to_owned());
     line("setup", setup(p));
     line(
@@ -203,6 +204,7 @@ mod tests {
                 ("ls2".into(), "any source, out of phase".into()),
                 ("optics".into(), "none".into()),
             ]),
+            serial: "sim-0".into(),
             backend: "sim".into(),
             scene: "flat-field".into(),
             device: "simulator (sdi-sim) -> /dev/video10".into(),
@@ -235,6 +237,7 @@ mod tests {
         assert_eq!(
             text,
             "sdid: streaming, mode raw (simulator, scene flat-field)\n\
+             \x20    camera: sim-0\n\
              \x20    sensor: simulator (sdi-sim)\n\
              \x20     setup: LS1 any source, in phase; LS2 any source, out of phase; optics none\n\
              \x20   capture: exposure 1000 us, 60.0 fps, modulation 12 MHz\n\

@@ -76,6 +76,10 @@ pub trait Backend: Send {
     fn kind(&self) -> BackendName;
     /// Human-readable device (model, file or USB path).
     fn device(&self) -> String;
+    /// The source's own serial (the board's USB serial), when it has one.
+    fn serial(&self) -> Option<String> {
+        None
+    }
     fn sensor(&self) -> &SensorParams;
     fn limits(&self) -> Limits {
         Limits::DEFAULT

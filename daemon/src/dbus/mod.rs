@@ -9,4 +9,4 @@ pub mod job_slot;
 pub mod paths;
 pub mod peers;
 
-pub use sdi_api::{BUS_NAME, INTERFACE, OBJECT_PATH};
+pub use sdi_api::{camera_path, BUS_NAME, CAMERAS_PATH, INTERFACE, OBJECT_PATH};

@@ -96,6 +96,10 @@ impl Backend for LitBackend {
         self.inner.device()
     }
 
+    fn serial(&self) -> Option<String> {
+        self.inner.serial()
+    }
+
     fn sensor(&self) -> &SensorParams {
         self.inner.sensor()
     }

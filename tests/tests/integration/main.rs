@@ -7,6 +7,7 @@
 //! stay binaries of their own; the VM tests are one binary per guest
 //! (`vm_plain`, `vm_desktop`, `vm_systemd`). Map: tests/README.md.
 
+mod daemon_cameras;
 mod daemon_in_process;
 mod daemon_lifecycle;
 mod daemon_recording;

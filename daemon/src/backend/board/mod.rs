@@ -398,6 +398,10 @@ impl Backend for BoardBackend {
         self.status.get().device
     }
 
+    fn serial(&self) -> Option<String> {
+        self.board.serial().map(str::to_owned)
+    }
+
     fn sensor(&self) -> &SensorParams {
         &self.sensor
     }

@@ -9,6 +9,8 @@ use sdi_config::RecordingSection;
 /// Fixed facts about this camera, known at start.
 #[derive(Debug, Clone)]
 pub struct CameraInfo {
+    /// The camera's name among several: the board's USB serial, `sim-N`.
+    pub serial: String,
     pub backend: crate::backend::BackendName,
     pub device: String,
     /// The simulator's scene fixed by `[sim] scene`; None: each mode's own.

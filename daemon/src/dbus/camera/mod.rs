@@ -383,6 +383,13 @@ impl Camera {
         ])
     }
 
+    /// The camera's name among several: the board's USB serial, `sim-N`
+    /// for the simulator (`sdictl --camera SERIAL`).
+    #[zbus(property(emits_changed_signal = "const"))]
+    async fn serial(&self) -> String {
+        self.info.serial.clone()
+    }
+
     /// Backend delivering frames now (with the board: "sim" while the
     /// simulator stands in for an unplugged board).
     #[zbus(property(emits_changed_signal = "false"))]
