@@ -37,7 +37,6 @@ pub fn plans(c: &Config) -> Vec<CameraPlan> {
         .enumerate()
         .map(|(index, serial)| {
             let mut config = c.for_camera(&serial);
-            config.cameras = 1;
             config.seed = c.seed.wrapping_add(index as u64);
             name_outputs(&mut config, &serial);
             CameraPlan {
@@ -106,7 +105,8 @@ mod tests {
         assert_eq!(p[0].config.output.y4m_path, "/run/x/view-sim-0.y4m");
         assert_eq!(p[1].config.output.y4m_path, "/run/x/view-sim-1.y4m");
         assert_ne!(p[0].config.seed, p[1].config.seed);
-        assert!(p.iter().all(|p| p.config.cameras == 1));
+        // The sinks read the count: PipeWire carries one camera.
+        assert!(p.iter().all(|p| p.config.cameras == 2));
     }
 
     #[test]

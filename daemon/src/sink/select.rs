@@ -64,6 +64,13 @@ fn open_pipewire(
     Ok(Box::new(s))
 }
 
+/// Why the PipeWire camera cannot carry this camera, if it cannot: its
+/// nodes and the users' feed are one camera's (several cameras: loopback
+/// nodes or FIFOs named by serial).
+fn pipewire_refused(c: &Config) -> Option<&'static str> {
+    (c.cameras > 1).then_some("several cameras: the PipeWire camera carries one")
+}
+
 /// Opens the output sink.
 pub fn open(
     c: &Config,
@@ -82,9 +89,9 @@ pub fn open(
                     "v4l2loopback device labelled \"{}\" found",
                     c.output.label
                 ));
-                let also = match auto {
-                    true => beside_loopback(width, height, fps, mode, &mut passed),
-                    false => Vec::new(),
+                let also = match (auto, pipewire_refused(c)) {
+                    (true, None) => beside_loopback(width, height, fps, mode, &mut passed),
+                    _ => Vec::new(),
                 };
                 return Ok(Chosen {
                     sinks: SinkSet {
@@ -101,7 +108,9 @@ pub fn open(
             }
         }
     }
-    if auto && pipewire_launch::pipewire_socket().is_none() {
+    if let (true, Some(why)) = (auto, pipewire_refused(c)) {
+        passed.push(why.into());
+    } else if auto && pipewire_launch::pipewire_socket().is_none() {
         passed.push("no PipeWire running for this user".into());
     } else if auto || kind == SinkKind::Pipewire {
         match open_pipewire(width, height, fps, mode) {
@@ -124,8 +133,8 @@ pub fn open(
     }
     let path = (!c.output.y4m_path.is_empty()).then(|| PathBuf::from(&c.output.y4m_path));
     let sink = Y4mSink::new(path.as_deref(), width, height, fps).map_err(SinkError::Y4m)?;
-    let also = match (auto, system_feed::runtime_directory()) {
-        (true, Some(dir)) => feed_users(&dir, width, height, fps, mode, &mut passed),
+    let also = match (auto, pipewire_refused(c), system_feed::runtime_directory()) {
+        (true, None, Some(dir)) => feed_users(&dir, width, height, fps, mode, &mut passed),
         _ => Vec::new(),
     };
     Ok(Chosen {
@@ -214,5 +223,18 @@ pub fn how_to_watch(kind: SinkKindName, device: &str) -> String {
         SinkKindName::Loopback => {
             format!("ffplay {device} (or any V4L2 camera application: \"SDI camera\")")
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_pipewire_camera_carries_one_camera() {
+        let mut c = Config::default();
+        assert_eq!(pipewire_refused(&c), None);
+        c.cameras = 2;
+        assert!(pipewire_refused(&c).is_some());
     }
 }
