@@ -1,13 +1,13 @@
-//! The cameras one sdid serves and each one's configuration: the board or
-//! recording the configuration names, or the simulator's `cameras`
-//! (serials `sim-0`, `sim-1`, ...). Each camera's `[camera."SERIAL"]`
-//! section is laid over the file's settings; with several cameras each
-//! one's outputs carry its serial ("SDI camera sim-1",
-//! `sdid-view-sim-1.y4m`), so no two write into the same node.
+//! The cameras one sdid serves and each one's configuration: every board
+//! attached at start (unless `[board] serial` names one), the recording,
+//! or the simulator's `cameras` (serials `sim-0`, `sim-1`, ...). Each
+//! camera's `[camera."SERIAL"]` section is laid over the file's settings;
+//! with several cameras each one's outputs carry its serial ("SDI camera
+//! sim-1", `sdid-view-sim-1.y4m`), so no two write into the same node.
 
 use std::path::Path;
 
-use sdi_config::{BackendKind, Config};
+use sdi_config::{BackendKind, Config, MAX_CAMERAS};
 
 /// One camera to open.
 #[derive(Debug, Clone)]
@@ -18,8 +18,13 @@ pub struct CameraPlan {
     pub config: Config,
 }
 
-/// The cameras `c` asks for, in order (the first is `/org/sdi/Camera0`).
-pub fn plans(c: &Config) -> Vec<CameraPlan> {
+/// The cameras `c` asks for, in order (the first is `/org/sdi/Camera0`);
+/// `boards`: the serials of the boards attached, when `c` may serve
+/// every one (the board or auto backend, no `[board] serial`).
+pub fn plans(c: &Config, boards: &[String]) -> Vec<CameraPlan> {
+    if let Some(plans) = board_plans(c, boards) {
+        return plans;
+    }
     let serial = match c.backend {
         BackendKind::Sim => Some(sdi_config::sim_serial(0)),
         BackendKind::Opt8241 | BackendKind::Auto => c.board.serial.clone(),
@@ -45,6 +50,60 @@ pub fn plans(c: &Config) -> Vec<CameraPlan> {
             }
         })
         .collect()
+}
+
+/// One camera per attached board, when there are several: each board
+/// chosen by its serial (so a replugged board comes back to its camera),
+/// each with its section and outputs. A board whose serial cannot name a
+/// file is left out (a device chooses its own serial), as are boards past
+/// [`MAX_CAMERAS`].
+fn board_plans(c: &Config, boards: &[String]) -> Option<Vec<CameraPlan>> {
+    let may_serve_all =
+        matches!(c.backend, BackendKind::Opt8241 | BackendKind::Auto) && c.board.serial.is_none();
+    let (usable, refused): (Vec<&String>, Vec<&String>) =
+        boards.iter().partition(|s| names_a_file(s));
+    if !may_serve_all || usable.len() < 2 {
+        return None;
+    }
+    for s in refused {
+        tracing::warn!(
+            "a board with serial {s:?} is not served: its serial cannot name its outputs"
+        );
+    }
+    if usable.len() > MAX_CAMERAS as usize {
+        tracing::warn!(
+            "{} boards attached: serving the first {MAX_CAMERAS} by serial",
+            usable.len()
+        );
+    }
+    let count = usable.len().min(MAX_CAMERAS as usize);
+    Some(
+        usable
+            .into_iter()
+            .take(count)
+            .map(|serial| {
+                let mut config = c.for_camera(serial);
+                config.backend = BackendKind::Opt8241;
+                config.board.serial = Some(serial.clone());
+                config.cameras = count as u32;
+                name_outputs(&mut config, serial);
+                CameraPlan {
+                    serial: Some(serial.clone()),
+                    config,
+                }
+            })
+            .collect(),
+    )
+}
+
+/// A serial that can be part of a file name and a label: 1 to 64 of
+/// `[A-Za-z0-9._-]`, not starting with a dot.
+fn names_a_file(serial: &str) -> bool {
+    (1..=64).contains(&serial.len())
+        && !serial.starts_with('.')
+        && serial
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b"._-".contains(&b))
 }
 
 /// Each output of one of several cameras, named with its serial.
@@ -86,7 +145,7 @@ mod tests {
 
     #[test]
     fn one_camera_keeps_its_outputs() {
-        let p = plans(&sim(1));
+        let p = plans(&sim(1), &[]);
         assert_eq!(p.len(), 1);
         assert_eq!(p[0].serial.as_deref(), Some("sim-0"));
         assert_eq!(p[0].config.output, Config::default().output);
@@ -97,7 +156,7 @@ mod tests {
         let mut c = sim(2);
         c.output.y4m_path = "/run/x/view.y4m".into();
         c.output.data_label = "SDI data".into();
-        let p = plans(&c);
+        let p = plans(&c, &[]);
         let serials: Vec<_> = p.iter().filter_map(|p| p.serial.clone()).collect();
         assert_eq!(serials, ["sim-0", "sim-1"]);
         assert_eq!(p[1].config.output.label, "SDI camera sim-1");
@@ -123,7 +182,43 @@ mod tests {
                 ..Default::default()
             },
         );
-        let p = plans(&c);
+        let p = plans(&c, &[]);
         assert_eq!(p[0].config.mode, sdi_core::mode::ModeId::DepthEdge);
+    }
+
+    #[test]
+    fn every_attached_board_is_a_camera_of_its_serial() {
+        let boards = ["B2".to_string(), "A1".into(), "../../etc/x".into()];
+        let mut c = Config::default();
+        c.camera.insert(
+            "B2".into(),
+            sdi_config::CameraSection {
+                mode: Some(sdi_core::mode::ModeId::DepthEdge),
+                ..Default::default()
+            },
+        );
+        let p = plans(&c, &boards);
+        let serials: Vec<_> = p.iter().map(|p| p.config.board.serial.clone()).collect();
+        assert_eq!(serials, [Some("B2".into()), Some("A1".into())]);
+        assert!(p.iter().all(|p| p.config.backend == BackendKind::Opt8241));
+        assert_eq!(p[0].config.mode, sdi_core::mode::ModeId::DepthEdge);
+        assert_eq!(p[1].config.output.label, "SDI camera A1");
+        assert!(p.iter().all(|p| p.config.cameras == 2));
+        // One board, or a board named in [board]: one camera, as before.
+        assert_eq!(plans(&c, &boards[..1]).len(), 1);
+        c.board.serial = Some("A1".into());
+        assert_eq!(plans(&c, &boards).len(), 1);
+        // The simulator is not a board.
+        assert_eq!(plans(&sim(1), &boards).len(), 1);
+    }
+
+    #[test]
+    fn a_serial_names_a_file_only_when_plain() {
+        for ok in ["A1B2", "sim-0", "x_y.z"] {
+            assert!(names_a_file(ok), "{ok}");
+        }
+        for bad in ["", ".hidden", "a/b", "..", "a b", &"x".repeat(65)] {
+            assert!(!names_a_file(bad), "{bad}");
+        }
     }
 }

@@ -231,7 +231,11 @@ pub async fn serve(
     let mut running = Vec::new();
     let mut screens = Vec::new();
     let mut exits = Vec::new();
-    for (index, plan) in camera_plan::plans(&options.config).into_iter().enumerate() {
+    let boards = attached_boards(&options.config);
+    for (index, plan) in camera_plan::plans(&options.config, &boards)
+        .into_iter()
+        .enumerate()
+    {
         let opened = open_camera(&options, plan)?;
         exits.extend(opened.exit.clone());
         screens.push(opened.first_screen.clone());
@@ -261,6 +265,18 @@ pub async fn serve(
     drop(conn);
     drop(private_bus);
     Ok(())
+}
+
+/// The serials of the boards attached, when the configuration may serve
+/// every one (the board or auto backend, no `[board] serial`).
+fn attached_boards(c: &Config) -> Vec<String> {
+    use sdi_config::BackendKind;
+    if !matches!(c.backend, BackendKind::Opt8241 | BackendKind::Auto) || c.board.serial.is_some() {
+        return Vec::new();
+    }
+    crate::backend::board::attached_serials()
+        .map_err(|e| tracing::debug!("listing the boards: {e}"))
+        .unwrap_or_default()
 }
 
 /// A served camera: its object path and frame loop.
@@ -311,7 +327,10 @@ fn open_camera(options: &StartOptions, plan: CameraPlan) -> Result<Opened, Start
         .unwrap_or_else(|| backend.kind().to_string());
     // Several simulated cameras are one model: the serial keeps their
     // calibrations apart.
-    let device = match options.config.cameras > 1 {
+    // (A board's device names its serial already, and keys its
+    // calibrations as when it is alone.)
+    let several = config.cameras > 1;
+    let device = match several && backend.kind() == BackendName::Sim {
         true => format!("{}, camera {serial}", backend.device()),
         false => backend.device(),
     };
@@ -339,7 +358,7 @@ fn open_camera(options: &StartOptions, plan: CameraPlan) -> Result<Opened, Start
         &sink_info,
         output.also(),
         reasons.as_deref(),
-        (options.config.cameras > 1).then_some(serial.as_str()),
+        several.then_some(serial.as_str()),
     );
     for also in output.also() {
         sink_info.device = format!("{} + {}", sink_info.device, also.device);

@@ -209,9 +209,11 @@ fn run(cmd: &str, args: &[&str]) -> std::io::Result<()> {
     }
 }
 
-/// Loads the modules and mounts configfs (idempotent).
+/// Loads the modules and mounts configfs (idempotent). dummy_hcd with
+/// two controllers: two boards can be plugged at once.
 pub fn prepare_kernel() -> std::io::Result<()> {
-    for m in ["dummy_hcd", "libcomposite", "usb_f_fs"] {
+    run("modprobe", &["dummy_hcd", "num=2"])?;
+    for m in ["libcomposite", "usb_f_fs"] {
         run("modprobe", &[m])?;
     }
     if !Path::new(GADGET_ROOT).exists() {
@@ -220,13 +222,24 @@ pub fn prepare_kernel() -> std::io::Result<()> {
     Ok(())
 }
 
-/// The UDC of dummy_hcd.
+/// A UDC of dummy_hcd no gadget is bound to (the first, by name).
 pub fn udc_name() -> std::io::Result<String> {
-    fs::read_dir("/sys/class/udc")?
+    let bound: Vec<String> = fs::read_dir(GADGET_ROOT)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .filter_map(|g| fs::read_to_string(g.path().join("UDC")).ok())
+        .map(|u| u.trim().to_owned())
+        .filter(|u| !u.is_empty())
+        .collect();
+    let mut udcs: Vec<String> = fs::read_dir("/sys/class/udc")?
         .flatten()
         .map(|e| e.file_name().to_string_lossy().into_owned())
-        .next()
-        .ok_or_else(|| std::io::Error::other("no UDC (is dummy_hcd loaded?)"))
+        .collect();
+    udcs.sort();
+    udcs.into_iter()
+        .find(|u| !bound.contains(u))
+        .ok_or_else(|| std::io::Error::other("no free UDC (is dummy_hcd loaded?)"))
 }
 
 /// Creates configfs gadget `name` (0451:`product_id`, claiming `serial`)

@@ -19,6 +19,7 @@ mod loopback;
 mod path_races;
 mod pipewire;
 mod smoke;
+mod two_boards;
 mod v4l2loopback_config;
 
 use sdi_tests::vm::{self, Guest};
@@ -64,6 +65,10 @@ static GUEST: Guest = Guest::new(&[
     ),
     (
         "board_daemon::sdid_switches_a_uvc_mode_board_to_bulk_mode_and_streams",
+        600,
+    ),
+    (
+        "two_boards::two_boards_are_two_cameras_and_one_replugged_costs_the_other_nothing",
         600,
     ),
     ("daemon::vm_daemon_on_loopback_while_modes_switch", 600),

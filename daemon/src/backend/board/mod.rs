@@ -545,6 +545,13 @@ pub fn board_attached() -> Result<bool, rusb::Error> {
     Ok(super::opt8241::usb::board_present(&ctx))
 }
 
+/// The serials of the attached boards (sorted); `Err` says why libusb
+/// could not look.
+pub fn attached_serials() -> Result<Vec<String>, rusb::Error> {
+    let ctx = rusb::Context::new()?;
+    Ok(super::opt8241::usb::board_serials(&ctx))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

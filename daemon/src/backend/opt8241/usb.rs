@@ -143,6 +143,28 @@ fn serial_of(device: &Device<Context>) -> Option<String> {
     handle.read_serial_number_string_ascii(&desc).ok()
 }
 
+/// The serial of every attached board (either mode) that tells one,
+/// sorted, each once.
+pub fn board_serials(context: &Context) -> Vec<String> {
+    let Ok(list) = context.devices() else {
+        return Vec::new();
+    };
+    let mut serials: Vec<String> = list
+        .iter()
+        .filter(|d| {
+            d.device_descriptor().is_ok_and(|desc| {
+                desc.vendor_id() == ids::VENDOR_ID
+                    && (desc.product_id() == ids::PRODUCT_ID_BULK
+                        || desc.product_id() == ids::PRODUCT_ID_UVC)
+            })
+        })
+        .filter_map(|d| serial_of(&d))
+        .collect();
+    serials.sort();
+    serials.dedup();
+    serials
+}
+
 /// Is a board (any mode) attached? Cheap: descriptors only.
 pub fn board_present(context: &Context) -> bool {
     context.devices().is_ok_and(|list| {
