@@ -24,6 +24,18 @@ pub async fn chosen(
     Ok(cameras::proxy(conn, path, zbus::proxy::CacheProperties::Lazily).await?)
 }
 
+/// The proxy of the first camera sdid opened (the viewer's start when
+/// none is named: its page picks among several).
+pub async fn first(conn: &zbus::Connection) -> Result<Camera1Proxy<'static>, CliError> {
+    let listed = cameras::list(conn).await?;
+    let path = listed
+        .first()
+        .ok_or_else(|| CliError::Runtime(format!("{} (sdictl doctor)", ChooseError::NoCamera)))?
+        .path
+        .clone();
+    Ok(cameras::proxy(conn, path, zbus::proxy::CacheProperties::Lazily).await?)
+}
+
 /// `sdictl list`: one line per camera (serial, backend, mode, device and
 /// nodes).
 pub async fn run(conn: &zbus::Connection, json: bool) -> Result<(), CliError> {

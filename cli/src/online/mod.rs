@@ -15,6 +15,7 @@ pub(crate) mod wire_json;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
 use std::time::Duration;
 
 use clap::{Args, Subcommand};
@@ -158,7 +159,13 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), CliError> {
     if let OnlineCommand::List = cmd {
         return cameras::run(&connect_bus(bus).await?, json).await;
     }
-    let cam = connect(bus).await?;
+    let cam = match &cmd {
+        // The viewer starts on the first camera when none is named.
+        OnlineCommand::View(_) if bus.camera.is_none() => {
+            cameras::first(&connect_bus(bus).await?).await?
+        }
+        _ => connect(bus).await?,
+    };
     match cmd {
         OnlineCommand::Status => status::run(&cam, json).await,
         OnlineCommand::Modes => settings::modes(&cam, json).await,
@@ -186,12 +193,15 @@ async fn run_async(cmd: OnlineCommand, bus: &BusArgs) -> Result<(), CliError> {
         }
         OnlineCommand::Monitor { count } => monitor::run(&cam, count, json).await,
         OnlineCommand::View(args) => {
-            let bus = bus.clone();
+            // The page picks among several; it starts on the one named.
+            let chosen = Arc::new(std::sync::Mutex::new(Some(cam.serial().await?)));
+            let (bus, serial) = (bus.clone(), chosen.clone());
             let connect = Box::new(move || {
-                let bus = bus.clone();
+                let mut bus = bus.clone();
+                bus.camera = serial.lock().ok().and_then(|s| s.clone());
                 Box::pin(async move { connect(&bus).await }) as _
             });
-            crate::view::run(cam, connect, args).await
+            crate::view::run(cam, connect, chosen, args).await
         }
         // Handled by `run` before a bus is needed, or above.
         OnlineCommand::Export { .. } | OnlineCommand::Doctor { .. } | OnlineCommand::List => Ok(()),

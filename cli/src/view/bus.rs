@@ -49,6 +49,12 @@ impl<T: Clone> Link<T> {
         result
     }
 
+    /// Uses `next` from now on (the page chose another camera).
+    pub async fn replace(&self, next: T) {
+        let mut current = self.current.lock().await;
+        *current = (current.0 + 1, next);
+    }
+
     /// Replaces connection `generation` unless another call already did;
     /// if the bus cannot be reached now, the next loss tries again.
     async fn reconnect(&self, generation: u64) {

@@ -30,6 +30,12 @@ use crate::online::wire_json;
 /// What the handlers share.
 pub struct Controls {
     pub bus: Link<Camera1Proxy<'static>>,
+    /// The serial of the camera the page shows, for a new connection.
+    pub camera: Arc<std::sync::Mutex<Option<String>>>,
+    /// The frame stream of the camera the page chose, for the frame pump,
+    /// which answers once it reads from it (and shows no frame of the
+    /// camera before).
+    pub next_stream: tokio::sync::mpsc::Sender<super::frames::Switch>,
     /// Where snapshots and recordings go.
     pub out_dir: PathBuf,
     /// The recording this page started, for its growing size.
@@ -58,7 +64,7 @@ impl IntoResponse for PageError {
     }
 }
 
-type Reply = Result<Json<Json_>, PageError>;
+pub(super) type Reply = Result<Json<Json_>, PageError>;
 
 /// Every property (Stats with every key it has), each mode's physical setup
 /// (`ModeId::spec`, the table `sdictl status` reads through sdid), the
@@ -161,7 +167,7 @@ pub struct SetRequest {
 }
 
 /// `text` if it is a D-Bus string: UTF-8 (a `str` is) without NUL.
-fn bus_text<'a>(what: &str, text: &'a str) -> Result<&'a str, CliError> {
+pub(super) fn bus_text<'a>(what: &str, text: &'a str) -> Result<&'a str, CliError> {
     if text.contains('\0') {
         return Err(CliError::Usage(format!(
             "{what} contains a NUL character, which D-Bus strings cannot carry"

@@ -59,10 +59,13 @@ pub async fn open(camera: &Camera1Proxy<'_>) -> Result<UnixStream, CliError> {
     UnixStream::from_std(ours).map_err(|e| CliError::Runtime(e.to_string()))
 }
 
+/// Another camera's frame stream, and whom to tell once it is in use.
+pub type Switch = (UnixStream, tokio::sync::oneshot::Sender<()>);
+
 /// Reads frames until sdid closes the stream, publishing each.
 pub async fn pump(
     mut stream: UnixStream,
-    tx: watch::Sender<Option<Arc<LiveFrame>>>,
+    tx: &watch::Sender<Option<Arc<LiveFrame>>>,
 ) -> Result<(), FramesError> {
     let mut head = [0u8; HEADER_BYTES];
     let mut body = Vec::new();

@@ -9,6 +9,7 @@
 
 mod analysis;
 mod bus;
+mod cameras;
 mod connections;
 mod controls;
 mod frames;
@@ -48,15 +49,18 @@ pub struct ViewArgs {
 }
 
 /// Serves the page until sdid's frame stream ends or Ctrl-C; `connect`
-/// makes a new connection to sdid when the bus drops `camera`'s.
+/// makes a new connection to sdid when the bus drops `camera`'s, to the
+/// camera whose serial `chosen` holds (the page may choose another).
 pub async fn run(
     camera: Camera1Proxy<'static>,
     connect: bus::Connect<Camera1Proxy<'static>>,
+    chosen: Arc<std::sync::Mutex<Option<String>>>,
     args: ViewArgs,
 ) -> Result<(), CliError> {
     let limits = connections::Limits::from_env()?;
     let stream = frames::open(&camera).await?;
     let (tx, rx) = watch::channel(None);
+    let (next_stream, switches) = tokio::sync::mpsc::channel(1);
     let listener =
         tokio::net::TcpListener::bind(SocketAddr::from((Ipv4Addr::LOCALHOST, args.port)))
             .await
@@ -74,6 +78,8 @@ pub async fn run(
     let app = server::App {
         controls: Arc::new(Controls {
             bus: bus::Link::new(camera, connect),
+            camera: chosen,
+            next_stream,
             out_dir: args.out_dir,
             recording: Mutex::new(None),
         }),
@@ -89,8 +95,29 @@ pub async fn run(
     let serve = connections::serve(listener, server::router(app, guard, limits), limits);
     tokio::select! {
         r = serve => r.map_err(|e| CliError::Runtime(format!("serving the page: {e}"))),
-        r = frames::pump(stream, tx) => r.map_err(|e| CliError::Runtime(e.to_string())),
+        r = follow(stream, switches, &tx) => r,
         _ = tokio::signal::ctrl_c() => Ok(()),
+    }
+}
+
+/// Pumps the frames of the page's camera, and of the next one it chooses.
+async fn follow(
+    mut stream: tokio::net::UnixStream,
+    mut switches: tokio::sync::mpsc::Receiver<frames::Switch>,
+    tx: &watch::Sender<Option<Arc<frames::LiveFrame>>>,
+) -> Result<(), CliError> {
+    loop {
+        let (next, done) = tokio::select! {
+            r = frames::pump(stream, tx) => {
+                return r.map_err(|e| CliError::Runtime(e.to_string()));
+            }
+            Some(switch) = switches.recv() => switch,
+        };
+        // The old stream is dropped (sdid sees its reader go), and its
+        // last frame with it.
+        stream = next;
+        tx.send_replace(None);
+        let _ = done.send(());
     }
 }
 

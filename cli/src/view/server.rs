@@ -19,6 +19,7 @@ use serde_json::json;
 use tokio::sync::watch;
 
 use super::analysis::{Histogram, Probe, Region, HISTOGRAM_BINS};
+use super::cameras;
 use super::connections::{self, Limits};
 use super::controls::{self, Controls};
 use super::frames::LiveFrame;
@@ -42,6 +43,8 @@ pub fn router(app: App, guard: Guard, limits: Limits) -> Router {
         .route("/api/snapshot", post(controls::snapshot))
         .route("/api/record", post(controls::record))
         .route("/api/calibrate", post(controls::calibrate))
+        .route("/api/cameras", get(cameras::list))
+        .route("/api/camera", post(cameras::choose))
         .with_state(app.controls.clone());
     Router::new()
         .route("/", get(index))

@@ -3,7 +3,8 @@
 //! `[camera."SERIAL"]` section and y4m FIFO; `sdictl --camera` reaches
 //! one, and without it sdictl refuses to guess.
 
-use std::io::Read;
+use std::io::{Read, Write};
+use std::net::TcpStream;
 use std::path::Path;
 use std::time::Duration;
 
@@ -12,6 +13,8 @@ use sdi_tests::process::stdout_of;
 use sdi_tests::require_dbus;
 use sdi_tests::sdid_command::SdidCommand;
 use sdi_tests::wait::wait_until;
+
+use crate::view_page::View;
 
 /// sdid with two simulated cameras, its FIFOs and state in `dir`; sim-1's
 /// section changes its exposure.
@@ -143,4 +146,103 @@ fn two_simulated_cameras_are_two_cameras() {
     assert_ne!(raw, edge);
     let mean_abs = |v: &[f32]| v.iter().map(|x| x.abs() as f64).sum::<f64>() / v.len() as f64;
     assert!(mean_abs(&raw) > 0.0 && mean_abs(&edge) > 0.0);
+}
+
+/// The mode of the next frame the page's WebSocket carries (a minimal
+/// client: the upgrade, then one unmasked binary message from the server).
+fn next_page_frame_mode(v: &View) -> String {
+    let host = format!("127.0.0.1:{}", v.port);
+    let mut s = TcpStream::connect(&host).unwrap();
+    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
+    write!(
+        s,
+        "GET /ws?token={} HTTP/1.1\r\nHost: {host}\r\nOrigin: http://{host}\r\n\
+         Upgrade: websocket\r\nConnection: Upgrade\r\n\
+         Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n",
+        v.token
+    )
+    .unwrap();
+    let mut head = Vec::new();
+    let mut byte = [0u8; 1];
+    while !head.ends_with(b"\r\n\r\n") {
+        s.read_exact(&mut byte).unwrap();
+        head.push(byte[0]);
+    }
+    assert!(
+        head.starts_with(b"HTTP/1.1 101"),
+        "{}",
+        String::from_utf8_lossy(&head)
+    );
+    let mut b = [0u8; 2];
+    s.read_exact(&mut b).unwrap();
+    assert_eq!(b[0] & 0x0f, 2, "a binary message");
+    let len = match b[1] & 0x7f {
+        126 => {
+            let mut l = [0u8; 2];
+            s.read_exact(&mut l).unwrap();
+            u64::from(u16::from_be_bytes(l))
+        }
+        127 => {
+            let mut l = [0u8; 8];
+            s.read_exact(&mut l).unwrap();
+            u64::from_be_bytes(l)
+        }
+        n => u64::from(n),
+    };
+    let mut payload = vec![0u8; len as usize];
+    s.read_exact(&mut payload).unwrap();
+    let json_len = u32::from_le_bytes([payload[0], payload[1], payload[2], payload[3]]) as usize;
+    let meta: serde_json::Value = serde_json::from_slice(&payload[4..4 + json_len]).unwrap();
+    meta["mode"].as_str().unwrap().to_owned()
+}
+
+#[test]
+fn the_viewer_picks_a_camera_and_its_frames_follow() {
+    require_dbus!();
+    let bus = Bus::start();
+    let dir = tempfile::tempdir().unwrap();
+    let d = two_cameras(&bus, dir.path());
+    ctl_ok(&d, &["--camera", "sim-1", "set-mode", "depth-edge"]);
+    // Without --camera the viewer starts on the first camera.
+    let v = View::start(&d, dir.path());
+    let get_cameras = || {
+        v.response_to(&format!(
+            "GET /api/cameras?token={} HTTP/1.1\r\nHost: 127.0.0.1:{}\r\nConnection: close\r\n\r\n",
+            v.token, v.port
+        ))
+    };
+    let (code, body) = get_cameras();
+    assert_eq!(code, 200, "{body}");
+    let listed: serde_json::Value = serde_json::from_str(&body).unwrap();
+    assert_eq!(listed["current"], "sim-0", "{listed}");
+    assert_eq!(
+        listed["cameras"].as_array().map(Vec::len),
+        Some(2),
+        "{listed}"
+    );
+    assert_eq!(next_page_frame_mode(&v), "raw");
+
+    // A serial sdid does not serve is refused, and the page stays.
+    let (code, body) = v.post("camera", r#"{"serial":"sim-7"}"#);
+    assert_eq!(code, 400, "{body}");
+    assert!(body.contains("sim-7"), "{body}");
+
+    // The picker moves the page: its status, its controls, its frames.
+    let (code, body) = v.post("camera", r#"{"serial":"sim-1"}"#);
+    assert_eq!(code, 200, "{body}");
+    let (_, status) = v.status();
+    let status: serde_json::Value = serde_json::from_str(&status).unwrap();
+    assert_eq!(status["properties"]["Serial"], "sim-1", "{status}");
+    assert_eq!(next_page_frame_mode(&v), "depth-edge");
+    let (code, body) = v.post("set", r#"{"setting":"colormap","value":"grey"}"#);
+    assert_eq!(code, 200, "{body}");
+    let colormap = |s: &str| ctl_ok(&d, &["--camera", s, "get", "colormap"]);
+    assert_eq!(
+        (colormap("sim-0").as_str(), colormap("sim-1").as_str()),
+        ("diverging", "grey")
+    );
+    assert_eq!(
+        serde_json::from_str::<serde_json::Value>(&get_cameras().1).unwrap()["current"],
+        "sim-1"
+    );
 }

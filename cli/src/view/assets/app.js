@@ -261,6 +261,29 @@ $("calibrate").onclick = async () => {
   clearInterval(timer);
 };
 
+// ---- camera picker (several cameras: sdid --cameras N, several boards) ----
+async function listCameras() {
+  let r;
+  try { r = await api("cameras"); } catch (e) { return; }
+  const sel = $("camera");
+  sel.hidden = r.cameras.length < 2;
+  sel.textContent = "";
+  for (const c of r.cameras) {
+    const o = document.createElement("option");
+    o.value = c.serial;
+    o.textContent = `${c.serial} (${c.backend}, ${c.mode})`;
+    sel.appendChild(o);
+  }
+  sel.value = r.current;
+  state.camera = r.current;
+}
+$("camera").onchange = async (ev) => {
+  try { await api("camera", { serial: ev.target.value }); } catch (e) { showError("mode_error", e); }
+  await listCameras();
+  await refresh();
+};
+
 connect();
+listCameras();
 refresh();
 setInterval(refresh, 1000);
