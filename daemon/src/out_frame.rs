@@ -76,6 +76,11 @@ impl OutFrame {
         self.rendered(PictureKind::Yuv444, renderer)
     }
 
+    /// The output, for the frame loop to reuse once every consumer is done.
+    pub fn into_output(self) -> ModeOutput {
+        self.output
+    }
+
     fn rendered(
         &self,
         kind: PictureKind,
