@@ -76,7 +76,10 @@ impl Y4mSink {
         frame_rate_hz: f64,
     ) -> io::Result<Self> {
         let target = match choose(path, stdout_is_pipe()) {
-            Choice::Stdout => Target::Stdout { broken: false },
+            Choice::Stdout => {
+                fit_pipe(&io::stdout(), FRAME_TAG.len() + 3 * width * height);
+                Target::Stdout { broken: false }
+            }
             Choice::Fifo(p) => fifo(&p)?,
         };
         Ok(Self {
@@ -109,6 +112,7 @@ impl Y4mSink {
     /// Writes one frame of `planes` (Y, U, V).
     fn send(&mut self, planes: &[u8]) -> Result<(), SinkError> {
         let header = self.header();
+        let frame_bytes = FRAME_TAG.len() + planes.len();
         match &mut self.target {
             Target::Stdout { broken } => {
                 if *broken {
@@ -148,6 +152,7 @@ impl Y4mSink {
                                 .into());
                             }
                             set_blocking(&f)?;
+                            fit_pipe(&f, frame_bytes);
                             if let Err(e) = renew_fifo(path) {
                                 tracing::warn!(path = %path.display(), "y4m: cannot put a fresh FIFO in place ({e}); a reader opening while this one reads shares its pipe");
                             }
@@ -298,6 +303,20 @@ fn renew_fifo(path: &Path) -> io::Result<()> {
     std::fs::rename(&next, path)
 }
 
+/// Lets the pipe behind `fd` hold a whole frame of `bytes`, so a frame is
+/// one write instead of pieces of the default 64 KiB, each waiting for the
+/// reader (two context switches apiece). A reader that keeps up gets each
+/// frame no later; one that lags has at most one more frame buffered.
+/// Best effort: not a pipe, or above the kernel's pipe-max-size, it stays.
+fn fit_pipe(fd: &impl std::os::fd::AsFd, bytes: usize) {
+    use nix::fcntl::{fcntl, FcntlArg};
+    use std::os::fd::AsRawFd;
+    let size = i32::try_from(bytes).unwrap_or(i32::MAX);
+    if let Err(e) = fcntl(fd.as_fd().as_raw_fd(), FcntlArg::F_SETPIPE_SZ(size)) {
+        tracing::debug!("y4m: pipe kept at its size ({e})");
+    }
+}
+
 fn set_blocking(f: &File) -> io::Result<()> {
     use nix::fcntl::{fcntl, FcntlArg, OFlag};
     use std::os::fd::AsRawFd;
@@ -397,6 +416,22 @@ mod tests {
             "{:?}",
             &got[..got.len().min(16)]
         );
+    }
+
+    /// A reader's pipe holds a whole frame (here more than the default
+    /// 64 KiB), so a frame is written in one go.
+    #[test]
+    fn the_pipe_holds_a_whole_frame() {
+        use nix::fcntl::{fcntl, FcntlArg};
+        use std::os::fd::AsRawFd;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("view.y4m");
+        let mut sink = Y4mSink::new(Some(&path), 320, 240, 60.0).unwrap();
+        let mut r = reader(&path);
+        sink.write_no_signal(0).unwrap();
+        let size = fcntl(r.as_raw_fd(), FcntlArg::F_GETPIPE_SZ).unwrap();
+        assert!(size as usize >= 6 + 3 * 320 * 240, "{size} bytes");
+        assert!(drain(&mut r).starts_with(b"YUV4MPEG2 W320 H240"));
     }
 
     #[test]
