@@ -6,7 +6,10 @@
 
 #[cfg(target_arch = "x86_64")]
 mod avx512;
+mod channels;
 pub mod reference;
+
+pub use channels::{render_channels_rgb8, render_channels_yuv444};
 
 use std::str::FromStr;
 use std::sync::OnceLock;
@@ -42,7 +45,8 @@ impl Kernel {
     }
 }
 use crate::image::Image;
-use crate::mode::{ModeOutput, SeparatedChannels};
+use crate::mode::ModeOutput;
+use crate::view::yuv444_pixel;
 
 /// Largest fixed display range, |DN| at full scale.
 pub const MAX_RANGE_DN: f64 = 1e6;
@@ -136,6 +140,9 @@ const DIVERGING: [[f32; 3]; 5] = [
 struct Tables {
     /// R | G << 8 | B << 16.
     rgb: [u32; 1024],
+    /// The colour's BT.601 full-range Y | U << 8 | V << 16 (the y4m
+    /// stream's, [`crate::view::rgb8_to_yuv444_planes`]).
+    yuv: [u32; 1024],
     /// YUYV of a pixel pair is `yuyv_word(first[i0] + second[i1])`: each
     /// entry holds the colour's BT.601 U and V (biased, see [`CHROMA_BIAS`])
     /// at bits 0 and 32, so one add sums the pair's chroma without carries
@@ -168,6 +175,7 @@ impl Tables {
     fn build(colormap: Colormap) -> Self {
         let mut t = Tables {
             rgb: [0; 1024],
+            yuv: [0; 1024],
             first: [0; 1024],
             second: [0; 1024],
             planes: [[[0; 64]; 16]; 4],
@@ -180,6 +188,8 @@ impl Tables {
             };
             let [r, g, b] = c.map(i32::from);
             t.rgb[i] = u32::from_le_bytes([c[0], c[1], c[2], 0]);
+            let [y, u, v] = yuv444_pixel(c[0], c[1], c[2]);
+            t.yuv[i] = u32::from_le_bytes([y, u, v, 0]);
             let luma = ((((66 * r + 129 * g + 25 * b + 128) >> 8) + 16) & 0xff) as u64;
             let u = (-38 * r - 74 * g + 112 * b + CHROMA_BIAS) as u64;
             let v = (112 * r - 94 * g - 18 * b + CHROMA_BIAS) as u64;
@@ -318,6 +328,45 @@ impl DisplayMap {
         }
     }
 
+    /// Writes the BT.601 full-range Y, U and V planes (the y4m stream's
+    /// C444) of the colormapped image: the bytes
+    /// [`crate::view::rgb8_to_yuv444_planes`] makes of
+    /// [`Self::render_rgb8`]'s output. Pixels beyond the shortest plane are
+    /// skipped.
+    pub fn render_yuv444(&self, img: &Image<f32>, y: &mut [u8], u: &mut [u8], v: &mut [u8]) {
+        let n = img.data.len().min(y.len()).min(u.len()).min(v.len());
+        if n == 0 {
+            return;
+        }
+        let scale = 1.0 / self.max_abs_dn(img);
+        let tables = Tables::get(self.colormap);
+        let mut idx = [0u16; BLOCK];
+        let planes = y[..n]
+            .chunks_mut(BLOCK)
+            .zip(u[..n].chunks_mut(BLOCK))
+            .zip(v[..n].chunks_mut(BLOCK));
+        for (((y, u), v), values) in planes.zip(img.data.chunks(BLOCK)) {
+            let idx = &mut idx[..values.len()];
+            lut_indices(values, scale, idx);
+            yuv_pixels(tables, idx, y, u, v);
+        }
+    }
+
+    /// [`Self::render_output_rgb8`] as Y, U and V planes
+    /// ([`render_channels_yuv444`] or [`Self::render_yuv444`]).
+    pub fn render_output_yuv444(
+        &self,
+        output: &ModeOutput,
+        y: &mut [u8],
+        u: &mut [u8],
+        v: &mut [u8],
+    ) {
+        match &output.channels {
+            Some(ch) => render_channels_yuv444(ch, y, u, v),
+            None => self.render_yuv444(&output.signed_dn, y, u, v),
+        }
+    }
+
     /// Writes 1 byte per pixel: the grey scale, whatever the colormap.
     pub fn render_grey8(&self, img: &Image<f32>, out: &mut [u8]) {
         let scale = 1.0 / self.max_abs_dn(img);
@@ -374,6 +423,15 @@ fn rgb_pixels(tables: &Tables, idx: &[u16], out: &mut [u8]) {
     }
 }
 
+/// Table colours of `idx` as Y, U and V planes (see [`Tables::yuv`]).
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
+fn yuv_pixels(tables: &Tables, idx: &[u16], y: &mut [u8], u: &mut [u8], v: &mut [u8]) {
+    for (((&i, y), u), v) in idx.iter().zip(y).zip(u).zip(v) {
+        let [py, pu, pv, _] = tables.yuv[usize::from(i) & 1023].to_le_bytes();
+        (*y, *u, *v) = (py, pu, pv);
+    }
+}
+
 /// YUYV of pixel pairs of `idx` (see [`Tables::first`]).
 #[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
 fn yuyv_pairs(tables: &Tables, idx: &[u16], out: &mut [u8]) {
@@ -414,26 +472,6 @@ fn rgb_yuyv_pairs(tables: &Tables, idx: &[u16], rgb: &mut [u8], yuyv: &mut [u8])
 fn grey_levels(values: &[f32], scale: f32, out: &mut [u8]) {
     for (o, &v) in out.iter_mut().zip(values) {
         *o = small_uint((normalized(v, scale) + 1.0) * 127.5) as u8;
-    }
-}
-
-/// The bipolar colour reconstruction of separated channels (section 5.2):
-/// R = I+, G = 0, B = I-, both on one scale (the robust maximum over both
-/// channels) so their ratio survives; negative and NaN values show as 0.
-pub fn render_channels_rgb8(ch: &SeparatedChannels, out: &mut [u8]) {
-    let max =
-        robust_max_abs(&ch.i_plus_electrons.data).max(robust_max_abs(&ch.i_minus_electrons.data));
-    let scale = 255.0 / max;
-    let to_u8 = |v: f32| (v * scale).clamp(0.0, 255.0).round() as u8;
-    for ((px, &p), &m) in out
-        .chunks_exact_mut(3)
-        .zip(&ch.i_plus_electrons.data)
-        .zip(&ch.i_minus_electrons.data)
-    {
-        // NaN * scale is NaN; clamp keeps NaN, and `as u8` maps it to 0.
-        px[0] = to_u8(p);
-        px[1] = 0;
-        px[2] = to_u8(m);
     }
 }
 
@@ -759,6 +797,13 @@ mod tests {
                 map.render_rgb8_yuyv_with(None, &img, &mut rgb, &mut yuyv);
                 assert_eq!(yuyv, want, "{map:?} {}x{} no kernel", img.width, img.height);
                 assert_eq!(rgb, slow_rgb(&map, &img));
+                // The y4m planes: those of the reference RGB.
+                let (mut got, mut want) = (vec![1; 3 * n], vec![2; 3 * n]);
+                let [y, u, v] = crate::view::yuv444_planes_mut(&mut want);
+                crate::view::rgb8_to_yuv444_planes(&slow_rgb(&map, &img), y, u, v);
+                let [y, u, v] = crate::view::yuv444_planes_mut(&mut got);
+                map.render_yuv444(&img, y, u, v);
+                assert!(got == want, "{map:?} {}x{} yuv444", img.width, img.height);
             }
         }
     }
@@ -1009,26 +1054,6 @@ mod tests {
         let exact = abs[(0.995f64 * 1000.0).ceil() as usize - 1];
         let q = robust_max_abs(&data);
         assert!((q - exact).abs() <= exact * 1e-3, "{q} vs {exact}");
-    }
-
-    #[test]
-    fn channels_render_red_and_blue() {
-        let img = |v: &[f32]| Image {
-            width: v.len(),
-            height: 1,
-            data: v.to_vec(),
-        };
-        let ch = SeparatedChannels {
-            i_plus_electrons: img(&[1000.0, 0.0, -5.0, f32::NAN]),
-            i_minus_electrons: img(&[0.0, 500.0, 0.0, 0.0]),
-            i_plus_se_electrons: img(&[0.0; 4]),
-            i_minus_se_electrons: img(&[0.0; 4]),
-        };
-        let mut rgb = [9u8; 12];
-        render_channels_rgb8(&ch, &mut rgb);
-        assert_eq!(&rgb[0..3], &[255, 0, 0]);
-        assert_eq!(&rgb[3..6], &[0, 0, 128]);
-        assert_eq!(&rgb[6..12], &[0; 6]);
     }
 
     #[test]

@@ -21,5 +21,6 @@ pub use format::{PixelFormat, Y16_ZERO_DN};
 pub use letterbox::{letterbox_rgb8, LetterboxRect};
 #[cfg(test)]
 pub(crate) use pack::rgb_row_to_yuyv;
-pub use pack::{dn_to_y16, rgb8_to_yuv444_planes, PackError, Packer, Src};
+pub(crate) use pack::yuv444_pixel;
+pub use pack::{dn_to_y16, rgb8_to_yuv444_planes, yuv444_planes_mut, PackError, Packer, Src};
 pub use renderer::ViewRenderer;

@@ -5,6 +5,8 @@
 
 use std::sync::Arc;
 
+use sdi_core::mode::ModeOutput;
+
 use crate::frame_stream::FrameStreams;
 use crate::out_frame::OutFrame;
 use crate::sink::output::Output;
@@ -13,6 +15,9 @@ pub struct Fanout {
     sinks: Output,
     streams: FrameStreams,
     latest: Option<Arc<OutFrame>>,
+    /// The output of an earlier frame every consumer is done with, for the
+    /// pipeline to write a later one into.
+    spare: Option<ModeOutput>,
 }
 
 impl Fanout {
@@ -21,16 +26,28 @@ impl Fanout {
             sinks,
             streams: FrameStreams::default(),
             latest: None,
+            spare: None,
         }
     }
 
     /// Hands `frame` to every sink and stream (never blocks) and keeps it
-    /// as the latest.
+    /// as the latest. The frame it replaces as the latest becomes the spare
+    /// when nobody else holds it any more (the sinks had a frame period).
     pub fn publish(&mut self, frame: OutFrame) -> &Arc<OutFrame> {
         let frame = Arc::new(frame);
         self.sinks.send(&frame);
         self.streams.send(&frame);
+        if let Some(done) = self.latest.take().and_then(|f| Arc::try_unwrap(f).ok()) {
+            self.spare = Some(done.into_output());
+        }
         self.latest.insert(frame)
+    }
+
+    /// An output no consumer holds any more, to be written over (see
+    /// [`sdi_core::mode::Pipeline::take_output`]); None when every recent
+    /// one is still held.
+    pub fn take_spare(&mut self) -> Option<ModeOutput> {
+        self.spare.take()
     }
 
     /// Queues the "no signal" card, stamped `timestamp_us`, for the sinks

@@ -23,13 +23,24 @@ pub struct OutFrame {
     stream_body: OnceLock<Arc<[u8]>>,
 }
 
+/// Which of a renderer's pictures.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PictureKind {
+    /// [`ViewRenderer::render`].
+    View,
+    /// [`ViewRenderer::render_signed_dn`].
+    SignedDn,
+    /// [`ViewRenderer::render_yuv444`].
+    Yuv444,
+}
+
 /// A picture's bytes once rendered; locked while they are being rendered.
 type Slot = Arc<Mutex<Option<Arc<[u8]>>>>;
 
 /// What a renderer makes of a frame, at its geometry and pixel format.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Picture {
-    signed_dn: bool,
+    kind: PictureKind,
     width: usize,
     height: usize,
     format: PixelFormat,
@@ -50,22 +61,33 @@ impl OutFrame {
     /// format: rendered by the first consumer that asks, with its own
     /// renderer, and shared with the rest.
     pub fn view(&self, renderer: &mut ViewRenderer) -> Result<Arc<[u8]>, PackError> {
-        self.rendered(false, renderer)
+        self.rendered(PictureKind::View, renderer)
     }
 
     /// The signed image itself ([`ViewRenderer::render_signed_dn`], a data
     /// node's frame), once per format like [`OutFrame::view`].
     pub fn signed_dn(&self, renderer: &mut ViewRenderer) -> Result<Arc<[u8]>, PackError> {
-        self.rendered(true, renderer)
+        self.rendered(PictureKind::SignedDn, renderer)
+    }
+
+    /// The view as the y4m stream's Y, U and V planes
+    /// ([`ViewRenderer::render_yuv444`]), once like [`OutFrame::view`].
+    pub fn view_yuv444(&self, renderer: &mut ViewRenderer) -> Result<Arc<[u8]>, PackError> {
+        self.rendered(PictureKind::Yuv444, renderer)
+    }
+
+    /// The output, for the frame loop to reuse once every consumer is done.
+    pub fn into_output(self) -> ModeOutput {
+        self.output
     }
 
     fn rendered(
         &self,
-        signed_dn: bool,
+        kind: PictureKind,
         renderer: &mut ViewRenderer,
     ) -> Result<Arc<[u8]>, PackError> {
         let picture = Picture {
-            signed_dn,
+            kind,
             width: renderer.width(),
             height: renderer.height(),
             format: renderer.format(),
@@ -88,10 +110,10 @@ impl OutFrame {
         if let Some(b) = &*bytes {
             return Ok(b.clone());
         }
-        let b: Arc<[u8]> = Arc::from(if signed_dn {
-            renderer.render_signed_dn(&self.output.signed_dn)?
-        } else {
-            renderer.render(&self.output, &self.display)?
+        let b: Arc<[u8]> = Arc::from(match kind {
+            PictureKind::View => renderer.render(&self.output, &self.display)?,
+            PictureKind::SignedDn => renderer.render_signed_dn(&self.output.signed_dn)?,
+            PictureKind::Yuv444 => renderer.render_yuv444(&self.output, &self.display),
         });
         *bytes = Some(b.clone());
         Ok(b)

@@ -13,19 +13,16 @@ pub fn handle_invalid(
     out_flags: &mut [u8],
     zero_saturated: bool,
 ) {
+    let (saturated, nonfinite) = (PixelFlags::SATURATED.bits(), PixelFlags::NONFINITE.bits());
+    // Branch-free (selects, not jumps), so the loop vectorizes.
     for ((v, &sat), f) in dn.iter_mut().zip(saturated_in).zip(out_flags.iter_mut()) {
-        let mut flag = if sat != 0 {
-            PixelFlags::SATURATED.bits()
+        let (sat, finite) = (sat != 0, v.is_finite());
+        *f = if sat { saturated } else { 0 } | if finite { 0 } else { nonfinite };
+        *v = if !finite || (sat && zero_saturated) {
+            0.0
         } else {
-            0
+            *v
         };
-        if !v.is_finite() {
-            *v = 0.0;
-            flag |= PixelFlags::NONFINITE.bits();
-        } else if flag != 0 && zero_saturated {
-            *v = 0.0;
-        }
-        *f = flag;
     }
 }
 

@@ -1,6 +1,7 @@
 //! What a mode pipeline produces per output frame.
 
 use crate::image::Image;
+use crate::separation::Separated;
 
 /// One output image of a mode.
 #[derive(Debug, Clone, PartialEq)]
@@ -42,10 +43,45 @@ impl ModeOutput {
         }
     }
 
-    /// Reallocates only when the size changes (warm-up).
+    /// Reallocates only when the size changes (warm-up); the channels'
+    /// buffers are kept for [`SeparatedChannels::assign`].
     pub(crate) fn ensure_size(&mut self, width: usize, height: usize) {
         if self.signed_dn.width != width || self.signed_dn.height != height {
             *self = Self::new(width, height);
+        }
+    }
+}
+
+impl SeparatedChannels {
+    /// `slot` set to a copy of `separated`'s channels, into the buffers it
+    /// already holds when their size fits (no allocation once sizes settle).
+    pub(crate) fn assign(slot: &mut Option<Self>, separated: &Separated) {
+        let src = [
+            &separated.i_plus_electrons,
+            &separated.i_minus_electrons,
+            &separated.i_plus_se_electrons,
+            &separated.i_minus_se_electrons,
+        ];
+        match slot {
+            Some(ch) if src.iter().all(|s| s.same_size(&ch.i_plus_electrons)) => {
+                let dst = [
+                    &mut ch.i_plus_electrons,
+                    &mut ch.i_minus_electrons,
+                    &mut ch.i_plus_se_electrons,
+                    &mut ch.i_minus_se_electrons,
+                ];
+                for (d, s) in dst.into_iter().zip(src) {
+                    d.data.copy_from_slice(&s.data);
+                }
+            }
+            _ => {
+                *slot = Some(Self {
+                    i_plus_electrons: separated.i_plus_electrons.clone(),
+                    i_minus_electrons: separated.i_minus_electrons.clone(),
+                    i_plus_se_electrons: separated.i_plus_se_electrons.clone(),
+                    i_minus_se_electrons: separated.i_minus_se_electrons.clone(),
+                });
+            }
         }
     }
 }

@@ -39,6 +39,10 @@ pub trait Pipeline: Send {
     fn mode(&self) -> ModeId;
     /// Feeds one sensor frame; Some when an output frame is ready (two-shot may need a pair).
     fn process(&mut self, frame: &Frame) -> Option<&ModeOutput>;
+    /// Hands over the output the last [`Self::process`] returned and keeps
+    /// `spare` (an earlier output given back, or an empty one) to write the
+    /// next into: a caller that keeps the output owns it without a copy.
+    fn take_output(&mut self, spare: ModeOutput) -> ModeOutput;
     fn set_dark_frame(&mut self, dark_dn: Option<Image<f32>>);
     /// Whether this pipeline will subtract the dark frame it holds from frames
     /// of this size (false when none is set, it does not fit, or the mode

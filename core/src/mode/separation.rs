@@ -18,7 +18,8 @@ use crate::separation::LiveSeparator;
 pub struct SeparationPipeline {
     signed: SnapshotPipeline,
     separator: LiveSeparator,
-    /// The frame the estimator sees: dark-subtracted copy of the input.
+    /// The frame the estimator sees when a dark frame applies: the input,
+    /// dark-subtracted.
     scratch: Frame,
     out: ModeOutput,
 }
@@ -35,9 +36,16 @@ impl SeparationPipeline {
     }
 }
 
-/// Copies `frame` into `scratch` (reallocating only on a size change) and
-/// subtracts `dark` when it fits.
-fn fill_scratch(scratch: &mut Frame, frame: &Frame, dark: Option<&Image<f32>>) {
+/// The frame the estimator reads: `frame` itself, or with `dark` fitting
+/// it, a dark-subtracted copy in `scratch` (reallocated only on a size change).
+fn dark_subtracted<'a>(
+    scratch: &'a mut Frame,
+    frame: &'a Frame,
+    dark: Option<&Image<f32>>,
+) -> &'a Frame {
+    let Some(d) = dark.filter(|d| d.same_size(&frame.dn)) else {
+        return frame;
+    };
     if !scratch.dn.same_size(&frame.dn) {
         *scratch = frame.clone();
     } else {
@@ -49,9 +57,8 @@ fn fill_scratch(scratch: &mut Frame, frame: &Frame, dark: Option<&Image<f32>>) {
         scratch.timestamp_us = frame.timestamp_us;
         scratch.sequence = frame.sequence;
     }
-    if let Some(d) = dark.filter(|d| d.same_size(&frame.dn)) {
-        subtract_dark(&mut scratch.dn.data, &d.data);
-    }
+    subtract_dark(&mut scratch.dn.data, &d.data);
+    scratch
 }
 
 impl Pipeline for SeparationPipeline {
@@ -60,28 +67,26 @@ impl Pipeline for SeparationPipeline {
     }
 
     fn process(&mut self, frame: &Frame) -> Option<&ModeOutput> {
-        let signed = self.signed.process(frame)?;
-        let out = &mut self.out;
-        out.ensure_size(frame.width(), frame.height());
-        out.signed_dn.data.copy_from_slice(&signed.signed_dn.data);
-        out.flags.data.copy_from_slice(&signed.flags.data);
-        out.timestamp_us = signed.timestamp_us;
-        out.sequence = signed.sequence;
-        fill_scratch(&mut self.scratch, frame, self.signed.dark_frame());
-        out.channels = match self.separator.process(&self.scratch) {
-            Ok(Some(s)) => Some(SeparatedChannels {
-                i_plus_electrons: s.i_plus_electrons.clone(),
-                i_minus_electrons: s.i_minus_electrons.clone(),
-                i_plus_se_electrons: s.i_plus_se_electrons.clone(),
-                i_minus_se_electrons: s.i_minus_se_electrons.clone(),
-            }),
+        self.signed.process(frame)?;
+        // The signed image and flags are the snapshot pipeline's output,
+        // handed over; our previous one (its channels kept) goes back to it.
+        let mut channels = self.out.channels.take();
+        let spare = std::mem::replace(&mut self.out, ModeOutput::new(0, 0));
+        self.out = self.signed.take_output(spare);
+        let input = dark_subtracted(&mut self.scratch, frame, self.signed.dark_frame());
+        match self.separator.process(input) {
+            Ok(Some(s)) => SeparatedChannels::assign(&mut channels, s),
             // A sliding window still filling up: the signed image alone.
-            Ok(None) => None,
             // core does not log: on an estimator error (e.g. an empty
             // frame) the output carries the signed image alone.
-            Err(_) => None,
-        };
+            Ok(None) | Err(_) => channels = None,
+        }
+        self.out.channels = channels;
         Some(&self.out)
+    }
+
+    fn take_output(&mut self, spare: ModeOutput) -> ModeOutput {
+        std::mem::replace(&mut self.out, spare)
     }
 
     fn set_dark_frame(&mut self, dark_dn: Option<Image<f32>>) {

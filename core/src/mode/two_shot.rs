@@ -104,7 +104,13 @@ impl Pipeline for TwoShotPipeline {
         );
         out.timestamp_us = self.first.timestamp_us;
         out.sequence = frame.sequence;
+        // A spare from the separation mode may carry channels.
+        out.channels = None;
         Some(&self.out)
+    }
+
+    fn take_output(&mut self, spare: ModeOutput) -> ModeOutput {
+        std::mem::replace(&mut self.out, spare)
     }
 
     fn set_dark_frame(&mut self, dark_dn: Option<Image<f32>>) {

@@ -261,16 +261,32 @@ pub(crate) fn rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
 /// fixed point: within one code of the float formula (tested on every
 /// colour), and integer-only so it vectorizes.
 pub fn rgb8_to_yuv444_planes(rgb: &[u8], y: &mut [u8], u: &mut [u8], v: &mut [u8]) {
+    for (((px, y), u), v) in rgb.chunks_exact(3).zip(y).zip(u).zip(v) {
+        [*y, *u, *v] = yuv444_pixel(px[0], px[1], px[2]);
+    }
+}
+
+/// The Y, U and V planes of a 4:4:4 frame (a third of it each).
+pub fn yuv444_planes_mut(frame: &mut [u8]) -> [&mut [u8]; 3] {
+    let n = frame.len() / 3;
+    let (y, uv) = frame.split_at_mut(n);
+    let (u, v) = uv[..2 * n].split_at_mut(n);
+    [y, u, v]
+}
+
+/// One pixel of [`rgb8_to_yuv444_planes`]: Y, U, V of R, G, B.
+#[inline(always)]
+pub(crate) fn yuv444_pixel(r: u8, g: u8, b: u8) -> [u8; 3] {
     const HALF: i32 = 1 << 15;
     const OFFSET: i32 = 128 << 16;
-    for (((px, y), u), v) in rgb.chunks_exact(3).zip(y).zip(u).zip(v) {
-        let (r, g, b) = (i32::from(px[0]), i32::from(px[1]), i32::from(px[2]));
-        // Coefficients x 65536: Y 0.299 0.587 0.114; U -0.168736 -0.331264
-        // 0.5; V 0.5 -0.418688 -0.081312 (each row sums to 65536 or 0).
-        *y = ((19595 * r + 38470 * g + 7471 * b + HALF) >> 16) as u8;
-        *u = ((-11059 * r - 21709 * g + 32768 * b + OFFSET + HALF) >> 16).clamp(0, 255) as u8;
-        *v = ((32768 * r - 27439 * g - 5329 * b + OFFSET + HALF) >> 16).clamp(0, 255) as u8;
-    }
+    let (r, g, b) = (i32::from(r), i32::from(g), i32::from(b));
+    // Coefficients x 65536: Y 0.299 0.587 0.114; U -0.168736 -0.331264
+    // 0.5; V 0.5 -0.418688 -0.081312 (each row sums to 65536 or 0).
+    [
+        ((19595 * r + 38470 * g + 7471 * b + HALF) >> 16) as u8,
+        ((-11059 * r - 21709 * g + 32768 * b + OFFSET + HALF) >> 16).clamp(0, 255) as u8,
+        ((32768 * r - 27439 * g - 5329 * b + OFFSET + HALF) >> 16).clamp(0, 255) as u8,
+    ]
 }
 
 #[cfg(test)]

@@ -1,7 +1,7 @@
 //! [`ViewRenderer`]: a mode's output as the bytes of one published stream.
 
 use super::letterbox::{letterbox_rgb8, source_index, LetterboxRect};
-use super::pack::{PackError, Packer, Src};
+use super::pack::{rgb8_to_yuv444_planes, yuv444_planes_mut, PackError, Packer, Src};
 use super::PixelFormat;
 use crate::display::{DisplayMap, DisplayRange};
 use crate::image::Image;
@@ -88,6 +88,29 @@ impl ViewRenderer {
         self.packer
             .rgb8(Src::packed(&self.scaled, dw, dh, 3), &mut self.frame)?;
         Ok(&self.frame)
+    }
+
+    /// The view of `output` as the y4m stream's C444 frame: the Y, U and V
+    /// planes (BT.601 full range) one after the other, the bytes
+    /// [`rgb8_to_yuv444_planes`] makes of the RGB24 view. Straight from the
+    /// floats at the output size; letterboxed through RGB otherwise. The
+    /// renderer's pixel format is not used.
+    pub fn render_yuv444(&mut self, output: &ModeOutput, display: &DisplayMap) -> &[u8] {
+        let img = &output.signed_dn;
+        let (w, h) = (img.width, img.height);
+        let n = self.width * self.height;
+        self.frame.resize(3 * n, 0);
+        let [y, u, v] = yuv444_planes_mut(&mut self.frame);
+        if (w, h) == (self.width, self.height) {
+            display.render_output_yuv444(output, y, u, v);
+        } else {
+            self.rgb.resize(w * h * 3, 0);
+            display.render_output_rgb8(output, &mut self.rgb);
+            self.scaled.resize(n * 3, 0);
+            letterbox_rgb8(&self.rgb, w, h, &mut self.scaled, self.width, self.height);
+            rgb8_to_yuv444_planes(&self.scaled, y, u, v);
+        }
+        &self.frame
     }
 
     /// The signed image itself, packed (a data stream: Y16 keeps the DN,
@@ -209,6 +232,49 @@ mod tests {
                     let mut want = vec![0u8; w * h * 3];
                     map.render_output_rgb8(&out, &mut want);
                     assert!(rgb.render(&out, &map).expect("render") == want.as_slice());
+                }
+            }
+        }
+    }
+
+    /// The y4m planes of the RGB24 view, at the view size and letterboxed,
+    /// for the signed image and for separated channels.
+    #[test]
+    fn yuv444_view_matches_the_rgb_path() {
+        use crate::mode::SeparatedChannels;
+        let (w, h) = (64, 48);
+        let value = |i: usize| match i % 97 {
+            0 => f32::NAN,
+            1 => 1e6,
+            k => (k as f32 - 48.0) * 7.5 + (i / w) as f32,
+        };
+        let img = |f: &dyn Fn(usize) -> f32| Image {
+            width: w,
+            height: h,
+            data: (0..w * h).map(f).collect(),
+        };
+        let mut out = ModeOutput::new(w, h);
+        out.signed_dn = img(&value);
+        let mut with_channels = out.clone();
+        with_channels.channels = Some(SeparatedChannels {
+            i_plus_electrons: img(&|i| value(i) + 300.0),
+            i_minus_electrons: img(&|i| value(i * 7)),
+            i_plus_se_electrons: img(&|_| 1.0),
+            i_minus_se_electrons: img(&|_| 1.0),
+        });
+        for out in [&out, &with_channels] {
+            for colormap in [Colormap::Diverging, Colormap::Grey] {
+                let map = DisplayMap::new(colormap, DisplayRange::SymmetricAuto);
+                for (dw, dh) in [(w, h), (160, 90)] {
+                    let mut rgb = ViewRenderer::new(dw, dh, PixelFormat::Rgb24);
+                    let rgb = rgb.render(out, &map).expect("render").to_vec();
+                    let n = dw * dh;
+                    let mut want = vec![0u8; 3 * n];
+                    let [y, u, v] = yuv444_planes_mut(&mut want);
+                    rgb8_to_yuv444_planes(&rgb, y, u, v);
+                    let mut view = ViewRenderer::new(dw, dh, PixelFormat::Rgb24);
+                    let got = view.render_yuv444(out, &map);
+                    assert!(got == want.as_slice(), "{dw}x{dh} {colormap:?}");
                 }
             }
         }

@@ -39,7 +39,7 @@ use crate::stats::{LoopStats, StatsWindow};
 use jobs::ActiveJob;
 use marks::PendingMark;
 use sdi_core::display::DisplayMap;
-use sdi_core::mode::{build_pipeline, Pipeline, PipelineConfig};
+use sdi_core::mode::{build_pipeline, ModeOutput, Pipeline, PipelineConfig};
 use sdi_recording::Calibration;
 
 pub use commands::{Command, Reply};
@@ -303,8 +303,14 @@ impl FrameLoop {
                     .send_if_modified(|p| std::mem::replace(&mut p.frames, frames) != frames);
             }
             self.answer_marks(u64::MAX);
-        } else if let Some(out) = self.pipeline.process(frame) {
-            let out = OutFrame::new(out.clone(), self.mode, self.display);
+        } else if self.pipeline.process(frame).is_some() {
+            // The output is handed over, not copied: the pipeline writes the
+            // next one into an earlier output nobody holds any more.
+            let spare = self
+                .fanout
+                .take_spare()
+                .unwrap_or_else(|| ModeOutput::new(0, 0));
+            let out = OutFrame::new(self.pipeline.take_output(spare), self.mode, self.display);
             let published = self.fanout.publish(out).output.sequence;
             self.answer_marks(published);
             if self.lights.is_settled() {

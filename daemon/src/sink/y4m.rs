@@ -13,11 +13,16 @@
 //! reader opening at the same moment would share the first one's pipe.
 
 use std::fs::File;
-use std::io::{self, Write};
+use std::io::{self, IoSlice, Write};
 use std::os::unix::fs::{FileTypeExt, OpenOptionsExt};
 use std::path::{Path, PathBuf};
 
-use sdi_core::view::{no_signal_stripes_rgb8, rgb8_to_yuv444_planes, PixelFormat, ViewRenderer};
+use sdi_core::view::{
+    no_signal_stripes_rgb8, rgb8_to_yuv444_planes, yuv444_planes_mut, PixelFormat, ViewRenderer,
+};
+
+/// What starts every frame of the stream.
+const FRAME_TAG: &[u8] = b"FRAME\n";
 
 use super::{Sink, SinkError, SinkInfo, SinkKindName};
 use crate::out_frame::OutFrame;
@@ -44,10 +49,10 @@ pub struct Y4mSink {
     width: usize,
     height: usize,
     frame_rate_hz: f64,
-    /// Renders each frame as RGB8 at the sensor size; the card in RGB8.
+    /// Renders each frame's Y, U and V planes at the sensor size; the
+    /// card's, made once.
     view: ViewRenderer,
     card: Vec<u8>,
-    out: Vec<u8>,
     header_sent: bool,
 }
 
@@ -71,7 +76,10 @@ impl Y4mSink {
         frame_rate_hz: f64,
     ) -> io::Result<Self> {
         let target = match choose(path, stdout_is_pipe()) {
-            Choice::Stdout => Target::Stdout { broken: false },
+            Choice::Stdout => {
+                fit_pipe(&io::stdout(), FRAME_TAG.len() + 3 * width * height);
+                Target::Stdout { broken: false }
+            }
             Choice::Fifo(p) => fifo(&p)?,
         };
         Ok(Self {
@@ -80,8 +88,7 @@ impl Y4mSink {
             height,
             frame_rate_hz,
             view: ViewRenderer::new(width, height, PixelFormat::Rgb24),
-            card: no_signal_stripes_rgb8(width, height),
-            out: Vec::with_capacity(width * height * 3 + 16),
+            card: yuv444_planes(&no_signal_stripes_rgb8(width, height)),
             header_sent: false,
         })
     }
@@ -102,19 +109,10 @@ impl Y4mSink {
         )
     }
 
-    /// One y4m frame of `rgb` (the sensor size) into `out`.
-    fn pack_frame(out: &mut Vec<u8>, rgb: &[u8]) {
-        let n = rgb.len() / 3;
-        out.clear();
-        out.extend_from_slice(b"FRAME\n");
-        out.resize(6 + 3 * n, 0);
-        let (y, uv) = out[6..].split_at_mut(n);
-        let (u, v) = uv.split_at_mut(n);
-        rgb8_to_yuv444_planes(rgb, y, u, v);
-    }
-
-    fn send(&mut self) -> Result<(), SinkError> {
+    /// Writes one frame of `planes` (Y, U, V).
+    fn send(&mut self, planes: &[u8]) -> Result<(), SinkError> {
         let header = self.header();
+        let frame_bytes = FRAME_TAG.len() + planes.len();
         match &mut self.target {
             Target::Stdout { broken } => {
                 if *broken {
@@ -125,7 +123,7 @@ impl Y4mSink {
                     if !self.header_sent {
                         so.write_all(header.as_bytes())?;
                     }
-                    so.write_all(&self.out)?;
+                    write_frame(&mut so, planes)?;
                     so.flush()
                 })();
                 match r {
@@ -154,6 +152,7 @@ impl Y4mSink {
                                 .into());
                             }
                             set_blocking(&f)?;
+                            fit_pipe(&f, frame_bytes);
                             if let Err(e) = renew_fifo(path) {
                                 tracing::warn!(path = %path.display(), "y4m: cannot put a fresh FIFO in place ({e}); a reader opening while this one reads shares its pipe");
                             }
@@ -173,7 +172,7 @@ impl Y4mSink {
                             r.file.write_all(header.as_bytes())?;
                             r.header_sent = true;
                         }
-                        r.file.write_all(&self.out)
+                        write_frame(&mut r.file, planes)
                     })();
                     match result {
                         Ok(()) => {}
@@ -188,6 +187,30 @@ impl Y4mSink {
         }
         Ok(())
     }
+}
+
+/// The Y, U and V planes of an RGB8 picture, one after the other.
+fn yuv444_planes(rgb: &[u8]) -> Vec<u8> {
+    let mut planes = vec![0; rgb.len() / 3 * 3];
+    let [y, u, v] = yuv444_planes_mut(&mut planes);
+    rgb8_to_yuv444_planes(rgb, y, u, v);
+    planes
+}
+
+/// The tag and `planes` as one frame, gathered by the kernel (no copy of
+/// the planes behind the tag).
+fn write_frame(w: &mut impl Write, planes: &[u8]) -> io::Result<()> {
+    let mut parts = [IoSlice::new(FRAME_TAG), IoSlice::new(planes)];
+    let mut parts = &mut parts[..];
+    while !parts.is_empty() {
+        match w.write_vectored(parts) {
+            Ok(0) => return Err(io::ErrorKind::WriteZero.into()),
+            Ok(n) => IoSlice::advance_slices(&mut parts, n),
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
 }
 
 /// Where the stream goes.
@@ -280,6 +303,20 @@ fn renew_fifo(path: &Path) -> io::Result<()> {
     std::fs::rename(&next, path)
 }
 
+/// Lets the pipe behind `fd` hold a whole frame of `bytes`, so a frame is
+/// one write instead of pieces of the default 64 KiB, each waiting for the
+/// reader (two context switches apiece). A reader that keeps up gets each
+/// frame no later; one that lags has at most one more frame buffered.
+/// Best effort: not a pipe, or above the kernel's pipe-max-size, it stays.
+fn fit_pipe(fd: &impl std::os::fd::AsFd, bytes: usize) {
+    use nix::fcntl::{fcntl, FcntlArg};
+    use std::os::fd::AsRawFd;
+    let size = i32::try_from(bytes).unwrap_or(i32::MAX);
+    if let Err(e) = fcntl(fd.as_fd().as_raw_fd(), FcntlArg::F_SETPIPE_SZ(size)) {
+        tracing::debug!("y4m: pipe kept at its size ({e})");
+    }
+}
+
 fn set_blocking(f: &File) -> io::Result<()> {
     use nix::fcntl::{fcntl, FcntlArg, OFlag};
     use std::os::fd::AsRawFd;
@@ -305,14 +342,15 @@ impl Sink for Y4mSink {
         if img.width != self.width || img.height != self.height {
             return Ok(());
         }
-        let rgb = frame.view(&mut self.view)?;
-        Self::pack_frame(&mut self.out, &rgb);
-        self.send()
+        let planes = frame.view_yuv444(&mut self.view)?;
+        self.send(&planes)
     }
 
     fn write_no_signal(&mut self, _timestamp_us: u64) -> Result<(), SinkError> {
-        Self::pack_frame(&mut self.out, &self.card);
-        self.send()
+        let card = std::mem::take(&mut self.card);
+        let sent = self.send(&card);
+        self.card = card;
+        sent
     }
 }
 
@@ -380,6 +418,22 @@ mod tests {
         );
     }
 
+    /// A reader's pipe holds a whole frame (here more than the default
+    /// 64 KiB), so a frame is written in one go.
+    #[test]
+    fn the_pipe_holds_a_whole_frame() {
+        use nix::fcntl::{fcntl, FcntlArg};
+        use std::os::fd::AsRawFd;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("view.y4m");
+        let mut sink = Y4mSink::new(Some(&path), 320, 240, 60.0).unwrap();
+        let mut r = reader(&path);
+        sink.write_no_signal(0).unwrap();
+        let size = fcntl(r.as_raw_fd(), FcntlArg::F_GETPIPE_SZ).unwrap();
+        assert!(size as usize >= 6 + 3 * 320 * 240, "{size} bytes");
+        assert!(drain(&mut r).starts_with(b"YUV4MPEG2 W320 H240"));
+    }
+
     #[test]
     fn a_link_at_the_fifo_path_is_not_written_through() {
         let dir = tempfile::tempdir().unwrap();
@@ -391,6 +445,29 @@ mod tests {
         std::os::unix::fs::symlink(&victim, &path).unwrap();
         assert!(sink.write_no_signal(0).is_err());
         assert_eq!(std::fs::read(&victim).unwrap(), b"keep");
+    }
+
+    /// A writer that takes at most 5 bytes of one slice per call.
+    struct Trickle(Vec<u8>);
+
+    impl Write for Trickle {
+        fn write(&mut self, buf: &[u8]) -> io::Result<usize> {
+            let n = buf.len().min(5);
+            self.0.extend_from_slice(&buf[..n]);
+            Ok(n)
+        }
+        fn flush(&mut self) -> io::Result<()> {
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_frame_is_its_tag_and_planes_however_the_writes_split() {
+        let planes: Vec<u8> = (0..=200).collect();
+        let mut w = Trickle(Vec::new());
+        write_frame(&mut w, &planes).unwrap();
+        assert_eq!(&w.0[..6], FRAME_TAG);
+        assert_eq!(&w.0[6..], &planes[..]);
     }
 
     #[test]
