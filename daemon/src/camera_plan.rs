@@ -52,17 +52,15 @@ pub fn plans(c: &Config, boards: &[String]) -> Vec<CameraPlan> {
         .collect()
 }
 
-/// One camera per attached board, when there are several: each board
-/// chosen by its serial (so a replugged board comes back to its camera),
-/// each with its section and outputs. A board whose serial cannot name a
-/// file is left out (a device chooses its own serial), as are boards past
-/// [`MAX_CAMERAS`].
+/// One camera per attached board: each board chosen by its serial (so a
+/// replugged board comes back to its camera, and a board plugged in later
+/// is a camera of its own), each with its section; with several, outputs
+/// named by serial. A board whose serial cannot name a file is left out (a
+/// device chooses its own serial), as are boards past [`MAX_CAMERAS`].
 fn board_plans(c: &Config, boards: &[String]) -> Option<Vec<CameraPlan>> {
-    let may_serve_all =
-        matches!(c.backend, BackendKind::Opt8241 | BackendKind::Auto) && c.board.serial.is_none();
     let (usable, refused): (Vec<&String>, Vec<&String>) =
         boards.iter().partition(|s| names_a_file(s));
-    if !may_serve_all || usable.len() < 2 {
+    if !serves_boards_by_serial(c) || usable.is_empty() {
         return None;
     }
     for s in refused {
@@ -81,19 +79,39 @@ fn board_plans(c: &Config, boards: &[String]) -> Option<Vec<CameraPlan>> {
         usable
             .into_iter()
             .take(count)
-            .map(|serial| {
-                let mut config = c.for_camera(serial);
-                config.backend = BackendKind::Opt8241;
-                config.board.serial = Some(serial.clone());
-                config.cameras = count as u32;
-                name_outputs(&mut config, serial);
-                CameraPlan {
-                    serial: Some(serial.clone()),
-                    config,
-                }
-            })
+            .map(|serial| board_plan(c, serial, count))
             .collect(),
     )
+}
+
+/// Whether `c` serves every board it finds, each by its serial: the board
+/// or auto backend, and no `[board] serial` pinning one.
+pub fn serves_boards_by_serial(c: &Config) -> bool {
+    matches!(c.backend, BackendKind::Opt8241 | BackendKind::Auto) && c.board.serial.is_none()
+}
+
+/// The camera of board `serial`, one of `count` cameras (with `auto`,
+/// the simulator still stands in for a board that cannot be opened).
+pub fn board_plan(c: &Config, serial: &str, count: usize) -> CameraPlan {
+    let mut config = c.for_camera(serial);
+    config.board.serial = Some(serial.to_owned());
+    config.cameras = count as u32;
+    if count > 1 {
+        name_outputs(&mut config, serial);
+    }
+    CameraPlan {
+        serial: Some(serial.to_owned()),
+        config,
+    }
+}
+
+/// The boards of `attached` that are not cameras yet (`known`) and can be.
+pub fn new_boards(known: &[String], attached: &[String]) -> Vec<String> {
+    attached
+        .iter()
+        .filter(|s| !known.contains(s) && names_a_file(s))
+        .cloned()
+        .collect()
 }
 
 /// A serial that can be part of a file name and a label: 1 to 64 of
@@ -200,12 +218,16 @@ mod tests {
         let p = plans(&c, &boards);
         let serials: Vec<_> = p.iter().map(|p| p.config.board.serial.clone()).collect();
         assert_eq!(serials, [Some("B2".into()), Some("A1".into())]);
-        assert!(p.iter().all(|p| p.config.backend == BackendKind::Opt8241));
+        assert!(p.iter().all(|p| p.config.backend == BackendKind::Auto));
         assert_eq!(p[0].config.mode, sdi_core::mode::ModeId::DepthEdge);
         assert_eq!(p[1].config.output.label, "SDI camera A1");
         assert!(p.iter().all(|p| p.config.cameras == 2));
-        // One board, or a board named in [board]: one camera, as before.
-        assert_eq!(plans(&c, &boards[..1]).len(), 1);
+        // One board: one camera, pinned to its serial, outputs as before.
+        let one = plans(&c, &boards[..1]);
+        assert_eq!(one.len(), 1);
+        assert_eq!(one[0].config.board.serial.as_deref(), Some("B2"));
+        assert_eq!(one[0].config.output, Config::default().output);
+        // A board named in [board]: that one, as before.
         c.board.serial = Some("A1".into());
         assert_eq!(plans(&c, &boards).len(), 1);
         // The simulator is not a board.
@@ -220,5 +242,15 @@ mod tests {
         for bad in ["", ".hidden", "a/b", "..", "a b", &"x".repeat(65)] {
             assert!(!names_a_file(bad), "{bad}");
         }
+    }
+
+    #[test]
+    fn a_board_plugged_later_is_new_unless_known_or_unnamable() {
+        let known = ["A1".to_string()];
+        let attached = ["A1".to_string(), "B2".into(), "a/b".into()];
+        assert_eq!(new_boards(&known, &attached), ["B2"]);
+        let p = board_plan(&Config::default(), "B2", 2);
+        assert_eq!(p.config.board.serial.as_deref(), Some("B2"));
+        assert_eq!(p.config.output.label, "SDI camera B2");
     }
 }

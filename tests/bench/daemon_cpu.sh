@@ -1,8 +1,10 @@
 #!/bin/bash
 # Whole-daemon CPU: sdid replaying a 320x240 recording at 60 fps into the
-# y4m view (640x480 C444, one reader), per mode, against ffmpeg doing the
-# same job on the same frames (Y16 in, scaled 640x480 out to a pipe), side by
-# side in one run on the host. CPU is utime+stime from /proc/PID/stat over a
+# y4m view (C444 at the sensor's 320x240: the y4m sink does not scale; one
+# reader), per mode, against ffmpeg on the same frames (Y16 in, scaled to
+# 640x480 C444 out to a pipe, so ffmpeg writes 4x the pixels sdid does),
+# side by side in one run on the host. Both sides at 640x480: the loopback
+# variant in the VM (daemon_cpu_vm.sh). CPU is utime+stime from /proc/PID/stat over a
 # window, as a share of one core; fps from sdid's own Stats.
 #
 #   bash tests/bench/daemon_cpu.sh [WINDOW_S]        (default 10 s per mode)

@@ -71,6 +71,10 @@ static GUEST: Guest = Guest::new(&[
         "two_boards::two_boards_are_two_cameras_and_one_replugged_costs_the_other_nothing",
         600,
     ),
+    (
+        "two_boards::a_board_plugged_in_later_is_a_new_camera_and_costs_the_first_nothing",
+        600,
+    ),
     ("daemon::vm_daemon_on_loopback_while_modes_switch", 600),
     ("gstreamer::vm_gstreamer_reads_both_nodes", 400),
     ("loopback::vm_loopback_end_to_end", 900),

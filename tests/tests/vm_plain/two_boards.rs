@@ -3,7 +3,9 @@
 //! camera of its serial, with its own `[camera."SERIAL"]` section, mode and
 //! FIFO; unplugging and replugging one costs the other no frame (its
 //! frame stream's sequence numbers stay consecutive), and the replugged
-//! board comes back to the same camera with its settings.
+//! board comes back to the same camera with its settings. A board plugged
+//! in after start becomes a new camera the same way, while the first
+//! streams on.
 
 use std::io::Read;
 use std::os::unix::net::UnixStream;
@@ -75,18 +77,7 @@ fn two_boards_are_two_cameras_and_one_replugged_costs_the_other_nothing() {
         sdi_daemon::backend::board::attached_serials().is_ok_and(|s| s.len() == 2)
     });
     let bus = Bus::start();
-    let fifo = tmp.path().join("view.y4m");
-    let _sdid = Reaped(
-        Daemon::bare_command(&bus, &[])
-            .args(["--sink", "y4m", "--y4m-path"])
-            .arg(&fifo)
-            .arg("--config")
-            .arg(config(tmp.path()))
-            .env("RUST_LOG", "info")
-            .stdout(Stdio::null())
-            .spawn()
-            .expect("start sdid"),
-    );
+    let _sdid = start_sdid(&bus, tmp.path());
     wait_until("sdid serves both boards", Duration::from_secs(90), || {
         sdictl(&bus.address, &["--camera", B, "get", "mode"])
             .status
@@ -116,34 +107,12 @@ fn two_boards_are_two_cameras_and_one_replugged_costs_the_other_nothing() {
     assert_eq!(ctl(&bus, &["--camera", B, "get", "mode"]), "depth-edge");
 
     // A's frames, by sequence number, while B goes and comes back.
-    let rt = runtime();
-    let (conn, stream) = rt.block_on(async {
-        let conn = sdi_tests::dbus::connect(&bus.address).await;
-        let listed = cameras::list(&conn).await.expect("list");
-        let path = cameras::choose(&listed, Some(A)).expect("A").path.clone();
-        let cam = cameras::proxy(&conn, path, zbus::proxy::CacheProperties::No)
-            .await
-            .expect("proxy");
-        let (ours, theirs) = UnixStream::pair().unwrap();
-        cam.stream_frames(Fd::from(&theirs))
-            .await
-            .expect("StreamFrames");
-        (conn, ours)
-    });
-    let seen = Arc::new(Mutex::new(Vec::new()));
-    let reader = {
-        let seen = seen.clone();
-        std::thread::spawn(move || read_sequences(stream, seen))
-    };
-    let count = || seen.lock().unwrap().len();
+    let frames_of_a = Sequences::follow(&bus, A);
+    let count = || frames_of_a.count();
     wait_until("A's first frames", Duration::from_secs(30), || {
         count() >= 10
     });
-    let available = |s: &str| {
-        let v: serde_json::Value =
-            serde_json::from_str(&ctl(&bus, &["--json", "--camera", s, "get", "stats"])).unwrap();
-        v["Stats"]["device_available"].as_bool().unwrap_or(false)
-    };
+    let available = |s: &str| available(&bus, s);
     b.unplug().expect("unplug B");
     wait_until("B missing", Duration::from_secs(30), || !available(B));
     let during = count();
@@ -159,19 +128,132 @@ fn two_boards_are_two_cameras_and_one_replugged_costs_the_other_nothing() {
     });
 
     // No frame of A lost: consecutive sequence numbers, none dropped.
-    let frames = seen.lock().unwrap().clone();
-    for w in frames.windows(2) {
-        assert_eq!(w[1].0, w[0].0 + 1, "A's sequence jumped: {:?}", w);
-    }
-    assert!(frames.iter().all(|f| f.1 == 0), "A's stream dropped frames");
+    frames_of_a.assert_none_lost();
     // B came back to its camera with its settings.
     assert_eq!(ctl(&bus, &["--camera", B, "get", "mode"]), "depth-edge");
     assert_eq!(ctl(&bus, &["--camera", B, "get", "colormap"]), "grey");
     let list: serde_json::Value = serde_json::from_str(&ctl(&bus, &["--json", "list"])).unwrap();
     assert_eq!(list["cameras"][1]["serial"], B, "{list}");
     assert_eq!(list["cameras"][1]["path"], "/org/sdi/Camera1", "{list}");
-    drop(conn);
+    drop(frames_of_a);
     drop(a);
     drop(b);
-    let _ = reader.join();
+}
+
+/// One camera's frame stream, read on a thread: each frame's sequence
+/// number and the stream's drop count.
+struct Sequences {
+    seen: Arc<Mutex<Vec<(u64, u64)>>>,
+    /// Holds the stream's slot (sdid ends the stream when it leaves).
+    _conn: zbus::Connection,
+}
+
+impl Sequences {
+    fn follow(bus: &Bus, serial: &str) -> Self {
+        let (conn, stream) = runtime().block_on(async {
+            let conn = sdi_tests::dbus::connect(&bus.address).await;
+            let listed = cameras::list(&conn).await.expect("list");
+            let path = cameras::choose(&listed, Some(serial))
+                .expect("camera")
+                .path
+                .clone();
+            let cam = cameras::proxy(&conn, path, zbus::proxy::CacheProperties::No)
+                .await
+                .expect("proxy");
+            let (ours, theirs) = UnixStream::pair().unwrap();
+            cam.stream_frames(Fd::from(&theirs))
+                .await
+                .expect("StreamFrames");
+            (conn, ours)
+        });
+        let seen = Arc::new(Mutex::new(Vec::new()));
+        let reading = seen.clone();
+        std::thread::spawn(move || read_sequences(stream, reading));
+        Self { seen, _conn: conn }
+    }
+
+    fn count(&self) -> usize {
+        self.seen.lock().unwrap().len()
+    }
+
+    fn assert_none_lost(&self) {
+        let frames = self.seen.lock().unwrap().clone();
+        for w in frames.windows(2) {
+            assert_eq!(w[1].0, w[0].0 + 1, "the sequence jumped: {w:?}");
+        }
+        assert!(frames.iter().all(|f| f.1 == 0), "the stream dropped frames");
+    }
+}
+
+fn available(bus: &Bus, serial: &str) -> bool {
+    let v: serde_json::Value =
+        serde_json::from_str(&ctl(bus, &["--json", "--camera", serial, "get", "stats"])).unwrap();
+    v["Stats"]["device_available"].as_bool().unwrap_or(false)
+}
+
+fn start_sdid(bus: &Bus, dir: &Path) -> Reaped {
+    Reaped(
+        Daemon::bare_command(bus, &[])
+            .args(["--sink", "y4m", "--y4m-path"])
+            .arg(dir.join("view.y4m"))
+            .arg("--config")
+            .arg(config(dir))
+            .env("RUST_LOG", "info")
+            .stdout(Stdio::null())
+            .spawn()
+            .expect("start sdid"),
+    )
+}
+
+#[test]
+fn a_board_plugged_in_later_is_a_new_camera_and_costs_the_first_nothing() {
+    if crate::GUEST.on_host() {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let a = BoardEmulator::start("sdia", A).expect("gadget A");
+    wait_until("A enumerated", Duration::from_secs(30), || {
+        sdi_daemon::backend::board::attached_serials().is_ok_and(|s| s.len() == 1)
+    });
+    let bus = Bus::start();
+    let _sdid = start_sdid(&bus, tmp.path());
+    wait_until("sdid serves A", Duration::from_secs(90), || {
+        sdictl(&bus.address, &["get", "serial"]).status.success()
+    });
+    // Alone, A's outputs are the configuration's own.
+    let device = ctl(&bus, &["get", "device"]);
+    assert!(device.ends_with("/view.y4m"), "{device}");
+    let frames_of_a = Sequences::follow(&bus, A);
+    wait_until("A's first frames", Duration::from_secs(30), || {
+        frames_of_a.count() >= 10
+    });
+
+    let b = BoardEmulator::start("sdib", B).expect("gadget B");
+    wait_until("B is a camera", Duration::from_secs(60), || {
+        sdictl(&bus.address, &["--camera", B, "get", "serial"])
+            .status
+            .success()
+    });
+    wait_until("B streams", Duration::from_secs(60), || available(&bus, B));
+    let list: serde_json::Value = serde_json::from_str(&ctl(&bus, &["--json", "list"])).unwrap();
+    assert_eq!(list["cameras"][0]["serial"], A, "{list}");
+    assert_eq!(list["cameras"][1]["serial"], B, "{list}");
+    assert_eq!(list["cameras"][1]["path"], "/org/sdi/Camera1", "{list}");
+    // B's section and its own FIFO; A untouched.
+    assert_eq!(ctl(&bus, &["--camera", B, "get", "colormap"]), "grey");
+    let device = ctl(&bus, &["--camera", B, "get", "device"]);
+    assert!(device.ends_with(&format!("view-{B}.y4m")), "{device}");
+    ctl(&bus, &["--camera", B, "set-mode", "depth-edge"]);
+    assert_eq!(ctl(&bus, &["--camera", A, "get", "mode"]), "raw");
+    let after = frames_of_a.count();
+    wait_until("A streams on", Duration::from_secs(30), || {
+        frames_of_a.count() >= after + 10
+    });
+    frames_of_a.assert_none_lost();
+    // Two now: sdictl asks which.
+    let out = sdictl(&bus.address, &["get", "mode"]);
+    assert_eq!(out.status.code(), Some(2));
+    drop(frames_of_a);
+    drop(b);
+    drop(a);
 }

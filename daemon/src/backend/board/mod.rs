@@ -545,6 +545,12 @@ pub fn board_attached() -> Result<bool, rusb::Error> {
     Ok(super::opt8241::usb::board_present(&ctx))
 }
 
+/// Where the attached boards are on the bus (bus, address), sorted.
+pub fn attached_addresses() -> Result<Vec<(u8, u8)>, rusb::Error> {
+    let ctx = rusb::Context::new()?;
+    Ok(super::opt8241::usb::board_addresses(&ctx))
+}
+
 /// The serials of the attached boards (sorted); `Err` says why libusb
 /// could not look.
 pub fn attached_serials() -> Result<Vec<String>, rusb::Error> {

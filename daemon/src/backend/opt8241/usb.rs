@@ -165,6 +165,27 @@ pub fn board_serials(context: &Context) -> Vec<String> {
     serials
 }
 
+/// The bus number and address of every attached board (either mode).
+/// Cheap: descriptors only.
+pub fn board_addresses(context: &Context) -> Vec<(u8, u8)> {
+    let Ok(list) = context.devices() else {
+        return Vec::new();
+    };
+    let mut found: Vec<(u8, u8)> = list
+        .iter()
+        .filter(|d| {
+            d.device_descriptor().is_ok_and(|desc| {
+                desc.vendor_id() == ids::VENDOR_ID
+                    && (desc.product_id() == ids::PRODUCT_ID_BULK
+                        || desc.product_id() == ids::PRODUCT_ID_UVC)
+            })
+        })
+        .map(|d| (d.bus_number(), d.address()))
+        .collect();
+    found.sort_unstable();
+    found
+}
+
 /// Is a board (any mode) attached? Cheap: descriptors only.
 pub fn board_present(context: &Context) -> bool {
     context.devices().is_ok_and(|list| {
