@@ -151,13 +151,7 @@ pub fn board_serials(context: &Context) -> Vec<String> {
     };
     let mut serials: Vec<String> = list
         .iter()
-        .filter(|d| {
-            d.device_descriptor().is_ok_and(|desc| {
-                desc.vendor_id() == ids::VENDOR_ID
-                    && (desc.product_id() == ids::PRODUCT_ID_BULK
-                        || desc.product_id() == ids::PRODUCT_ID_UVC)
-            })
-        })
+        .filter(is_board)
         .filter_map(|d| serial_of(&d))
         .collect();
     serials.sort();
@@ -173,13 +167,7 @@ pub fn board_addresses(context: &Context) -> Vec<(u8, u8)> {
     };
     let mut found: Vec<(u8, u8)> = list
         .iter()
-        .filter(|d| {
-            d.device_descriptor().is_ok_and(|desc| {
-                desc.vendor_id() == ids::VENDOR_ID
-                    && (desc.product_id() == ids::PRODUCT_ID_BULK
-                        || desc.product_id() == ids::PRODUCT_ID_UVC)
-            })
-        })
+        .filter(is_board)
         .map(|d| (d.bus_number(), d.address()))
         .collect();
     found.sort_unstable();
@@ -188,14 +176,17 @@ pub fn board_addresses(context: &Context) -> Vec<(u8, u8)> {
 
 /// Is a board (any mode) attached? Cheap: descriptors only.
 pub fn board_present(context: &Context) -> bool {
-    context.devices().is_ok_and(|list| {
-        list.iter().any(|d| {
-            d.device_descriptor().is_ok_and(|desc| {
-                desc.vendor_id() == ids::VENDOR_ID
-                    && (desc.product_id() == ids::PRODUCT_ID_BULK
-                        || desc.product_id() == ids::PRODUCT_ID_UVC)
-            })
-        })
+    context
+        .devices()
+        .is_ok_and(|list| list.iter().any(|d| is_board(&d)))
+}
+
+/// A board in either mode, by its descriptor's IDs.
+fn is_board(device: &Device<Context>) -> bool {
+    device.device_descriptor().is_ok_and(|desc| {
+        desc.vendor_id() == ids::VENDOR_ID
+            && (desc.product_id() == ids::PRODUCT_ID_BULK
+                || desc.product_id() == ids::PRODUCT_ID_UVC)
     })
 }
 
