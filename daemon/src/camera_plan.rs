@@ -114,6 +114,28 @@ pub fn new_boards(known: &[String], attached: &[String]) -> Vec<String> {
         .collect()
 }
 
+/// A device's serial as a camera's name on the bus: the serial itself
+/// when it [names a file](names_a_file), else its usable characters
+/// (others as `_`, at most 64), `fallback` when none are left. (A device
+/// chooses its serial; a NUL would break every listing of the cameras.)
+pub fn camera_name(serial: &str, fallback: &str) -> String {
+    if names_a_file(serial) {
+        return serial.to_owned();
+    }
+    let name: String = serial
+        .chars()
+        .take(64)
+        .map(|c| match c.is_ascii_alphanumeric() || "._-".contains(c) {
+            true => c,
+            false => '_',
+        })
+        .collect();
+    match name.trim_matches('_').is_empty() {
+        true => fallback.to_owned(),
+        false => name,
+    }
+}
+
 /// A serial that can be part of a file name and a label: 1 to 64 of
 /// `[A-Za-z0-9._-]`, not starting with a dot.
 fn names_a_file(serial: &str) -> bool {
@@ -252,5 +274,13 @@ mod tests {
         let p = board_plan(&Config::default(), "B2", 2);
         assert_eq!(p.config.board.serial.as_deref(), Some("B2"));
         assert_eq!(p.config.output.label, "SDI camera B2");
+    }
+
+    #[test]
+    fn a_hostile_serial_is_named_safely() {
+        assert_eq!(camera_name("A1B2", "opt8241"), "A1B2");
+        assert_eq!(camera_name("a\0b/c", "opt8241"), "a_b_c");
+        assert_eq!(camera_name("\0\0", "opt8241"), "opt8241");
+        assert_eq!(camera_name(&"x".repeat(100), "opt8241").len(), 64);
     }
 }

@@ -18,7 +18,7 @@ use super::{emit_stats, StartError, StartOptions};
 use crate::backend::select as backend_select;
 use crate::backend::{Backend, BackendName, CaptureSettings};
 use crate::calibration_store;
-use crate::camera_plan::CameraPlan;
+use crate::camera_plan::{self, CameraPlan};
 use crate::dbus::camera::{Camera, CameraInfo};
 use crate::dbus::{camera_path, BUS_NAME};
 use crate::frame_loop::{Command, FrameLoop};
@@ -173,10 +173,12 @@ struct Opened {
 fn open_camera(options: &StartOptions, plan: CameraPlan) -> Result<Opened, StartError> {
     let config = &plan.config;
     let (backend, extras) = backend_select::open(config, config.mode)?;
+    let kind = backend.kind().to_string();
     let serial = plan
         .serial
         .or_else(|| backend.serial())
-        .unwrap_or_else(|| backend.kind().to_string());
+        .map(|s| camera_plan::camera_name(&s, &kind))
+        .unwrap_or(kind);
     // Several simulated cameras are one model: the serial keeps their
     // calibrations apart.
     // (A board's device names its serial already, and keys its

@@ -155,7 +155,12 @@ pub async fn serve(
     let mut served = Served::default();
     let boards = arrivals::attached_boards(&options.config);
     let mut screens = Vec::new();
-    for plan in camera_plan::plans(&options.config, &boards) {
+    let plans = camera_plan::plans(&options.config, &boards);
+    // Boards served by serial (each camera pinned to its board): one
+    // plugged in later is a camera too.
+    let watch_boards = camera_plan::serves_boards_by_serial(&options.config)
+        && plans.iter().all(|p| p.config.board.serial.is_some());
+    for plan in plans {
         screens.push(camera::serve_camera(&conn, &options, plan, &mut served, &exits).await?);
     }
     request_name(&conn).await?;
@@ -164,16 +169,14 @@ pub async fn serve(
         eprintln!("{}", screens.join("\n"));
     }
     let served = Arc::new(Mutex::new(served));
-    // Boards served by serial: one plugged in later is a camera too.
-    let watcher = (!boards.is_empty() && camera_plan::serves_boards_by_serial(&options.config))
-        .then(|| {
-            tokio::spawn(arrivals::watch(
-                conn.clone(),
-                options.clone(),
-                served.clone(),
-                exits.clone(),
-            ))
-        });
+    let watcher = watch_boards.then(|| {
+        tokio::spawn(arrivals::watch(
+            conn.clone(),
+            options.clone(),
+            served.clone(),
+            exits.clone(),
+        ))
+    });
     let why = shutdown::wait_for_stop(stop, &exits).await;
     tracing::info!("{why}: shutting down");
     if let Some(w) = watcher {

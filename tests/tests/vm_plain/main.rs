@@ -75,6 +75,10 @@ static GUEST: Guest = Guest::new(&[
         "two_boards::a_board_plugged_in_later_is_a_new_camera_and_costs_the_first_nothing",
         600,
     ),
+    (
+        "two_boards::a_board_with_an_odd_serial_is_named_safely",
+        300,
+    ),
     ("daemon::vm_daemon_on_loopback_while_modes_switch", 600),
     ("gstreamer::vm_gstreamer_reads_both_nodes", 400),
     ("loopback::vm_loopback_end_to_end", 900),

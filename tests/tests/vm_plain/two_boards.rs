@@ -257,3 +257,29 @@ fn a_board_plugged_in_later_is_a_new_camera_and_costs_the_first_nothing() {
     drop(b);
     drop(a);
 }
+
+#[test]
+fn a_board_with_an_odd_serial_is_named_safely() {
+    if crate::GUEST.on_host() {
+        return;
+    }
+    // A device chooses its serial: this one could not name a file.
+    let odd = BoardEmulator::start("sdiodd", "../x y").expect("gadget");
+    wait_until("enumerated", Duration::from_secs(30), || {
+        sdi_daemon::backend::board::attached_serials().is_ok_and(|s| s.len() == 1)
+    });
+    let tmp = tempfile::tempdir().unwrap();
+    let bus = Bus::start();
+    let _sdid = start_sdid(&bus, tmp.path());
+    wait_until("sdid serves the board", Duration::from_secs(90), || {
+        sdictl(&bus.address, &["get", "mode"]).status.success()
+    });
+    assert_eq!(ctl(&bus, &["get", "serial"]), ".._x_y");
+    let list: serde_json::Value = serde_json::from_str(&ctl(&bus, &["--json", "list"])).unwrap();
+    assert_eq!(list["cameras"][0]["serial"], ".._x_y", "{list}");
+    // Its outputs keep the configured names (not the serial's).
+    let device = ctl(&bus, &["get", "device"]);
+    assert!(device.ends_with("/view.y4m"), "{device}");
+    assert_eq!(ctl(&bus, &["--camera", ".._x_y", "get", "mode"]), "raw");
+    drop(odd);
+}
