@@ -8,6 +8,7 @@
 mod board;
 mod board_daemon;
 mod board_hostile;
+mod cameras_loopback;
 mod chromium_pipewire;
 mod daemon;
 mod dbus_activation;
@@ -83,6 +84,10 @@ static GUEST: Guest = Guest::new(&[
     ("gstreamer::vm_gstreamer_reads_both_nodes", 400),
     ("loopback::vm_loopback_end_to_end", 900),
     ("loopback::vm_loopback_module_switch", 300),
+    (
+        "cameras_loopback::vm_two_cameras_on_their_own_labelled_nodes",
+        300,
+    ),
     (
         "pipewire::vm_pipewire_lists_the_sdi_camera_in_both_orders",
         1200,
