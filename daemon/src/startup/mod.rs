@@ -160,8 +160,23 @@ pub async fn serve(
     // plugged in later is a camera too.
     let watch_boards = camera_plan::serves_boards_by_serial(&options.config)
         && plans.iter().all(|p| p.config.board.serial.is_some());
+    // One of several cameras that cannot be opened (a board that fails)
+    // costs the others nothing; sdid stops only when none opens.
+    let several = plans.len() > 1;
+    let mut first_error = None;
     for plan in plans {
-        screens.push(camera::serve_camera(&conn, &options, plan, &mut served, &exits).await?);
+        let serial = plan.serial.clone().unwrap_or_default();
+        match camera::serve_camera(&conn, &options, plan, &mut served, &exits).await {
+            Ok(screen) => screens.push(screen),
+            Err(e) if several => {
+                tracing::error!("camera {serial} not served: {e}");
+                first_error.get_or_insert(e);
+            }
+            Err(e) => return Err(e),
+        }
+    }
+    if let (true, Some(e)) = (served.cameras.is_empty(), first_error) {
+        return Err(e);
     }
     request_name(&conn).await?;
     // Shown where info is (the default; the tests run sdid at warn).

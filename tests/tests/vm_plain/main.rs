@@ -80,6 +80,10 @@ static GUEST: Guest = Guest::new(&[
         "two_boards::a_board_with_an_odd_serial_is_named_safely",
         300,
     ),
+    (
+        "two_boards::a_board_that_cannot_be_opened_costs_the_others_nothing",
+        300,
+    ),
     ("daemon::vm_daemon_on_loopback_while_modes_switch", 600),
     ("gstreamer::vm_gstreamer_reads_both_nodes", 400),
     ("loopback::vm_loopback_end_to_end", 900),

@@ -283,3 +283,35 @@ fn a_board_with_an_odd_serial_is_named_safely() {
     assert_eq!(ctl(&bus, &["--camera", ".._x_y", "get", "mode"]), "raw");
     drop(odd);
 }
+
+#[test]
+fn a_board_that_cannot_be_opened_costs_the_others_nothing() {
+    use sdi_tests::board_emulator::hostile::{HostileBoard, HostileMode};
+    if crate::GUEST.on_host() {
+        return;
+    }
+    let a = BoardEmulator::start("sdia", A).expect("gadget A");
+    // The board's IDs, but no bulk IN endpoint: it cannot be opened.
+    let bad = HostileBoard::start("sdibad", "BAD00001", HostileMode::GarbageDescriptors)
+        .expect("hostile gadget");
+    wait_until("both enumerated", Duration::from_secs(30), || {
+        sdi_daemon::backend::board::attached_serials().is_ok_and(|s| s.len() == 2)
+    });
+    let tmp = tempfile::tempdir().unwrap();
+    let bus = Bus::start();
+    let _sdid = start_sdid(&bus, tmp.path());
+    wait_until("sdid serves A", Duration::from_secs(90), || {
+        sdictl(&bus.address, &["--camera", A, "get", "mode"])
+            .status
+            .success()
+    });
+    let list: serde_json::Value = serde_json::from_str(&ctl(&bus, &["--json", "list"])).unwrap();
+    let cameras = list["cameras"].as_array().unwrap();
+    assert_eq!(cameras.len(), 1, "{list}");
+    assert_eq!(cameras[0]["serial"], A, "{list}");
+    wait_until("A streams", Duration::from_secs(30), || available(&bus, A));
+    // The only camera served: plain sdictl reaches it.
+    assert_eq!(ctl(&bus, &["get", "serial"]), A);
+    drop(bad);
+    drop(a);
+}
