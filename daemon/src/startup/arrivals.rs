@@ -37,7 +37,9 @@ pub(super) async fn watch(
     served: Arc<Mutex<Served>>,
     exits: Arc<Notify>,
 ) {
-    let mut boards = addresses().await;
+    // Empty at first: the first look reads the serials, so a board that
+    // arrived while the others were opened is not missed.
+    let mut boards = Vec::new();
     // Serials that could not be served, kept until they leave the bus (a
     // board that fails to open is not opened again every poll).
     let mut failed: Vec<String> = Vec::new();
