@@ -86,9 +86,11 @@ fn measure(frames: &[Frame], v2: bool) -> Row {
     } else {
         format::KIND_FRAME_V1
     };
+    // one decoder for the run, as a reader keeps one
+    let mut decoder = format::Decoder::default();
     let t0 = thread_cpu();
     for (p, f) in payloads.iter().zip(frames) {
-        match format::decode(kind, p, size) {
+        match decoder.decode(kind, p, size) {
             Ok(Record::Frame { frame, .. }) => assert_eq!(frame.sequence, f.sequence),
             other => panic!("decode failed: {other:?}"),
         }

@@ -413,8 +413,40 @@ fn frame(
 
 /// Decodes a record payload of the given kind for a recording of frames
 /// `size` (width, height) pixels; frames and dark frames of another size
-/// are malformed. Allocates at most one frame.
+/// are malformed. Allocates at most one frame (and, for a compressed one,
+/// a zstd context and its body: a reader keeps a [`Decoder`] instead).
 pub fn decode(kind: u8, payload: &[u8], size: (usize, usize)) -> Result<Record, DecodeError> {
+    Decoder::default().decode(kind, payload, size)
+}
+
+/// Decodes record payloads like [`decode`], keeping its zstd context and
+/// the decompressed body between calls, so a frame costs no context setup
+/// and no body allocation.
+#[derive(Default)]
+pub struct Decoder {
+    zstd: Option<zstd::bulk::Decompressor<'static>>,
+    /// The last decompressed body; exactly one frame's body long.
+    body: Vec<u8>,
+}
+
+impl Decoder {
+    /// [`decode`], reusing this decoder's state.
+    pub fn decode(
+        &mut self,
+        kind: u8,
+        payload: &[u8],
+        size: (usize, usize),
+    ) -> Result<Record, DecodeError> {
+        decode_with(self, kind, payload, size)
+    }
+}
+
+fn decode_with(
+    dec: &mut Decoder,
+    kind: u8,
+    payload: &[u8],
+    size: (usize, usize),
+) -> Result<Record, DecodeError> {
     let px = size.0.saturating_mul(size.1);
     match kind {
         KIND_FRAME_V1 | KIND_FRAME => {
@@ -440,13 +472,23 @@ pub fn decode(kind: u8, payload: &[u8], size: (usize, usize)) -> Result<Record, 
                 };
                 let body_len = px * (sample_bytes + 1);
                 let rest = c.take(c.buf.len())?;
-                let body = match compression {
-                    COMPRESSION_NONE => std::borrow::Cow::Borrowed(rest),
+                let body: &[u8] = match compression {
+                    COMPRESSION_NONE => rest,
                     COMPRESSION_ZSTD => {
-                        // capacity bounds the output: a hostile stream cannot inflate past one frame
-                        let b = zstd::bulk::decompress(rest, body_len)
+                        let zstd = match &mut dec.zstd {
+                            Some(z) => z,
+                            None => dec.zstd.insert(
+                                zstd::bulk::Decompressor::new()
+                                    .map_err(|e| c.err(format!("zstd: {e}")))?,
+                            ),
+                        };
+                        // the buffer is one frame's body: a hostile stream
+                        // cannot inflate past it (zstd fails instead)
+                        dec.body.resize(body_len, 0);
+                        let n = zstd
+                            .decompress_to_buffer(rest, dec.body.as_mut_slice())
                             .map_err(|e| c.err(format!("zstd: {e}")))?;
-                        std::borrow::Cow::Owned(b)
+                        &dec.body[..n]
                     }
                     other => return Err(c.err(format!("unknown compression {other}"))),
                 };
@@ -457,11 +499,12 @@ pub fn decode(kind: u8, payload: &[u8], size: (usize, usize)) -> Result<Record, 
                 let dn = match samples {
                     SAMPLES_F32 => f32s(s),
                     _ => {
-                        let scale = if samples == SAMPLES_I16 { 1.0 } else { 2.0 };
+                        // i16 / 2 is exact in f32, so * 0.5 gives the bits / 2.0 did
+                        let scale = if samples == SAMPLES_I16 { 1.0 } else { 0.5 };
                         let (lo, hi) = s.split_at(px);
                         lo.iter()
                             .zip(hi)
-                            .map(|(&l, &h)| i16::from_le_bytes([l, h]) as f32 / scale)
+                            .map(|(&l, &h)| f32::from(i16::from_le_bytes([l, h])) * scale)
                             .collect()
                     }
                 };
@@ -541,6 +584,58 @@ mod tests {
         let a: Vec<u32> = a.iter().map(|v| v.to_bits()).collect();
         let b: Vec<u32> = b.iter().map(|v| v.to_bits()).collect();
         assert_eq!(a, b);
+    }
+
+    /// A zstd frame record of `px` pixels whose body is `body`.
+    fn zstd_record(px: usize, body: &[u8]) -> Vec<u8> {
+        let mut out = Vec::new();
+        frame_prefix("raw", &frame_of(vec![0.0; px]), &mut out);
+        out.extend_from_slice(&[SAMPLES_I16, COMPRESSION_ZSTD]);
+        out.extend_from_slice(&zstd::bulk::compress(body, ZSTD_LEVEL).unwrap());
+        out
+    }
+
+    #[test]
+    fn a_zstd_body_of_another_length_is_malformed() {
+        // one frame's body is 3 bytes a pixel; a bomb inflates far past it
+        for len in [0, 3 * 100 - 1, 3 * 100 + 1, 1 << 20] {
+            let rec = zstd_record(100, &vec![1u8; len]);
+            let mut d = Decoder::default();
+            for _ in 0..2 {
+                let e = d.decode(KIND_FRAME, &rec, (100, 1)).unwrap_err();
+                assert_eq!(e.what, "frame", "{len}");
+                assert_eq!(decode(KIND_FRAME, &rec, (100, 1)).unwrap_err(), e);
+            }
+        }
+    }
+
+    #[test]
+    fn one_decoder_decodes_every_record_as_a_fresh_one() {
+        let frames = [
+            (0..500).map(|i| (i % 97) as f32 - 40.0).collect::<Vec<_>>(),
+            (0..500).map(|i| i as f32 * 0.5 - 70.0).collect(),
+            (0..500).map(|i| i as f32 * 0.25).collect(),
+            (0..500).map(|i| ((i * 7919) % 65536) as f32 - 32768.0).collect(),
+        ];
+        let mut d = Decoder::default();
+        let (mut out, mut scratch) = (Vec::new(), Vec::new());
+        for dn in frames.iter().chain(frames.iter().rev()) {
+            encode_frame("raw", &frame_of(dn.clone()), &mut out, &mut scratch);
+            let fresh = decode(KIND_FRAME, &out, (500, 1)).unwrap();
+            let reused = d.decode(KIND_FRAME, &out, (500, 1)).unwrap();
+            match (fresh, reused) {
+                (Record::Frame { frame: a, .. }, Record::Frame { frame: b, .. }) => {
+                    assert_bits_eq(&a.dn.data, dn);
+                    assert_bits_eq(&b.dn.data, dn);
+                    assert_eq!(a.saturated.data, b.saturated.data);
+                }
+                other => panic!("{other:?}"),
+            }
+            // a damaged record between frames leaves the decoder usable
+            let bad = zstd_record(500, &[9u8; 7]);
+            assert!(d.decode(KIND_FRAME, &bad, (500, 1)).is_err());
+            assert!(d.decode(KIND_FRAME, &out[..out.len() - 3], (500, 1)).is_err());
+        }
     }
 
     #[test]

@@ -7,7 +7,7 @@ use std::fs::File;
 use std::io::{self, BufReader, Read};
 use std::path::Path;
 
-use crate::format::{self, Header, HeaderError, Record};
+use crate::format::{self, Decoder, Header, HeaderError, Record};
 
 /// Why a recording cannot be opened.
 #[derive(Debug, thiserror::Error)]
@@ -33,6 +33,9 @@ pub struct RecordingReader<R> {
     /// Set when reading stopped at a torn or corrupt record instead of a clean end.
     damaged_tail: Option<String>,
     finished: bool,
+    /// Kept between records: the zstd context and the buffers.
+    decoder: Decoder,
+    payload: Vec<u8>,
 }
 
 impl RecordingReader<BufReader<File>> {
@@ -91,6 +94,8 @@ impl<R: Read> RecordingReader<R> {
             header,
             damaged_tail: None,
             finished: false,
+            decoder: Decoder::default(),
+            payload: Vec::new(),
         })
     }
 
@@ -142,17 +147,18 @@ impl<R: Read> RecordingReader<R> {
                 self.max_payload
             ));
         }
-        let mut payload = vec![0u8; len as usize + 4];
-        let n = read_exact_or_eof(&mut self.input, &mut payload).map_err(|e| e.to_string())?;
-        if n < payload.len() {
-            return Err(format!("torn record ({n} of {} bytes)", payload.len()));
+        self.payload.resize(len as usize + 4, 0);
+        let n = read_exact_or_eof(&mut self.input, &mut self.payload).map_err(|e| e.to_string())?;
+        if n < self.payload.len() {
+            return Err(format!("torn record ({n} of {} bytes)", self.payload.len()));
         }
-        let crc_bytes = payload.split_off(len as usize);
+        let (payload, crc_bytes) = self.payload.split_at(len as usize);
         let crc = u32::from_le_bytes([crc_bytes[0], crc_bytes[1], crc_bytes[2], crc_bytes[3]]);
-        if crc != format::record_crc(kind, &payload) {
+        if crc != format::record_crc(kind, payload) {
             return Err("record checksum mismatch".into());
         }
-        format::decode(kind, &payload, self.size)
+        self.decoder
+            .decode(kind, payload, self.size)
             .map(Some)
             .map_err(|e| e.to_string())
     }
