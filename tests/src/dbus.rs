@@ -337,6 +337,18 @@ pub fn sdictl(address: &str, args: &[&str]) -> Output {
         .expect("run sdictl")
 }
 
+/// [`sdictl`] that must succeed (its stderr in the panic); its stdout,
+/// trimmed.
+pub fn sdictl_ok(address: &str, args: &[&str]) -> String {
+    let out = sdictl(address, args);
+    assert!(
+        out.status.success(),
+        "sdictl {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).trim().to_owned()
+}
+
 /// Reads the daemon's Stats property as JSON.
 pub fn stats(d: &Daemon) -> serde_json::Value {
     let out = d.ctl(&["--json", "get", "stats"]);

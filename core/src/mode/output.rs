@@ -43,6 +43,14 @@ impl ModeOutput {
         }
     }
 
+    /// Stamps a signed image without channels (a spare from the separation
+    /// mode may carry some) with its capture time and sequence number.
+    pub(crate) fn stamp_image(&mut self, timestamp_us: u64, sequence: u64) {
+        self.timestamp_us = timestamp_us;
+        self.sequence = sequence;
+        self.channels = None;
+    }
+
     /// Reallocates only when the size changes (warm-up); the channels'
     /// buffers are kept for [`SeparatedChannels::assign`].
     pub(crate) fn ensure_size(&mut self, width: usize, height: usize) {

@@ -54,10 +54,7 @@ impl Pipeline for SnapshotPipeline {
             &mut out.flags.data,
             self.config.zero_saturated,
         );
-        out.timestamp_us = frame.timestamp_us;
-        out.sequence = frame.sequence;
-        // A spare from the separation mode may carry channels.
-        out.channels = None;
+        out.stamp_image(frame.timestamp_us, frame.sequence);
         Some(&self.out)
     }
 

@@ -102,10 +102,7 @@ impl Pipeline for TwoShotPipeline {
             &mut out.flags.data,
             self.config.zero_saturated,
         );
-        out.timestamp_us = self.first.timestamp_us;
-        out.sequence = frame.sequence;
-        // A spare from the separation mode may carry channels.
-        out.channels = None;
+        out.stamp_image(self.first.timestamp_us, frame.sequence);
         Some(&self.out)
     }
 

@@ -9,7 +9,6 @@ use std::path::Path;
 use std::time::Duration;
 
 use sdi_tests::dbus::{sdictl, Bus, Daemon};
-use sdi_tests::process::stdout_of;
 use sdi_tests::require_dbus;
 use sdi_tests::sdid_command::SdidCommand;
 use sdi_tests::wait::wait_until;
@@ -39,13 +38,7 @@ fn two_cameras(bus: &Bus, dir: &Path) -> Daemon {
 }
 
 fn ctl_ok(d: &Daemon, args: &[&str]) -> String {
-    let out = d.ctl(args);
-    assert!(
-        out.status.success(),
-        "sdictl {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    stdout_of(&out).trim().to_owned()
+    sdi_tests::dbus::sdictl_ok(&d.address, args)
 }
 
 #[test]

@@ -13,13 +13,7 @@ use sdi_tests::process::Reaped;
 use sdi_tests::wait::wait_until;
 
 fn ctl(bus: &Bus, args: &[&str]) -> String {
-    let out = sdictl(&bus.address, args);
-    assert!(
-        out.status.success(),
-        "sdictl {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).trim().to_owned()
+    sdi_tests::dbus::sdictl_ok(&bus.address, args)
 }
 
 /// Two YUYV frames of `dev`, read by ffmpeg.

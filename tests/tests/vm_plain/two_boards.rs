@@ -26,13 +26,7 @@ const A: &str = "EMUA0001";
 const B: &str = "EMUB0002";
 
 fn ctl(bus: &Bus, args: &[&str]) -> String {
-    let out = sdictl(&bus.address, args);
-    assert!(
-        out.status.success(),
-        "sdictl {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).trim().to_owned()
+    sdi_tests::dbus::sdictl_ok(&bus.address, args)
 }
 
 /// The sequence numbers of every frame on `stream`, as they come.
