@@ -615,7 +615,9 @@ mod tests {
             (0..500).map(|i| (i % 97) as f32 - 40.0).collect::<Vec<_>>(),
             (0..500).map(|i| i as f32 * 0.5 - 70.0).collect(),
             (0..500).map(|i| i as f32 * 0.25).collect(),
-            (0..500).map(|i| ((i * 7919) % 65536) as f32 - 32768.0).collect(),
+            (0..500)
+                .map(|i| ((i * 7919) % 65536) as f32 - 32768.0)
+                .collect(),
         ];
         let mut d = Decoder::default();
         let (mut out, mut scratch) = (Vec::new(), Vec::new());
@@ -634,7 +636,9 @@ mod tests {
             // a damaged record between frames leaves the decoder usable
             let bad = zstd_record(500, &[9u8; 7]);
             assert!(d.decode(KIND_FRAME, &bad, (500, 1)).is_err());
-            assert!(d.decode(KIND_FRAME, &out[..out.len() - 3], (500, 1)).is_err());
+            assert!(d
+                .decode(KIND_FRAME, &out[..out.len() - 3], (500, 1))
+                .is_err());
         }
     }
 
