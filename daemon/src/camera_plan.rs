@@ -125,7 +125,7 @@ pub fn camera_name(serial: &str, fallback: &str) -> String {
     let name: String = serial
         .chars()
         .take(64)
-        .map(|c| match c.is_ascii_alphanumeric() || "._-".contains(c) {
+        .map(|c| match u8::try_from(c).is_ok_and(plain_byte) {
             true => c,
             false => '_',
         })
@@ -139,11 +139,12 @@ pub fn camera_name(serial: &str, fallback: &str) -> String {
 /// A serial that can be part of a file name and a label: 1 to 64 of
 /// `[A-Za-z0-9._-]`, not starting with a dot.
 fn names_a_file(serial: &str) -> bool {
-    (1..=64).contains(&serial.len())
-        && !serial.starts_with('.')
-        && serial
-            .bytes()
-            .all(|b| b.is_ascii_alphanumeric() || b"._-".contains(&b))
+    (1..=64).contains(&serial.len()) && !serial.starts_with('.') && serial.bytes().all(plain_byte)
+}
+
+/// A byte a serial may hold to name a file: `[A-Za-z0-9._-]`.
+fn plain_byte(b: u8) -> bool {
+    b.is_ascii_alphanumeric() || b"._-".contains(&b)
 }
 
 /// Each output of one of several cameras, named with its serial.

@@ -1,7 +1,7 @@
 //! Online subcommands: talk to `sdid` over D-Bus (`org.sdi.Camera1`)
 //! through the typed proxy of `sdi_api`, one module per group of commands.
 
-mod cameras;
+pub(crate) mod cameras;
 mod doctor;
 mod export;
 mod files;

@@ -42,13 +42,7 @@ pub async fn choose(State(c): State<Arc<Controls>>, Json(r): Json<ChooseRequest>
     let proxy = c
         .bus
         .call(|cam| async move {
-            let conn = cam.inner().connection().clone();
-            let listed = cameras::list(&conn).await?;
-            let path = cameras::choose(&listed, Some(&wanted))
-                .map_err(|e| CliError::Usage(e.to_string()))?
-                .path
-                .clone();
-            Ok(cameras::proxy(&conn, path, zbus::proxy::CacheProperties::Lazily).await?)
+            crate::online::cameras::chosen(cam.inner().connection(), Some(&wanted)).await
         })
         .await
         .map_err(PageError::from)?;

@@ -22,7 +22,7 @@ const POLL: Duration = Duration::from_secs(1);
 /// The serials of the boards attached, when the configuration may serve
 /// every one (the board or auto backend, no `[board] serial`).
 pub(super) fn attached_boards(c: &Config) -> Vec<String> {
-    if !matches!(c.backend, BackendKind::Opt8241 | BackendKind::Auto) || c.board.serial.is_some() {
+    if !camera_plan::serves_boards_by_serial(c) {
         return Vec::new();
     }
     board::attached_serials()
