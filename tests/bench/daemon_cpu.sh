@@ -4,10 +4,17 @@
 # reader), per mode, against ffmpeg on the same frames (Y16 in, scaled to
 # 640x480 C444 out to a pipe, so ffmpeg writes 4x the pixels sdid does),
 # side by side in one run on the host. Both sides at 640x480: the loopback
-# variant in the VM (daemon_cpu_vm.sh). CPU is utime+stime from /proc/PID/stat over a
-# window, as a share of one core; fps from sdid's own Stats.
+# variant in the VM (daemon_cpu_vm.sh). ffmpeg runs through every mode's
+# window, so both programs are measured over the same seconds under the
+# same load; CPU is the scheduler's nanoseconds of every thread
+# (/proc/PID/task/*/schedstat: clock ticks counted too few, about 17 of
+# sdid's per 10 s), as a share of one core; fps from sdid's own Stats. The
+# ratio column is sdid over ffmpeg, the median over the mode's windows. On
+# the host a second ffmpeg writes the y4m at sdid's own 320x240 (no
+# scaling): the like-for-like ratio.
 #
-#   bash tests/bench/daemon_cpu.sh [WINDOW_S]        (default 10 s per mode)
+#   bash tests/bench/daemon_cpu.sh [WINDOW_S [REPEATS]]
+#                           (default 10 s per window, 3 windows per mode)
 #
 # Needs dbus-daemon, ffmpeg and Debian's python3 with numpy (tests/vm/setup-host.sh
 # installs them). With SDI_BENCH_SINK=loopback (inside the VM: see
@@ -18,6 +25,7 @@
 set -eEuo pipefail
 trap 'rc=$?; echo "daemon_cpu.sh: failed at line $LINENO (exit $rc): $BASH_COMMAND" >&2; exit $rc' ERR
 window_s=${1:-10}
+repeats=${2:-3}
 cd "$(dirname "$0")/../.."
 
 sink=${SDI_BENCH_SINK:-y4m}
@@ -31,22 +39,75 @@ fi
 . tests/bench/replay_common.sh
 peer_dev=/dev/video52
 
-ticks() { awk '{ print $14 + $15 }' "/proc/$1/stat"; }
-hz=$(getconf CLK_TCK)
+# Nanoseconds on a CPU of every thread of PID so far.
+cpu_ns() { cat /proc/"$1"/task/*/schedstat 2>/dev/null | awk '{ t += $1 } END { printf "%.0f", t }'; }
 
-# CPU share of one core of PID over the window, printed as a percentage.
-cpu_pct() {
-    local pid=$1 t0 t1
-    t0=$(ticks "$pid"); sleep "$window_s"; t1=$(ticks "$pid")
-    awk -v d=$((t1 - t0)) -v hz="$hz" -v w="$window_s" 'BEGIN { printf "%.1f", 100 * d / hz / w }'
+# One window: sdid's and the peer's CPU share of one core (%) over the
+# same $window_s seconds, printed as "SDID PEER".
+window_pcts() {
+    local s0 p0 q0 s1 p1 q1 t0 t1
+    t0=$(date +%s%N); s0=$(cpu_ns "$sdid_pid"); p0=$(cpu_ns "$ff_pid"); q0=$(cpu_ns "$same_pid")
+    sleep "$window_s"
+    t1=$(date +%s%N); s1=$(cpu_ns "$sdid_pid"); p1=$(cpu_ns "$ff_pid"); q1=$(cpu_ns "$same_pid")
+    awk -v s=$((s1 - s0)) -v p=$((p1 - p0)) -v q=$((q1 - q0)) -v w=$((t1 - t0)) \
+        'BEGIN { printf "%.2f %.2f %.2f\n", 100 * s / w, 100 * p / w, 100 * q / w }'
+}
+
+median() {
+    sort -g | awk '{ v[NR] = $1 } END { m = int((NR + 1) / 2); printf "%.2f", (NR % 2) ? v[m] : (v[m] + v[m + 1]) / 2 }'
 }
 
 stats_fps() { ctl --json status | /usr/bin/python3 -c 'import json,sys; print("%.1f" % json.load(sys.stdin)["Stats"]["fps"])'; }
 
-# 1. A 320x240 recording of the simulator at 60 fps (8 s).
+# 1. A 320x240 recording of the simulator at 60 fps (8 s), and the same
+#    frames as Y16 for the peer.
 record_sim
+ctl export "$tmp/rec.sdirec" "$tmp/rec.npy" >/dev/null
+/usr/bin/python3 - "$tmp/rec.npy" "$tmp/rec.y16" <<'PY'
+import sys, numpy as np
+dn = np.load(sys.argv[1])
+np.clip(np.rint(dn) + 32768, 0, 65535).astype("<u2").tofile(sys.argv[2])
+PY
 
-# 2. sdid replaying it in a loop, one reader per published node, per mode.
+# 2. The peer: ffmpeg on the same frames, Y16 in at 60 fps, 640x480 out,
+#    running through every window below.
+same_pid=
+if [ "$sink" = loopback ]; then
+    ffmpeg -nostdin -loglevel error -re -stream_loop -1 -f rawvideo -pix_fmt gray16le \
+        -video_size 320x240 -framerate 60 -i "$tmp/rec.y16" \
+        -vf scale=640:480 -pix_fmt yuyv422 -f v4l2 "$peer_dev" &
+    ff_pid=$!
+    pids+=("$ff_pid")
+    # A reader, like sdid's nodes have; retried until ffmpeg has set the
+    # node's format (REQBUFS fails with EINVAL before that, which took more
+    # than 2 s in the emulated guest). It reads until the end.
+    for _ in $(seq 40); do
+        sleep 0.5
+        "$tool" latency "$peer_dev" 100000 >"$tmp/lat-peer" 2>&1 &
+        reader=$!
+        sleep 0.5
+        kill -0 "$reader" 2>/dev/null && break
+    done
+    pids+=("$reader")
+    peer_label="ffmpeg v4l2 %"
+else
+    ffmpeg -nostdin -loglevel error -re -stream_loop -1 -f rawvideo -pix_fmt gray16le \
+        -video_size 320x240 -framerate 60 -i "$tmp/rec.y16" \
+        -vf scale=640:480 -pix_fmt yuv444p -f yuv4mpegpipe - >"$tmp/peer.y4m" &
+    ff_pid=$!
+    pids+=("$ff_pid")
+    peer_label="ffmpeg y4m %"
+    # A second peer at sdid's own y4m size (no scaling, the same pixels
+    # sdid writes): the like-for-like reference.
+    ffmpeg -nostdin -loglevel error -re -stream_loop -1 -f rawvideo -pix_fmt gray16le \
+        -video_size 320x240 -framerate 60 -i "$tmp/rec.y16" \
+        -pix_fmt yuv444p -f yuv4mpegpipe - >"$tmp/peer-same.y4m" &
+    same_pid=$!
+    pids+=("$same_pid")
+fi
+
+# 3. sdid replaying the recording in a loop beside the peer, one reader per
+#    published node, per mode.
 if [ "$sink" = loopback ]; then
     printf '[output]\nlabel = "SDI camera"\ndata_label = "SDI data"\n' >"$tmp/sdid.toml"
     "$sdid" --session --config "$tmp/sdid.toml" --replay "$tmp/rec.sdirec" --loop \
@@ -60,70 +121,46 @@ pids+=("$sdid_pid")
 if [ "$sink" != loopback ]; then
     cat "$tmp/view.y4m" >/dev/null &
     pids+=($!)
+    cat "$tmp/peer.y4m" >/dev/null &
+    pids+=($!)
+    cat "$tmp/peer-same.y4m" >/dev/null &
+    pids+=($!)
 fi
 wait_bus "$tmp/replay.log"
+printf '%-22s %8s %6s %14s %6s' "sdid mode" "sdid %" "fps" "$peer_label" "ratio"
 if [ "$sink" = loopback ]; then
-    printf '%-22s %8s %8s   %s\n' "sdid mode" "CPU %" "fps" "capture to dequeue (view; data)"
+    printf '   %s' "capture to dequeue (view; data)"
 else
-    printf '%-22s %8s %8s\n' "sdid mode" "CPU %" "fps"
+    printf ' %16s %6s' "ffmpeg 320x240 %" "ratio"
 fi
+printf '\n'
 modes=$(ctl --json modes | /usr/bin/python3 -c 'import json,sys; print(" ".join(json.load(sys.stdin)["modes"]))')
 for mode in $modes; do
     ctl set-mode "$mode" >/dev/null
     if [ "$sink" = loopback ]; then
-        # Both readers run through the warm-up and the whole window.
-        "$tool" latency "$view_dev" $((window_s + 2)) >"$tmp/lat-view" &
+        # Both readers run through the warm-up and every window.
+        "$tool" latency "$view_dev" $((window_s * repeats + 2)) >"$tmp/lat-view" &
         view_reader=$!
-        "$tool" latency "$data_dev" $((window_s + 2)) >"$tmp/lat-data" &
+        "$tool" latency "$data_dev" $((window_s * repeats + 2)) >"$tmp/lat-data" &
         data_reader=$!
         pids+=("$view_reader" "$data_reader")
     fi
     sleep 2 # past the switch and any warm-up
-    pct=$(cpu_pct "$sdid_pid")
+    : >"$tmp/windows"
+    for _ in $(seq "$repeats"); do window_pcts >>"$tmp/windows"; done
+    s_pct=$(awk '{ print $1 }' "$tmp/windows" | median)
+    p_pct=$(awk '{ print $2 }' "$tmp/windows" | median)
+    ratio=$(awk '$2 > 0 { print $1 / $2 }' "$tmp/windows" | median)
+    printf '%-22s %8s %6s %14s %6s' "$mode" "$s_pct" "$(stats_fps)" "$p_pct" "$ratio"
+    if [ "$sink" != loopback ]; then
+        printf ' %16s %6s' "$(awk '{ print $3 }' "$tmp/windows" | median)" \
+            "$(awk '$3 > 0 { print $1 / $3 }' "$tmp/windows" | median)"
+    fi
     if [ "$sink" = loopback ]; then
         wait "$view_reader" "$data_reader"
         lat=$(sed -E 's/.*: ([0-9]+) frames, median ([0-9]+) us, p99 ([0-9]+) us.*/\2\/\3 us (\1 frames)/' "$tmp/lat-view")
         lat_data=$(sed -E 's/.*: ([0-9]+) frames, median ([0-9]+) us, p99 ([0-9]+) us.*/\2\/\3 us/' "$tmp/lat-data")
-        printf '%-22s %8s %8s   median/p99 %s; %s\n' "$mode" "$pct" "$(stats_fps)" "$lat" "$lat_data"
-    else
-        printf '%-22s %8s %8s\n' "$mode" "$pct" "$(stats_fps)"
+        printf '   median/p99 %s; %s' "$lat" "$lat_data"
     fi
+    printf '\n'
 done
-kill "$sdid_pid"
-
-# 3. The peer: ffmpeg on the same frames, Y16 in at 60 fps, 640x480 out.
-ctl export "$tmp/rec.sdirec" "$tmp/rec.npy" >/dev/null
-/usr/bin/python3 - "$tmp/rec.npy" "$tmp/rec.y16" <<'EOF'
-import sys, numpy as np
-dn = np.load(sys.argv[1])
-np.clip(np.rint(dn) + 32768, 0, 65535).astype("<u2").tofile(sys.argv[2])
-EOF
-if [ "$sink" = loopback ]; then
-    ffmpeg -nostdin -loglevel error -re -stream_loop -1 -f rawvideo -pix_fmt gray16le \
-        -video_size 320x240 -framerate 60 -i "$tmp/rec.y16" \
-        -vf scale=640:480 -pix_fmt yuyv422 -f v4l2 "$peer_dev" &
-    ff_pid=$!
-    pids+=("$ff_pid")
-    # A reader, like sdid's nodes have; retried until ffmpeg has set the
-    # node's format (REQBUFS fails with EINVAL before that, which took more
-    # than 2 s in the emulated guest).
-    for _ in $(seq 40); do
-        sleep 0.5
-        "$tool" latency "$peer_dev" $((window_s + 1)) >"$tmp/lat-peer" 2>&1 &
-        reader=$!
-        sleep 0.5
-        kill -0 "$reader" 2>/dev/null && break
-    done
-    pids+=("$reader")
-    printf '%-22s %8s\n' "ffmpeg (scale, v4l2)" "$(cpu_pct "$ff_pid")"
-else
-    ffmpeg -nostdin -loglevel error -re -stream_loop -1 -f rawvideo -pix_fmt gray16le \
-        -video_size 320x240 -framerate 60 -i "$tmp/rec.y16" \
-        -vf scale=640:480 -pix_fmt yuv444p -f yuv4mpegpipe - >"$tmp/view.y4m" &
-    ff_pid=$!
-    pids+=("$ff_pid")
-    cat "$tmp/view.y4m" >/dev/null &
-    pids+=($!)
-    sleep 2
-    printf '%-22s %8s\n' "ffmpeg (scale, y4m)" "$(cpu_pct "$ff_pid")"
-fi
