@@ -95,6 +95,7 @@ install: $(GENERATED)
 	$(INSTALL) -D -m 0644 $(GENDIR)/sdid.service $(DESTDIR)$(UNITDIR)/sdid.service
 	$(INSTALL) -D -m 0644 $(GENDIR)/sdid-user.service $(DESTDIR)$(USERUNITDIR)/sdid.service
 	$(INSTALL) -D -m 0644 udev/70-sdi-board.rules $(DESTDIR)$(UDEVRULESDIR)/70-sdi-board.rules
+	$(INSTALL) -D -m 0644 udev/70-sdi-loopback.rules $(DESTDIR)$(UDEVRULESDIR)/70-sdi-loopback.rules
 	$(INSTALL) -D -m 0644 udev/dbus/org.sdi.Daemon.conf $(DESTDIR)$(DBUSPOLICYDIR)/org.sdi.Daemon.conf
 	$(INSTALL) -D -m 0644 $(GENDIR)/org.sdi.Daemon.service $(DESTDIR)$(DBUSSERVICEDIR)/org.sdi.Daemon.service
 	$(INSTALL) -D -m 0644 udev/modprobe.d/sdi-v4l2loopback.conf $(DESTDIR)$(MODPROBEDIR)/sdi-v4l2loopback.conf
@@ -148,7 +149,7 @@ uninstall:
 	rm -f $(DESTDIR)$(USERUNITDIR)/pipewire.service.wants/sdi-pipewire-camera.service $(DESTDIR)$(USERUNITDIR)/sdi-pipewire-camera.service
 	-rmdir $(DESTDIR)$(USERUNITDIR)/pipewire.service.wants 2>/dev/null
 	rm -f $(DESTDIR)$(UNITDIR)/sdid.service $(DESTDIR)$(USERUNITDIR)/sdid.service
-	rm -f $(DESTDIR)$(UDEVRULESDIR)/70-sdi-board.rules
+	rm -f $(DESTDIR)$(UDEVRULESDIR)/70-sdi-board.rules $(DESTDIR)$(UDEVRULESDIR)/70-sdi-loopback.rules
 	rm -f $(DESTDIR)$(DBUSPOLICYDIR)/org.sdi.Daemon.conf
 	rm -f $(DESTDIR)$(DBUSSERVICEDIR)/org.sdi.Daemon.service
 	rm -f $(DESTDIR)$(MODPROBEDIR)/sdi-v4l2loopback.conf

@@ -16,6 +16,7 @@ pub const MAKE_INSTALL_FILES: &[&str] = &[
     "usr/lib/systemd/system/sdid.service",
     "usr/lib/systemd/user/sdid.service",
     "usr/lib/udev/rules.d/70-sdi-board.rules",
+    "usr/lib/udev/rules.d/70-sdi-loopback.rules",
     "usr/share/dbus-1/system.d/org.sdi.Daemon.conf",
     "usr/share/dbus-1/system-services/org.sdi.Daemon.service",
     "usr/lib/modprobe.d/sdi-v4l2loopback.conf",

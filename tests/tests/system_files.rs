@@ -603,3 +603,125 @@ fn make_install_camera_files_with_destdir() {
     }
     fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The program of each serial rule in `udev/70-sdi-loopback.rules`
+/// (issue 46) as `/bin/sh` runs it: (the rule's line, its shell script with
+/// udev's `$$` and `%%` escapes undone).
+fn loopback_rule_programs(rules: &str) -> Vec<(String, String)> {
+    rules
+        .lines()
+        .filter(|l| l.contains("PROGRAM="))
+        .map(|line| {
+            let program = line
+                .split("PROGRAM=\"")
+                .nth(1)
+                .and_then(|p| p.split('"').next())
+                .unwrap_or_else(|| panic!("no PROGRAM=\"...\" in {line}"));
+            let rest = program
+                .strip_prefix("/bin/sh -c '")
+                .unwrap_or_else(|| panic!("not /bin/sh -c '...': {program}"));
+            let (script, args) = rest
+                .split_once('\'')
+                .unwrap_or_else(|| panic!("unquoted script: {program}"));
+            assert_eq!(args, " sdi-serial /sys%p/name", "{line}");
+            let script = script.replace("$$", "$").replace("%%", "%");
+            (line.to_owned(), script)
+        })
+        .collect()
+}
+
+/// The by-id links of the loopback nodes: each label of sdid's (the lone
+/// and the serial ones, view and data) gets its link, and the program that
+/// cuts the serial out of the label, run by `/bin/sh` on a label file as
+/// udev runs it on sysfs, prints only serials sdid would name files with
+/// (`names_a_file`, daemon/src/camera_plan.rs) and fails on anything else:
+/// no label can make a link outside /dev/v4l/by-id. The rules parse with
+/// `udevadm verify` where udev has it (systemd 254+); the VM runs them
+/// under Debian 13's udevd (vm_systemd).
+#[test]
+fn loopback_rules_link_only_plain_serials() {
+    let path = repo_root().join("udev/70-sdi-loopback.rules");
+    let rules = fs::read_to_string(&path).unwrap();
+    for line in [
+        "ATTR{name}==\"SDI camera\", SYMLINK+=\"v4l/by-id/sdi-view\"",
+        "ATTR{name}==\"SDI data\", SYMLINK+=\"v4l/by-id/sdi-data\"",
+        "ACTION==\"remove\", GOTO=\"sdi_loopback_end\"",
+        "SUBSYSTEM!=\"video4linux\", GOTO=\"sdi_loopback_end\"",
+    ] {
+        assert!(rules.lines().any(|l| l == line), "no line {line}");
+    }
+    let programs = loopback_rule_programs(&rules);
+    assert_eq!(programs.len(), 2, "a program for view and data");
+    let dir = scratch("loopback-rules");
+    let label_file = dir.join("name");
+    for (kind, prefix) in [("view", "SDI camera "), ("data", "SDI data ")] {
+        let (line, script) = programs
+            .iter()
+            .find(|(l, _)| l.ends_with(&format!("SYMLINK+=\"v4l/by-id/sdi-%c-{kind}\"")))
+            .unwrap_or_else(|| panic!("no rule linking sdi-SERIAL-{kind}"));
+        assert!(
+            line.starts_with(&format!("ATTR{{name}}==\"{prefix}?*\", PROGRAM=")),
+            "{line}"
+        );
+        // What the program prints for a label (sysfs adds the newline).
+        let serial = |label: &[u8]| -> Option<String> {
+            let mut text = label.to_vec();
+            text.push(b'\n');
+            fs::write(&label_file, text).unwrap();
+            let out = run(Command::new("/bin/sh")
+                .args(["-c", script, "sdi-serial"])
+                .arg(&label_file));
+            out.status
+                .success()
+                .then(|| String::from_utf8(out.stdout).expect("UTF-8"))
+        };
+        let long = "a".repeat(64);
+        for good in ["sim-0", "EMU0007", "-n", "a.b_c-D", long.as_str(), "x"] {
+            let label = format!("{prefix}{good}");
+            assert_eq!(serial(label.as_bytes()).as_deref(), Some(good), "{label:?}");
+        }
+        let too_long = "a".repeat(65);
+        let hostile: [&[u8]; 12] = [
+            b"../x",
+            b"..",
+            b".hidden",
+            b"a/b",
+            b"a b",
+            b"a\nb",
+            b"$(id)",
+            b"a*",
+            b"\xc3\xa9",
+            b"a\tb",
+            b"",
+            too_long.as_bytes(),
+        ];
+        for bad in hostile {
+            let label = [prefix.as_bytes(), bad].concat();
+            assert_eq!(
+                serial(&label),
+                None,
+                "{:?}",
+                String::from_utf8_lossy(&label)
+            );
+        }
+        // The other kind's label is not cut as this kind's.
+        let other = if kind == "view" {
+            "SDI data sim-0"
+        } else {
+            "SDI camera sim-0"
+        };
+        assert_eq!(serial(other.as_bytes()), None, "{other}");
+    }
+    fs::remove_dir_all(&dir).unwrap();
+    let verify = Command::new("udevadm")
+        .args(["verify", "--resolve-names=never"])
+        .arg(&path)
+        .output();
+    match verify {
+        Err(e) => sdi_tests::skipped!("SKIPPED: udevadm verify: {e} (apt-get install udev)"),
+        Ok(out) if String::from_utf8_lossy(&out.stderr).contains("Unknown command") => {
+            sdi_tests::skipped!("SKIPPED: udevadm verify (systemd 254+) is not here")
+        }
+        Ok(out) => assert!(out.status.success(), "udevadm verify: {out:?}"),
+    }
+}

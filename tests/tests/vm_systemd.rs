@@ -3,18 +3,21 @@
 //! kernel 6.12 and systemd 257 as PID 1 (`vmrun -S -r`): udevd, logind,
 //! the system bus and the users' managers run as on a desktop. The `sdi`
 //! and `sdi-pipewire-camera` packages (built on the host, as for Debian 12)
-//! are installed with dpkg; a member of the group sdi is logged in
-//! (lingering), so their systemd runs PipeWire 1.4, WirePlumber 0.5 with
-//! SDI's rule, and the packaged user unit `sdi-pipewire-camera.service`,
-//! which waits for a system sdid. Then the board is plugged in: udev tags
+//! are installed with dpkg; their udev rules link the loopback nodes into
+//! /dev/v4l/by-id by card label, never a hostile label's (issue 46). A
+//! member of the group sdi is logged in (lingering), so their systemd runs
+//! PipeWire 1.4, WirePlumber 0.5 with SDI's rule, and the packaged user
+//! unit `sdi-pipewire-camera.service`, which waits for a system sdid.
+//! Then the board is plugged in: udev tags
 //! it, systemd starts `sdid.service` from the device's `SYSTEMD_WANTS`
 //! with the unit's whole sandbox, and that sdid feeds the user's camera:
 //! PipeWire lists one SDI camera (media.role Camera; the rule hides the
 //! loopback nodes) and `sdictl doctor`, run by the user, says so and names
 //! PipeWire's version; `pipewiresrc` run as the user reads 30 frames the
 //! camera published, in two modes; ffmpeg reads the loopback node
-//! (v4l2loopback 0.15 from DKMS); headless Chromium run as the user opens
-//! the camera through the user's camera portal and follows a mode switch.
+//! (v4l2loopback 0.15 from DKMS) through its by-id link, which `sdictl
+//! list` names; headless Chromium run as the user opens the camera
+//! through the user's camera portal and follows a mode switch.
 //! Killed, sdid is restarted by systemd (`Restart=on-failure`) and the
 //! camera, which kept its node, delivers again. Then the other order: the
 //! user logs out and in again while sdid runs, and the camera delivers.
@@ -37,6 +40,7 @@ use sdi_tests::pipewire::{self, camera_mode, Clients, FrameLog};
 use sdi_tests::process::{must, run};
 use sdi_tests::vm::{self, Guest, Userland};
 use sdi_tests::wait::{wait_for, wait_for_or, wait_until};
+use v4l2loopback_glue::{create_device, remove_device, CreateOptions, GlueError};
 
 const NAME: &str = "vm_systemd_starts_sdid_on_hotplug_and_it_feeds_a_users_camera";
 const SERIAL: &str = "EMU0007";
@@ -306,6 +310,7 @@ fn in_vm() {
     // modules-load.d (options from its modprobe.d).
     must(Command::new("systemctl").args(["restart", "systemd-modules-load.service"]));
     package::assert_view_node();
+    loopback_by_id_links();
     package::configure_emulated_board(SERIAL);
 
     // A member of the group sdi logs in (lingering: their manager runs
@@ -420,7 +425,17 @@ fn in_vm() {
         },
     );
     read("depth-edge", "after a mode switch");
-    let view = Path::new("/dev/video42");
+    // `sdictl list` names the view node's by-id link, and ffmpeg reads
+    // the node through it.
+    let out = sdictl(&["--json", "list"]);
+    let list: serde_json::Value = serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("sdictl --json list ({e}): {out:?}"));
+    assert_eq!(
+        list["cameras"][0]["links"],
+        serde_json::json!(["/dev/v4l/by-id/sdi-view"]),
+        "{list}"
+    );
+    let view = Path::new("/dev/v4l/by-id/sdi-view");
     let frames = capture::read_frames(view, 3, "rgb24", &scratch.join("ffmpeg-view.rgb"))
         .unwrap_or_else(|e| panic!("{e}"));
     assert!(!frames.is_empty(), "no frame from {}", view.display());
@@ -493,6 +508,115 @@ fn in_vm() {
     );
     log_out();
     purge_leaves_nothing();
+}
+
+/// The package's `70-sdi-loopback.rules` under trixie's udevd (issue 46):
+/// the lone view node "SDI camera" is `/dev/v4l/by-id/sdi-view`; nodes
+/// created at run time (0.15's control device) labelled "SDI camera sim-0"
+/// and "SDI data sim-0" get `sdi-sim-0-view` and `sdi-sim-0-data`, and
+/// hostile labels ("..", '/', spaces, a leading dot) get no link anywhere
+/// in /dev. Removing the nodes removes their links. All before the user
+/// logs in: their PipeWire would list the extra nodes as cameras.
+fn loopback_by_id_links() {
+    let t = Instant::now();
+    let by_id = Path::new("/dev/v4l/by-id");
+    let target = |name: &str| fs::canonicalize(by_id.join(name)).ok();
+    let sdi_links = || -> Vec<String> {
+        let mut names: Vec<String> = fs::read_dir(by_id)
+            .map(|d| {
+                d.flatten()
+                    .map(|e| e.file_name().to_string_lossy().into_owned())
+                    .filter(|n| n.starts_with("sdi-"))
+                    .collect()
+            })
+            .unwrap_or_default();
+        names.sort();
+        names
+    };
+    wait_for_or(
+        "/dev/v4l/by-id/sdi-view -> /dev/video42",
+        Duration::from_secs(60),
+        || (target("sdi-view").as_deref() == Some(Path::new("/dev/video42"))).then_some(()),
+        || format!("{:?}", sdi_links()),
+    );
+    let labels = [
+        "SDI camera sim-0",
+        "SDI data sim-0",
+        "SDI camera ../x",
+        "SDI camera a/b",
+        "SDI camera a b",
+        "SDI data .hidden",
+    ];
+    let nodes: Vec<_> = labels
+        .iter()
+        .map(|l| create_device(&CreateOptions::new(l)).unwrap_or_else(|e| panic!("{l}: {e}")))
+        .collect();
+    must(Command::new("udevadm").args(["settle", "--timeout=60"]));
+    let want = ["sdi-sim-0-data", "sdi-sim-0-view", "sdi-view"];
+    wait_for_or(
+        "the by-id links of the sim-0 nodes",
+        Duration::from_secs(60),
+        || (sdi_links() == want).then_some(()),
+        || format!("{:?}", sdi_links()),
+    );
+    assert_eq!(target("sdi-sim-0-view").as_ref(), Some(&nodes[0].path));
+    assert_eq!(target("sdi-sim-0-data").as_ref(), Some(&nodes[1].path));
+    // Every link in /dev to a node of a hostile label (but udev's own
+    // /dev/char/MAJOR:MINOR, which every node has).
+    let hostile: Vec<&Path> = nodes[2..].iter().map(|n| n.path.as_path()).collect();
+    let mut stray = Vec::new();
+    links_into(Path::new("/dev"), &hostile, &mut stray);
+    assert!(
+        stray.is_empty(),
+        "links to the hostile labels' nodes: {stray:?}"
+    );
+    for node in &nodes {
+        // udev's v4l_id may still hold a node open for a moment.
+        wait_until(
+            "the node's removal",
+            Duration::from_secs(60),
+            || match remove_device(node) {
+                Ok(()) => true,
+                Err(GlueError::Busy { .. }) => false,
+                Err(e) => panic!("removing {}: {e}", node.path.display()),
+            },
+        );
+    }
+    must(Command::new("udevadm").args(["settle", "--timeout=60"]));
+    wait_for_or(
+        "the sim-0 links to go with their nodes",
+        Duration::from_secs(60),
+        || (sdi_links() == ["sdi-view"]).then_some(()),
+        || format!("{:?}", sdi_links()),
+    );
+    eprintln!(
+        "MEASURED: by-id links: sdi-view, sdi-sim-0-view, sdi-sim-0-data made, {} hostile \
+         labels without a link, links gone with their nodes, in {:.1} s",
+        hostile.len(),
+        t.elapsed().as_secs_f64()
+    );
+}
+
+/// The symbolic links under `dir` (not under /dev/char) that resolve to
+/// one of `nodes`, into `found`.
+fn links_into(dir: &Path, nodes: &[&Path], found: &mut Vec<String>) {
+    let Ok(entries) = fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let path = e.path();
+        let Ok(meta) = fs::symlink_metadata(&path) else {
+            continue;
+        };
+        if meta.file_type().is_symlink() {
+            let to = fs::canonicalize(&path).ok();
+            if to.as_deref().is_some_and(|t| nodes.contains(&t)) && !dir.ends_with("char") {
+                found.push(format!("{} -> {:?}", path.display(), to));
+            }
+        } else if meta.is_dir() {
+            links_into(&path, nodes, found);
+        }
+    }
 }
 
 /// Without the camera package (its program and WirePlumber rule gone),
