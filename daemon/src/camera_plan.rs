@@ -8,6 +8,7 @@
 use std::path::Path;
 
 use sdi_config::{BackendKind, Config, MAX_CAMERAS};
+use sdi_core::serial::{names_a_file, plain_byte};
 
 /// One camera to open.
 #[derive(Debug, Clone)]
@@ -136,17 +137,6 @@ pub fn camera_name(serial: &str, fallback: &str) -> String {
     }
 }
 
-/// A serial that can be part of a file name and a label: 1 to 64 of
-/// `[A-Za-z0-9._-]`, not starting with a dot.
-fn names_a_file(serial: &str) -> bool {
-    (1..=64).contains(&serial.len()) && !serial.starts_with('.') && serial.bytes().all(plain_byte)
-}
-
-/// A byte a serial may hold to name a file: `[A-Za-z0-9._-]`.
-fn plain_byte(b: u8) -> bool {
-    b.is_ascii_alphanumeric() || b"._-".contains(&b)
-}
-
 /// Each output of one of several cameras, named with its serial.
 fn name_outputs(c: &mut Config, serial: &str) {
     let o = &mut c.output;
@@ -255,16 +245,6 @@ mod tests {
         assert_eq!(plans(&c, &boards).len(), 1);
         // The simulator is not a board.
         assert_eq!(plans(&sim(1), &boards).len(), 1);
-    }
-
-    #[test]
-    fn a_serial_names_a_file_only_when_plain() {
-        for ok in ["A1B2", "sim-0", "x_y.z"] {
-            assert!(names_a_file(ok), "{ok}");
-        }
-        for bad in ["", ".hidden", "a/b", "..", "a b", &"x".repeat(65)] {
-            assert!(!names_a_file(bad), "{bad}");
-        }
     }
 
     #[test]
