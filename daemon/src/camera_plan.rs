@@ -3,7 +3,8 @@
 //! or the simulator's `cameras` (serials `sim-0`, `sim-1`, ...). Each
 //! camera's `[camera."SERIAL"]` section is laid over the file's settings;
 //! with several cameras each one's outputs carry its serial ("SDI camera
-//! sim-1", `sdid-view-sim-1.y4m`), so no two write into the same node.
+//! sim-1", `sdid-view-sim-1.y4m`, PipeWire node `sdi-camera-sim-1`), so no
+//! two write into the same node.
 
 use std::path::Path;
 
@@ -195,7 +196,7 @@ mod tests {
         assert_eq!(p[0].config.output.y4m_path, "/run/x/view-sim-0.y4m");
         assert_eq!(p[1].config.output.y4m_path, "/run/x/view-sim-1.y4m");
         assert_ne!(p[0].config.seed, p[1].config.seed);
-        // The sinks read the count: PipeWire carries one camera.
+        // The sinks read the count: each PipeWire camera is named by serial.
         assert!(p.iter().all(|p| p.config.cameras == 2));
     }
 

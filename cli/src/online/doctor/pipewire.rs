@@ -13,7 +13,7 @@ use std::time::Duration;
 use serde_json::Value as Json;
 
 use super::{output, Check, Status};
-use sdi_camera_link::{DATA_NODE, VIEW_NODE};
+use sdi_camera_link::is_camera_node;
 
 /// The first PipeWire that reads a v4l2loopback node (docs/loopback.md).
 const READS_LOOPBACK: (u32, u32, u32) = (1, 3, 81);
@@ -41,8 +41,8 @@ fn str_of<'a>(p: &'a Json, key: &str) -> Option<&'a str> {
     p.get(key).and_then(Json::as_str)
 }
 
-/// The SDI nodes in `pw-dump`'s objects: the camera process's by node
-/// name, the loopback device's by card label.
+/// The SDI nodes in `pw-dump`'s objects: the camera processes' by node
+/// name (every camera's), the loopback device's by card label.
 fn sdi_nodes(objects: &[Json], labels: &[&str]) -> Vec<SdiNode> {
     objects
         .iter()
@@ -50,7 +50,7 @@ fn sdi_nodes(objects: &[Json], labels: &[&str]) -> Vec<SdiNode> {
         .filter_map(|o| {
             let p = &o["info"]["props"];
             let name = str_of(p, "node.name").unwrap_or_default();
-            let camera = name == VIEW_NODE || name == DATA_NODE;
+            let camera = is_camera_node(name);
             let loopback = ["api.v4l2.cap.card", "device.product.name"]
                 .iter()
                 .any(|k| str_of(p, k).is_some_and(|c| labels.contains(&c)));
@@ -228,6 +228,7 @@ pub(super) fn camera() -> Check {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sdi_camera_link::{DATA_NODE, VIEW_NODE};
 
     const LABELS: &[&str] = &["SDI camera", "SDI data"];
 
