@@ -2,6 +2,11 @@
 //! socket in `$XDG_RUNTIME_DIR`, one sdid at a time. Both sides use this one
 //! definition.
 //!
+//! One camera process per camera: a lone camera's socket, lock and nodes
+//! have the plain names ([`SOCKET_NAME`], [`VIEW_NODE`], ...); each of
+//! several cameras is named by its serial ([`Spec::camera`], [`Names`]):
+//! `sdi-camera-SERIAL.sock`, node `sdi-camera-SERIAL`.
+//!
 //! Each message is a 16-byte header (kind, port, wire format, a payload
 //! length and a timestamp, little-endian) and a payload. Written by hand:
 //! frames are large byte payloads copied once into the camera's slot, which a
@@ -19,8 +24,9 @@ use std::path::PathBuf;
 use std::str::FromStr;
 
 use sdi_core::mode::ModeId;
+pub use sdi_core::serial::names_a_file;
 
-/// File name of the socket in `$XDG_RUNTIME_DIR`.
+/// File name of the (lone camera's) socket in `$XDG_RUNTIME_DIR`.
 pub const SOCKET_NAME: &str = "sdi-camera.sock";
 /// File name of the lock the running camera process holds.
 pub const LOCK_NAME: &str = "sdi-camera.lock";
@@ -52,35 +58,111 @@ pub fn camera_candidates(bin_dir: &std::path::Path) -> [PathBuf; 2] {
 /// (SO_PEERCRED), so no other user can feed it; on this connection sdid
 /// speaks first (Hello), exactly as on a camera's own socket.
 pub const SYSTEM_FEED_NAME: &str = "camera-feed.sock";
+/// The stem of every feed socket's name: `camera-feed.sock` (a lone
+/// camera) and `camera-feed-SERIAL.sock` ([`Names::system_feed`]).
+pub const SYSTEM_FEED_STEM: &str = "camera-feed";
 /// The system service's runtime directory (`RuntimeDirectory=sdi`).
 pub const SYSTEM_RUNTIME_DIR: &str = "/run/sdi";
-/// The camera's command-line flag for the feed ([`SYSTEM_FEED_NAME`]),
-/// optionally followed by the socket's path.
+/// The camera's command-line flag for the feeds, optionally followed by a
+/// directory (default [`SYSTEM_RUNTIME_DIR`]), whose every feed socket it
+/// serves ([`system_feed_camera`]), or by one socket's path.
 pub const SYSTEM_FEED_FLAG: &str = "--system-feed";
 
-/// The system feed socket's default path.
-pub fn system_feed_path() -> PathBuf {
-    std::path::Path::new(SYSTEM_RUNTIME_DIR).join(SYSTEM_FEED_NAME)
+/// The camera a feed socket's file name names: `Some(None)` for
+/// [`SYSTEM_FEED_NAME`], `Some(Some(serial))` for `camera-feed-SERIAL.sock`,
+/// `None` for any other file.
+pub fn system_feed_camera(file_name: &str) -> Option<Option<String>> {
+    let rest = file_name
+        .strip_prefix(SYSTEM_FEED_STEM)?
+        .strip_suffix(".sock")?;
+    match rest {
+        "" => Some(None),
+        r => r
+            .strip_prefix('-')
+            .filter(|s| names_a_file(s))
+            .map(|s| Some(s.to_owned())),
+    }
 }
 
 /// How long the camera outlives sdid while no reader streams.
 pub const LINGER: std::time::Duration = std::time::Duration::from_secs(30);
-/// Node name of the view stream (what `pipewiresrc target-object=` takes).
+/// Node name of the (lone camera's) view stream (what `pipewiresrc
+/// target-object=` takes).
 pub const VIEW_NODE: &str = "sdi-camera";
-/// Node name of the raw Y16 data stream.
+/// Node name of the (lone camera's) raw Y16 data stream.
 pub const DATA_NODE: &str = "sdi-camera-data";
 /// `tracing` target of the per-frame log (CRC-32 of each published buffer),
 /// enabled with `RUST_LOG=sdid::pipewire::frames=trace`.
 pub const FRAME_LOG: &str = "sdid::pipewire::frames";
 
-/// The node description readers show, e.g. "SDI camera (depth-edge)".
-pub fn view_description(mode: &str) -> String {
-    format!("SDI camera ({mode})")
+/// Whether `node` is one of SDI's camera nodes (any camera's).
+pub fn is_camera_node(node: &str) -> bool {
+    [VIEW_NODE, DATA_NODE].iter().any(|base| {
+        node.strip_prefix(base)
+            .is_some_and(|rest| rest.is_empty() || rest.starts_with('-'))
+    })
 }
 
-/// The data node's description.
-pub fn data_description(mode: &str) -> String {
-    format!("SDI camera raw data, Y16 DN+32768 ({mode})")
+/// The names of one camera's socket, lock and nodes: the plain names for
+/// a lone camera (`camera` `None`), each with `-SERIAL` for one of several.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Names<'a> {
+    pub camera: Option<&'a str>,
+}
+
+impl Names<'_> {
+    /// `base` for a lone camera, `base-SERIAL` for one of several.
+    fn named(&self, base: &str) -> String {
+        match self.camera {
+            Some(c) => format!("{base}-{c}"),
+            None => base.to_owned(),
+        }
+    }
+
+    /// File name of the socket in `$XDG_RUNTIME_DIR`.
+    pub fn socket(&self) -> String {
+        self.named("sdi-camera") + ".sock"
+    }
+
+    /// File name of the lock the running camera process holds.
+    pub fn lock(&self) -> String {
+        self.named("sdi-camera") + ".lock"
+    }
+
+    /// The system service's feed socket in its runtime directory.
+    pub fn system_feed(&self) -> String {
+        self.named(SYSTEM_FEED_STEM) + ".sock"
+    }
+
+    /// Node name of the view stream.
+    pub fn view_node(&self) -> String {
+        self.named(VIEW_NODE)
+    }
+
+    /// Node name of the raw Y16 data stream.
+    pub fn data_node(&self) -> String {
+        self.named(DATA_NODE)
+    }
+
+    /// The node description readers show, e.g. "SDI camera (depth-edge)"
+    /// or "SDI camera sim-1 (depth-edge)".
+    pub fn view_description(&self, mode: &str) -> String {
+        format!("{} ({mode})", self.label())
+    }
+
+    /// The data node's description.
+    pub fn data_description(&self, mode: &str) -> String {
+        format!("{} raw data, Y16 DN+32768 ({mode})", self.label())
+    }
+
+    /// The camera's name for people: "SDI camera" or "SDI camera SERIAL"
+    /// (the node's nick; as the loopback node's label, camera_plan.rs).
+    pub fn label(&self) -> String {
+        match self.camera {
+            Some(c) => format!("SDI camera {c}"),
+            None => "SDI camera".into(),
+        }
+    }
 }
 /// The camera process's first line on stdout: serving.
 pub const READY_LINE: &str = "ready";
@@ -140,8 +222,10 @@ pub enum Port {
     Data = 1,
 }
 
-/// What the camera process publishes: sizes, rate and the mode it starts
-/// in. Text form `VIEWWxVIEWH,DATAWxDATAH,FPS,MODE` (its command line).
+/// What the camera process publishes: sizes, rate, the mode it starts in
+/// and which camera it is. Text form `VIEWWxVIEWH,DATAWxDATAH,FPS,MODE`
+/// for a lone camera, `...,MODE,SERIAL` for one of several (its command
+/// line).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Spec {
     pub view_width: u32,
@@ -150,9 +234,20 @@ pub struct Spec {
     pub data_height: u32,
     pub frame_rate_hz: u32,
     pub mode: ModeId,
+    /// One of several cameras: its serial (one that
+    /// [names a file](names_a_file)), which names its socket, lock and
+    /// nodes; `None`: the lone camera.
+    pub camera: Option<String>,
 }
 
 impl Spec {
+    /// The names of this camera's socket, lock and nodes.
+    pub fn names(&self) -> Names<'_> {
+        Names {
+            camera: self.camera.as_deref(),
+        }
+    }
+
     /// Same nodes (sizes and rate; the mode may differ).
     pub fn same_nodes(&self, other: &Spec) -> bool {
         Spec {
@@ -173,7 +268,11 @@ impl fmt::Display for Spec {
             self.data_height,
             self.frame_rate_hz,
             self.mode.name()
-        )
+        )?;
+        match &self.camera {
+            Some(c) => write!(f, ",{c}"),
+            None => Ok(()),
+        }
     }
 }
 
@@ -181,10 +280,14 @@ impl FromStr for Spec {
     type Err = String;
 
     fn from_str(s: &str) -> Result<Self, String> {
-        let bad = || format!("camera spec {s:?}: expected WxH,WxH,FPS,MODE");
+        let bad = || format!("camera spec {s:?}: expected WxH,WxH,FPS,MODE[,SERIAL]");
         let parts: Vec<&str> = s.split(',').collect();
-        let [view, data, fps, mode] = parts[..] else {
-            return Err(bad());
+        let (view, data, fps, mode, camera) = match parts[..] {
+            [view, data, fps, mode] => (view, data, fps, mode, None),
+            [view, data, fps, mode, c] if names_a_file(c) => {
+                (view, data, fps, mode, Some(c.to_owned()))
+            }
+            _ => return Err(bad()),
         };
         let size = |p: &str| -> Result<(u32, u32), String> {
             let (w, h) = p.split_once('x').ok_or_else(bad)?;
@@ -209,6 +312,7 @@ impl FromStr for Spec {
             data_height,
             frame_rate_hz,
             mode,
+            camera,
         })
     }
 }
@@ -417,6 +521,7 @@ mod tests {
             data_height: 240,
             frame_rate_hz: 30,
             mode: ModeId::DepthEdge,
+            camera: None,
         }
     }
 
@@ -431,8 +536,11 @@ mod tests {
             "0x480,320x240,30,raw",
             "640x480,320x240,0,raw",
             "640x480,320x240,30,nope",
-            "640x480,320x240,30,raw,extra",
+            "640x480,320x240,30,raw,sim-1,extra",
             "99999x480,320x240,30,raw",
+            "640x480,320x240,30,raw,",
+            "640x480,320x240,30,raw,../x",
+            "640x480,320x240,30,raw,a,b",
         ] {
             assert!(bad.parse::<Spec>().is_err(), "{bad:?} parsed");
         }
@@ -445,6 +553,65 @@ mod tests {
             frame_rate_hz: 60,
             ..s.clone()
         }));
+        let one_of_two = Spec {
+            camera: Some("sim-1".into()),
+            ..s.clone()
+        };
+        assert_eq!(
+            one_of_two.to_string(),
+            "640x480,320x240,30,depth-edge,sim-1"
+        );
+        assert_eq!(
+            one_of_two.to_string().parse::<Spec>(),
+            Ok(one_of_two.clone())
+        );
+        assert!(!s.same_nodes(&one_of_two));
+    }
+
+    #[test]
+    fn a_lone_camera_keeps_the_plain_names_and_one_of_several_its_serial() {
+        let lone = Names { camera: None };
+        assert_eq!(lone.socket(), SOCKET_NAME);
+        assert_eq!(lone.lock(), LOCK_NAME);
+        assert_eq!(lone.system_feed(), SYSTEM_FEED_NAME);
+        assert_eq!(lone.view_node(), VIEW_NODE);
+        assert_eq!(lone.data_node(), DATA_NODE);
+        assert_eq!(lone.view_description("raw"), "SDI camera (raw)");
+        let one = Names {
+            camera: Some("sim-1"),
+        };
+        assert_eq!(one.socket(), "sdi-camera-sim-1.sock");
+        assert_eq!(one.lock(), "sdi-camera-sim-1.lock");
+        assert_eq!(one.system_feed(), "camera-feed-sim-1.sock");
+        assert_eq!(one.view_node(), "sdi-camera-sim-1");
+        assert_eq!(one.data_node(), "sdi-camera-data-sim-1");
+        assert_eq!(one.view_description("raw"), "SDI camera sim-1 (raw)");
+        assert_eq!(
+            one.data_description("raw"),
+            "SDI camera sim-1 raw data, Y16 DN+32768 (raw)"
+        );
+        for n in [
+            VIEW_NODE,
+            DATA_NODE,
+            "sdi-camera-sim-1",
+            "sdi-camera-data-A1",
+        ] {
+            assert!(is_camera_node(n), "{n}");
+        }
+        assert!(!is_camera_node("sdi-cameraX"));
+        assert_eq!(system_feed_camera(SYSTEM_FEED_NAME), Some(None));
+        assert_eq!(
+            system_feed_camera(&one.system_feed()),
+            Some(Some("sim-1".into()))
+        );
+        for other in [
+            "camera-feed-.sock",
+            "camera-feed-.x.sock",
+            "camera-feedX.sock",
+            "x.sock",
+        ] {
+            assert_eq!(system_feed_camera(other), None, "{other}");
+        }
     }
 
     #[test]

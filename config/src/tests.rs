@@ -376,10 +376,9 @@ fn camera_sections_and_counts_are_checked() {
         invalid_key("backend = \"sim\"\ncameras = 2\n[output]\ny4m_path = \"-\""),
         "output.y4m_path"
     );
-    assert_eq!(
-        invalid_key("backend = \"sim\"\ncameras = 2\n[output]\nsink = \"pipewire\""),
-        "output.sink"
-    );
+    // Each camera has its own PipeWire camera, named by its serial.
+    validated("backend = \"sim\"\ncameras = 2\n[output]\nsink = \"pipewire\"")
+        .unwrap_or_else(|e| panic!("{e}"));
     // An adjusted value in a section says which.
     let (_, adjusted) = validated("[camera.\"sim-0\"]\nrange_max_abs_dn = 1e12\n")
         .unwrap_or_else(|e| panic!("{e}"));

@@ -11,7 +11,7 @@ use sdi_core::sensor::ParamError;
 use sdi_core::separation::{BilateralParams, LiveMethod, SeparationError};
 
 use crate::camera::{in_section, MAX_CAMERAS};
-use crate::choice::{BackendKind, LightDriver, SeparationMethod, SinkKind};
+use crate::choice::{BackendKind, LightDriver, SeparationMethod};
 use crate::file::{Config, SeparationSection};
 
 /// The TCP port of SCPI instruments (IEC 61158 "SCPI-RAW"), added to an
@@ -250,12 +250,6 @@ impl Config {
             return Err(invalid(
                 "output.y4m_path",
                 "stdout carries one camera's stream; with several cameras leave it out (one FIFO per camera)",
-            ));
-        }
-        if self.output.sink == SinkKind::Pipewire {
-            return Err(invalid(
-                "output.sink",
-                "the PipeWire camera carries one camera today; with several use loopback or y4m",
             ));
         }
         Ok(())

@@ -22,6 +22,7 @@ pub mod quad_phase;
 pub mod scene;
 pub mod sensor;
 pub mod separation;
+pub mod serial;
 pub mod simulator;
 pub mod view;
 

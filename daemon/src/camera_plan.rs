@@ -3,11 +3,13 @@
 //! or the simulator's `cameras` (serials `sim-0`, `sim-1`, ...). Each
 //! camera's `[camera."SERIAL"]` section is laid over the file's settings;
 //! with several cameras each one's outputs carry its serial ("SDI camera
-//! sim-1", `sdid-view-sim-1.y4m`), so no two write into the same node.
+//! sim-1", `sdid-view-sim-1.y4m`, PipeWire node `sdi-camera-sim-1`), so no
+//! two write into the same node.
 
 use std::path::Path;
 
 use sdi_config::{BackendKind, Config, MAX_CAMERAS};
+use sdi_core::serial::{names_a_file, plain_byte};
 
 /// One camera to open.
 #[derive(Debug, Clone)]
@@ -136,17 +138,6 @@ pub fn camera_name(serial: &str, fallback: &str) -> String {
     }
 }
 
-/// A serial that can be part of a file name and a label: 1 to 64 of
-/// `[A-Za-z0-9._-]`, not starting with a dot.
-fn names_a_file(serial: &str) -> bool {
-    (1..=64).contains(&serial.len()) && !serial.starts_with('.') && serial.bytes().all(plain_byte)
-}
-
-/// A byte a serial may hold to name a file: `[A-Za-z0-9._-]`.
-fn plain_byte(b: u8) -> bool {
-    b.is_ascii_alphanumeric() || b"._-".contains(&b)
-}
-
 /// Each output of one of several cameras, named with its serial.
 fn name_outputs(c: &mut Config, serial: &str) {
     let o = &mut c.output;
@@ -205,7 +196,7 @@ mod tests {
         assert_eq!(p[0].config.output.y4m_path, "/run/x/view-sim-0.y4m");
         assert_eq!(p[1].config.output.y4m_path, "/run/x/view-sim-1.y4m");
         assert_ne!(p[0].config.seed, p[1].config.seed);
-        // The sinks read the count: PipeWire carries one camera.
+        // The sinks read the count: each PipeWire camera is named by serial.
         assert!(p.iter().all(|p| p.config.cameras == 2));
     }
 
@@ -255,16 +246,6 @@ mod tests {
         assert_eq!(plans(&c, &boards).len(), 1);
         // The simulator is not a board.
         assert_eq!(plans(&sim(1), &boards).len(), 1);
-    }
-
-    #[test]
-    fn a_serial_names_a_file_only_when_plain() {
-        for ok in ["A1B2", "sim-0", "x_y.z"] {
-            assert!(names_a_file(ok), "{ok}");
-        }
-        for bad in ["", ".hidden", "a/b", "..", "a b", &"x".repeat(65)] {
-            assert!(!names_a_file(bad), "{bad}");
-        }
     }
 
     #[test]

@@ -28,9 +28,7 @@ use spa::param::video::VideoFormat;
 use spa::pod::{ChoiceValue, Object, Pod, Property, Value};
 use spa::utils::{Choice, ChoiceEnum, ChoiceFlags, Fraction, Id, Rectangle};
 
-use sdi_camera_link::{
-    data_description, view_description, Port, Spec, State, Wire, DATA_NODE, FRAME_LOG, VIEW_NODE,
-};
+use sdi_camera_link::{Port, Spec, State, Wire, FRAME_LOG};
 
 /// Why the nodes could not be made; the messages are what the starting sdid
 /// reports.
@@ -54,7 +52,7 @@ pub enum NodesError {
     },
     #[error("PipeWire stream {node}: {source}")]
     Stream {
-        node: &'static str,
+        node: String,
         #[source]
         source: pw::Error,
     },
@@ -420,7 +418,7 @@ fn buffer_params(size_bytes: usize, stride_bytes: usize) -> Result<[Vec<u8>; 2],
 
 /// The loop thread's view of one stream.
 struct StreamState {
-    name: &'static str,
+    name: String,
     width: u32,
     height: u32,
     /// Negotiated format.
@@ -642,12 +640,14 @@ fn serve(
             .register()
     };
 
+    let names = spec.names();
     let view = make_stream(
         &core,
         shared,
         StreamSpec {
-            node: VIEW_NODE,
-            description: view_description(spec.mode.name()),
+            node: names.view_node(),
+            nick: names.label(),
+            description: names.view_description(spec.mode.name()),
             camera: true,
             wires: &[Wire::Yuyv, Wire::Rgb],
             width: spec.view_width,
@@ -660,8 +660,9 @@ fn serve(
         &core,
         shared,
         StreamSpec {
-            node: DATA_NODE,
-            description: data_description(spec.mode.name()),
+            node: names.data_node(),
+            nick: names.label(),
+            description: names.data_description(spec.mode.name()),
             camera: false,
             wires: &[Wire::Y16],
             width: spec.data_width,
@@ -675,6 +676,7 @@ fn serve(
         let (shared, weak) = (shared.clone(), mainloop.downgrade());
         let (view_stream, view_state) = (view.stream.clone(), view.state.clone());
         let (data_stream, data_state) = (data.stream.clone(), data.state.clone());
+        let spec = spec.clone();
         rx.attach(mainloop.loop_(), move |msg| match msg {
             Msg::Wake => {
                 shared.woken.store(false, Ordering::Release);
@@ -694,8 +696,8 @@ fn serve(
                 }
             }
             Msg::Mode(mode) => {
-                describe(&view_stream, &view_description(mode));
-                describe(&data_stream, &data_description(mode));
+                describe(&view_stream, &spec.names().view_description(mode));
+                describe(&data_stream, &spec.names().data_description(mode));
             }
             Msg::Quit => {
                 if let Some(l) = weak.upgrade() {
@@ -705,8 +707,8 @@ fn serve(
         })
     };
     tracing::info!(
-        view = VIEW_NODE,
-        data = DATA_NODE,
+        view = names.view_node(),
+        data = names.data_node(),
         "PipeWire nodes created (Video/Source, media.role Camera on the view)"
     );
     report(Ok(()));
@@ -716,7 +718,9 @@ fn serve(
 }
 
 struct StreamSpec {
-    node: &'static str,
+    node: String,
+    /// The camera's name without its mode ("SDI camera SERIAL").
+    nick: String,
     description: String,
     /// Advertise as a camera (`media.role = Camera`).
     camera: bool,
@@ -738,15 +742,17 @@ fn make_stream(
     spec: StreamSpec,
     port_of: fn(&Shared) -> &SharedStream,
 ) -> Result<MadeStream, NodesError> {
-    let node = spec.node;
-    let err = |source: pw::Error| NodesError::Stream { node, source };
+    let err = |source: pw::Error| NodesError::Stream {
+        node: spec.node.clone(),
+        source,
+    };
     let mut props = pw::properties::properties! {
         *pw::keys::MEDIA_TYPE => "Video",
         *pw::keys::MEDIA_CATEGORY => "Capture",
         *pw::keys::MEDIA_CLASS => "Video/Source",
-        *pw::keys::NODE_NAME => spec.node,
+        *pw::keys::NODE_NAME => spec.node.as_str(),
         *pw::keys::NODE_DESCRIPTION => spec.description.as_str(),
-        "node.nick" => "SDI camera",
+        "node.nick" => spec.nick.as_str(),
         // Never suspended by the session manager (WirePlumber suspends a
         // node idle for 5 s): a suspend that lands while the next reader's
         // link allocates buffers fails that link ("Buffer allocation
@@ -758,9 +764,9 @@ fn make_stream(
     if spec.camera {
         props.insert(*pw::keys::MEDIA_ROLE, "Camera");
     }
-    let stream = pw::stream::StreamRc::new(core.clone(), spec.node, props).map_err(err)?;
+    let stream = pw::stream::StreamRc::new(core.clone(), &spec.node, props).map_err(err)?;
     let state = Rc::new(RefCell::new(StreamState {
-        name: spec.node,
+        name: spec.node.clone(),
         width: spec.width,
         height: spec.height,
         wire: None,

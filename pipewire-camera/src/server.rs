@@ -32,7 +32,7 @@ use crate::nodes::{monotonic_now_us, Nodes, NodesError};
 /// Why the camera process stops serving; the messages are the reasons the
 /// starting sdid reports (before the ready line) or the log shows.
 #[derive(Debug, thiserror::Error)]
-enum ServeError {
+pub(crate) enum ServeError {
     #[error("the camera spec argument is missing")]
     NoSpec,
     /// The spec argument does not parse.
@@ -103,7 +103,7 @@ pub fn main(spec: Option<OsString>) -> ExitCode {
 /// next, e.g. falls back to y4m).
 static SERVING: AtomicBool = AtomicBool::new(false);
 
-fn fail(why: &ServeError) -> ExitCode {
+pub(crate) fn fail(why: &ServeError) -> ExitCode {
     if SERVING.load(Ordering::Relaxed) {
         tracing::warn!("PipeWire camera: {why}");
     } else {
@@ -121,13 +121,13 @@ fn announce(line: &str) {
 
 fn run(spec: Spec) -> Result<(), ServeError> {
     let dir = link::runtime_dir().map_err(ServeError::RuntimeDir)?;
-    let Some(_lock) = try_lock(&dir)? else {
+    let Some(_lock) = try_lock(&dir, spec.names())? else {
         // Another camera process runs: the sdid that started this one connects to it.
         announce(link::BUSY_LINE);
         return Ok(());
     };
     let nodes = Arc::new(Nodes::open(&spec)?);
-    let sock = dir.join(link::SOCKET_NAME);
+    let sock = dir.join(spec.names().socket());
     // Left over from a camera that was killed (we hold the lock now).
     let _ = std::fs::remove_file(&sock);
     let listener = UnixListener::bind(&sock).map_err(|source| ServeError::Bind {
@@ -149,9 +149,10 @@ fn run(spec: Spec) -> Result<(), ServeError> {
     r
 }
 
-/// This user's camera lock, unless another camera process holds it.
-fn try_lock(dir: &Path) -> Result<Option<Flock<std::fs::File>>, ServeError> {
-    let lock_path = dir.join(link::LOCK_NAME);
+/// This user's lock of the camera `names`, unless another camera process
+/// holds it.
+fn try_lock(dir: &Path, names: link::Names) -> Result<Option<Flock<std::fs::File>>, ServeError> {
+    let lock_path = dir.join(names.lock());
     let lock_file = OpenOptions::new()
         .create(true)
         .truncate(false)
@@ -489,10 +490,22 @@ pub fn main_system_feed(path: PathBuf) -> ExitCode {
     }
 }
 
-fn run_fed(path: &Path) -> Result<(), ServeError> {
+/// Serves the camera whose feed socket is `path` (its name tells which:
+/// [`link::system_feed_camera`]; another name, a lone camera's) until it
+/// is asked to quit, needs other sizes or loses PipeWire.
+pub(crate) fn run_fed(path: &Path) -> Result<(), ServeError> {
     let dir = link::runtime_dir().map_err(ServeError::RuntimeDir)?;
-    // One camera per user, taken once a system sdid is there: a session's
-    // own sdid (no system service) keeps its camera meanwhile.
+    let camera = path
+        .file_name()
+        .and_then(|n| n.to_str())
+        .and_then(link::system_feed_camera)
+        .flatten();
+    let names = link::Names {
+        camera: camera.as_deref(),
+    };
+    // This camera's lock (one process per camera and user), taken once a
+    // system sdid is there: a session's own sdid (no system service) keeps
+    // its camera meanwhile.
     let mut lock = None;
     tracing::info!(feed = %path.display(), "PipeWire camera waiting for the system sdid");
     let quit = Arc::new(AtomicBool::new(false));
@@ -515,7 +528,7 @@ fn run_fed(path: &Path) -> Result<(), ServeError> {
         if feed.is_none() && Instant::now() >= dial_at {
             dial_at = Instant::now() + REDIAL;
             if lock.is_none() {
-                lock = try_lock(&dir)?;
+                lock = try_lock(&dir, names)?;
             }
             if lock.is_none() {
                 if last_error != "busy" {
@@ -525,6 +538,13 @@ fn run_fed(path: &Path) -> Result<(), ServeError> {
                 continue;
             }
             match dial(path) {
+                Ok((_, spec)) if camera.is_some() && spec.camera != camera => {
+                    return Err(ServeError::Spec(format!(
+                        "the feed {} greets camera {:?}: not this socket's",
+                        path.display(),
+                        spec.camera
+                    )))
+                }
                 Ok((s, spec)) => {
                     let n = match &nodes {
                         Some(n) if n.spec().same_nodes(&spec) => n.clone(),

@@ -6,6 +6,8 @@
 //! mode switch, a second format and the data node; a reader keeps its
 //! stream while sdid restarts (the nodes belong to the camera process sdid
 //! starts), seeing the "no signal" card and then the new sdid's frames.
+//! With several cameras each has its own camera process and nodes, named
+//! by its serial, in a session and behind the system service's feeds.
 
 use std::collections::{HashMap, HashSet};
 use std::process::Stdio;
@@ -557,4 +559,192 @@ fn system_feed_camera_gets_the_system_sdids_frames() {
     let rgb = s.read_frames(VIEW, "video/x-raw,format=RGB", 30, TIMEOUT);
     check_published(&d, crcs_of(&rgb, rgb_bytes), VIEW, "RGB", "bipolar-colour");
     eprintln!("ok: the --system-feed camera took the system sdid's frames across a restart");
+}
+
+/// Two cameras (`--cameras 2 --sink pipewire`): a camera process each, its
+/// nodes named by its serial; each node carries its own camera's frames
+/// (the CRC-32s its process logged for that node), and a mode switch on
+/// `sim-1` changes only `sim-1`'s description and frames.
+#[test]
+fn each_of_two_cameras_has_its_own_pipewire_nodes() {
+    require_pipewire!();
+    let s = Session::start();
+    let log = FrameLog::file(s.dir.path().join("sdid.log"));
+    let child = SdidCommand::client_of(&s)
+        .bus(&s.bus.address)
+        .sim()
+        .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
+        .args(["--cameras", "2", "--sink", "pipewire"])
+        .log("info,sdid::pipewire::frames=trace")
+        .command()
+        .stdout(Stdio::null())
+        .stderr(log.writer())
+        .spawn()
+        .expect("start sdid");
+    let d = Sdid {
+        _child: Reaped(child),
+        log,
+        address: s.bus.address.clone(),
+    };
+    wait_for("both cameras on the bus", TIMEOUT, || {
+        ["sim-0", "sim-1"]
+            .iter()
+            .all(|c| {
+                sdictl(&d.address, &["--camera", c, "get", "mode"])
+                    .status
+                    .success()
+            })
+            .then_some(())
+    });
+    let names = |serial: &str| (format!("{VIEW}-{serial}"), format!("{DATA}-{serial}"));
+    let rgb_bytes = VIEW_W * VIEW_H * 3;
+    let mut first = Vec::new();
+    for serial in ["sim-0", "sim-1"] {
+        let (view_node, data_node) = names(serial);
+        let view = wait_node(&s, &view_node);
+        assert_eq!(prop(&view, "media.role"), "Camera", "{view:?}");
+        assert_eq!(
+            prop(&view, "node.description"),
+            format!("SDI camera {serial} (raw)")
+        );
+        let data = wait_node(&s, &data_node);
+        assert_ne!(prop(&data, "media.role"), "Camera", "{data:?}");
+        let device = d.ctl(&["--camera", serial, "get", "device"]);
+        assert!(device.contains(&format!("\"{view_node}\"")), "{device}");
+        let rgb = s.read_frames(&view_node, "video/x-raw,format=RGB", 30, TIMEOUT);
+        first.push(check_published(
+            &d,
+            crcs_of(&rgb, rgb_bytes),
+            &view_node,
+            "RGB",
+            "raw",
+        ));
+        let y16 = s.read_frames(&data_node, "video/x-raw,format=GRAY16_LE", 30, TIMEOUT);
+        check_published(
+            &d,
+            crcs_of(&y16, SENSOR_W * SENSOR_H * 2),
+            &data_node,
+            "Y16",
+            "raw",
+        );
+    }
+    assert!(
+        first[0].iter().all(|c| !first[1].contains(c)),
+        "the two cameras' nodes carried the same frames"
+    );
+    assert!(
+        s.node(VIEW).is_none(),
+        "a lone camera's node beside two cameras"
+    );
+
+    d.ctl(&["--camera", "sim-1", "set-mode", "depth-edge"]);
+    let (view0, _) = names("sim-0");
+    let (view1, _) = names("sim-1");
+    wait_for("sim-1's description to follow its mode", TIMEOUT, || {
+        s.node(&view1)
+            .filter(|p| prop(p, "node.description") == "SDI camera sim-1 (depth-edge)")
+    });
+    let yuyv = s.read_frames(&view1, "video/x-raw,format=YUY2", 30, TIMEOUT);
+    check_published(
+        &d,
+        crcs_of(&yuyv, VIEW_W * VIEW_H * 2),
+        &view1,
+        "YUYV",
+        "depth-edge",
+    );
+    let view = s.node(&view0).expect("sim-0's node");
+    assert_eq!(prop(&view, "node.description"), "SDI camera sim-0 (raw)");
+    let rgb = s.read_frames(&view0, "video/x-raw,format=RGB", 30, TIMEOUT);
+    check_published(&d, crcs_of(&rgb, rgb_bytes), &view0, "RGB", "raw");
+    assert_eq!(d.ctl(&["--camera", "sim-0", "get", "mode"]).trim(), "raw");
+    eprintln!(
+        "ok: two cameras, two node pairs named by serial; a mode switch on sim-1 left sim-0 alone"
+    );
+}
+
+/// The system service with two cameras: a feed socket each
+/// (`camera-feed-SERIAL.sock`), and one `--system-feed DIR` camera program
+/// serving both, each camera's nodes named by its serial and fed its own
+/// frames.
+#[test]
+fn system_feed_serves_every_cameras_feed_socket() {
+    require_pipewire!();
+    if !nix::unistd::getuid().is_root() {
+        sdi_tests::skip::unavailable(
+            "SDI_REQUIRE_VM",
+            format_args!(
+                "the system feed test needs root: the camera takes frames only from a root server"
+            ),
+        );
+        return;
+    }
+    let s = Session::start();
+    let run = tempfile::tempdir().expect("a runtime directory for the system sdid");
+    let log = FrameLog::file(s.dir.path().join("sdid.log"));
+    let program = sdi_tests::pipewire::camera_program().expect("camera program");
+    let _camera = Reaped(
+        s.command(&program)
+            .arg(sdi_daemon::sink::pipewire::SYSTEM_FEED_FLAG)
+            .arg(run.path())
+            .env("RUST_LOG", "info,sdid::pipewire::frames=trace")
+            .stdout(Stdio::null())
+            .stderr(log.writer())
+            .spawn()
+            .expect("start the camera with --system-feed DIR"),
+    );
+    let child = SdidCommand::new()
+        .bus(&s.bus.address)
+        .sim()
+        .args(["--frame-rate-hz", "30", "--exposure-us", "2000"])
+        .args(["--cameras", "2", "--sink", "auto"])
+        .log("info")
+        .command()
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("PIPEWIRE_REMOTE")
+        .env("RUNTIME_DIRECTORY", run.path())
+        .stdout(Stdio::null())
+        .stderr(log.writer())
+        .spawn()
+        .expect("start sdid");
+    let d = Sdid {
+        _child: Reaped(child),
+        log,
+        address: s.bus.address.clone(),
+    };
+    wait_for("both cameras on the bus", TIMEOUT, || {
+        ["sim-0", "sim-1"]
+            .iter()
+            .all(|c| {
+                sdictl(&d.address, &["--camera", c, "get", "mode"])
+                    .status
+                    .success()
+            })
+            .then_some(())
+    });
+    d.ctl(&["--camera", "sim-1", "set-mode", "depth-edge"]);
+    let rgb_bytes = VIEW_W * VIEW_H * 3;
+    for (serial, mode) in [("sim-0", "raw"), ("sim-1", "depth-edge")] {
+        let device = d.ctl(&["--camera", serial, "get", "device"]);
+        assert!(
+            device.contains(&format!("camera-feed-{serial}.sock")),
+            "{device}"
+        );
+        let view_node = format!("{VIEW}-{serial}");
+        wait_for(
+            "the description to follow the camera's mode",
+            TIMEOUT,
+            || {
+                s.node(&view_node).filter(|p| {
+                    prop(p, "node.description") == format!("SDI camera {serial} ({mode})")
+                })
+            },
+        );
+        let rgb = s.read_frames(&view_node, "video/x-raw,format=RGB", 30, TIMEOUT);
+        check_published(&d, crcs_of(&rgb, rgb_bytes), &view_node, "RGB", mode);
+    }
+    assert!(
+        s.node(VIEW).is_none(),
+        "a lone camera's node beside two cameras"
+    );
+    eprintln!("ok: one --system-feed DIR camera program served both cameras' feed sockets");
 }

@@ -501,7 +501,8 @@ fn make_install_with_the_built_binaries() {
 /// WirePlumber's rule keeping the loopback nodes out of PipeWire
 /// (docs/pipewire.md): the 0.5 SPA-JSON parses (PipeWire's own parser,
 /// `spa-json-dump`) into `monitor.v4l2.rules` disabling the devices and
-/// nodes of exactly the card labels sdid and the modprobe.d file use; the
+/// nodes of exactly the card labels sdid and the modprobe.d file use, alone
+/// or followed by a camera's serial (several cameras, camera_plan.rs); the
 /// 0.4 Lua names the same labels and properties (its effect is checked in
 /// the VM, vm_plain/pipewire.rs, with WirePlumber 0.4.13).
 #[test]
@@ -519,8 +520,11 @@ fn wireplumber_rules_match_the_loopback_labels() {
         ("api.v4l2.cap.card", "node.disabled"),
     ] {
         for label in &labels {
-            let m = format!("{{ {{ \"{key}\", \"equals\", \"{label}\" }} }}");
-            assert!(lua.contains(&m), "the Lua rule lacks {m}");
+            // The label alone (a lone camera) or with a serial (one of several).
+            for (verb, value) in [("equals", label.clone()), ("matches", format!("{label} *"))] {
+                let m = format!("{{ {{ \"{key}\", \"{verb}\", \"{value}\" }} }}");
+                assert!(lua.contains(&m), "the Lua rule lacks {m}");
+            }
         }
         assert!(lua.contains(&format!("[\"{action}\"] = true")), "{action}");
     }
@@ -556,7 +560,7 @@ fn wireplumber_rules_match_the_loopback_labels() {
         (
             labels
                 .iter()
-                .map(|l| (key.to_owned(), l.clone()))
+                .map(|l| (key.to_owned(), format!("~^{l}( .+)?$")))
                 .collect::<Vec<_>>(),
             serde_json::json!({ action: true }),
         )

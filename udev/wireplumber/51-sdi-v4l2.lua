@@ -8,12 +8,16 @@
 -- loopback nodes, whose "sdi-camera" node they read instead; V4L2 clients
 -- (ffmpeg, OpenCV, v4l2src) open /dev/videoN directly and are not affected.
 -- The devices are matched by card label (udev's ID_V4L_PRODUCT), the
--- labels of udev/modprobe.d/sdi-v4l2loopback.conf and sdid's defaults; a
--- site with other labels ([output] label, data_label) adds them here.
+-- labels of udev/modprobe.d/sdi-v4l2loopback.conf and sdid's defaults,
+-- alone or followed by a camera's serial when sdid serves several ("SDI
+-- camera sim-1"; "matches" takes a glob). A site with other labels
+-- ([output] label, data_label) adds them here.
 table.insert(v4l2_monitor.rules, {
   matches = {
     { { "device.product.name", "equals", "SDI camera" } },
+    { { "device.product.name", "matches", "SDI camera *" } },
     { { "device.product.name", "equals", "SDI data" } },
+    { { "device.product.name", "matches", "SDI data *" } },
   },
   apply_properties = {
     ["device.disabled"] = true,
@@ -23,7 +27,9 @@ table.insert(v4l2_monitor.rules, {
 table.insert(v4l2_monitor.rules, {
   matches = {
     { { "api.v4l2.cap.card", "equals", "SDI camera" } },
+    { { "api.v4l2.cap.card", "matches", "SDI camera *" } },
     { { "api.v4l2.cap.card", "equals", "SDI data" } },
+    { { "api.v4l2.cap.card", "matches", "SDI data *" } },
   },
   apply_properties = {
     ["node.disabled"] = true,

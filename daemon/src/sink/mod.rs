@@ -47,6 +47,9 @@ pub enum SinkError {
     /// The PipeWire camera waits for this user's PipeWire to come up.
     #[error("output device unavailable: no PipeWire running for this user yet")]
     NoPipewire,
+    /// The PipeWire camera cannot carry this camera (why).
+    #[error("output device unavailable: {0}")]
+    PipewireRefused(&'static str),
     /// Between attempts to start the camera process again.
     #[error("output device unavailable: the PipeWire camera process is gone")]
     CameraGone,

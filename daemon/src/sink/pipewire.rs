@@ -21,8 +21,8 @@ use super::{Sink, SinkError, SinkInfo, SinkKindName};
 use crate::out_frame::OutFrame;
 use sdi_camera_link::{self as link, Message, Port, Spec, State, Wire};
 pub use sdi_camera_link::{
-    view_description, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, SYSTEM_FEED_FLAG,
-    SYSTEM_FEED_NAME, VIEW_NODE,
+    Names, CAMERA_PROGRAM, DATA_NODE, FRAME_LOG, LINGER, SYSTEM_FEED_FLAG, SYSTEM_FEED_NAME,
+    VIEW_NODE,
 };
 
 /// Between attempts to reach a camera process that went away.
@@ -165,28 +165,25 @@ pub struct PipewireSink {
 }
 
 impl PipewireSink {
-    /// Connects to this user's camera process (`program`, found by
-    /// [`launch::find_program`]), starting it when none runs; fails when it
-    /// cannot reach PipeWire.
-    pub fn open(
-        program: &Path,
-        sensor_width: usize,
-        sensor_height: usize,
-        frame_rate_hz: f64,
-        mode: ModeId,
-    ) -> Result<Self, SinkError> {
-        let mut s = Self::when_reachable(program, sensor_width, sensor_height, frame_rate_hz, mode);
+    /// Connects to this user's process of the camera `spec`
+    /// (`program`, found by [`launch::find_program`]), starting it when
+    /// none runs; fails when it cannot reach PipeWire.
+    pub fn open(program: &Path, spec: Spec) -> Result<Self, SinkError> {
+        let mut s = Self::when_reachable(program, spec);
         s.camera.awaits_pipewire = false;
         s.camera.link = Some(Link::open(program, &s.camera.spec)?);
         Ok(s)
     }
 
-    /// The spec sdid greets a camera with for these sizes, rate and mode.
+    /// The spec sdid greets a camera with for these sizes, rate and mode;
+    /// `camera`: the serial of one of several cameras, which names its
+    /// process's socket and nodes (`None`: the lone camera).
     pub fn spec(
         sensor_width: usize,
         sensor_height: usize,
         frame_rate_hz: f64,
         mode: ModeId,
+        camera: Option<&str>,
     ) -> Spec {
         let frame_rate_hz = frame_rate_hz.round().clamp(1.0, 240.0) as u32;
         let view = LoopbackFormat::view(frame_rate_hz);
@@ -197,6 +194,7 @@ impl PipewireSink {
             data_height: sensor_height as u32,
             frame_rate_hz,
             mode,
+            camera: camera.map(str::to_owned),
         }
     }
 
@@ -224,16 +222,10 @@ impl PipewireSink {
     /// Like [`PipewireSink::open`], but reaches (or starts) the camera
     /// process with the first frame after this user's PipeWire is up, and
     /// again after it went away, at most every [`RETRY`].
-    pub fn when_reachable(
-        program: &Path,
-        sensor_width: usize,
-        sensor_height: usize,
-        frame_rate_hz: f64,
-        mode: ModeId,
-    ) -> Self {
-        let spec = Self::spec(sensor_width, sensor_height, frame_rate_hz, mode);
+    pub fn when_reachable(program: &Path, spec: Spec) -> Self {
         let view = LoopbackFormat::view(spec.frame_rate_hz);
         let (vw, vh) = (view.width as usize, view.height as usize);
+        let (dw, dh) = (spec.data_width as usize, spec.data_height as usize);
         Self {
             camera: Camera {
                 program: Some(program.to_path_buf()),
@@ -244,7 +236,7 @@ impl PipewireSink {
             },
             yuyv: ViewRenderer::new(vw, vh, PixelFormat::Yuyv),
             rgb24: ViewRenderer::new(vw, vh, PixelFormat::Rgb24),
-            y16: ViewRenderer::new(sensor_width, sensor_height, PixelFormat::Y16),
+            y16: ViewRenderer::new(dw, dh, PixelFormat::Y16),
             view,
         }
     }
@@ -278,8 +270,11 @@ impl Sink for PipewireSink {
         SinkInfo {
             kind: SinkKindName::Pipewire,
             device: format!(
-                "PipeWire node \"{VIEW_NODE}\" (YUYV or RGB) + \"{DATA_NODE}\" ({}x{} Y16)",
-                self.camera.spec.data_width, self.camera.spec.data_height
+                "PipeWire node \"{}\" (YUYV or RGB) + \"{}\" ({}x{} Y16)",
+                self.camera.spec.names().view_node(),
+                self.camera.spec.names().data_node(),
+                self.camera.spec.data_width,
+                self.camera.spec.data_height
             ),
             format: "YUYV".into(),
             width: self.view.width,

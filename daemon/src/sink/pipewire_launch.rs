@@ -122,13 +122,14 @@ pub struct Connected {
     pub camera_pid: Option<u32>,
 }
 
-/// Connects to this user's camera process, starting `program SPEC` when
-/// none runs; fails with the camera's own
+/// Connects to this user's process of the camera `spec` (its socket
+/// named by [`Spec::names`]), starting `program SPEC` when none runs;
+/// fails with the camera's own
 /// reason (e.g. "no PipeWire daemon reachable at ...").
 pub fn connect(program: &Path, spec: &Spec) -> Result<Connected, ConnectError> {
     let sock = link::runtime_dir()
         .map_err(ConnectError::RuntimeDir)?
-        .join(link::SOCKET_NAME);
+        .join(spec.names().socket());
     let deadline = Instant::now() + CONNECT_TIMEOUT;
     let mut last;
     loop {

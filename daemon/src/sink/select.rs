@@ -1,6 +1,8 @@
 //! The output sinks the validated configuration asks for (`auto`:
 //! v4l2loopback, and beside it the PipeWire camera where this user's
 //! PipeWire runs; else PipeWire; else the y4m stream), and for `auto` why.
+//! Each of several cameras has its own PipeWire camera, named by its
+//! serial ([`sdi_camera_link::Names`]).
 
 use std::path::PathBuf;
 
@@ -12,6 +14,7 @@ use super::pipewire_launch;
 use super::system_feed::{self, SystemFeed};
 use super::y4m::Y4mSink;
 use super::{Sink, SinkError, SinkKindName, SinkSet};
+use sdi_camera_link::Spec;
 use sdi_config::{Config, SinkKind};
 use sdi_core::mode::ModeId;
 
@@ -53,32 +56,33 @@ fn pipewire_phrase(e: &SinkError) -> String {
     }
 }
 
-fn open_pipewire(
-    width: usize,
-    height: usize,
-    fps: f64,
-    mode: ModeId,
-) -> Result<Box<dyn Sink>, SinkError> {
+fn open_pipewire(spec: &Spec) -> Result<Box<dyn Sink>, SinkError> {
     let program = pipewire_launch::find_program()?;
-    let s = PipewireSink::open(&program, width, height, fps, mode)?;
+    let s = PipewireSink::open(&program, spec.clone())?;
     Ok(Box::new(s))
 }
 
-/// Why the PipeWire camera cannot carry this camera, if it cannot: its
-/// nodes and the users' feed are one camera's (several cameras: loopback
-/// nodes or FIFOs named by serial).
-fn pipewire_refused(c: &Config) -> Option<&'static str> {
-    (c.cameras > 1).then_some("several cameras: the PipeWire camera carries one")
+/// Why the PipeWire camera cannot carry this camera, if it cannot: one of
+/// several cameras without a serial that names its nodes (the lone
+/// camera's names are another's).
+fn pipewire_refused(c: &Config, spec: &Spec) -> Option<&'static str> {
+    (c.cameras > 1 && spec.camera.is_none())
+        .then_some("this camera's serial cannot name its PipeWire nodes")
 }
 
-/// Opens the output sink.
+/// Opens the output sink of a camera: `serial` names its PipeWire camera
+/// when it is one of several (and [names a file](sdi_core::serial::names_a_file)).
 pub fn open(
     c: &Config,
     width: usize,
     height: usize,
     fps: f64,
     mode: ModeId,
+    serial: Option<&str>,
 ) -> Result<Chosen, SinkError> {
+    let camera = serial.filter(|s| c.cameras > 1 && sdi_core::serial::names_a_file(s));
+    let spec = PipewireSink::spec(width, height, fps, mode, camera);
+    let refused = pipewire_refused(c, &spec);
     let kind = c.output.sink;
     let auto = kind == SinkKind::Auto;
     let mut passed = Vec::new();
@@ -89,8 +93,8 @@ pub fn open(
                     "v4l2loopback device labelled \"{}\" found",
                     c.output.label
                 ));
-                let also = match (auto, pipewire_refused(c)) {
-                    (true, None) => beside_loopback(width, height, fps, mode, &mut passed),
+                let also = match (auto, refused) {
+                    (true, None) => beside_loopback(&spec, &mut passed),
                     _ => Vec::new(),
                 };
                 return Ok(Chosen {
@@ -108,12 +112,16 @@ pub fn open(
             }
         }
     }
-    if let (true, Some(why)) = (auto, pipewire_refused(c)) {
+    let wants_pipewire = auto || kind == SinkKind::Pipewire;
+    if let (true, Some(why)) = (wants_pipewire, refused) {
+        if !auto {
+            return Err(SinkError::PipewireRefused(why));
+        }
         passed.push(why.into());
     } else if auto && pipewire_launch::pipewire_socket().is_none() {
         passed.push("no PipeWire running for this user".into());
-    } else if auto || kind == SinkKind::Pipewire {
-        match open_pipewire(width, height, fps, mode) {
+    } else if wants_pipewire {
+        match open_pipewire(&spec) {
             Ok(sink) => {
                 passed.push("PipeWire reachable".into());
                 return Ok(Chosen {
@@ -133,8 +141,8 @@ pub fn open(
     }
     let path = (!c.output.y4m_path.is_empty()).then(|| PathBuf::from(&c.output.y4m_path));
     let sink = Y4mSink::new(path.as_deref(), width, height, fps).map_err(SinkError::Y4m)?;
-    let also = match (auto, pipewire_refused(c), system_feed::runtime_directory()) {
-        (true, None, Some(dir)) => feed_users(&dir, width, height, fps, mode, &mut passed),
+    let also = match (auto, refused, system_feed::runtime_directory()) {
+        (true, None, Some(dir)) => feed_users(&dir, &spec, &mut passed),
         _ => Vec::new(),
     };
     Ok(Chosen {
@@ -153,22 +161,16 @@ pub fn open(
 /// (no VIDIOC_EXPBUF, docs/loopback.md), so its portal clients get the
 /// camera process's node instead (the loopback node is kept out of
 /// PipeWire by SDI's WirePlumber rule, docs/pipewire.md).
-fn beside_loopback(
-    width: usize,
-    height: usize,
-    fps: f64,
-    mode: ModeId,
-    passed: &mut Vec<String>,
-) -> Vec<Box<dyn Sink>> {
+fn beside_loopback(spec: &Spec, passed: &mut Vec<String>) -> Vec<Box<dyn Sink>> {
     if let Some(dir) = system_feed::runtime_directory() {
-        return feed_users(&dir, width, height, fps, mode, passed);
+        return feed_users(&dir, spec, passed);
     }
     let opened = match pipewire_launch::pipewire_socket() {
-        Some(_) => open_pipewire(width, height, fps, mode).map(|s| (s, "PipeWire reachable")),
+        Some(_) => open_pipewire(spec).map(|s| (s, "PipeWire reachable")),
         None => pipewire_launch::find_program()
             .map_err(SinkError::from)
             .map(|program| {
-                let s = PipewireSink::when_reachable(&program, width, height, fps, mode);
+                let s = PipewireSink::when_reachable(&program, spec.clone());
                 let s: Box<dyn Sink> = Box::new(s);
                 (s, "no PipeWire running for this user yet")
             }),
@@ -188,15 +190,8 @@ fn beside_loopback(
 
 /// As the system service: the PipeWire cameras of users' sessions, which
 /// connect to sdid's feed socket in `dir` (`system_feed.rs`).
-fn feed_users(
-    dir: &std::path::Path,
-    width: usize,
-    height: usize,
-    fps: f64,
-    mode: ModeId,
-    passed: &mut Vec<String>,
-) -> Vec<Box<dyn Sink>> {
-    match SystemFeed::listen(dir, width, height, fps, mode) {
+fn feed_users(dir: &std::path::Path, spec: &Spec, passed: &mut Vec<String>) -> Vec<Box<dyn Sink>> {
+    match SystemFeed::listen(dir, spec.clone()) {
         Ok(feed) => {
             passed.push(
                 "system service: the PipeWire cameras of users' sessions are fed beside it".into(),
@@ -216,10 +211,14 @@ pub fn how_to_watch(kind: SinkKindName, device: &str) -> String {
     match kind {
         SinkKindName::Y4m if device == "stdout" => "sdid ... | ffplay -i -".into(),
         SinkKindName::Y4m => format!("ffplay {device}"),
-        SinkKindName::Pipewire => format!(
-            "any PipeWire camera picker (\"SDI camera\"), or \
-             gst-launch-1.0 pipewiresrc target-object={VIEW_NODE} ! videoconvert ! autovideosink"
-        ),
+        SinkKindName::Pipewire => {
+            // The device names the view node first ("PipeWire node \"sdi-camera...\" ...").
+            let node = device.split('"').nth(1).unwrap_or(VIEW_NODE);
+            format!(
+                "any PipeWire camera picker (\"SDI camera\"), or \
+                 gst-launch-1.0 pipewiresrc target-object={node} ! videoconvert ! autovideosink"
+            )
+        }
         SinkKindName::Loopback => {
             format!("ffplay {device} (or any V4L2 camera application: \"SDI camera\")")
         }
@@ -231,10 +230,27 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_pipewire_camera_carries_one_camera() {
+    fn each_of_several_cameras_has_its_pipewire_camera() {
         let mut c = Config::default();
-        assert_eq!(pipewire_refused(&c), None);
+        let spec = |camera: Option<&str>| PipewireSink::spec(320, 240, 30.0, ModeId::Raw, camera);
+        assert_eq!(pipewire_refused(&c, &spec(None)), None);
         c.cameras = 2;
-        assert!(pipewire_refused(&c).is_some());
+        assert_eq!(pipewire_refused(&c, &spec(Some("sim-1"))), None);
+        // One of several without a serial that names its nodes.
+        assert!(pipewire_refused(&c, &spec(None)).is_some());
+    }
+
+    #[test]
+    fn how_to_watch_names_the_cameras_node() {
+        let lone = how_to_watch(
+            SinkKindName::Pipewire,
+            "PipeWire node \"sdi-camera\" (YUYV)",
+        );
+        assert!(lone.contains("target-object=sdi-camera !"), "{lone}");
+        let one = how_to_watch(
+            SinkKindName::Pipewire,
+            "PipeWire node \"sdi-camera-sim-1\" (YUYV)",
+        );
+        assert!(one.contains("target-object=sdi-camera-sim-1 !"), "{one}");
     }
 }

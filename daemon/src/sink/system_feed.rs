@@ -2,8 +2,10 @@
 //! its own, so the camera process of each user's session
 //! (`sdi-pipewire-camera --system-feed`, the user unit
 //! `sdi-pipewire-camera.service`) connects to sdid's feed socket in its
-//! runtime directory ([`sdi_camera_link::SYSTEM_FEED_NAME`]) and is fed
-//! like the camera sdid starts in a session.
+//! runtime directory and is fed like the camera sdid starts in a session.
+//! Each camera has its feed socket ([`sdi_camera_link::Names::system_feed`]:
+//! `camera-feed.sock` for a lone camera, `camera-feed-SERIAL.sock` for each
+//! of several), and the user's camera program serves every one it finds.
 //!
 //! Trust: the socket is 0660 in `RuntimeDirectory=sdi` (root:sdi 0750), so
 //! only members of the group sdi, who may control the camera anyway, get
@@ -19,10 +21,10 @@ use std::sync::{Arc, Mutex};
 
 use nix::sys::socket::{getsockopt, sockopt::PeerCredentials};
 
-use sdi_camera_link::{Spec, SYSTEM_FEED_NAME};
+use sdi_camera_link::Spec;
 use sdi_core::mode::ModeId;
 
-use super::pipewire::{PipewireSink, VIEW_NODE};
+use super::pipewire::PipewireSink;
 use super::pipewire_launch as launch;
 use super::{Sink, SinkError, SinkInfo, SinkKindName};
 use crate::out_frame::OutFrame;
@@ -66,15 +68,10 @@ pub fn runtime_directory() -> Option<PathBuf> {
 }
 
 impl SystemFeed {
-    /// Listens on `dir`/camera-feed.sock for the users' camera processes.
-    pub fn listen(
-        dir: &Path,
-        sensor_width: usize,
-        sensor_height: usize,
-        frame_rate_hz: f64,
-        mode: ModeId,
-    ) -> Result<Self, ListenError> {
-        let path = dir.join(SYSTEM_FEED_NAME);
+    /// Listens in `dir` on the feed socket of the camera `spec` for the
+    /// users' camera processes.
+    pub fn listen(dir: &Path, spec: Spec) -> Result<Self, ListenError> {
+        let path = dir.join(spec.names().system_feed());
         let err = |source| ListenError {
             path: path.clone(),
             source,
@@ -83,10 +80,10 @@ impl SystemFeed {
         let _ = std::fs::remove_file(&path);
         let listener = UnixListener::bind(&path).map_err(err)?;
         std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o660)).map_err(err)?;
-        let spec = PipewireSink::spec(sensor_width, sensor_height, frame_rate_hz, mode);
-        let shared_mode = Arc::new(Mutex::new(mode));
+        let shared_mode = Arc::new(Mutex::new(spec.mode));
         let (tx, arrived) = mpsc::channel();
         let (m, greeting) = (shared_mode.clone(), spec.clone());
+        let socket = path.clone();
         std::thread::Builder::new()
             .name("sdid-camera-feed".into())
             .spawn(move || {
@@ -96,7 +93,7 @@ impl SystemFeed {
                     spec.mode = *m.lock().unwrap_or_else(|e| e.into_inner());
                     // Greeted here, not on the output thread: a peer that
                     // never answers delays only the next greeting.
-                    match greet(s, spec) {
+                    match greet(s, spec, &socket) {
                         Ok(camera) => {
                             if tx.send(camera).is_err() {
                                 break;
@@ -137,12 +134,12 @@ impl SystemFeed {
 }
 
 /// Greets a camera process that connected to the feed socket.
-fn greet(s: UnixStream, spec: Spec) -> Result<PipewireSink, SinkError> {
+fn greet(s: UnixStream, spec: Spec, socket: &Path) -> Result<PipewireSink, SinkError> {
     let peer =
         getsockopt(&s, PeerCredentials).map_err(|e| SinkError::Io(std::io::Error::from(e)))?;
     let c = launch::hello(s, &spec).map_err(|last| {
         SinkError::Camera(launch::ConnectError::NotTaken {
-            socket: PathBuf::from(SYSTEM_FEED_NAME),
+            socket: socket.to_owned(),
             last,
         })
     })?;
@@ -159,7 +156,8 @@ impl Sink for SystemFeed {
         SinkInfo {
             kind: SinkKindName::Pipewire,
             device: format!(
-                "PipeWire node \"{VIEW_NODE}\" in each user session whose camera connects to {}",
+                "PipeWire node \"{}\" in each user session whose camera connects to {}",
+                self.spec.names().view_node(),
                 self.path.display()
             ),
             format: "YUYV".into(),

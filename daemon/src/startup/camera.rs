@@ -202,6 +202,7 @@ fn open_camera(options: &StartOptions, plan: CameraPlan) -> Result<Opened, Start
         sensor.height,
         capture.frame_rate_hz,
         mode,
+        Some(serial.as_str()),
     )?;
     let reasons = chosen.reasons();
     let output = Output::spawn_set(chosen.sinks).map_err(StartError::OutputThread)?;

@@ -192,14 +192,9 @@ fn bench_pipewire(s: &Session, caps: &str, frames: usize, rate_hz: f64) -> Run {
         eprintln!("sink_bench: {e}");
         std::process::exit(2)
     });
-    let mut sink = PipewireSink::open(
-        &program,
-        WIDTH,
-        HEIGHT,
-        rate_hz,
-        sdi_core::mode::ModeId::Raw,
-    )
-    .unwrap_or_else(|e| panic!("PipeWire sink: {e}"));
+    let spec = PipewireSink::spec(WIDTH, HEIGHT, rate_hz, sdi_core::mode::ModeId::Raw, None);
+    let mut sink =
+        PipewireSink::open(&program, spec).unwrap_or_else(|e| panic!("PipeWire sink: {e}"));
     let camera = sink.camera_pid().expect("the camera process's pid");
     let reader = (!caps.is_empty()).then(|| s.reader(VIEW_NODE, caps));
     if reader.is_some() {

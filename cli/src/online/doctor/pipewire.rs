@@ -13,7 +13,7 @@ use std::time::Duration;
 use serde_json::Value as Json;
 
 use super::{output, Check, Status};
-use sdi_camera_link::{DATA_NODE, VIEW_NODE};
+use sdi_camera_link::is_camera_node;
 
 /// The first PipeWire that reads a v4l2loopback node (docs/loopback.md).
 const READS_LOOPBACK: (u32, u32, u32) = (1, 3, 81);
@@ -41,8 +41,8 @@ fn str_of<'a>(p: &'a Json, key: &str) -> Option<&'a str> {
     p.get(key).and_then(Json::as_str)
 }
 
-/// The SDI nodes in `pw-dump`'s objects: the camera process's by node
-/// name, the loopback device's by card label.
+/// The SDI nodes in `pw-dump`'s objects: the camera processes' by node
+/// name (every camera's), the loopback device's by card label.
 fn sdi_nodes(objects: &[Json], labels: &[&str]) -> Vec<SdiNode> {
     objects
         .iter()
@@ -50,10 +50,10 @@ fn sdi_nodes(objects: &[Json], labels: &[&str]) -> Vec<SdiNode> {
         .filter_map(|o| {
             let p = &o["info"]["props"];
             let name = str_of(p, "node.name").unwrap_or_default();
-            let camera = name == VIEW_NODE || name == DATA_NODE;
+            let camera = is_camera_node(name);
             let loopback = ["api.v4l2.cap.card", "device.product.name"]
                 .iter()
-                .any(|k| str_of(p, k).is_some_and(|c| labels.contains(&c)));
+                .any(|k| str_of(p, k).is_some_and(|c| is_sdi_label(c, labels)));
             (camera || loopback).then(|| SdiNode {
                 name: str_of(p, "node.description").unwrap_or(name).to_owned(),
                 role: str_of(p, "media.role").map(str::to_owned),
@@ -63,6 +63,15 @@ fn sdi_nodes(objects: &[Json], labels: &[&str]) -> Vec<SdiNode> {
             })
         })
         .collect()
+}
+
+/// Whether a card label is one of `labels`, alone or followed by a
+/// camera's serial (several cameras: "SDI camera sim-1", camera_plan.rs).
+fn is_sdi_label(card: &str, labels: &[&str]) -> bool {
+    labels.iter().any(|l| {
+        card.strip_prefix(l)
+            .is_some_and(|rest| rest.is_empty() || rest.starts_with(' '))
+    })
 }
 
 /// The verdict on one node: readable or not, and why.
@@ -145,6 +154,8 @@ fn verdict(dump: Option<&str>, installed: bool, labels: &[&str]) -> Vec<Check> {
         .zip(&checks)
         .filter(|(n, c)| n.role.as_deref() == Some("Camera") && c.status == Status::Ok)
         .count();
+    // Several cameras' own nodes (sdi-camera-SERIAL) are no duplicate.
+    let each_its_own = cameras.iter().all(|c| !c.loopback);
     let summary = match (cameras.len(), readable) {
         (0, _) => Check::new(
             "pipewire",
@@ -156,6 +167,18 @@ fn verdict(dump: Option<&str>, installed: bool, labels: &[&str]) -> Vec<Check> {
             "pipewire",
             Status::Ok,
             format!("PipeWire {pipewire} lists one SDI camera, and it can be read"),
+        ),
+        (n, r) if each_its_own && r == n => Check::new(
+            "pipewire",
+            Status::Ok,
+            format!(
+                "PipeWire {pipewire} lists {n} SDI cameras ({}), one per camera, each readable",
+                cameras
+                    .iter()
+                    .map(|c| c.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
         ),
         (n, 0) => Check::new(
             "pipewire",
@@ -228,6 +251,7 @@ pub(super) fn camera() -> Check {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use sdi_camera_link::{DATA_NODE, VIEW_NODE};
 
     const LABELS: &[&str] = &["SDI camera", "SDI data"];
 
@@ -324,6 +348,38 @@ mod tests {
         let c = verdict(Some(&d), true, LABELS);
         assert_eq!(c[0].status, Status::Warn);
         assert!(c[0].summary.contains("2 SDI cameras"), "{}", c[0].summary);
+    }
+
+    #[test]
+    fn each_of_several_cameras_own_node_is_no_duplicate() {
+        let d = dump(
+            "0.3.65",
+            &[
+                ("sdi-camera-sim-0", "", Some("Camera"), "running"),
+                ("sdi-camera-sim-1", "", Some("Camera"), "idle"),
+                ("sdi-camera-data-sim-1", "", None, "idle"),
+            ],
+        );
+        let c = verdict(Some(&d), true, LABELS);
+        assert_eq!(c[0].status, Status::Ok, "{}", c[0].summary);
+        assert!(c[0].summary.contains("2 SDI cameras"), "{}", c[0].summary);
+        assert_eq!(c.len(), 4);
+        // A camera's loopback node beside them is one too many.
+        let d = dump(
+            "0.3.65",
+            &[
+                ("sdi-camera-sim-0", "", Some("Camera"), "running"),
+                (
+                    "v4l2_input.x",
+                    "SDI camera sim-0",
+                    Some("Camera"),
+                    "suspended",
+                ),
+            ],
+        );
+        assert_eq!(verdict(Some(&d), true, LABELS)[0].status, Status::Warn);
+        assert!(is_sdi_label("SDI data A1", LABELS));
+        assert!(!is_sdi_label("SDI cameraX", LABELS));
     }
 
     #[test]
