@@ -638,7 +638,7 @@ fn loopback_rule_programs(rules: &str) -> Vec<(String, String)> {
 /// and the serial ones, view and data) gets its link, and the program that
 /// cuts the serial out of the label, run by `/bin/sh` on a label file as
 /// udev runs it on sysfs, prints only serials sdid would name files with
-/// (`names_a_file`, daemon/src/camera_plan.rs) and fails on anything else:
+/// (`names_a_file`, core/src/serial.rs) and fails on anything else:
 /// no label can make a link outside /dev/v4l/by-id. The rules parse with
 /// `udevadm verify` where udev has it (systemd 254+); the VM runs them
 /// under Debian 13's udevd (vm_systemd).
