@@ -3,6 +3,8 @@
 //! conversions here are BT.601: limited range for YUYV (browsers' camera
 //! format), full range for the y4m stream's 4:4:4 planes.
 
+use multiversion::multiversion;
+
 use super::{PixelFormat, Y16_ZERO_DN};
 
 /// A source image or output buffer that does not have the packer's geometry.
@@ -133,9 +135,25 @@ impl Packer {
 
     /// Packs interleaved RGB8.
     pub fn rgb8(&self, src: Src<'_, u8>, dst: &mut [u8]) -> Result<(), PackError> {
+        self.rgb8_rows(src, dst, |_| false)
+    }
+
+    /// [`Self::rgb8`] where `same_as_above(y)` says source row y repeats
+    /// row y - 1 (a scaled image's repeated rows): its packed row is copied.
+    pub fn rgb8_rows(
+        &self,
+        src: Src<'_, u8>,
+        dst: &mut [u8],
+        same_as_above: impl Fn(usize) -> bool,
+    ) -> Result<(), PackError> {
         src.check(3, self.width, self.height)?;
         self.check_dst(dst)?;
+        let bpl = self.width * self.format.bytes_per_pixel();
         for y in 0..self.height {
+            if y > 0 && same_as_above(y) {
+                dst.copy_within((y - 1) * bpl..y * bpl, y * bpl);
+                continue;
+            }
             let s = src.row(y, 3);
             let d = self.dst_row(dst, y);
             match self.format {
@@ -241,7 +259,9 @@ fn grey_row(format: PixelFormat, lut: &[u8; 256], s: &[u8], d: &mut [u8]) {
 /// One row of RGB8 to YUYV, BT.601 limited range, chroma from the mean of
 /// each horizontal pixel pair. [`crate::display`]'s tables give the same
 /// bytes for colormapped images without going through RGB (its tests hold
-/// them to this function).
+/// them to this function). Compiled for each vector width (multiversion):
+/// the separated channels' 640x480 view packs through it every frame.
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
 pub(crate) fn rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
     for (o, p) in d.chunks_exact_mut(4).zip(s.chunks_exact(6)) {
         let (r0, g0, b0) = (i32::from(p[0]), i32::from(p[1]), i32::from(p[2]));
@@ -259,7 +279,8 @@ pub(crate) fn rgb_row_to_yuyv(s: &[u8], d: &mut [u8]) {
 
 /// BT.601 full-range RGB -> Y, U, V planes (the y4m stream's C444) in 16.16
 /// fixed point: within one code of the float formula (tested on every
-/// colour), and integer-only so it vectorizes.
+/// colour), and integer-only so it vectorizes (for each vector width).
+#[multiversion(targets("x86_64+avx512f+avx512bw+avx512vl", "x86_64+avx2", "x86_64+sse4.1"))]
 pub fn rgb8_to_yuv444_planes(rgb: &[u8], y: &mut [u8], u: &mut [u8], v: &mut [u8]) {
     for (((px, y), u), v) in rgb.chunks_exact(3).zip(y).zip(u).zip(v) {
         [*y, *u, *v] = yuv444_pixel(px[0], px[1], px[2]);

@@ -1,6 +1,6 @@
 //! [`ViewRenderer`]: a mode's output as the bytes of one published stream.
 
-use super::letterbox::{letterbox_rgb8, source_index, LetterboxRect};
+use super::letterbox::{letterbox_rgb8, source_index, source_rows, LetterboxRect};
 use super::pack::{rgb8_to_yuv444_planes, yuv444_planes_mut, PackError, Packer, Src};
 use super::PixelFormat;
 use crate::display::{DisplayMap, DisplayRange};
@@ -85,8 +85,11 @@ impl ViewRenderer {
         display.render_output_rgb8(output, &mut self.rgb);
         self.scaled.resize(dw * dh * 3, 0);
         letterbox_rgb8(&self.rgb, w, h, &mut self.scaled, dw, dh);
+        let rows = source_rows(w, h, dw, dh);
         self.packer
-            .rgb8(Src::packed(&self.scaled, dw, dh, 3), &mut self.frame)?;
+            .rgb8_rows(Src::packed(&self.scaled, dw, dh, 3), &mut self.frame, |y| {
+                rows[y] == rows[y - 1]
+            })?;
         Ok(&self.frame)
     }
 
@@ -276,6 +279,40 @@ mod tests {
                     let got = view.render_yuv444(out, &map);
                     assert!(got == want.as_slice(), "{dw}x{dh} {colormap:?}");
                 }
+            }
+        }
+    }
+
+    /// Separated channels take the RGB path; its repeated rows are copied
+    /// and must equal packing every row.
+    #[test]
+    fn channels_view_matches_packing_every_row() {
+        use crate::mode::SeparatedChannels;
+        for (w, h) in [(320, 240), (64, 48), (5, 3), (1, 1)] {
+            let img = |f: &dyn Fn(usize) -> f32| Image {
+                width: w,
+                height: h,
+                data: (0..w * h).map(f).collect(),
+            };
+            let mut out = ModeOutput::new(w, h);
+            out.signed_dn = img(&|i| (i % 97) as f32 - 48.0);
+            out.channels = Some(SeparatedChannels {
+                i_plus_electrons: img(&|i| (i % 89) as f32 * 9.0),
+                i_minus_electrons: img(&|i| {
+                    if i % 13 == 0 {
+                        f32::NAN
+                    } else {
+                        (i % 7) as f32
+                    }
+                }),
+                i_plus_se_electrons: img(&|_| 1.0),
+                i_minus_se_electrons: img(&|_| 1.0),
+            });
+            let map = DisplayMap::default();
+            for (dw, dh) in [(640, 480), (16, 8)] {
+                let mut view = ViewRenderer::new(dw, dh, PixelFormat::Yuyv);
+                let got = view.render(&out, &map).expect("render").to_vec();
+                assert!(got == via_rgb(&out, &map, dw, dh), "{w}x{h} into {dw}x{dh}");
             }
         }
     }
