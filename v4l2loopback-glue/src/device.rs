@@ -20,6 +20,10 @@ use crate::GlueError;
 
 const SYSFS_NODES: &str = "/sys/devices/virtual/video4linux";
 const CONTROL_DEVICE: &str = "/dev/v4l2loopback";
+const OPEN_CONTROL: &str = "open /dev/v4l2loopback";
+/// Bytes of a card label v4l2loopback keeps (`char card_label[32]`, NUL
+/// terminated): a longer one is cut, and never matches when looked up.
+pub const LABEL_MAX: usize = 31;
 
 /// Version of the loaded v4l2loopback module.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
@@ -178,6 +182,7 @@ pub fn find_device(label: &str) -> Result<LoopbackDevice, GlueError> {
                     modprobe_command(label)
                 )
             },
+            not_added: None,
         })
 }
 
@@ -188,7 +193,7 @@ fn open_control() -> Result<File, GlueError> {
         .write(true)
         .open(CONTROL_DEVICE)
         .map_err(|e| GlueError::Io {
-            op: "open /dev/v4l2loopback",
+            op: OPEN_CONTROL,
             errno: nix::errno::Errno::from_raw(e.raw_os_error().unwrap_or(0)),
         })
 }
@@ -333,9 +338,77 @@ impl CreateOptions {
 /// error naming the modprobe command.
 pub fn create_device(opts: &CreateOptions) -> Result<LoopbackDevice, GlueError> {
     match find_device(&opts.label) {
-        Err(GlueError::DeviceNotFound { .. }) => {}
-        other => return other,
+        Err(GlueError::DeviceNotFound { .. }) => add_device(opts),
+        other => other,
     }
+}
+
+/// A node looked up by label, and whether [`find_or_add_device`] added it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Found {
+    pub device: LoopbackDevice,
+    pub added: bool,
+}
+
+/// The node labelled `opts.label`, added through the control device when
+/// there is none. Where it cannot be added (module 0.12.x, no write access
+/// to `/dev/v4l2loopback`, a label over [`LABEL_MAX`] bytes, the ioctl
+/// refused), the error is [`find_device`]'s `DeviceNotFound` with the
+/// reason in `not_added`.
+pub fn find_or_add_device(opts: &CreateOptions) -> Result<Found, GlueError> {
+    match find_device(&opts.label) {
+        Ok(device) => Ok(Found {
+            device,
+            added: false,
+        }),
+        Err(GlueError::DeviceNotFound { label, hint, .. }) => match add_device(opts) {
+            Ok(device) => Ok(Found {
+                device,
+                added: true,
+            }),
+            Err(e) => Err(GlueError::DeviceNotFound {
+                label,
+                hint,
+                not_added: Some(not_added_reason(&e)),
+            }),
+        },
+        Err(e) => Err(e),
+    }
+}
+
+/// Why [`add_device`] failed, for people.
+fn not_added_reason(e: &GlueError) -> String {
+    match e {
+        GlueError::Unsupported { .. } => {
+            "this v4l2loopback has no control device (0.13 and later have)".into()
+        }
+        GlueError::Io { op, errno } if *op == OPEN_CONTROL => match errno {
+            nix::errno::Errno::ENOENT => format!("{CONTROL_DEVICE} does not exist"),
+            nix::errno::Errno::EACCES | nix::errno::Errno::EPERM => {
+                format!("no permission to open {CONTROL_DEVICE} (adding nodes takes root)")
+            }
+            _ => e.to_string(),
+        },
+        e => e.to_string(),
+    }
+}
+
+/// `LabelTooLong` when v4l2loopback would cut `label`.
+fn check_label(label: &str) -> Result<(), GlueError> {
+    if label.len() > LABEL_MAX {
+        return Err(GlueError::LabelTooLong {
+            label: label.to_owned(),
+            len: label.len(),
+            max: LABEL_MAX,
+        });
+    }
+    Ok(())
+}
+
+/// Adds a node labelled `opts.label` through the control device (0.13+),
+/// whether or not one with that label exists.
+fn add_device(opts: &CreateOptions) -> Result<LoopbackDevice, GlueError> {
+    check_label(&opts.label)?;
     let version = ModuleVersion::of_loaded_module()?;
     if !version.has_control_device() {
         return Err(GlueError::Unsupported {
@@ -345,7 +418,7 @@ pub fn create_device(opts: &CreateOptions) -> Result<LoopbackDevice, GlueError> 
     }
     let ctl = open_control()?;
     let mut label = [0u8; 32];
-    let n = opts.label.len().min(31);
+    let n = opts.label.len().min(LABEL_MAX);
     label[..n].copy_from_slice(&opts.label.as_bytes()[..n]);
     let nr = opts.video_nr.map_or(-1, |n| n as i32);
     let created = if version.has_new_control_ioctls() {
@@ -404,5 +477,37 @@ mod tests {
         let mut raw = [0u8; 32];
         raw[..7].copy_from_slice(b"SDI cam");
         assert_eq!(label_of(&raw), "SDI cam");
+    }
+
+    #[test]
+    fn labels_over_31_bytes_are_refused_with_the_reason() {
+        assert!(check_label(&"x".repeat(LABEL_MAX)).is_ok());
+        let e = check_label("SDI camera 0123456789abcdefghijk").unwrap_err();
+        assert!(matches!(e, GlueError::LabelTooLong { len: 32, .. }), "{e}");
+        let why = not_added_reason(&e);
+        assert!(
+            why.contains("32 bytes") && why.contains("at most 31"),
+            "{why}"
+        );
+        let e = GlueError::DeviceNotFound {
+            label: "SDI camera x".into(),
+            hint: "load it".into(),
+            not_added: Some(why),
+        };
+        assert!(e.to_string().contains("load it; not added: label"), "{e}");
+    }
+
+    #[test]
+    fn control_device_errors_read_as_reasons() {
+        let e = GlueError::Io {
+            op: OPEN_CONTROL,
+            errno: nix::errno::Errno::EACCES,
+        };
+        assert!(not_added_reason(&e).contains("takes root"));
+        let e = GlueError::Io {
+            op: OPEN_CONTROL,
+            errno: nix::errno::Errno::ENOENT,
+        };
+        assert_eq!(not_added_reason(&e), "/dev/v4l2loopback does not exist");
     }
 }

@@ -7,8 +7,22 @@ use nix::errno::Errno;
 pub enum GlueError {
     #[error("the v4l2loopback kernel module is not loaded; load it with: {modprobe}")]
     ModuleNotLoaded { modprobe: String },
-    #[error("no v4l2loopback device labelled {label:?}; {hint}")]
-    DeviceNotFound { label: String, hint: String },
+    #[error("no v4l2loopback device labelled {label:?}; {hint}{}", not_added_suffix(.not_added))]
+    DeviceNotFound {
+        label: String,
+        hint: String,
+        /// Why [`crate::find_or_add_device`] could not add it, if it tried.
+        not_added: Option<String>,
+    },
+    #[error(
+        "label {label:?} is {len} bytes but v4l2loopback keeps at most {max}, \
+         so a node with it could never be found by its label"
+    )]
+    LabelTooLong {
+        label: String,
+        len: usize,
+        max: usize,
+    },
     #[error("{path} is not a v4l2loopback device (driver {driver:?})")]
     NotLoopback { path: String, driver: String },
     #[error("{op}: device busy (EBUSY): another writer owns it or too many openers")]
@@ -43,6 +57,13 @@ impl GlueError {
             _ => Self::Io { op, errno },
         }
     }
+}
+
+fn not_added_suffix(not_added: &Option<String>) -> String {
+    not_added
+        .as_ref()
+        .map(|why| format!("; not added: {why}"))
+        .unwrap_or_default()
 }
 
 /// `.map_err(err("OP"))` shorthand.

@@ -15,7 +15,7 @@
 //! # Ok(()) }
 //! ```
 //!
-//! * [`find_device`] / [`create_device`] / [`query_device`] /
+//! * [`find_device`] / [`create_device`] / [`find_or_add_device`] / [`query_device`] /
 //!   [`remove_device`]: the node by card label, by module version (0.12.x:
 //!   module parameters only; 0.13/0.14: legacy control ioctls; 0.15+:
 //!   renumbered control ioctls + [`control_version`]).
@@ -55,8 +55,9 @@ mod writer;
 
 pub use capture::{capture_format, driver_of, CaptureFormat, CaptureReader, Captured};
 pub use device::{
-    control_version, create_device, find_device, modprobe_command, query_device, remove_device,
-    video_nr, CreateOptions, LoopbackDevice, ModuleVersion, NodeInfo,
+    control_version, create_device, find_device, find_or_add_device, modprobe_command,
+    query_device, remove_device, video_nr, CreateOptions, Found, LoopbackDevice, ModuleVersion,
+    NodeInfo, LABEL_MAX,
 };
 pub use error::GlueError;
 pub use format::{IoMethod, LoopbackFormat, PixelFormat, Y16_ZERO_DN};

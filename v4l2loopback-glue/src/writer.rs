@@ -173,6 +173,7 @@ impl LoopbackWriter {
                 Some(libc::ENOENT) => GlueError::DeviceNotFound {
                     label: path.display().to_string(),
                     hint: "no such device node".into(),
+                    not_added: None,
                 },
                 code => GlueError::from_errno("open", Errno::from_raw(code.unwrap_or(0))),
             })?;

@@ -3,7 +3,9 @@
 //! (Y16 at the sensor size, signed DN offset by 32768).
 
 use sdi_core::view::ViewRenderer;
-use v4l2loopback_glue::{find_device, LoopbackFormat, LoopbackWriter, PixelFormat};
+use v4l2loopback_glue::{
+    find_or_add_device, CreateOptions, LoopbackDevice, LoopbackFormat, LoopbackWriter, PixelFormat,
+};
 
 use super::{Sink, SinkError, SinkInfo, SinkKindName};
 use crate::out_frame::OutFrame;
@@ -17,7 +19,8 @@ pub struct LoopbackSink {
 }
 
 impl LoopbackSink {
-    /// Opens the view node labelled `label` and, if `data_label` is not empty, the data node.
+    /// Opens the view node labelled `label` and, if `data_label` is not
+    /// empty, the data node; each added first if missing ([`node`]).
     pub fn open(
         label: &str,
         data_label: &str,
@@ -26,12 +29,12 @@ impl LoopbackSink {
         fps: f64,
     ) -> Result<Self, SinkError> {
         let fps = fps.round().clamp(1.0, 240.0) as u32;
-        let dev = find_device(label)?;
+        let dev = node(label)?;
         let view = LoopbackWriter::open(&dev.path, LoopbackFormat::view(fps))?;
         let data = if data_label.is_empty() {
             None
         } else {
-            let d = find_device(data_label)?;
+            let d = node(data_label)?;
             Some(LoopbackWriter::open(
                 &d.path,
                 LoopbackFormat::raw(sensor_width as u32, sensor_height as u32, fps),
@@ -45,6 +48,24 @@ impl LoopbackSink {
             data_frames: ViewRenderer::new(sensor_width, sensor_height, PixelFormat::Y16),
         })
     }
+}
+
+/// The loopback node labelled `label`, added through `/dev/v4l2loopback`
+/// when there is none and the module and our rights allow (v4l2loopback
+/// 0.13+, root), like the shipped modprobe config's node: exclusive caps,
+/// a ring of 10. Labels come from the camera plan only (serials checked by
+/// `names_a_file`), never from a D-Bus client. Added nodes stay when sdid
+/// stops: the next sdid finds them by label, as it finds modprobe's, and a
+/// reader holding one open keeps it across a restart.
+fn node(label: &str) -> Result<LoopbackDevice, SinkError> {
+    let found = find_or_add_device(&CreateOptions::new(label))?;
+    if found.added {
+        tracing::info!(
+            "added v4l2loopback node {} labelled \"{label}\"",
+            found.device.path.display()
+        );
+    }
+    Ok(found.device)
 }
 
 impl Sink for LoopbackSink {

@@ -39,9 +39,10 @@ fn loopback_phrase(e: &SinkError, label: &str) -> String {
         SinkError::Loopback(GlueError::ModuleNotLoaded { .. }) => {
             "no v4l2loopback module loaded (package v4l2loopback-dkms)".into()
         }
-        SinkError::Loopback(GlueError::DeviceNotFound { .. }) => {
-            format!("no v4l2loopback device labelled \"{label}\"")
-        }
+        SinkError::Loopback(GlueError::DeviceNotFound { not_added, .. }) => match not_added {
+            Some(why) => format!("no v4l2loopback device labelled \"{label}\" (not added: {why})"),
+            None => format!("no v4l2loopback device labelled \"{label}\""),
+        },
         e => format!("v4l2loopback unusable: {e}"),
     }
 }

@@ -93,6 +93,10 @@ static GUEST: Guest = Guest::new(&[
         300,
     ),
     (
+        "cameras_loopback::vm_sdid_adds_each_cameras_nodes_once",
+        400,
+    ),
+    (
         "pipewire::vm_pipewire_lists_the_sdi_camera_in_both_orders",
         1200,
     ),
