@@ -153,18 +153,23 @@ impl ViewRenderer {
                 max_abs_dn: display.max_abs_dn(img),
             },
         );
-        if self.scaled_dn.width != sw || self.scaled_dn.height != sh {
-            self.scaled_dn = Image::new(sw, sh);
+        // Each distinct source row is scaled and colormapped once; the
+        // rows that repeat it (every other one when doubling) are copies.
+        let rows: Vec<usize> = (0..sh).map(|y| source_index(y, h, sh)).collect();
+        let mut distinct = rows.clone();
+        distinct.dedup();
+        if self.scaled_dn.width != sw || self.scaled_dn.height != distinct.len() {
+            self.scaled_dn = Image::new(sw, distinct.len());
         }
         self.cols.clear();
         self.cols.extend((0..sw).map(|x| source_index(x, w, sw)));
-        for (y, row) in self.scaled_dn.data.chunks_exact_mut(sw).enumerate() {
-            let src = &img.data[source_index(y, h, sh) * w..][..w];
+        for (row, &sy) in self.scaled_dn.data.chunks_exact_mut(sw).zip(&distinct) {
+            let src = &img.data[sy * w..][..w];
             for (d, &sx) in row.iter_mut().zip(&self.cols) {
                 *d = src[sx];
             }
         }
-        self.content.resize(sw * sh * 2, 0);
+        self.content.resize(sw * distinct.len() * 2, 0);
         map.render_yuyv(&self.scaled_dn, &mut self.content);
         self.frame.resize(dw * dh * 2, 0);
         if (sw, sh) != (dw, dh) {
@@ -172,7 +177,12 @@ impl ViewRenderer {
                 px.copy_from_slice(&BLACK_YUYV);
             }
         }
-        for (y, row) in self.content.chunks_exact(sw * 2).enumerate() {
+        let mut k = 0;
+        for y in 0..sh {
+            if y > 0 && rows[y] != rows[y - 1] {
+                k += 1;
+            }
+            let row = &self.content[k * sw * 2..][..sw * 2];
             self.frame[((y0 + y) * dw + x0) * 2..][..sw * 2].copy_from_slice(row);
         }
         true
@@ -201,8 +211,16 @@ mod tests {
     #[test]
     fn direct_yuyv_view_matches_the_rgb_path() {
         // Full-width 2x (the boards' 320x240), side bars, top and bottom
-        // bars, and the view size itself.
-        for (w, h) in [(320, 240), (240, 240), (320, 120), (64, 48), (640, 480)] {
+        // bars, the view size itself, halving and a scale of 3.2.
+        for (w, h) in [
+            (320, 240),
+            (240, 240),
+            (320, 120),
+            (64, 48),
+            (640, 480),
+            (1280, 960),
+            (200, 150),
+        ] {
             let data = (0..w * h)
                 .map(|i| match i % 97 {
                     0 => f32::NAN,
