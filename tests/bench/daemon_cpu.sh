@@ -40,12 +40,6 @@ fi
 . tests/bench/replay_common.sh
 peer_dev=/dev/video52
 
-# Nanoseconds on a CPU of every thread of PID so far (0 for no PID).
-cpu_ns() {
-    if [ -z "$1" ]; then echo 0; return; fi
-    cat /proc/"$1"/task/*/schedstat | awk '{ t += $1 } END { printf "%.0f", t }'
-}
-
 # One window: sdid's and the peer's CPU share of one core (%) over the
 # same $window_s seconds, printed as "SDID PEER".
 window_pcts() {
@@ -57,21 +51,9 @@ window_pcts() {
         'BEGIN { printf "%.2f %.2f %.2f\n", 100 * s / w, 100 * p / w, 100 * q / w }'
 }
 
-median() {
-    sort -g | awk '{ v[NR] = $1 } END { m = int((NR + 1) / 2); printf "%.2f", (NR % 2) ? v[m] : (v[m] + v[m + 1]) / 2 }'
-}
-
-stats_fps() { ctl --json status | /usr/bin/python3 -c 'import json,sys; print("%.1f" % json.load(sys.stdin)["Stats"]["fps"])'; }
-
 # 1. A 320x240 recording of the simulator at 60 fps (8 s), and the same
 #    frames as Y16 for the peer.
-record_sim
-ctl export "$tmp/rec.sdirec" "$tmp/rec.npy" >/dev/null
-/usr/bin/python3 - "$tmp/rec.npy" "$tmp/rec.y16" <<'PY'
-import sys, numpy as np
-dn = np.load(sys.argv[1])
-np.clip(np.rint(dn) + 32768, 0, 65535).astype("<u2").tofile(sys.argv[2])
-PY
+record_sim_y16
 
 # 2. The peer: ffmpeg on the same frames, Y16 in at 60 fps, 640x480 out.
 #    On the host it runs through every window below. The emulated guest

@@ -32,21 +32,8 @@ camera_prog=$PWD/target/release/sdi-pipewire-camera
 [ -x "$camera_prog" ] || { echo "no $camera_prog (cargo build --release -p sdi-pipewire-camera)" >&2; exit 1; }
 echo "CPU: $(lscpu | sed -n 's/^Model name: *//p') ($(nproc) cores); $(pipewire --version | tail -1)"
 
-# Nanoseconds on a CPU of every thread of PID so far.
-cpu_ns() { cat /proc/"$1"/task/*/schedstat | awk '{ t += $1 } END { printf "%.0f", t }'; }
-median() {
-    sort -g | awk '{ v[NR] = $1 } END { m = int((NR + 1) / 2); printf "%.2f", (NR % 2) ? v[m] : (v[m] + v[m + 1]) / 2 }'
-}
-stats_fps() { ctl --json status | /usr/bin/python3 -c 'import json,sys; print("%.1f" % json.load(sys.stdin)["Stats"]["fps"])'; }
-
 # 1. The recording, and its frames as Y16 for the peer.
-record_sim
-ctl export "$tmp/rec.sdirec" "$tmp/rec.npy" >/dev/null
-/usr/bin/python3 - "$tmp/rec.npy" "$tmp/rec.y16" <<'PY'
-import sys, numpy as np
-dn = np.load(sys.argv[1])
-np.clip(np.rint(dn) + 32768, 0, 65535).astype("<u2").tofile(sys.argv[2])
-PY
+record_sim_y16
 
 # 2. The private PipeWire session.
 . tests/bench/pipewire_session.sh

@@ -1,7 +1,9 @@
-# Sourced by the replay benches (daemon_cpu.sh, latency_vm.sh), from the
+# Sourced by the replay benches (daemon_cpu.sh, daemon_cpu_pipewire.sh,
+# latency_vm.sh, sink_auto_vm.sh), from the
 # repository root: the release binaries, a scratch directory, a private
-# session bus (nothing of the user's desktop is touched), cleanup on exit, and
-# the 320x240 simulator recording at 60 fps they replay.
+# session bus (nothing of the user's desktop is touched), cleanup on exit,
+# the 320x240 simulator recording at 60 fps they replay, and the CPU
+# helpers of the daemon_cpu benches.
 
 sdid=$PWD/target/release/sdid sdictl=$PWD/target/release/sdictl
 tool=$PWD/target/release/loopback_tool
@@ -43,4 +45,29 @@ record_sim() {
     ctl stop >/dev/null 2>&1 || true
     kill "${pids[-2]}"; wait "${pids[-2]}" 2>/dev/null || true
     sleep 0.5
+}
+
+# Nanoseconds on a CPU of every thread of PID so far (0 for no PID): the
+# scheduler's count, where /proc/PID/stat's clock ticks count too few.
+cpu_ns() {
+    if [ -z "$1" ]; then echo 0; return; fi
+    cat /proc/"$1"/task/*/schedstat | awk '{ t += $1 } END { printf "%.0f", t }'
+}
+
+# The median of the numbers on standard input.
+median() {
+    sort -g | awk '{ v[NR] = $1 } END { m = int((NR + 1) / 2); printf "%.2f", (NR % 2) ? v[m] : (v[m] + v[m + 1]) / 2 }'
+}
+
+stats_fps() { ctl --json status | /usr/bin/python3 -c 'import json,sys; print("%.1f" % json.load(sys.stdin)["Stats"]["fps"])'; }
+
+# record_sim, then its frames as Y16 in $tmp/rec.y16 for an ffmpeg peer.
+record_sim_y16() {
+    record_sim
+    ctl export "$tmp/rec.sdirec" "$tmp/rec.npy" >/dev/null
+    /usr/bin/python3 - "$tmp/rec.npy" "$tmp/rec.y16" <<'PY'
+import sys, numpy as np
+dn = np.load(sys.argv[1])
+np.clip(np.rint(dn) + 32768, 0, 65535).astype("<u2").tofile(sys.argv[2])
+PY
 }

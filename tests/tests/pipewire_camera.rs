@@ -72,6 +72,20 @@ impl Sdid {
         }
     }
 
+    /// Waits until sdid answers for each of `serials` (`--camera SERIAL`).
+    fn wait_for_cameras(&self, serials: &[&str]) {
+        wait_for("every camera on the bus", TIMEOUT, || {
+            serials
+                .iter()
+                .all(|c| {
+                    sdictl(&self.address, &["--camera", c, "get", "mode"])
+                        .status
+                        .success()
+                })
+                .then_some(())
+        });
+    }
+
     fn ctl(&self, args: &[&str]) -> String {
         let out = sdictl(&self.address, args);
         assert!(
@@ -586,16 +600,7 @@ fn each_of_two_cameras_has_its_own_pipewire_nodes() {
         log,
         address: s.bus.address.clone(),
     };
-    wait_for("both cameras on the bus", TIMEOUT, || {
-        ["sim-0", "sim-1"]
-            .iter()
-            .all(|c| {
-                sdictl(&d.address, &["--camera", c, "get", "mode"])
-                    .status
-                    .success()
-            })
-            .then_some(())
-    });
+    d.wait_for_cameras(&["sim-0", "sim-1"]);
     let names = |serial: &str| (format!("{VIEW}-{serial}"), format!("{DATA}-{serial}"));
     let rgb_bytes = VIEW_W * VIEW_H * 3;
     let mut first = Vec::new();
@@ -711,16 +716,7 @@ fn system_feed_serves_every_cameras_feed_socket() {
         log,
         address: s.bus.address.clone(),
     };
-    wait_for("both cameras on the bus", TIMEOUT, || {
-        ["sim-0", "sim-1"]
-            .iter()
-            .all(|c| {
-                sdictl(&d.address, &["--camera", c, "get", "mode"])
-                    .status
-                    .success()
-            })
-            .then_some(())
-    });
+    d.wait_for_cameras(&["sim-0", "sim-1"]);
     d.ctl(&["--camera", "sim-1", "set-mode", "depth-edge"]);
     let rgb_bytes = VIEW_W * VIEW_H * 3;
     for (serial, mode) in [("sim-0", "raw"), ("sim-1", "depth-edge")] {
