@@ -475,13 +475,7 @@ fn no_signal_card_while_the_source_stops() {
 #[test]
 fn system_feed_camera_gets_the_system_sdids_frames() {
     require_pipewire!();
-    if !nix::unistd::getuid().is_root() {
-        sdi_tests::skip::unavailable(
-            "SDI_REQUIRE_VM",
-            format_args!(
-                "the system feed test needs root: the camera takes frames only from a root server"
-            ),
-        );
+    if !root_for_the_system_feed() {
         return;
     }
     let s = Session::start();
@@ -667,6 +661,21 @@ fn each_of_two_cameras_has_its_own_pipewire_nodes() {
     );
 }
 
+/// Whether this test runs as root, as the system feed's tests must (the
+/// camera takes frames only from a root server); a skip line if not.
+fn root_for_the_system_feed() -> bool {
+    let root = nix::unistd::getuid().is_root();
+    if !root {
+        sdi_tests::skip::unavailable(
+            "SDI_REQUIRE_VM",
+            format_args!(
+                "the system feed test needs root: the camera takes frames only from a root server"
+            ),
+        );
+    }
+    root
+}
+
 /// The system service with two cameras: a feed socket each
 /// (`camera-feed-SERIAL.sock`), and one `--system-feed DIR` camera program
 /// serving both, each camera's nodes named by its serial and fed its own
@@ -674,13 +683,7 @@ fn each_of_two_cameras_has_its_own_pipewire_nodes() {
 #[test]
 fn system_feed_serves_every_cameras_feed_socket() {
     require_pipewire!();
-    if !nix::unistd::getuid().is_root() {
-        sdi_tests::skip::unavailable(
-            "SDI_REQUIRE_VM",
-            format_args!(
-                "the system feed test needs root: the camera takes frames only from a root server"
-            ),
-        );
+    if !root_for_the_system_feed() {
         return;
     }
     let s = Session::start();
