@@ -418,8 +418,7 @@ fn add_device(opts: &CreateOptions) -> Result<LoopbackDevice, GlueError> {
     }
     let ctl = open_control()?;
     let mut label = [0u8; 32];
-    let n = opts.label.len().min(LABEL_MAX);
-    label[..n].copy_from_slice(&opts.label.as_bytes()[..n]);
+    label[..opts.label.len()].copy_from_slice(opts.label.as_bytes()); // checked above
     let nr = opts.video_nr.map_or(-1, |n| n as i32);
     let created = if version.has_new_control_ioctls() {
         let cfg = sys::loopback_config_v15 {

@@ -49,33 +49,41 @@ pub fn source_rows(w: usize, h: usize, dw: usize, dh: usize) -> Vec<Option<usize
 /// Nearest-neighbour scale of `src` (w x h RGB8) into `dst` (dw x dh),
 /// preserving the aspect ratio with black bars. The column map is computed
 /// once, and a row showing the same source row as the one above is a copy
-/// of it (every other row when doubling).
-pub fn letterbox_rgb8(src: &[u8], w: usize, h: usize, dst: &mut [u8], dw: usize, dh: usize) {
+/// of it (every other row when doubling). Returns the row map it scaled by
+/// ([`source_rows`]), so a packing can copy the same rows.
+pub fn letterbox_rgb8(
+    src: &[u8],
+    w: usize,
+    h: usize,
+    dst: &mut [u8],
+    dw: usize,
+    dh: usize,
+) -> Vec<Option<usize>> {
     dst.fill(0);
+    let rows = source_rows(w, h, dw, dh);
     if w == 0 || h == 0 {
-        return;
+        return rows;
     }
     let r = LetterboxRect::new(w, h, dw, dh);
     let cols: Vec<usize> = (0..r.width)
         .map(|x| source_index(x, w, r.width) * 3)
         .collect();
     let row_bytes = r.width * 3;
-    let mut previous: Option<(usize, usize)> = None; // (source row, its start in dst)
-    for y in 0..r.height {
-        let sy = source_index(y, h, r.height);
-        let start = ((r.y0 + y) * dw + r.x0) * 3;
-        match previous {
-            Some((py, pstart)) if py == sy => dst.copy_within(pstart..pstart + row_bytes, start),
-            _ => {
-                let src_row = &src[sy * w * 3..(sy + 1) * w * 3];
-                let row = &mut dst[start..start + row_bytes];
-                for (px, &s) in row.chunks_exact_mut(3).zip(&cols) {
-                    px.copy_from_slice(&src_row[s..s + 3]);
-                }
-            }
+    for y in r.y0..r.y0 + r.height {
+        let Some(sy) = rows[y] else { continue };
+        let start = (y * dw + r.x0) * 3;
+        if y > r.y0 && rows[y - 1] == Some(sy) {
+            let above = start - dw * 3;
+            dst.copy_within(above..above + row_bytes, start);
+            continue;
         }
-        previous = Some((sy, start));
+        let src_row = &src[sy * w * 3..(sy + 1) * w * 3];
+        let row = &mut dst[start..start + row_bytes];
+        for (px, &s) in row.chunks_exact_mut(3).zip(&cols) {
+            px.copy_from_slice(&src_row[s..s + 3]);
+        }
     }
+    rows
 }
 
 #[cfg(test)]

@@ -1,6 +1,6 @@
 //! [`ViewRenderer`]: a mode's output as the bytes of one published stream.
 
-use super::letterbox::{letterbox_rgb8, source_index, source_rows, LetterboxRect};
+use super::letterbox::{letterbox_rgb8, source_index, LetterboxRect};
 use super::pack::{rgb8_to_yuv444_planes, yuv444_planes_mut, PackError, Packer, Src};
 use super::PixelFormat;
 use crate::display::{DisplayMap, DisplayRange};
@@ -84,8 +84,7 @@ impl ViewRenderer {
         self.rgb.resize(w * h * 3, 0);
         display.render_output_rgb8(output, &mut self.rgb);
         self.scaled.resize(dw * dh * 3, 0);
-        letterbox_rgb8(&self.rgb, w, h, &mut self.scaled, dw, dh);
-        let rows = source_rows(w, h, dw, dh);
+        let rows = letterbox_rgb8(&self.rgb, w, h, &mut self.scaled, dw, dh);
         self.packer
             .rgb8_rows(Src::packed(&self.scaled, dw, dh, 3), &mut self.frame, |y| {
                 rows[y] == rows[y - 1]
